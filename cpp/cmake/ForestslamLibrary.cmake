@@ -1,0 +1,10 @@
+# forestslam_add_library(<concern> SOURCES ... [DEPENDS ...]): one small library per concern.
+function(forestslam_add_library concern)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPENDS" ${ARGN})
+  set(target forestslam_${concern})
+  add_library(${target} STATIC ${ARG_SOURCES})
+  target_include_directories(${target} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(${target} PUBLIC Eigen3::Eigen ${ARG_DEPENDS})
+  target_compile_options(${target} PRIVATE -Wall -Wextra)
+  add_library(forestslam::${concern} ALIAS ${target})
+endfunction()

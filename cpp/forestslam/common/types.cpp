@@ -1,0 +1,25 @@
+#include "forestslam/common/types.hpp"
+
+namespace forestslam {
+
+Points3 finiteRows(const Eigen::Ref<const Points3> &points) {
+    std::vector<int> keep;
+    keep.reserve(points.rows());
+    for (Eigen::Index i = 0; i < points.rows(); ++i) {
+        if (points.row(i).allFinite()) keep.push_back(static_cast<int>(i));
+    }
+    return selectRows(points, keep);
+}
+
+Points3 selectRows(const Eigen::Ref<const Points3> &points, const std::vector<int> &indices) {
+    Points3 out(indices.size(), 3);
+    for (size_t k = 0; k < indices.size(); ++k) out.row(k) = points.row(indices[k]);
+    return out;
+}
+
+Points3 transformPoints(const Pose3 &T, const Eigen::Ref<const Points3> &points) {
+    Points3 out = (points * T.linear().transpose()).rowwise() + T.translation().transpose();
+    return out;
+}
+
+}  // namespace forestslam

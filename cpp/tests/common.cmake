@@ -1,0 +1,2 @@
+forestslam_add_test(types common)
+forestslam_add_test(pcl_adapter common)

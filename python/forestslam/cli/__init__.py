@@ -1,0 +1,1 @@
+"""Command-line interface (`forestslam ...`). Commands import their heavy modules lazily."""

@@ -1,0 +1,13 @@
+"""`forestslam detect` (not wired yet)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("detect", help="(not available yet)")
+    def _command() -> None:
+        from forestslam.errors import ForestSlamError
+
+        raise ForestSlamError("'detect' is not available in this build yet")

@@ -1,0 +1,13 @@
+"""`forestslam simulate` (not wired yet)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("simulate", help="(not available yet)")
+    def _command() -> None:
+        from forestslam.errors import ForestSlamError
+
+        raise ForestSlamError("'simulate' is not available in this build yet")
