@@ -8,6 +8,7 @@ void define_common(pybind11::module_ &m);
 void define_io(pybind11::module_ &m);
 void define_sim(pybind11::module_ &m);
 void define_perception(pybind11::module_ &m);
+void define_features(pybind11::module_ &m);
 void define_registration(pybind11::module_ &m);
 void define_localization(pybind11::module_ &m);
 

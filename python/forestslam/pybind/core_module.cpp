@@ -9,6 +9,7 @@ PYBIND11_MODULE(_core, m) {
     forestslam::python::define_io(m);
     forestslam::python::define_sim(m);
     forestslam::python::define_perception(m);
+    forestslam::python::define_features(m);
     forestslam::python::define_registration(m);
     forestslam::python::define_localization(m);
 }

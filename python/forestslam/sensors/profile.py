@@ -1,0 +1,113 @@
+"""A LiDAR's geometry, noise and range-image layout, as the simulator and perception need it."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from forestslam.errors import InputError
+
+KINDS = ("spinning", "solid_state", "tls", "map")
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    """Vertical angles are `channels` beams evenly spread over `vertical_fov_deg` unless
+    `vertical_angles_deg` lists them. `intensity_threshold` None means the sensor has no
+    usable intensity (the intensity filter is skipped)."""
+
+    name: str
+    kind: str
+    channels: int
+    vertical_fov_deg: tuple[float, float]
+    horizontal_fov_deg: float
+    azimuth_resolution_deg: float
+    rate_hz: float
+    range_min_m: float
+    range_max_m: float
+    range_noise_m: float
+    dropout_rate: float
+    image_rows: int
+    image_cols: int
+    intensity_threshold: float | None
+    vertical_angles_deg: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise InputError(f"sensor {self.name}: kind must be one of {KINDS}, not {self.kind!r}")
+        if not 0 <= self.range_min_m < self.range_max_m:
+            raise InputError(f"sensor {self.name}: need 0 <= range_min_m < range_max_m")
+        if self.vertical_angles_deg is not None and len(self.vertical_angles_deg) != self.channels:
+            raise InputError(f"sensor {self.name}: vertical_angles_deg must list {self.channels}")
+
+    @property
+    def vertical_angles_rad(self) -> np.ndarray:
+        """(channels,) beam elevations in radians, ascending."""
+        if self.vertical_angles_deg is not None:
+            return np.sort(np.radians(np.asarray(self.vertical_angles_deg, dtype=np.float64)))
+        lo, hi = self.vertical_fov_deg
+        return np.radians(np.linspace(lo, hi, self.channels))
+
+    @property
+    def theta_v_rad(self) -> float:
+        """Vertical angular resolution (mean beam spacing), radians: the paper's theta_V."""
+        if self.channels < 2:
+            return float(np.radians(self.azimuth_resolution_deg))
+        return float(np.mean(np.diff(self.vertical_angles_rad)))
+
+    @property
+    def has_range_image(self) -> bool:
+        return self.kind in ("spinning", "solid_state") and self.image_rows > 0
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["vertical_fov_deg"] = list(self.vertical_fov_deg)
+        if self.vertical_angles_deg is not None:
+            d["vertical_angles_deg"] = list(self.vertical_angles_deg)
+        return d
+
+
+def available_profiles() -> list[str]:
+    folder = resources.files("forestslam.sensors") / "profiles"
+    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def _from_mapping(data: dict, where: str) -> SensorProfile:
+    fields = {f.name for f in dataclasses.fields(SensorProfile)}
+    unknown = sorted(set(data) - fields)
+    missing = sorted(
+        f.name
+        for f in dataclasses.fields(SensorProfile)
+        if f.name not in data and f.default is dataclasses.MISSING
+    )
+    if unknown or missing:
+        raise InputError(f"{where}: unknown keys {unknown}, missing keys {missing}")
+    data = dict(data)
+    data["vertical_fov_deg"] = tuple(data["vertical_fov_deg"])
+    if data.get("vertical_angles_deg") is not None:
+        data["vertical_angles_deg"] = tuple(data["vertical_angles_deg"])
+    return SensorProfile(**data)
+
+
+def load_profile(name_or_path: str | Path | SensorProfile) -> SensorProfile:
+    """A shipped profile by name (vlp16, hdl32, os1-64, rs-m1, tls, map) or a YAML file."""
+    if isinstance(name_or_path, SensorProfile):
+        return name_or_path
+    text = str(name_or_path)
+    path = Path(text)
+    if path.suffix in (".yaml", ".yml") or path.is_file():
+        if not path.is_file():
+            raise InputError(f"{path}: sensor profile file not found")
+        return _from_mapping(yaml.safe_load(path.read_text()) or {}, str(path))
+    if text not in available_profiles():
+        raise InputError(
+            f"unknown sensor {text!r}; shipped: {', '.join(available_profiles())}"
+            " (or give a profile YAML file)"
+        )
+    resource = resources.files("forestslam.sensors") / "profiles" / f"{text}.yaml"
+    return _from_mapping(yaml.safe_load(resource.read_text()), text)
