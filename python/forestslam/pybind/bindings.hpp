@@ -11,5 +11,6 @@ void define_perception(pybind11::module_ &m);
 void define_features(pybind11::module_ &m);
 void define_registration(pybind11::module_ &m);
 void define_localization(pybind11::module_ &m);
+void define_tls(pybind11::module_ &m);
 
 }  // namespace forestslam::python
