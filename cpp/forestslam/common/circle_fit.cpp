@@ -1,0 +1,260 @@
+#include "forestslam/common/circle_fit.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+namespace forestslam {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+std::vector<int> finiteIndices(const Eigen::Ref<const Points2> &xy) {
+    std::vector<int> rows;
+    rows.reserve(static_cast<size_t>(xy.rows()));
+    for (Eigen::Index i = 0; i < xy.rows(); ++i) {
+        if (std::isfinite(xy(i, 0)) && std::isfinite(xy(i, 1))) rows.push_back(static_cast<int>(i));
+    }
+    return rows;
+}
+
+// Taubin fit (Newton on the characteristic polynomial, as in Chernov's formulation) of the
+// given rows. Centred on the mean for numerical stability.
+bool taubin(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows, Eigen::Vector2d &c,
+            double &r) {
+    const size_t n = rows.size();
+    if (n < 3) return false;
+    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+    for (int i : rows) mean += xy.row(i).transpose();
+    mean /= static_cast<double>(n);
+    double mxx = 0, myy = 0, mxy = 0, mxz = 0, myz = 0, mzz = 0;
+    double extent = 0;
+    for (int i : rows) {
+        const double x = xy(i, 0) - mean.x(), y = xy(i, 1) - mean.y(), z = x * x + y * y;
+        mxx += x * x;
+        myy += y * y;
+        mxy += x * y;
+        mxz += x * z;
+        myz += y * z;
+        mzz += z * z;
+        extent = std::max(extent, z);
+    }
+    const double inv = 1.0 / static_cast<double>(n);
+    mxx *= inv, myy *= inv, mxy *= inv, mxz *= inv, myz *= inv, mzz *= inv;
+    extent = std::sqrt(extent);
+    if (!(extent > 0)) return false;
+    const double mz = mxx + myy;
+    const double cov_xy = mxx * myy - mxy * mxy;
+    // Collinear (or nearly): the smaller eigenvalue of the scatter vanishes.
+    const double tr = mxx + myy;
+    const double lam_min = 0.5 * (tr - std::sqrt(std::max(0.0, tr * tr - 4.0 * cov_xy)));
+    if (lam_min <= 1e-12 * tr) return false;
+    const double var_z = mzz - mz * mz;
+    const double a3 = 4.0 * mz;
+    const double a2 = -3.0 * mz * mz - mzz;
+    const double a1 = var_z * mz + 4.0 * cov_xy * mz - mxz * mxz - myz * myz;
+    const double a0 =
+        mxz * (mxz * myy - myz * mxy) + myz * (myz * mxx - mxz * mxy) - var_z * cov_xy;
+    const double a22 = a2 + a2, a33 = a3 + a3 + a3;
+    double x = 0, y = a0;
+    for (int it = 0; it < 99; ++it) {
+        const double dy = a1 + x * (a22 + a33 * x);
+        const double xnew = x - y / dy;
+        if (xnew == x || !std::isfinite(xnew)) break;
+        const double ynew = a0 + xnew * (a1 + xnew * (a2 + xnew * a3));
+        if (std::abs(ynew) >= std::abs(y)) break;
+        x = xnew;
+        y = ynew;
+    }
+    const double det = x * x - x * mz + cov_xy;
+    if (det == 0.0) return false;
+    const double cx = (mxz * (myy - x) - myz * mxy) / det / 2.0;
+    const double cy = (myz * (mxx - x) - mxz * mxy) / det / 2.0;
+    c = Eigen::Vector2d(cx, cy) + mean;
+    r = std::sqrt(cx * cx + cy * cy + mz);
+    // A radius far beyond the data's extent is a line in disguise.
+    return std::isfinite(r) && std::isfinite(c.x()) && std::isfinite(c.y()) && r < 1e4 * extent;
+}
+
+bool circleFrom3(const Eigen::Vector2d &p, const Eigen::Vector2d &q, const Eigen::Vector2d &s,
+                 Eigen::Vector2d &c, double &r) {
+    const Eigen::Vector2d b = q - p, d = s - p;
+    const double den = 2.0 * (b.x() * d.y() - b.y() * d.x());
+    const double scale = b.squaredNorm() * d.squaredNorm();
+    if (std::abs(den) <= 1e-9 * std::sqrt(scale) || scale == 0.0) return false;
+    const double b2 = b.squaredNorm(), d2 = d.squaredNorm();
+    const Eigen::Vector2d u((d.y() * b2 - b.y() * d2) / den, (b.x() * d2 - d.x() * b2) / den);
+    c = p + u;
+    r = u.norm();
+    return std::isfinite(r);
+}
+
+double tukeyWeight(double e, double c) {
+    const double u = e / c;
+    if (std::abs(u) >= 1.0) return 0.0;
+    const double t = 1.0 - u * u;
+    return t * t;
+}
+
+// Geometric LM on (cx, cy, r) minimising sum w_i (|p_i - c| - r)^2, Tukey weights with scale
+// `tukey_c` re-evaluated every iteration (IRLS).
+void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                     double tukey_c, int iterations, Eigen::Vector2d &c, double &r) {
+    double lambda = 1e-3;
+    auto cost = [&](const Eigen::Vector2d &cc, double rr, const std::vector<double> &w) {
+        double s = 0;
+        for (size_t k = 0; k < rows.size(); ++k) {
+            const double e = (xy.row(rows[k]).transpose() - cc).norm() - rr;
+            s += w[k] * e * e;
+        }
+        return s;
+    };
+    std::vector<double> w(rows.size());
+    for (int it = 0; it < iterations; ++it) {
+        Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+        Eigen::Vector3d Jte = Eigen::Vector3d::Zero();
+        double wsum = 0;
+        for (size_t k = 0; k < rows.size(); ++k) {
+            const Eigen::Vector2d dvec = xy.row(rows[k]).transpose() - c;
+            const double dist = dvec.norm();
+            const double e = dist - r;
+            w[k] = tukeyWeight(e, tukey_c);
+            wsum += w[k];
+            if (w[k] == 0.0 || dist == 0.0) continue;
+            const Eigen::Vector3d J(-dvec.x() / dist, -dvec.y() / dist, -1.0);
+            JtJ += w[k] * J * J.transpose();
+            Jte += w[k] * J * e;
+        }
+        if (wsum < 3.0) return;
+        const double before = cost(c, r, w);
+        bool improved = false;
+        for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
+            Eigen::Matrix3d A = JtJ;
+            A.diagonal() *= (1.0 + lambda);
+            const Eigen::Vector3d step = A.ldlt().solve(-Jte);
+            if (!step.allFinite()) return;
+            const Eigen::Vector2d cn = c + step.head<2>();
+            const double rn = r + step(2);
+            if (rn > 0 && cost(cn, rn, w) <= before) {
+                c = cn;
+                r = rn;
+                lambda = std::max(lambda * 0.3, 1e-9);
+                improved = true;
+                if (step.norm() < 1e-9) return;
+            } else {
+                lambda *= 10.0;
+            }
+        }
+        if (!improved) return;
+    }
+}
+
+std::vector<int> inliersOf(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                           const Eigen::Vector2d &c, double r, double threshold) {
+    std::vector<int> in;
+    for (int i : rows) {
+        if (std::abs((xy.row(i).transpose() - c).norm() - r) <= threshold) in.push_back(i);
+    }
+    return in;
+}
+
+void finish(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &opt, CircleFit &fit) {
+    double ss = 0;
+    for (int i : fit.inlier_indices) {
+        const double e = (xy.row(i).transpose() - fit.centre).norm() - fit.radius;
+        ss += e * e;
+    }
+    fit.inliers = static_cast<int>(fit.inlier_indices.size());
+    fit.rms_m = fit.inliers > 0 ? std::sqrt(ss / fit.inliers) : 0.0;
+    fit.arc_coverage = arcCoverage(xy, fit.inlier_indices, fit.centre, opt.arc_sectors);
+}
+
+}  // namespace
+
+double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                   const Eigen::Vector2d &centre, int sectors) {
+    if (sectors <= 0 || rows.empty()) return 0.0;
+    std::vector<char> hit(static_cast<size_t>(sectors), 0);
+    for (int i : rows) {
+        const double a = std::atan2(xy(i, 1) - centre.y(), xy(i, 0) - centre.x()) + kPi;
+        int s = static_cast<int>(a / (2.0 * kPi) * sectors);
+        hit[static_cast<size_t>(std::clamp(s, 0, sectors - 1))] = 1;
+    }
+    return static_cast<double>(std::count(hit.begin(), hit.end(), 1)) / sectors;
+}
+
+CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {
+    CircleFit fit;
+    std::vector<int> rows = finiteIndices(xy);
+    Eigen::Vector2d c;
+    double r;
+    if (!taubin(xy, rows, c, r)) return fit;
+    fit.valid = true;
+    fit.centre = c;
+    fit.radius = r;
+    fit.inlier_indices = rows;
+    CircleFitOptions opt;
+    finish(xy, opt, fit);
+    return fit;
+}
+
+CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &opt) {
+    CircleFit fit;
+    const std::vector<int> rows = finiteIndices(xy);
+    const int n = static_cast<int>(rows.size());
+    if (n < 3 || !(opt.inlier_threshold_m > 0)) return fit;
+    const double thr = opt.inlier_threshold_m;
+    auto inBounds = [&](double r) { return r >= opt.min_radius_m && r <= opt.max_radius_m; };
+
+    // 1. Consensus: RANSAC over 3-point circles, adaptive number of trials.
+    std::mt19937 rng(opt.seed);
+    std::uniform_int_distribution<int> pick(0, n - 1);
+    std::vector<int> best;
+    int trials = opt.max_ransac_iterations;
+    for (int it = 0; it < trials; ++it) {
+        const int a = pick(rng), b = pick(rng), s = pick(rng);
+        if (a == b || b == s || a == s) continue;
+        Eigen::Vector2d c;
+        double r;
+        if (!circleFrom3(xy.row(rows[a]).transpose(), xy.row(rows[b]).transpose(),
+                         xy.row(rows[s]).transpose(), c, r) ||
+            !inBounds(r))
+            continue;
+        std::vector<int> in = inliersOf(xy, rows, c, r, thr);
+        if (in.size() > best.size()) {
+            best.swap(in);
+            const double w = static_cast<double>(best.size()) / n;
+            const double p_fail = 1.0 - w * w * w;
+            if (p_fail <= 1e-12) break;
+            const int need = static_cast<int>(std::ceil(std::log(0.01) / std::log(p_fail)));
+            trials = std::min(opt.max_ransac_iterations, std::max(need, 10));
+        }
+    }
+    // No minimal sample in bounds (or all collinear): try the algebraic fit of everything.
+    const std::vector<int> &seed_rows = best.size() >= 3 ? best : rows;
+
+    // 2. Algebraic fit of the consensus set; 3. robust geometric refinement on all points.
+    Eigen::Vector2d c;
+    double r;
+    if (!taubin(xy, seed_rows, c, r)) return fit;
+    for (int round = 0; round < 3; ++round) {
+        refineGeometric(xy, rows, 2.5 * thr, opt.refine_iterations, c, r);
+    }
+    fit.inlier_indices = inliersOf(xy, rows, c, r, thr);
+    if (fit.inlier_indices.size() < 3 || !std::isfinite(r) || !inBounds(r)) {
+        fit.inlier_indices.clear();
+        return fit;
+    }
+    // Final least-squares polish on the inliers only (plain weights within the threshold).
+    refineGeometric(xy, fit.inlier_indices, 1e6, opt.refine_iterations, c, r);
+    if (!inBounds(r)) return CircleFit{};
+    fit.valid = true;
+    fit.centre = c;
+    fit.radius = r;
+    fit.inlier_indices = inliersOf(xy, rows, c, r, thr);
+    finish(xy, opt, fit);
+    return fit;
+}
+
+}  // namespace forestslam

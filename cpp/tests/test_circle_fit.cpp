@@ -1,0 +1,125 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "forestslam/common/circle_fit.hpp"
+
+using forestslam::CircleFit;
+using forestslam::CircleFitOptions;
+using forestslam::Points2;
+
+namespace {
+
+// Points on an arc [a0, a1] (radians) of a circle, with Gaussian radial noise.
+Points2 arc(double cx, double cy, double r, double a0, double a1, int n, double noise,
+            unsigned seed) {
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> g(0.0, noise);
+    Points2 p(n, 2);
+    for (int i = 0; i < n; ++i) {
+        const double a = a0 + (a1 - a0) * i / std::max(1, n - 1);
+        const double rr = r + (noise > 0 ? g(rng) : 0.0);
+        p.row(i) << cx + rr * std::cos(a), cy + rr * std::sin(a);
+    }
+    return p;
+}
+
+}  // namespace
+
+TEST(CircleFit, ExactFullCircle) {
+    const Points2 p = arc(3.0, -2.0, 0.25, 0.0, 2 * M_PI * 0.99, 60, 0.0, 1);
+    const CircleFit f = forestslam::fitCircle(p);
+    ASSERT_TRUE(f.valid);
+    EXPECT_NEAR(f.centre.x(), 3.0, 1e-6);
+    EXPECT_NEAR(f.centre.y(), -2.0, 1e-6);
+    EXPECT_NEAR(f.radius, 0.25, 1e-6);
+    EXPECT_EQ(f.inliers, 60);
+    EXPECT_LT(f.rms_m, 1e-6);
+    EXPECT_GT(f.arc_coverage, 0.95);
+    const CircleFit a = forestslam::fitCircleAlgebraic(p);
+    ASSERT_TRUE(a.valid);
+    EXPECT_NEAR(a.radius, 0.25, 1e-6);
+}
+
+TEST(CircleFit, NoisyThirdOfAStemAsALidarSeesIt) {
+    // 120 deg arc, 5 mm noise, radius 0.15 m, far from the origin.
+    double worst = 0.0;
+    for (unsigned seed = 0; seed < 20; ++seed) {
+        const Points2 p = arc(12.0, 7.0, 0.15, 1.0, 1.0 + 2 * M_PI / 3, 40, 0.005, seed);
+        CircleFitOptions o;
+        o.inlier_threshold_m = 0.015;
+        const CircleFit f = forestslam::fitCircle(p, o);
+        ASSERT_TRUE(f.valid);
+        worst = std::max(worst, std::abs(f.radius - 0.15));
+        EXPECT_NEAR(f.arc_coverage, 1.0 / 3.0, 0.06);
+        EXPECT_NEAR(f.rms_m, 0.005, 0.003);
+    }
+    EXPECT_LT(worst, 0.02);  // radius within 2 cm on every seed
+}
+
+TEST(CircleFit, RobustToOutliers) {
+    Points2 p = arc(1.0, 1.0, 0.2, -1.0, 1.5, 50, 0.003, 7);
+    Points2 all(80, 2);
+    all.topRows(50) = p;
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<double> u(0.5, 1.7);
+    for (int i = 50; i < 80; ++i) all.row(i) << u(rng), u(rng);  // 37 % clutter (branches)
+    CircleFitOptions o;
+    o.inlier_threshold_m = 0.01;
+    const CircleFit f = forestslam::fitCircle(all, o);
+    ASSERT_TRUE(f.valid);
+    EXPECT_NEAR(f.centre.x(), 1.0, 0.01);
+    EXPECT_NEAR(f.centre.y(), 1.0, 0.01);
+    EXPECT_NEAR(f.radius, 0.2, 0.01);
+    EXPECT_GE(f.inliers, 48);
+    EXPECT_LE(f.inliers, 56);
+    // The plain algebraic fit is pulled away by the clutter: robustness matters.
+    const CircleFit a = forestslam::fitCircleAlgebraic(all);
+    EXPECT_GT(std::abs(a.radius - 0.2) + (a.centre - Eigen::Vector2d(1, 1)).norm(), 0.03);
+}
+
+TEST(CircleFit, DegenerateInputIsInvalidNotACrash) {
+    EXPECT_FALSE(forestslam::fitCircle(Points2(0, 2)).valid);
+    Points2 two(2, 2);
+    two << 0, 0, 1, 1;
+    EXPECT_FALSE(forestslam::fitCircle(two).valid);
+    EXPECT_FALSE(forestslam::fitCircleAlgebraic(two).valid);
+    Points2 line(20, 2);
+    for (int i = 0; i < 20; ++i) line.row(i) << 0.1 * i, 0.5 + 0.2 * i;
+    EXPECT_FALSE(forestslam::fitCircle(line).valid);
+    EXPECT_FALSE(forestslam::fitCircleAlgebraic(line).valid);
+    Points2 same(10, 2);
+    same.setConstant(2.0);
+    EXPECT_FALSE(forestslam::fitCircle(same).valid);
+    Points2 nan(5, 2);
+    nan.setConstant(std::numeric_limits<double>::quiet_NaN());
+    EXPECT_FALSE(forestslam::fitCircle(nan).valid);
+}
+
+TEST(CircleFit, NonFiniteRowsAreIgnoredAndIndicesReferToInput) {
+    Points2 p = arc(0.0, 0.0, 0.3, 0.0, 3.0, 30, 0.0, 1);
+    p(4, 0) = std::numeric_limits<double>::quiet_NaN();
+    const CircleFit f = forestslam::fitCircle(p);
+    ASSERT_TRUE(f.valid);
+    EXPECT_NEAR(f.radius, 0.3, 1e-6);
+    EXPECT_EQ(f.inliers, 29);
+    for (int i : f.inlier_indices) EXPECT_NE(i, 4);
+}
+
+TEST(CircleFit, RadiusBoundsRejectImpossibleFits) {
+    const Points2 p = arc(0.0, 0.0, 2.0, 0.0, 1.0, 30, 0.0, 1);  // a 4 m "stem"
+    CircleFitOptions o;
+    o.max_radius_m = 1.0;
+    EXPECT_FALSE(forestslam::fitCircle(p, o).valid);
+    o.max_radius_m = 3.0;
+    EXPECT_TRUE(forestslam::fitCircle(p, o).valid);
+}
+
+TEST(CircleFit, ArcCoverageCountsOccupiedSectors) {
+    Points2 p(2, 2);
+    p << 1, 0.01, -1, 0.01;  // two opposite sectors out of 4
+    EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {0, 1}, Eigen::Vector2d::Zero(), 4), 0.5);
+    EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {}, Eigen::Vector2d::Zero(), 4), 0.0);
+}
