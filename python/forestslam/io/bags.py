@@ -1,0 +1,315 @@
+"""ROS bags without ROS (rosbags): PointCloud2 scans from ROS1 .bag, ROS2 .db3/.mcap, and a
+writer for both in the Velodyne driver layout (see forestslam.io.pointcloud2)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from forestslam.errors import InputError
+from forestslam.io.pointcloud2 import (
+    VELODYNE_FIELDS,
+    VELODYNE_POINT_STEP,
+    decode_pointcloud2,
+    describe_fields,
+    velodyne_array,
+)
+from forestslam.io.scan import Scan
+from forestslam.io.source import ReadStats, TopicInfo
+
+log = logging.getLogger(__name__)
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+
+def _typestore(ros1: bool):
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _message(store, ros1: bool, scan: Scan, seq: int, frame_id: str):
+    types = store.types
+    ns = int(round(scan.stamp * 1e9))
+    stamp = types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+    header_type = types["std_msgs/msg/Header"]
+    header = (
+        header_type(seq=seq, stamp=stamp, frame_id=frame_id)
+        if ros1
+        else header_type(stamp=stamp, frame_id=frame_id)
+    )
+    field_type = types["sensor_msgs/msg/PointField"]
+    fields = [field_type(name=n, offset=o, datatype=d, count=1) for n, o, d in VELODYNE_FIELDS]
+    data = velodyne_array(scan).view(np.uint8).reshape(-1)
+    return ns, types[POINTCLOUD2](
+        header=header,
+        height=1,
+        width=len(scan),
+        fields=fields,
+        is_bigendian=False,
+        point_step=VELODYNE_POINT_STEP,
+        row_step=VELODYNE_POINT_STEP * len(scan),
+        data=data,
+        is_dense=True,
+    )
+
+
+def write_scans(
+    path: str | Path,
+    scans: Iterable[Scan],
+    topic: str = "/velodyne_points",
+    frame_id: str = "velodyne",
+) -> int:
+    """Write scans as sensor_msgs/PointCloud2 (Velodyne layout, point_step 22) to a bag.
+
+    The suffix chooses the format: `.bag` ROS1, `.mcap` ROS2 MCAP, `.db3` ROS2 SQLite (the
+    storage file alone; rosbags and `ros2 bag` read it). The bag is written beside the target
+    and renamed into place at the end, so a crash never leaves a half-written file under
+    `path`; an existing file is replaced. `scans` may be a generator. Returns the scan count.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in BAG_SUFFIXES:
+        raise InputError(f"{path}: bag suffix must be one of {', '.join(BAG_SUFFIXES)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ros1 = suffix == ".bag"
+    store = _typestore(ros1)
+    tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    count = 0
+    try:
+        if ros1:
+            from rosbags.rosbag1 import Writer
+
+            target = tmpdir / path.name
+            writer = Writer(target)
+            serialize = store.serialize_ros1
+        else:
+            from rosbags.rosbag2 import StoragePlugin, Writer
+
+            plugin = StoragePlugin.MCAP if suffix == ".mcap" else StoragePlugin.SQLITE3
+            bagdir = tmpdir / path.stem
+            writer = Writer(bagdir, version=8, storage_plugin=plugin)
+            target = bagdir / f"{path.stem}{suffix}"
+            serialize = store.serialize_cdr
+        with writer:
+            conn = writer.add_connection(topic, POINTCLOUD2, typestore=store)
+            for seq, scan in enumerate(scans):
+                ns, msg = _message(store, ros1, scan, seq, frame_id)
+                writer.write(conn, ns, serialize(msg, POINTCLOUD2))
+                count += 1
+        os.replace(target, path)
+    finally:
+        shutil.rmtree(tmpdir, ignore_errors=True)
+    log.debug("wrote %d scans to %s", count, path)
+    return count
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def choose_topic(path: Path, topics: list[TopicInfo], topic: str | None) -> str:
+    """The PointCloud2 topic to read: `topic` when given, else the only one in the bag."""
+    listing = ", ".join(f"{t.name} ({t.msgtype}, {t.count} msgs)" for t in topics) or "none"
+    clouds = [t for t in topics if t.msgtype == POINTCLOUD2]
+    if topic is not None:
+        match = [t for t in topics if t.name == topic]
+        if not match:
+            raise InputError(f"{path}: no topic {topic!r}; topics: {listing}")
+        if match[0].msgtype != POINTCLOUD2:
+            raise InputError(f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2")
+        return topic
+    if len(clouds) == 1:
+        return clouds[0].name
+    if not clouds:
+        raise InputError(f"{path}: no sensor_msgs/PointCloud2 topic; topics: {listing}")
+    names = ", ".join(f"{t.name} ({t.count} msgs)" for t in clouds)
+    raise InputError(f"{path}: several PointCloud2 topics, choose one with --topic: {names}")
+
+
+class _BagSource:
+    """Shared part of the bag readers: topic choice, decoding, skip-and-count."""
+
+    format = "bag"
+
+    def __init__(self, path: Path, topic: str | None) -> None:
+        self.path = path
+        self.stats = ReadStats()
+        self._topics = self._read_topics()
+        self.topic = choose_topic(path, self._topics, topic)
+
+    def topics(self) -> list[TopicInfo]:
+        return list(self._topics)
+
+    def __len__(self) -> int:
+        return next(t.count for t in self._topics if t.name == self.topic)
+
+    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        raise NotImplementedError
+
+    def _read_topics(self) -> list[TopicInfo]:
+        raise NotImplementedError
+
+    def _deserialize(self, raw):
+        raise NotImplementedError
+
+    def _decode(self, raw, time_ns: int) -> Scan | None:
+        where = f"{self.path} {self.topic} message {self.stats.messages}"
+        try:
+            return decode_pointcloud2(self._deserialize(raw), where)
+        except Exception as exc:  # noqa: BLE001 - any decoding failure is a corrupt message
+            self.stats.skipped += 1
+            line = f"{where} at t={time_ns * 1e-9:.3f}: corrupt message skipped ({exc})"
+            self.stats.warnings.append(line)
+            log.warning(line)
+            return None
+
+    def scans(self) -> Iterator[Scan]:
+        for time_ns, raw in self._raw_messages():
+            self.stats.messages += 1
+            scan = self._decode(raw, time_ns)
+            if scan is not None:
+                self.stats.scans += 1
+                yield scan
+
+    def fields(self) -> dict[str, str]:
+        for time_ns, raw in self._raw_messages():
+            try:
+                return describe_fields(self._deserialize(raw).fields)
+            except Exception:  # noqa: BLE001, S112 - look at the next message
+                log.debug("%s: message at %d not decodable", self.path, time_ns)
+        return {}
+
+
+class Ros1BagSource(_BagSource):
+    """ROS1 .bag via rosbags; a bag without a usable index is walked (ros1_salvage)."""
+
+    format = "ros1"
+
+    def _read_topics(self) -> list[TopicInfo]:
+        from rosbags.rosbag1 import Reader, ReaderError
+
+        from forestslam.io import ros1_salvage
+
+        self._store = _typestore(True)
+        self._salvage = None
+        try:
+            with Reader(self.path) as reader:
+                return [
+                    TopicInfo(name, info.msgtype or "?", info.msgcount)
+                    for name, info in sorted(reader.topics.items())
+                ]
+        except ReaderError as exc:
+            with self.path.open("rb") as f:
+                if f.read(len(ros1_salvage.MAGIC)) != ros1_salvage.MAGIC:
+                    raise InputError(f"{self.path}: not a ROS1 bag ({exc})") from None
+            index = ros1_salvage.build_index(self.path)
+            self._salvage = ros1_salvage.SalvageReader(self.path, index)
+            msgs = len(index.entries)
+            line = (
+                f"{self.path}: bag index unusable ({exc}); read {msgs} messages by walking "
+                f"the chunks"
+            )
+            if index.damaged:
+                self.stats.lost_bytes = index.lost_bytes
+                pct = 100.0 * index.lost_bytes / max(index.size, 1)
+                line += (
+                    f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
+                    f"({pct:.1f} %) at the end"
+                )
+            self.stats.warnings.append(line)
+            log.warning(line)
+            from rosbags.typesys.msg import get_types_from_msg
+
+            for conn in index.connections.values():
+                if conn.msgtype and conn.msgtype not in self._store.types and conn.msgdef:
+                    try:
+                        self._store.register(get_types_from_msg(conn.msgdef, conn.msgtype))
+                    except Exception:  # noqa: BLE001 - unknown types are listed, not read
+                        log.debug("cannot register %s", conn.msgtype)
+            by_topic: dict[str, TopicInfo] = {}
+            for conn in index.connections.values():
+                msgtype = _normalize_msgtype(conn.msgtype)
+                t = by_topic.setdefault(conn.topic, TopicInfo(conn.topic, msgtype, 0))
+                t.count += conn.count
+            return sorted(by_topic.values(), key=lambda t: t.name)
+
+    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        if self._salvage is not None:
+            conns = {
+                c.conn for c in self._salvage.index.connections.values() if c.topic == self.topic
+            }
+            for _conn, time_ns, raw in self._salvage.messages(conns):
+                yield time_ns, raw
+            return
+        from rosbags.rosbag1 import Reader, ReaderError
+
+        with Reader(self.path) as reader:
+            conns = [c for c in reader.connections if c.topic == self.topic]
+            try:
+                for _conn, time_ns, raw in reader.messages(connections=conns):
+                    yield time_ns, raw
+            except (ReaderError, OSError, ValueError, EOFError) as exc:
+                # A damaged chunk ends rosbags' iteration: the rest of that chunk is lost.
+                self.stats.skipped += 1
+                line = f"{self.path}: damaged chunk, stopped reading ({exc})"
+                self.stats.warnings.append(line)
+                log.warning(line)
+
+    def _deserialize(self, raw):
+        return self._store.deserialize_ros1(raw, POINTCLOUD2)
+
+
+def _normalize_msgtype(name: str) -> str:
+    parts = name.split("/")
+    return f"{parts[0]}/msg/{parts[-1]}" if len(parts) == 2 else name
+
+
+class Ros2BagSource(_BagSource):
+    """ROS2 bag: a directory with metadata.yaml, or a single .db3 or .mcap storage file."""
+
+    def __init__(self, path: Path, topic: str | None) -> None:
+        self.format = "ros2-" + ("dir" if path.is_dir() else path.suffix.lstrip(".").lower())
+        super().__init__(path, topic)
+
+    def _open(self):
+        from rosbags.rosbag2 import Reader
+
+        return Reader(self.path)
+
+    def _read_topics(self) -> list[TopicInfo]:
+        self._store = _typestore(False)
+        try:
+            with self._open() as reader:
+                return [
+                    TopicInfo(name, info.msgtype or "?", info.msgcount)
+                    for name, info in sorted(reader.topics.items())
+                ]
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - rosbags raises several types here
+            raise InputError(f"{self.path}: cannot read ROS2 bag ({exc})") from None
+
+    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        with self._open() as reader:
+            conns = [c for c in reader.connections if c.topic == self.topic]
+            try:
+                for _conn, time_ns, raw in reader.messages(connections=conns):
+                    yield time_ns, raw
+            except Exception as exc:  # noqa: BLE001 - storage damage ends the iteration
+                self.stats.skipped += 1
+                line = f"{self.path}: damaged storage, stopped reading ({exc})"
+                self.stats.warnings.append(line)
+                log.warning(line)
+
+    def _deserialize(self, raw):
+        return self._store.deserialize_cdr(raw, POINTCLOUD2)

@@ -1,0 +1,93 @@
+"""From a structured point array (any field names a driver uses) to a `Scan`.
+
+Accepted field names, first match wins (matching ignores case):
+- position: `x`, `y`, `z` (required).
+- intensity: `intensity`, `i`, `reflectivity`, `signal`.
+- ring: `ring`, `channel`, `line`, `laser_id`.
+- time: `time`, `t`, `timestamp`, `offset_time`, `time_offset`, `gps_time`.
+  Integer time fields are nanoseconds (Ouster `t`, Livox `offset_time`, uint64 stamps), float
+  fields seconds (Velodyne `time`, Hesai/Robosense `timestamp`). Values larger than 1e6 s are
+  absolute times and are made relative to the scan stamp (the stamp is the earliest point time
+  when the container gives none).
+Points with a non-finite coordinate, and points exactly at the origin (how Ouster and other
+drivers mark "no return" in organized clouds), are dropped with one mask applied to every array.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from forestslam.errors import InputError
+from forestslam.io.scan import Scan
+
+INTENSITY_NAMES = ("intensity", "i", "reflectivity", "signal")
+RING_NAMES = ("ring", "channel", "line", "laser_id")
+TIME_NAMES = ("time", "t", "timestamp", "offset_time", "time_offset", "gps_time")
+ABSOLUTE_TIME_S = 1e6
+
+
+def _find(names: tuple[str, ...], available: dict[str, str]) -> str | None:
+    for name in names:
+        if name in available:
+            return available[name]
+    return None
+
+
+def _first_component(values: np.ndarray) -> np.ndarray:
+    """A field with count > 1 arrives as (..., count): keep its first element."""
+    return values.reshape(values.shape[0], -1)[:, 0] if values.ndim > 1 else values
+
+
+def relative_time(values: np.ndarray, stamp: float | None) -> tuple[np.ndarray, float]:
+    """Per-point times (any dtype, see module doc) -> (seconds relative to stamp, stamp)."""
+    if values.dtype.kind in "iu":
+        ns = values.astype(np.int64)
+        if len(ns) and np.abs(ns).max() > ABSOLUTE_TIME_S * 1e9:
+            base_ns = int(ns.min()) if stamp is None else int(round(stamp * 1e9))
+            return (ns - base_ns).astype(np.float64) * 1e-9, base_ns * 1e-9
+        return ns.astype(np.float64) * 1e-9, 0.0 if stamp is None else stamp
+    seconds = values.astype(np.float64)
+    if len(seconds) and (biggest := np.abs(seconds).max()) > ABSOLUTE_TIME_S:
+        if not np.isfinite(biggest):
+            biggest = np.nanmax(np.abs(seconds[np.isfinite(seconds)]), initial=0.0)
+        if biggest > ABSOLUTE_TIME_S:
+            base = float(np.nanmin(seconds)) if stamp is None else stamp
+            return seconds - base, base
+    return seconds, 0.0 if stamp is None else stamp
+
+
+def scan_from_structured(arr: np.ndarray, stamp: float | None, where: str) -> Scan:
+    """Structured array (any shape; organized clouds are flattened row-major) -> finite Scan.
+
+    `stamp` None: taken from absolute per-point times when present, else 0.
+    """
+    names = arr.dtype.names or ()
+    available = {}
+    for name in names:
+        available.setdefault(name.lower(), name)
+    missing = [c for c in "xyz" if c not in available]
+    if missing:
+        raise InputError(f"{where}: point fields {list(names)} lack {', '.join(missing)}")
+    flat = arr.reshape(-1)
+    points = np.empty((len(flat), 3), dtype=np.float64)
+    for k, c in enumerate("xyz"):
+        points[:, k] = _first_component(flat[available[c]])
+    px, py, pz = points[:, 0], points[:, 1], points[:, 2]
+    keep = np.isfinite(px + py + pz) & ((px != 0.0) | (py != 0.0) | (pz != 0.0))
+
+    intensity = ring = time = None
+    if (name := _find(INTENSITY_NAMES, available)) is not None:
+        intensity = _first_component(flat[name]).astype(np.float32)
+    if (name := _find(RING_NAMES, available)) is not None:
+        ring = _first_component(flat[name]).astype(np.uint16)
+    if (name := _find(TIME_NAMES, available)) is not None:
+        raw = _first_component(flat[name])
+        time, stamp = relative_time(raw[keep] if stamp is None else raw, stamp)
+        if len(time) != len(flat):  # computed on kept points only (stamp from the points)
+            full = np.zeros(len(flat))
+            full[keep] = time
+            time = full
+    if stamp is None:
+        stamp = 0.0
+    scan = Scan(float(stamp), points, intensity, ring, time)
+    return scan if keep.all() else scan.select(keep)

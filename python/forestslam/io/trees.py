@@ -1,0 +1,92 @@
+"""Tree maps as CSV and GeoJSON, written atomically (a crash leaves the previous complete file)."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from forestslam.errors import InputError
+from forestslam.io.atomic import atomic_write_text
+
+
+def _columns(columns: dict[str, np.ndarray], where: Path) -> dict[str, np.ndarray]:
+    arrays = {str(k): np.asarray(v).reshape(-1) for k, v in columns.items()}
+    lengths = {len(v) for v in arrays.values()}
+    if len(lengths) > 1:
+        sizes = {k: len(v) for k, v in arrays.items()}
+        raise InputError(f"{where}: tree columns differ in length {sizes}")
+    return arrays
+
+
+def _format(values: np.ndarray) -> list[str]:
+    if values.dtype.kind in "iub":
+        return [str(int(v)) for v in values.tolist()]
+    if values.dtype.kind == "f":
+        return ["" if not np.isfinite(v) else f"{v:.6f}" for v in values.tolist()]
+    return [str(v) for v in values.tolist()]
+
+
+def write_trees_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
+    """Columns (name -> (K,) array) in the given order to CSV; NaN is written as an empty cell.
+    Floats with 6 decimals (micrometres for metres)."""
+    path = Path(path)
+    arrays = _columns(columns, path)
+    out = io.StringIO()
+    out.write(",".join(arrays) + "\n")
+    cells = [_format(v) for v in arrays.values()]
+    for row in zip(*cells, strict=True):
+        out.write(",".join(row) + "\n")
+    atomic_write_text(path, out.getvalue())
+
+
+def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """CSV with a header -> {column: float64 array} (empty cells become NaN)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: tree CSV not found")
+    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    if not lines:
+        raise InputError(f"{path}: empty tree CSV")
+    names = [n.strip() for n in lines[0].split(",")]
+    rows = [ln.split(",") for ln in lines[1:]]
+    if any(len(r) != len(names) for r in rows):
+        raise InputError(f"{path}: rows with a number of cells other than {len(names)}")
+    try:
+        table = np.array([[float(c) if c.strip() else np.nan for c in r] for r in rows])
+    except ValueError as exc:
+        raise InputError(f"{path}: non-numeric cell ({exc})") from None
+    table = table.reshape(len(rows), len(names))
+    return {name: table[:, k] for k, name in enumerate(names)}
+
+
+def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> None:
+    """A FeatureCollection of Points at (x, y[, z]) with every other column as properties.
+    Coordinates are in the map frame (metres), not WGS84, so no `crs` member is claimed."""
+    path = Path(path)
+    arrays = _columns(columns, path)
+    if "x" not in arrays or "y" not in arrays:
+        raise InputError(f"{path}: GeoJSON trees need x and y columns")
+    coord_names = ["x", "y"] + (["z"] if "z" in arrays else [])
+    props = [k for k in arrays if k not in coord_names]
+
+    def value(v):
+        v = v.item() if hasattr(v, "item") else v
+        return None if isinstance(v, float) and not np.isfinite(v) else v
+
+    n = len(arrays["x"])
+    features = [
+        {
+            "type": "Feature",
+            "geometry": {
+                "type": "Point",
+                "coordinates": [round(float(arrays[c][i]), 6) for c in coord_names],
+            },
+            "properties": {k: value(arrays[k][i]) for k in props},
+        }
+        for i in range(n)
+    ]
+    text = json.dumps({"type": "FeatureCollection", "features": features}, indent=1)
+    atomic_write_text(path, text + "\n")
