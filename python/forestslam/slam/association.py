@@ -1,0 +1,146 @@
+"""Data association of observed stems with mapped trees.
+
+Two steps, both vectorised:
+1. Consensus shift. Drift since a tree was mapped moves all of its observations the same way,
+   so the best planar shift is the one most observations agree on: every observation /
+   landmark pair within the search radius (3 sigma of the pose marginal, clamped) proposes a
+   shift, each shift is scored by how many observations then land within `consensus_inlier_m`
+   of a landmark, and the winner (if it has enough support) is refined to a rigid 2D
+   correction by least squares on its inliers. With too little support no correction is made.
+2. Gated one-to-one assignment. Each corrected observation / landmark pair gets a squared
+   Mahalanobis distance with S = (sigma_obs^2 + sigma_lm^2) I (+ the pose covariance when no
+   correction was found); pairs above the chi2 gate, or with incompatible DBH, are excluded and
+   the rest assigned by the Hungarian method.
+Landmark covariances are approximated from their observation counts (sigma_obs / sqrt(n),
+floored) rather than taken from iSAM2 marginals, which would cost one solve per tree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from forestslam.slam.config import SlamConfig
+
+
+@dataclass
+class AssociationResult:
+    matches: np.ndarray  # (K,) landmark index per observation, -1 = none
+    correction: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3,3) planar, map<-pred
+    support: int = 0  # observations agreeing with the correction (0 = no correction)
+
+
+def rigid_2d(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rigid transform (3,3) with dst ~ R src + t for (N,2) pairs, N >= 2."""
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    h = (src - mu_s).T @ (dst - mu_d)
+    yaw = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, -s], [s, c]])
+    t = np.eye(3)
+    t[:2, :2] = rot
+    t[:2, 2] = mu_d - rot @ mu_s
+    return t
+
+
+def _apply(t: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    return xy @ t[:2, :2].T + t[:2, 2]
+
+
+def dbh_compatible(obs_dbh: np.ndarray, lm_dbh: np.ndarray, ratio: float) -> np.ndarray:
+    """Elementwise: True when either DBH is unknown or they differ by <= ratio*lm + 5 cm."""
+    known = np.isfinite(obs_dbh) & np.isfinite(lm_dbh)
+    close = np.abs(obs_dbh - lm_dbh) <= ratio * np.where(np.isfinite(lm_dbh), lm_dbh, 0) + 0.05
+    return ~known | close
+
+
+def _consensus(
+    obs: np.ndarray, lm_tree: cKDTree, lm_xy: np.ndarray, radius: float, cfg: SlamConfig
+) -> tuple[np.ndarray, int]:
+    k = len(obs)
+    cand = lm_tree.query_ball_point(obs, r=radius)
+    counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=k)
+    if counts.sum() == 0:
+        return np.eye(3), 0
+    obs_idx = np.repeat(np.arange(k), counts)
+    lm_idx = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
+    shifts = np.vstack([np.zeros((1, 2)), lm_xy[lm_idx] - obs[obs_idx]])
+    moved = (obs[None, :, :] + shifts[:, None, :]).reshape(-1, 2)
+    dist, _ = lm_tree.query(moved, distance_upper_bound=cfg.consensus_inlier_m)
+    support = np.isfinite(dist).reshape(len(shifts), k).sum(axis=1)
+    # best support; ties go to the smallest shift
+    order = np.lexsort((np.linalg.norm(shifts, axis=1), -support))
+    best = order[0]
+    if support[best] < cfg.consensus_min_support:
+        return np.eye(3), 0
+    corr = np.eye(3)
+    corr[:2, 2] = shifts[best]
+    n_in = int(support[best])
+    for _ in range(3):  # refine to a rigid correction on the inliers
+        moved = _apply(corr, obs)
+        dist, nn = lm_tree.query(moved, distance_upper_bound=cfg.consensus_inlier_m)
+        inl = np.isfinite(dist)
+        if inl.sum() < 2:
+            break
+        n_in = int(inl.sum())
+        corr = rigid_2d(obs[inl], lm_xy[nn[inl]])
+    return corr, n_in
+
+
+def associate(
+    obs_xy: np.ndarray,
+    obs_dbh: np.ndarray,
+    lm_xy: np.ndarray,
+    lm_sigma: np.ndarray,
+    lm_dbh: np.ndarray,
+    pose_cov_xy: np.ndarray,
+    cfg: SlamConfig,
+    use_consensus: bool = True,
+) -> AssociationResult:
+    """Associate observations (K,2) in the map frame (predicted pose) with landmarks (L,2).
+
+    obs_dbh (K,), lm_sigma (L,) metres, lm_dbh (L,) (NaN = unknown), pose_cov_xy (2,2) the
+    position covariance of the predicted pose. Returns matches (K,) and the planar correction
+    applied to the observations before assignment.
+    """
+    k = len(obs_xy)
+    result = AssociationResult(matches=np.full(k, -1, dtype=np.int64))
+    if k == 0 or len(lm_xy) == 0:
+        return result
+    eig = float(np.sqrt(max(np.linalg.eigvalsh(pose_cov_xy).max(), 0.0)))
+    radius = float(np.clip(3.0 * eig, cfg.search_radius_min_m, cfg.search_radius_max_m))
+    tree = cKDTree(lm_xy)
+    if use_consensus and k >= cfg.consensus_min_support:
+        result.correction, result.support = _consensus(obs_xy, tree, lm_xy, radius, cfg)
+    obs = _apply(result.correction, obs_xy)
+    var_obs = cfg.observation_sigma_m**2
+    if result.support:
+        pose_var = 0.0  # the correction has absorbed the pose error
+        search = max(cfg.search_radius_min_m, 2 * cfg.consensus_inlier_m)
+    else:
+        pose_var = eig**2
+        search = radius
+    cand = tree.query_ball_point(obs, r=search)
+    counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=k)
+    if counts.sum() == 0:
+        return result
+    oi = np.repeat(np.arange(k), counts)
+    li = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
+    e2 = np.sum((obs[oi] - lm_xy[li]) ** 2, axis=1)
+    d2 = e2 / (var_obs + lm_sigma[li] ** 2 + pose_var)
+    ok = (d2 <= cfg.association_chi2) & dbh_compatible(obs_dbh[oi], lm_dbh[li], cfg.dbh_gate_ratio)
+    if not ok.any():
+        return result
+    oi, li, d2 = oi[ok], li[ok], d2[ok]
+    uo, ro = np.unique(oi, return_inverse=True)
+    ul, rl = np.unique(li, return_inverse=True)
+    big = 1e9
+    cost = np.full((len(uo), len(ul)), big)
+    cost[ro, rl] = d2
+    r, c = linear_sum_assignment(cost)
+    good = cost[r, c] < big
+    result.matches[uo[r[good]]] = ul[c[good]]
+    return result

@@ -1,0 +1,412 @@
+"""Landmark SLAM driver: GTSAM iSAM2 over Pose2 keyframes and Point2 trees.
+
+State: the planar pose (x, y, yaw) of the sensor in the odometry world frame (the first scan's
+sensor frame). Observations are stem centres levelled by the odometry's roll and pitch, so a
+tilted sensor still gives planar range and bearing. Factors enter at keyframes only:
+BetweenFactorPose2 from the odometry motion since the previous keyframe (the summed step
+covariances plus a floor) and robust BearingRangeFactor2D to trees. A stem becomes a tree (a
+Point2 variable) only after `tentative_min_observations` keyframes saw it at the same place, so
+clutter seen once never enters the graph. Re-observing an old tree adds a factor to its old
+variable: that closes the loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from forestslam.slam.association import associate, dbh_compatible
+from forestslam.slam.config import SlamConfig
+
+log = logging.getLogger(__name__)
+
+
+def X(i: int) -> int:
+    return gtsam.symbol("x", i)
+
+
+def L(j: int) -> int:
+    return gtsam.symbol("l", j)
+
+
+def planar(T: np.ndarray) -> np.ndarray:
+    """(x, y, yaw) of a (4,4) pose; yaw of the rotated x axis projected on the plane."""
+    return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
+
+
+def pose2_matrix(p: np.ndarray) -> np.ndarray:
+    c, s = math.cos(p[2]), math.sin(p[2])
+    return np.array([[c, -s, p[0]], [s, c, p[1]], [0.0, 0.0, 1.0]])
+
+
+def matrix_pose2(m: np.ndarray) -> np.ndarray:
+    return np.array([m[0, 2], m[1, 2], math.atan2(m[1, 0], m[0, 0])])
+
+
+def lift(m: np.ndarray) -> np.ndarray:
+    """A planar (3,3) transform as a (4,4) rotation about z plus xy translation."""
+    t = np.eye(4)
+    t[:2, :2] = m[:2, :2]
+    t[:2, 3] = m[:2, 2]
+    return t
+
+
+def level_points(T_world_sensor: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Sensor-frame points (N,3) -> the levelled frame: sensor origin, world z up, sensor yaw."""
+    yaw = math.atan2(T_world_sensor[1, 0], T_world_sensor[0, 0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    rz_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return points @ (rz_t @ T_world_sensor[:3, :3]).T
+
+
+@dataclass
+class _Tentative:
+    xy: np.ndarray  # running mean, map frame
+    dbh: list = field(default_factory=list)
+    obs: list = field(default_factory=list)  # (keyframe, bearing, range, sigma_b, sigma_r)
+    last_kf: int = 0
+
+
+@dataclass
+class ScanResult:
+    keyframe: int | None  # keyframe index when this scan made one
+    landmark_ids: np.ndarray  # (K,) tree id per observation, -1 = none
+    T_map_sensor: np.ndarray  # (4,4) current best pose of this scan
+
+
+class LandmarkSlam:
+    """Feed scans in order with `add_scan`; read `trajectory()` and `landmarks()` any time."""
+
+    def __init__(self, config: SlamConfig | None = None) -> None:
+        self.cfg = config or SlamConfig()
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
+        params.relinearizeSkip = self.cfg.relinearize_skip
+        self.isam = gtsam.ISAM2(params)
+        # per scan
+        self._stamps: list[float] = []
+        self._odom: list[np.ndarray] = []  # (4,4)
+        self._scan_kf: list[int] = []  # last keyframe at or before the scan
+        # per keyframe
+        self._kf_scan: list[int] = []
+        self._kf_odom2: list[np.ndarray] = []  # planar odometry pose (3,)
+        self._kf_est = np.zeros((0, 3))  # optimised planar poses
+        # landmarks
+        self._lm_xy = np.zeros((0, 2))
+        self._lm_nobs = np.zeros(0, dtype=np.int64)
+        self._lm_dbh = np.zeros(0)
+        self._tentative: list[_Tentative] = []
+        self._cov_acc = np.zeros((3, 3))
+        self._dist_acc = 0.0
+        self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
+        self.loop_closures = 0
+        self.n_landmark_factors = 0
+
+    # ------------------------------------------------------------------ public
+    @property
+    def n_keyframes(self) -> int:
+        return len(self._kf_scan)
+
+    @property
+    def n_landmarks(self) -> int:
+        return len(self._lm_xy)
+
+    def landmarks(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tree positions (L,2) in the map frame and observation counts (L,)."""
+        return self._lm_xy.copy(), self._lm_nobs.copy()
+
+    def landmark_sigma(self) -> np.ndarray:
+        n = np.maximum(self._lm_nobs, 1)
+        return np.maximum(
+            self.cfg.observation_sigma_m / np.sqrt(n), self.cfg.landmark_sigma_floor_m
+        )
+
+    def add_scan(
+        self,
+        stamp: float,
+        T_odom: np.ndarray,
+        covariance: np.ndarray | None,
+        degraded: bool,
+        stems_xy: np.ndarray,
+        stems_dbh: np.ndarray | None = None,
+    ) -> ScanResult:
+        """One scan: odometry pose T_odom (4,4) with its step covariance (3,3) (x, y, yaw; NaN
+        or None = unknown), and the stem centres stems_xy (K,2) in the *levelled* sensor frame
+        (see `level_points`) with their DBH (K,) (NaN = unknown)."""
+        cfg = self.cfg
+        T_odom = np.asarray(T_odom, dtype=np.float64)
+        stems_xy = np.asarray(stems_xy, dtype=np.float64).reshape(-1, 2)
+        stems_dbh = (
+            np.full(len(stems_xy), np.nan)
+            if stems_dbh is None
+            else np.asarray(stems_dbh, dtype=np.float64).ravel()
+        )
+        ok = np.isfinite(stems_xy).all(axis=1)
+        rng = np.linalg.norm(stems_xy, axis=1)
+        ok &= (rng >= cfg.min_observation_range_m) & (rng <= cfg.max_observation_range_m)
+        idx = np.nonzero(ok)[0]
+        o2 = planar(T_odom)
+        first = not self._kf_scan
+        self._accumulate_covariance(covariance, degraded, o2)
+        self._stamps.append(float(stamp))
+        self._odom.append(T_odom.copy())
+        ids = np.full(len(stems_xy), -1, dtype=np.int64)
+
+        if first or self._is_keyframe(stamp, o2):
+            kf = self._add_keyframe(o2, stems_xy[idx], stems_dbh[idx], ids, idx, first)
+            self._scan_kf.append(kf)
+            pose = self._kf_est[kf]
+            return ScanResult(kf, ids, lift(pose2_matrix(pose)) @ self._level_T(T_odom))
+        self._scan_kf.append(self.n_keyframes - 1)
+        pred = self._predict(o2)
+        if len(idx) and self.n_landmarks:
+            obs = stems_xy[idx] @ pred[:2, :2].T + pred[:2, 2]
+            res = associate(
+                obs,
+                stems_dbh[idx],
+                self._lm_xy,
+                self.landmark_sigma(),
+                self._lm_dbh,
+                np.eye(2) * cfg.search_radius_min_m**2 / 9,
+                cfg,
+                use_consensus=False,
+            )
+            ids[idx] = res.matches
+        return ScanResult(None, ids, lift(pred) @ self._level_T(T_odom))
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stamps (N,) and optimised poses (N,4,4) of every scan so far, map frame.
+
+        Keyframe corrections (optimised pose composed with the inverse odometry pose) are
+        interpolated linearly in time between keyframes and applied to the odometry poses.
+        """
+        n = len(self._stamps)
+        if n == 0:
+            return np.zeros(0), np.zeros((0, 4, 4))
+        stamps = np.asarray(self._stamps)
+        odom = np.stack(self._odom)
+        kf_scan = np.asarray(self._kf_scan)
+        corr = np.stack(
+            [
+                matrix_pose2(pose2_matrix(e) @ np.linalg.inv(pose2_matrix(o)))
+                for e, o in zip(self._kf_est, self._kf_odom2, strict=True)
+            ]
+        )
+        corr[:, 2] = np.unwrap(corr[:, 2])
+        kf_t = stamps[kf_scan]
+        c = np.column_stack([np.interp(stamps, kf_t, corr[:, i]) for i in range(3)])
+        cos, sin = np.cos(c[:, 2]), np.sin(c[:, 2])
+        lifts = np.tile(np.eye(4), (n, 1, 1))
+        lifts[:, 0, 0], lifts[:, 0, 1], lifts[:, 1, 0], lifts[:, 1, 1] = cos, -sin, sin, cos
+        lifts[:, :2, 3] = c[:, :2]
+        return stamps, np.einsum("nij,njk->nik", lifts, odom)
+
+    def odometry(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self._stamps:
+            return np.zeros(0), np.zeros((0, 4, 4))
+        return np.asarray(self._stamps), np.stack(self._odom)
+
+    # ---------------------------------------------------------------- internals
+    @staticmethod
+    def _level_T(T_odom: np.ndarray) -> np.ndarray:
+        """T_odom with its planar part removed: roll, pitch and z stay (applied after lift)."""
+        o = planar(T_odom)
+        return np.linalg.inv(lift(pose2_matrix(o))) @ T_odom
+
+    def _accumulate_covariance(self, cov, degraded: bool, o2: np.ndarray) -> None:
+        cov = None if cov is None else np.asarray(cov, dtype=np.float64)
+        if cov is None or cov.shape != (3, 3) or not np.isfinite(cov).all():
+            cov = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
+        if degraded:
+            cov = cov * self.cfg.degraded_inflation**2
+        self._cov_acc = self._cov_acc + cov
+        if self._odom:
+            self._dist_acc += float(np.linalg.norm(o2[:2] - planar(self._odom[-1])[:2]))
+
+    def _is_keyframe(self, stamp: float, o2: np.ndarray) -> bool:
+        cfg = self.cfg
+        last = self._kf_odom2[-1]
+        d = float(np.linalg.norm(o2[:2] - last[:2]))
+        dyaw = abs((o2[2] - last[2] + math.pi) % (2 * math.pi) - math.pi)
+        dt = stamp - self._stamps[self._kf_scan[-1]]
+        return (
+            d >= cfg.keyframe_distance_m
+            or dyaw >= math.radians(cfg.keyframe_yaw_deg)
+            or (dt >= cfg.keyframe_max_interval_s and d >= 0.1 * cfg.keyframe_distance_m)
+        )
+
+    def _correction(self) -> np.ndarray:
+        return pose2_matrix(self._kf_est[-1]) @ np.linalg.inv(pose2_matrix(self._kf_odom2[-1]))
+
+    def _predict(self, o2: np.ndarray) -> np.ndarray:
+        """Planar (3,3) map pose predicted from the last keyframe's correction and odometry."""
+        return self._correction() @ pose2_matrix(o2)
+
+    def _odometry_noise(self) -> gtsam.noiseModel.Base:
+        cfg = self.cfg
+        floor_xy = cfg.odom_floor_xy_m + cfg.odom_floor_per_m * self._dist_acc
+        floor_yaw = math.radians(cfg.odom_floor_yaw_deg) + cfg.odom_floor_per_m * self._dist_acc
+        cov = self._cov_acc + np.diag([floor_xy**2, floor_xy**2, floor_yaw**2])
+        cov = 0.5 * (cov + cov.T)
+        return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+    def _observation_noise(self, rng: np.ndarray) -> list:
+        cfg = self.cfg
+        sb = np.maximum(math.radians(cfg.bearing_floor_deg), cfg.observation_sigma_m / rng)
+        return [(float(b), cfg.observation_sigma_m) for b in sb]
+
+    def _robust(self, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+        kind = self.cfg.robust_kernel.lower()
+        if kind == "none":
+            return base
+        est = gtsam.noiseModel.mEstimator
+        m = (
+            est.Cauchy.Create(self.cfg.robust_k)
+            if kind == "cauchy"
+            else est.Huber.Create(self.cfg.robust_k)
+        )
+        return gtsam.noiseModel.Robust.Create(m, base)
+
+    def _landmark_factor(self, kf: int, lm: int, bearing: float, rng: float, sb, sr):
+        noise = self._robust(gtsam.noiseModel.Diagonal.Sigmas(np.array([sb, sr])))
+        self.n_landmark_factors += 1
+        return gtsam.BearingRangeFactor2D(X(kf), L(lm), gtsam.Rot2.fromAngle(bearing), rng, noise)
+
+    def _add_keyframe(self, o2, obs_s, obs_dbh, ids, idx, first: bool) -> int:
+        cfg = self.cfg
+        kf = self.n_keyframes
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        if first:
+            pred = pose2_matrix(o2)
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+            graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*o2), prior))
+            pose_cov = np.zeros((2, 2))
+        else:
+            pred = self._predict(o2)
+            delta = matrix_pose2(np.linalg.inv(pose2_matrix(self._kf_odom2[-1])) @ pose2_matrix(o2))
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    X(kf - 1), X(kf), gtsam.Pose2(*delta), self._odometry_noise()
+                )
+            )
+            pose_cov = self._pose_cov[:2, :2] + self._cov_acc[:2, :2]
+        obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
+        res = associate(
+            obs_map, obs_dbh, self._lm_xy, self.landmark_sigma(), self._lm_dbh, pose_cov, cfg
+        )
+        pred = res.correction @ pred
+        obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
+        values.insert(X(kf), gtsam.Pose2(*matrix_pose2(pred)))
+        bearings = np.arctan2(obs_s[:, 1], obs_s[:, 0])
+        ranges = np.linalg.norm(obs_s, axis=1)
+        noise = self._observation_noise(ranges)
+        matched = res.matches >= 0
+        for i in np.nonzero(matched)[0]:
+            lm = int(res.matches[i])
+            graph.add(self._landmark_factor(kf, lm, bearings[i], ranges[i], *noise[i]))
+            self._lm_nobs[lm] += 1
+            if np.isfinite(obs_dbh[i]):
+                n = self._lm_nobs[lm]
+                old = self._lm_dbh[lm]
+                self._lm_dbh[lm] = (
+                    obs_dbh[i] if not np.isfinite(old) else old + (obs_dbh[i] - old) / n
+                )
+        ids[idx[matched]] = res.matches[matched]
+        if res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m:
+            self.loop_closures += 1
+        new_ids = self._update_tentatives(
+            kf, obs_map, obs_dbh, bearings, ranges, noise, ~matched, graph, values
+        )
+        for i, lm in new_ids.items():
+            ids[idx[i]] = lm
+
+        self._kf_scan.append(len(self._stamps) - 1)
+        self._kf_odom2.append(o2)
+        self.isam.update(graph, values)
+        big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
+        for _ in range(cfg.extra_updates_on_loop if big else 0):
+            self.isam.update()
+        est = self.isam.calculateEstimate()
+        self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
+        if self.n_landmarks:
+            self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
+        try:
+            self._pose_cov = self.isam.marginalCovariance(X(kf))
+        except RuntimeError:  # numerically singular: keep the previous one
+            log.debug("marginal covariance of keyframe %d unavailable", kf)
+        self._cov_acc = np.zeros((3, 3))
+        self._dist_acc = 0.0
+        return kf
+
+    def _update_tentatives(
+        self, kf, obs_map, obs_dbh, bearings, ranges, noise, unmatched, graph, values
+    ) -> dict[int, int]:
+        """Match unmatched observations to tentative trees; promote those seen often enough."""
+        cfg = self.cfg
+        self._tentative = [
+            t for t in self._tentative if kf - t.last_kf <= cfg.tentative_max_age_keyframes
+        ]
+        cand = np.nonzero(unmatched)[0]
+        if len(cand) and self.n_landmarks:  # too close to a tree: a missed association
+            d = np.min(
+                np.linalg.norm(obs_map[cand, None, :] - self._lm_xy[None, :, :], axis=2), axis=1
+            )
+            cand = cand[d >= cfg.min_landmark_separation_m]
+        promoted: dict[int, int] = {}
+        if len(cand) == 0:
+            return promoted
+        tent_xy = np.stack([t.xy for t in self._tentative]) if self._tentative else np.zeros((0, 2))
+        tent_dbh = (
+            np.array(
+                [
+                    np.nanmedian(t.dbh) if np.isfinite(t.dbh).any() else np.nan
+                    for t in self._tentative
+                ]
+            )
+            if self._tentative
+            else np.zeros(0)
+        )
+        assign = np.full(len(cand), -1, dtype=np.int64)
+        if len(tent_xy):
+            from scipy.optimize import linear_sum_assignment
+
+            dist = np.linalg.norm(obs_map[cand, None, :] - tent_xy[None, :, :], axis=2)
+            ok = (dist <= cfg.tentative_gate_m) & dbh_compatible(
+                obs_dbh[cand, None], tent_dbh[None, :], cfg.dbh_gate_ratio
+            )
+            cost = np.where(ok, dist, 1e9)
+            r, c = linear_sum_assignment(cost)
+            good = cost[r, c] < 1e9
+            assign[r[good]] = c[good]
+        for row, i in enumerate(cand):
+            entry = (kf, float(bearings[i]), float(ranges[i]), *noise[i])
+            if assign[row] < 0:
+                t = _Tentative(xy=obs_map[i].copy(), last_kf=kf)
+                self._tentative.append(t)
+            else:
+                t = self._tentative[assign[row]]
+                n = len(t.obs)
+                t.xy = t.xy + (obs_map[i] - t.xy) / (n + 1)
+                t.last_kf = kf
+            t.obs.append(entry)
+            t.dbh.append(float(obs_dbh[i]))
+            if len(t.obs) >= cfg.tentative_min_observations:
+                lm = self.n_landmarks
+                values.insert(L(lm), gtsam.Point2(*t.xy))
+                for okf, b, r_, sb, sr in t.obs:
+                    graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
+                self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
+                self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
+                d = np.asarray(t.dbh)
+                self._lm_dbh = np.append(
+                    self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan
+                )
+                promoted[int(i)] = lm
+                t.obs = []  # mark for removal
+        self._tentative = [t for t in self._tentative if t.obs]
+        return promoted

@@ -1,0 +1,195 @@
+"""Landmark SLAM: pose graph with known answers, association under noise."""
+
+import math
+
+import numpy as np
+import pytest
+
+from forestslam.evaluation import trajectory_errors, tree_errors
+from forestslam.slam import LandmarkSlam, SlamConfig, associate
+
+
+def square_path(side=20.0, step=0.1):
+    """Planar poses (N,3) around a square, turning on the spot at the corners."""
+    poses = []
+    x, y, yaw = 0.0, 0.0, 0.0
+    for _ in range(4):
+        for _ in range(int(round(side / step))):
+            poses.append((x, y, yaw))
+            x += step * math.cos(yaw)
+            y += step * math.sin(yaw)
+        for k in range(10):
+            poses.append((x, y, yaw + k * math.pi / 20))
+        yaw += math.pi / 2
+    poses.append((x, y, yaw))
+    return np.array(poses)
+
+
+def matrix(p):
+    t = np.eye(4)
+    c, s = math.cos(p[2]), math.sin(p[2])
+    t[:2, :2] = [[c, -s], [s, c]]
+    t[:2, 3] = p[:2]
+    return t
+
+
+def forest(rng, n=60):
+    xy = rng.uniform(-10, 30, size=(n * 3, 2))
+    keep = [0]
+    for i in range(1, len(xy)):  # minimum spacing 3 m
+        if np.min(np.linalg.norm(xy[keep] - xy[i], axis=1)) > 3.0:
+            keep.append(i)
+    return xy[keep][:n]
+
+
+def run(truth, trees, rng, odom_yaw_bias=0.0, obs_noise=0.0, clutter=0, cfg=None, view_m=12.0):
+    """Feed the simulated scans; odometry drifts by a yaw bias per step."""
+    slam = LandmarkSlam(cfg or SlamConfig())
+    odom = truth[0].copy()
+    for i, p in enumerate(truth):
+        if i:
+            prev = truth[i - 1]
+            c, s = math.cos(prev[2]), math.sin(prev[2])
+            d = p[:2] - prev[:2]
+            step = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], p[2] - prev[2]])
+            step[2] += odom_yaw_bias * np.linalg.norm(d) * 10
+            c, s = math.cos(odom[2]), math.sin(odom[2])
+            odom = odom + np.array([c * step[0] - s * step[1], s * step[0] + c * step[1], step[2]])
+        c, s = math.cos(p[2]), math.sin(p[2])
+        rel = trees - p[:2]
+        local = np.column_stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]])
+        vis = np.linalg.norm(local, axis=1) < view_m
+        obs = local[vis] + rng.normal(scale=obs_noise, size=(int(vis.sum()), 2))
+        if clutter:
+            obs = np.vstack([obs, rng.uniform(-12, 12, size=(clutter, 2))])
+        cov = np.diag([0.01**2, 0.01**2, math.radians(0.2) ** 2])
+        slam.add_scan(i * 0.1, matrix(odom), cov, False, obs, None)
+    return slam
+
+
+def ate(slam, truth):
+    stamps, poses = slam.trajectory()
+    gt = np.stack([matrix(p) for p in truth])
+    return trajectory_errors(stamps, poses, stamps, gt)
+
+
+def test_square_loop_exact_data_gives_exact_answer():
+    rng = np.random.default_rng(0)
+    truth = square_path()
+    trees = forest(rng)
+    slam = run(truth, trees, rng)
+    m = ate(slam, truth)
+    assert m["ate_rmse_m"] < 1e-3
+    lm, nobs = slam.landmarks()
+    t = tree_errors(
+        lm, np.full(len(lm), np.nan), trees, np.full(len(trees), 0.3), truth[:, :2], max_dist_m=11.0
+    )
+    assert t["recall"] == 1.0 and t["precision"] == 1.0
+    assert t["mean_position_error_m"] < 1e-3
+    assert (nobs >= 3).all()
+
+
+def test_square_loop_with_drift_and_noise_closes_the_loop():
+    rng = np.random.default_rng(1)
+    truth = square_path(side=30.0)
+    trees = forest(rng, 80)
+    # 0.012 deg of yaw error per 0.1 m: several metres of odometry drift over the loop
+    slam = run(
+        truth,
+        trees,
+        rng,
+        odom_yaw_bias=math.radians(0.012),
+        obs_noise=0.05,
+        clutter=1,
+        view_m=8.0,
+    )
+    stamps, odom = slam.odometry()
+    gt = np.stack([matrix(p) for p in truth])
+    m_odom = trajectory_errors(stamps, odom, stamps, gt)
+    m = ate(slam, truth)
+    assert m_odom["final_drift_m"] > 2.0
+    assert m["ate_rmse_m"] < 0.1
+    assert m["final_drift_m"] < 0.15
+    lm, _ = slam.landmarks()
+    t = tree_errors(
+        lm, np.full(len(lm), np.nan), trees, np.full(len(trees), 0.3), truth[:, :2], max_dist_m=7.0
+    )
+    assert t["recall"] >= 0.95
+    assert t["precision"] >= 0.95  # random clutter never seen twice at one place
+    assert t["mean_position_error_m"] < 0.1
+
+
+def test_association_recovers_shifted_observations_under_noise():
+    rng = np.random.default_rng(2)
+    lm = forest(rng, 40)
+    cfg = SlamConfig()
+    sel = rng.choice(len(lm), 15, replace=False)
+    # drift: the predicted pose is 1.2 m and 2 deg off; observations carry 5 cm noise
+    ang = math.radians(2.0)
+    rot = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+    obs = (lm[sel] - lm[sel].mean(0)) @ rot.T + lm[sel].mean(0) + [1.2, -0.4]
+    obs += rng.normal(scale=0.05, size=obs.shape)
+    obs = np.vstack([obs, [[100.0, 100.0]]])  # a stem far from every tree
+    res = associate(
+        obs,
+        np.full(len(obs), np.nan),
+        lm,
+        np.full(len(lm), 0.03),
+        np.full(len(lm), np.nan),
+        np.eye(2) * 0.6**2,
+        cfg,
+    )
+    assert res.matches[:-1].tolist() == sel.tolist()
+    assert res.matches[-1] == -1
+    assert res.support >= 14
+    # without the consensus step the same shift gives no (or wrong) matches
+    plain = associate(
+        obs,
+        np.full(len(obs), np.nan),
+        lm,
+        np.full(len(lm), 0.03),
+        np.full(len(lm), np.nan),
+        np.eye(2) * 0.01**2,
+        cfg,
+        use_consensus=False,
+    )
+    assert (plain.matches[:-1] == sel).sum() < 3
+
+
+def test_association_rejects_incompatible_dbh_and_handles_empty():
+    cfg = SlamConfig()
+    lm = np.array([[0.0, 0.0], [5.0, 0.0]])
+    res = associate(
+        np.array([[0.1, 0.0]]),
+        np.array([0.60]),
+        lm,
+        np.full(2, 0.03),
+        np.array([0.2, 0.6]),
+        np.eye(2) * 0.01,
+        cfg,
+    )
+    assert res.matches.tolist() == [-1]
+    empty = associate(
+        np.zeros((0, 2)), np.zeros(0), lm, np.full(2, 0.03), np.full(2, np.nan), np.eye(2), cfg
+    )
+    assert len(empty.matches) == 0
+
+
+def test_scans_without_trees_are_bridged_by_odometry():
+    slam = LandmarkSlam()
+    for i in range(30):
+        p = np.array([0.1 * i, 0.0, 0.0])
+        slam.add_scan(0.1 * i, matrix(p), None, i % 7 == 0, np.zeros((0, 2)))
+    stamps, poses = slam.trajectory()
+    assert len(stamps) == 30
+    np.testing.assert_allclose(poses[:, 0, 3], 0.1 * np.arange(30), atol=1e-6)
+    assert slam.n_landmarks == 0
+
+
+@pytest.mark.parametrize("kernel", ["cauchy", "none"])
+def test_robust_kernel_options(kernel):
+    rng = np.random.default_rng(3)
+    truth = square_path(side=8.0)
+    trees = forest(rng, 20)
+    slam = run(truth, trees, rng, cfg=SlamConfig(robust_kernel=kernel))
+    assert ate(slam, truth)["ate_rmse_m"] < 1e-3
