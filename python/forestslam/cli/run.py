@@ -1,13 +1,48 @@
-"""`forestslam run` (not wired yet)."""
+"""`forestslam run`: the main job (odometry, landmark SLAM, tree map, 3D ground map)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("run", help="(not available yet)")
-    def _command() -> None:
-        from forestslam.errors import ForestSlamError
+    @app.command(
+        "run",
+        help="Run odometry, tree SLAM and mapping on a bag / folder / cloud file and write "
+        "trajectory.tum, odometry.tum, trees.csv, trees.geojson, map.png, timing.json, run.yaml "
+        "(map3d also ground.ply and dtm.*) into OUT.",
+    )
+    def _command(
+        input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
+        sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
+        out: Path = typer.Option(..., "--out", help="Output directory."),
+        mode: str = typer.Option("slam", "--mode", help="slam | map3d | odometry."),
+        config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
+        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
+        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
+        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    ) -> None:
+        from forestslam.runner import run
 
-        raise ForestSlamError("'run' is not available in this build yet")
+        s = run(
+            input_path,
+            sensor,
+            out,
+            mode=mode,
+            config_path=config,
+            start=start,
+            max_scans=max_scans,
+            topic=topic,
+            progress=not no_progress,
+        )
+        rs = s.read_stats
+        print(
+            f"{s.scans} scans in {s.wall_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
+            f"{s.trees} trees, {s.keyframes} keyframes, {s.degraded_scans} degraded, "
+            f"{s.failed_scans} failed, {rs.get('skipped', 0)} corrupt messages skipped"
+            + (f", {rs['lost_bytes']} bytes lost" if rs.get("lost_bytes") else "")
+            + f" -> {s.out_dir}"
+        )

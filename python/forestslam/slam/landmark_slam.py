@@ -115,6 +115,11 @@ class LandmarkSlam:
     def n_landmarks(self) -> int:
         return len(self._lm_xy)
 
+    @property
+    def keyframe_scans(self) -> np.ndarray:
+        """Scan index (order of `add_scan` calls) of every keyframe."""
+        return np.asarray(self._kf_scan, dtype=np.int64)
+
     def landmarks(self) -> tuple[np.ndarray, np.ndarray]:
         """Tree positions (L,2) in the map frame and observation counts (L,)."""
         return self._lm_xy.copy(), self._lm_nobs.copy()

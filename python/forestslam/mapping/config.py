@@ -1,0 +1,36 @@
+"""Configuration of the tree map (fused DBH), the ground map / DTM and the run's outputs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class MappingConfig:
+    # DBH: stem points of the breast-height band above local ground, accumulated in the map
+    # frame over a window of scans (the paper: 25 scans / 2.5 s), then one robust circle fit.
+    dbh_window_scans: int = 25
+    dbh_band_m: tuple[float, float] = (1.15, 1.45)
+    dbh_min_window_scans: int = 5  # a tree leaving view with fewer scans buffered: no fit
+    dbh_min_points: int = 15
+    dbh_min_m: float = 0.04
+    dbh_max_m: float = 1.5
+    circle_inlier_m: float = 0.03
+    dbh_max_rms_m: float = 0.03
+    dbh_min_arc_coverage: float = 0.2
+    dbh_max_points_per_window: int = 4000  # random subsample beyond this (bounded memory)
+    # Trees written to the map need this many keyframe observations.
+    min_tree_observations: int = 3
+    # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the
+    # global map rebuilt from the optimised keyframe poses at voxel_m; DTM cells of dtm_cell_m.
+    ground_keyframe_voxel_m: float = 0.2
+    ground_voxel_m: float = 0.2
+    dtm_cell_m: float = 0.5
+    dtm_min_points: int = 2
+    # map3d: scan-to-map point-to-plane ICP refinement of keyframes on stem + ground points.
+    refine_with_icp: bool = True
+    icp_local_map_keyframes: int = 20
+    icp_max_correspondence_m: float = 0.5
+    icp_max_correction_m: float = 0.5  # a larger ICP correction is rejected as a failure
+    # Outputs: trajectory / trees rewritten atomically every this many scans.
+    checkpoint_every_scans: int = 100

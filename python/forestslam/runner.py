@@ -1,0 +1,354 @@
+"""The main job: scans -> odometry -> landmark SLAM -> tree map (-> ground map), written as it goes.
+
+Modes: `odometry` (odometry.tum, timing.json), `slam` (+ trajectory.tum, trees.csv/.geojson,
+map.png), `map3d` (+ scan-to-map ICP refinement of keyframes, ground.ply, dtm.npz/.csv/.png).
+Output frame: the first processed scan's sensor frame.
+
+Reliability: trajectory.tum, odometry.tum, trees.csv and trees.geojson are rewritten atomically
+every `mapping.checkpoint_every_scans` scans, so a process killed mid-run leaves valid files up
+to its last checkpoint; run.yaml says `status: running` until the run ends. Corrupt messages are
+skipped by the reader and counted (`read_stats` in run.yaml); a scan the odometry cannot use is
+skipped and counted; stretches without trees are bridged by odometry.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from forestslam.errors import ForestSlamError, InputError
+
+log = logging.getLogger(__name__)
+
+MODES = ("slam", "map3d", "odometry")
+
+
+@dataclass
+class RunSummary:
+    out_dir: Path
+    mode: str
+    scans: int = 0
+    failed_scans: int = 0
+    degraded_scans: int = 0
+    keyframes: int = 0
+    trees: int = 0
+    loop_closures: int = 0
+    wall_s: float = 0.0
+    scans_per_s: float = 0.0
+    status: str = "running"
+    read_stats: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "mode": self.mode,
+            "status": self.status,
+            "scans": self.scans,
+            "failed_scans": self.failed_scans,
+            "degraded_scans": self.degraded_scans,
+            "keyframes": self.keyframes,
+            "trees": self.trees,
+            "loop_closures": self.loop_closures,
+            "wall_s": round(self.wall_s, 3),
+            "scans_per_s": round(self.scans_per_s, 2),
+            "read_stats": self.read_stats,
+        }
+
+
+def _versions() -> dict:
+    import gtsam
+    import scipy
+
+    import forestslam
+
+    return {
+        "forestslam": forestslam.__version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "gtsam": getattr(gtsam, "__version__", "unknown"),
+        "platform": platform.platform(),
+    }
+
+
+class _Timer:
+    """Per-stage milliseconds per scan."""
+
+    def __init__(self) -> None:
+        self.stages: dict[str, list[float]] = {}
+        self.n = 0
+
+    def add(self, scan: int, stage: str, ms: float) -> None:
+        col = self.stages.setdefault(stage, [])
+        if len(col) < scan:
+            col.extend([0.0] * (scan - len(col)))
+        col.append(float(ms))
+
+    def summary(self) -> dict:
+        out = {}
+        for name, v in self.stages.items():
+            a = np.asarray(v)
+            out[name] = {
+                "mean_ms": float(a.mean()),
+                "median_ms": float(np.median(a)),
+                "p95_ms": float(np.percentile(a, 95)),
+                "max_ms": float(a.max()),
+            }
+        return out
+
+    def to_dict(self, per_scan: bool) -> dict:
+        d: dict[str, Any] = {"scans": self.n, "stages": self.summary()}
+        if per_scan:
+            d["per_scan_ms"] = {k: [round(x, 3) for x in v] for k, v in self.stages.items()}
+        return d
+
+
+class Pipeline:
+    """Holds the state of one run; `process(scan)` per scan, `write(final)` for outputs."""
+
+    def __init__(self, sensor, config, mode: str, out_dir: Path) -> None:
+        from forestslam.mapping import GroundMap, TreeMap
+        from forestslam.slam import LandmarkSlam
+
+        try:
+            from forestslam.odometry import Odometry
+        except ImportError as exc:
+            raise ForestSlamError(f"odometry is not available in this build ({exc})") from exc
+        if mode not in MODES:
+            raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
+        self.cfg = config
+        self.mode = mode
+        self.out_dir = out_dir
+        self.odometry = Odometry(sensor, getattr(config, "odometry", None))
+        self.slam = LandmarkSlam(config.slam) if mode != "odometry" else None
+        self.trees = TreeMap(config.mapping) if mode != "odometry" else None
+        self.ground = (
+            GroundMap(config.mapping.ground_keyframe_voxel_m, config.mapping.ground_voxel_m)
+            if mode == "map3d"
+            else None
+        )
+        self.refiner = None
+        if mode == "map3d" and config.mapping.refine_with_icp:
+            from forestslam.mapping.refine import ScanToMapRefiner
+
+            self.refiner = ScanToMapRefiner(config.mapping)
+        self.timer = _Timer()
+        self.stamps: list[float] = []
+        self.odom: list[np.ndarray] = []
+        self._T0_inv: np.ndarray | None = None
+        self.n = 0
+        self.failed = 0
+        self.degraded = 0
+
+    def process(self, scan) -> None:
+        t_start = time.perf_counter()
+        try:
+            step = self.odometry.step(scan)
+        except ForestSlamError as exc:
+            self.failed += 1
+            log.warning("scan at %.3f s skipped: %s", scan.stamp, exc)
+            return
+        t_odom = time.perf_counter()
+        i = self.n
+        for name, ms in (step.timing or {}).items():
+            self.timer.add(i, f"odometry.{name}", ms)
+        self.timer.add(i, "odometry", (t_odom - t_start) * 1e3)
+        T = np.asarray(step.T_world_sensor, dtype=np.float64)
+        if self._T0_inv is None:
+            self._T0_inv = np.linalg.inv(T)
+        T = self._T0_inv @ T  # output frame: the first scan's sensor frame
+        self.stamps.append(float(step.stamp))
+        self.odom.append(T)
+        self.degraded += bool(step.degraded)
+        if self.slam is not None:
+            self._map(i, step, T)
+            self.timer.add(i, "slam_mapping", (time.perf_counter() - t_odom) * 1e3)
+        self.timer.add(i, "total", (time.perf_counter() - t_start) * 1e3)
+        self.n += 1
+        self.timer.n = self.n
+
+    def _map(self, i: int, step, T: np.ndarray) -> None:
+        from forestslam.slam import level_points
+
+        stems = step.stems
+        k = 0 if stems is None else len(stems.xy)
+        if k:
+            centre = np.column_stack([stems.xy, stems.z])
+            level = level_points(T, centre)[:, :2]
+            dbh = np.asarray(stems.dbh, dtype=np.float64)
+        else:
+            centre, level, dbh = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0)
+        res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh)
+        if res.keyframe is not None and self.ground is not None:
+            ground = getattr(stems, "ground", None) if stems is not None else None
+            if ground is not None and len(ground):
+                self.ground.add_keyframe(res.keyframe, np.asarray(ground, dtype=np.float64))
+        if k:
+            centre_map = centre @ res.T_map_sensor[:3, :3].T + res.T_map_sensor[:3, 3]
+            self.trees.add(
+                i,
+                T,
+                res.landmark_ids,
+                list(stems.points),
+                np.asarray(stems.base_z, dtype=np.float64),
+                centre_map[:, 2],
+                dbh,
+            )
+        if i % self.cfg.mapping.dbh_window_scans == 0:
+            self.trees.flush(i)
+
+    # ---------------------------------------------------------------- outputs
+    def tree_table(self) -> dict:
+        xy, nobs = self.slam.landmarks()
+        return self.trees.table(np.arange(len(xy)), xy, nobs)
+
+    def write(self, final: bool) -> dict:
+        from forestslam.io import write_trees_csv, write_trees_geojson, write_tum
+
+        out = self.out_dir
+        stamps = np.asarray(self.stamps)
+        odom = np.stack(self.odom) if self.odom else np.zeros((0, 4, 4))
+        write_tum(out / "odometry.tum", stamps, odom)
+        table = None
+        if self.slam is not None:
+            if final:
+                self.trees.flush(None)
+            s, poses = self.slam.trajectory()
+            write_tum(out / "trajectory.tum", s, poses)
+            table = self.tree_table()
+            write_trees_csv(out / "trees.csv", table)
+            write_trees_geojson(out / "trees.geojson", table)
+        if final:
+            self._write_final(stamps, odom, table)
+        return table or {}
+
+    def _write_final(self, stamps, odom, table) -> None:
+        from forestslam.io.atomic import atomic_write_text
+        from forestslam.mapping.plot import plot_map
+
+        out = self.out_dir
+        import json
+
+        atomic_write_text(out / "timing.json", json.dumps(self.timer.to_dict(True), indent=1))
+        if self.slam is None:
+            return
+        s, poses = self.slam.trajectory()
+        plot_map(
+            out / "map.png",
+            poses[:, :2, 3],
+            odom[:, :2, 3],
+            np.column_stack([table["x"], table["y"]]),
+            table["dbh_m"],
+            title=f"{len(table['id'])} trees, {len(s)} scans ({self.mode})",
+        )
+        if self.ground is not None:
+            self._write_ground(poses)
+
+    def _write_ground(self, poses: np.ndarray) -> None:
+        from forestslam.io import write_cloud
+        from forestslam.mapping import dtm_grid, write_dtm
+        from forestslam.mapping.plot import plot_dtm
+
+        kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
+        ground = self.ground.build(kf_poses)
+        write_cloud(self.out_dir / "ground.ply", ground)
+        dtm = dtm_grid(ground, self.cfg.mapping.dtm_cell_m, self.cfg.mapping.dtm_min_points)
+        write_dtm(self.out_dir, dtm)
+        plot_dtm(self.out_dir / "dtm.png", dtm)
+
+
+def run(
+    input_path: str | Path,
+    sensor: str,
+    out_dir: str | Path,
+    mode: str = "slam",
+    config: Any = None,
+    config_path: str | Path | None = None,
+    start: int = 0,
+    max_scans: int | None = None,
+    topic: str | None = None,
+    progress: bool = True,
+) -> RunSummary:
+    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`."""
+    import yaml
+    from tqdm import tqdm
+
+    from forestslam.config import config_to_dict, load_config
+    from forestslam.io import read_scans
+    from forestslam.io.atomic import atomic_write_text
+    from forestslam.sensors import load_profile
+
+    if mode not in MODES:
+        raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
+    if start < 0 or (max_scans is not None and max_scans < 1):
+        raise InputError("--start must be >= 0 and --max-scans >= 1")
+    cfg = config if config is not None else load_config(config_path)
+    profile = load_profile(sensor)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stream = read_scans(input_path, topic)
+    total = len(stream)
+    remaining = max(0, total - start)
+    if max_scans is not None:
+        remaining = min(remaining, max_scans)
+    pipe = Pipeline(profile, cfg, mode, out)
+    summary = RunSummary(out_dir=out, mode=mode)
+    meta = {
+        "input": str(input_path),
+        "topic": topic,
+        "sensor": profile.name,
+        "mode": mode,
+        "start": start,
+        "max_scans": max_scans,
+        "versions": _versions(),
+        "config": config_to_dict(cfg),
+    }
+
+    def write_meta() -> None:
+        meta["summary"] = summary.to_dict()
+        atomic_write_text(out / "run.yaml", yaml.safe_dump(meta, sort_keys=False))
+
+    write_meta()
+    every = max(1, int(cfg.mapping.checkpoint_every_scans))
+    t0 = time.perf_counter()
+    scans = itertools.islice(stream, start, None if max_scans is None else start + max_scans)
+    bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
+    try:
+        for scan in scans:
+            pipe.process(scan)
+            bar.update(1)
+            if pipe.slam is not None and pipe.n % 10 == 0:
+                bar.set_postfix(trees=pipe.slam.n_landmarks, refresh=False)
+            if pipe.n and pipe.n % every == 0:
+                pipe.write(final=False)
+        summary.status = "complete"
+    except KeyboardInterrupt:
+        summary.status = "interrupted"
+        raise
+    except BaseException:
+        summary.status = "failed"
+        raise
+    finally:
+        bar.close()
+        summary.wall_s = time.perf_counter() - t0
+        summary.scans = pipe.n
+        summary.failed_scans = pipe.failed
+        summary.degraded_scans = pipe.degraded
+        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+        summary.read_stats = stream.stats.to_dict()
+        if pipe.n:
+            table = pipe.write(final=True)
+            summary.trees = len(table.get("id", []))
+        if pipe.slam is not None:
+            summary.keyframes = pipe.slam.n_keyframes
+            summary.loop_closures = pipe.slam.loop_closures
+        write_meta()
+    if pipe.n == 0:
+        raise InputError(f"{input_path}: no scan could be processed")
+    return summary
