@@ -1,0 +1,296 @@
+#include "forestslam/registration/stem_centre_lm.hpp"
+
+#include <Eigen/Dense>
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+#include <pcl/kdtree/kdtree_flann.h>
+
+#include <cmath>
+#include <vector>
+
+#include "forestslam/common/pcl_adapter.hpp"
+
+namespace forestslam {
+
+struct StemCentreTarget::Impl {
+    Points3 points;
+    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+};
+
+StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
+    : impl_(std::make_unique<Impl>()) {
+    impl_->points = finiteRows(points);
+    impl_->cloud = detail::toPcl(impl_->points);
+    if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
+}
+
+StemCentreTarget::~StemCentreTarget() = default;
+Eigen::Index StemCentreTarget::size() const { return impl_->points.rows(); }
+const Points3 &StemCentreTarget::points() const { return impl_->points; }
+
+namespace {
+
+// Parameters: [rx, ry, rz, tx, ty, tz], rotation vector of R_target_source and translation.
+struct VirtualCost {
+    VirtualCost(const Eigen::Vector3d &centre, const Eigen::Vector3d &target, double radius)
+        : c(centre), p(target), r(radius) {}
+    template <typename T>
+    bool operator()(const T *x, T *residual) const {
+        const T src[3] = {T(c.x()), T(c.y()), T(c.z())};
+        T q[3];
+        ceres::AngleAxisRotatePoint(x, src, q);
+        const T dx = q[0] + x[3] - T(p.x()), dy = q[1] + x[4] - T(p.y()),
+                dz = q[2] + x[5] - T(p.z());
+        residual[0] = ceres::sqrt(dx * dx + dy * dy + dz * dz + T(1e-12)) - T(r);
+        return true;
+    }
+    Eigen::Vector3d c, p;
+    double r;
+};
+
+struct PlaneCost {
+    PlaneCost(const Eigen::Vector3d &source, const Eigen::Vector3d &origin,
+              const Eigen::Vector3d &normal)
+        : s(source), p0(origin), n(normal) {}
+    template <typename T>
+    bool operator()(const T *x, T *residual) const {
+        const T src[3] = {T(s.x()), T(s.y()), T(s.z())};
+        T q[3];
+        ceres::AngleAxisRotatePoint(x, src, q);
+        residual[0] = (q[0] + x[3] - T(p0.x())) * T(n.x()) +
+                      (q[1] + x[4] - T(p0.y())) * T(n.y()) + (q[2] + x[5] - T(p0.z())) * T(n.z());
+        return true;
+    }
+    Eigen::Vector3d s, p0, n;
+};
+
+struct VirtualPair {
+    Eigen::Vector3d centre, target;
+    double radius;
+};
+struct PlanePair {
+    Eigen::Vector3d source, origin, normal;
+};
+
+Eigen::Matrix4d toMatrix(const double *x) {
+    Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+    const Eigen::Vector3d w(x[0], x[1], x[2]);
+    const double angle = w.norm();
+    T.block<3, 3>(0, 0) = angle > 0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix()
+                                    : Eigen::Matrix3d::Identity();
+    T.block<3, 1>(0, 3) = Eigen::Vector3d(x[3], x[4], x[5]);
+    return T;
+}
+
+void fromMatrix(const Eigen::Matrix4d &T, double *x) {
+    const Eigen::AngleAxisd aa(Eigen::Matrix3d(T.block<3, 3>(0, 0)));
+    const Eigen::Vector3d w = aa.angle() * aa.axis();
+    for (int k = 0; k < 3; ++k) {
+        x[k] = w[k];
+        x[3 + k] = T(k, 3);
+    }
+}
+
+void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
+               const Eigen::VectorXd &radii, const Points3 &real, const Eigen::Matrix4d &T,
+               const StemCentreLmConfig &cfg, std::vector<VirtualPair> &vpairs,
+               std::vector<PlanePair> &ppairs) {
+    vpairs.clear();
+    ppairs.clear();
+    const Eigen::Matrix3d R = T.block<3, 3>(0, 0);
+    const Eigen::Vector3d t = T.block<3, 1>(0, 3);
+    std::vector<int> idx;
+    std::vector<float> d2;
+    const int kv = std::max(1, cfg.virtual_neighbours);
+    for (Eigen::Index i = 0; i < centres.rows(); ++i) {
+        const Eigen::Vector3d c = centres.row(i).transpose();
+        const Eigen::Vector3d q = R * c + t;
+        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                            static_cast<float>(q.z()));
+        if (target.tree.nearestKSearch(query, kv, idx, d2) <= 0) continue;
+        for (std::size_t k = 0; k < idx.size(); ++k) {
+            const Eigen::Vector3d p = target.points.row(idx[k]).transpose();
+            if (std::abs((q - p).norm() - radii[i]) > cfg.virtual_gate_m) continue;
+            vpairs.push_back({c, p, radii[i]});
+        }
+    }
+    constexpr int kPlaneCandidates = 10;
+    for (Eigen::Index i = 0; i < real.rows(); ++i) {
+        const Eigen::Vector3d s = real.row(i).transpose();
+        const Eigen::Vector3d q = R * s + t;
+        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                            static_cast<float>(q.z()));
+        if (target.tree.nearestKSearch(query, kPlaneCandidates, idx, d2) < 3) continue;
+        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
+        const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
+        const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
+        // Third point: the nearest that makes a non-degenerate triangle with the first two.
+        for (std::size_t k = 2; k < idx.size(); ++k) {
+            const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
+            const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
+            const double longest = std::max({(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(),
+                                             (p2 - p1).squaredNorm()});
+            if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
+            const Eigen::Vector3d n = cross.normalized();
+            if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n});
+            break;
+        }
+    }
+}
+
+}  // namespace
+
+StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
+                                        const Eigen::Ref<const Points3> &virtual_centres,
+                                        const Eigen::Ref<const Eigen::VectorXd> &radii,
+                                        const Eigen::Ref<const Points3> &real_points,
+                                        const Eigen::Matrix4d &T_initial,
+                                        const StemCentreLmConfig &config) {
+    StemCentreLmResult result;
+    result.T_target_source = T_initial;
+    if (target.size() < 3 || !T_initial.allFinite()) return result;
+
+    // Keep only finite features (and centres with a usable radius).
+    Points3 centres(0, 3);
+    Eigen::VectorXd rad(0);
+    {
+        std::vector<int> keep;
+        const Eigen::Index nv = std::min(virtual_centres.rows(), radii.size());
+        for (Eigen::Index i = 0; i < nv; ++i) {
+            if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0) {
+                keep.push_back(static_cast<int>(i));
+            }
+        }
+        centres = selectRows(virtual_centres, keep);
+        rad.resize(static_cast<Eigen::Index>(keep.size()));
+        for (std::size_t k = 0; k < keep.size(); ++k) rad[k] = radii[keep[k]];
+    }
+    const Points3 real = finiteRows(real_points);
+
+    double x[6];
+    fromMatrix(T_initial, x);
+    std::vector<VirtualPair> vpairs;
+    std::vector<PlanePair> ppairs;
+    for (int round = 0; round < config.max_rounds; ++round) {
+        const Eigen::Matrix4d T_before = toMatrix(x);
+        findPairs(target.impl(), centres, rad, real, T_before, config, vpairs, ppairs);
+        result.iterations = round + 1;
+        if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
+
+        ceres::Problem problem;
+        for (const auto &v : vpairs) {
+            auto *cost = new ceres::AutoDiffCostFunction<VirtualCost, 1, 6>(
+                new VirtualCost(v.centre, v.target, v.radius));
+            problem.AddResidualBlock(
+                cost,
+                new ceres::ScaledLoss(new ceres::CauchyLoss(config.robust_scale_m),
+                                      config.virtual_weight, ceres::TAKE_OWNERSHIP),
+                x);
+        }
+        for (const auto &p : ppairs) {
+            auto *cost = new ceres::AutoDiffCostFunction<PlaneCost, 1, 6>(
+                new PlaneCost(p.source, p.origin, p.normal));
+            problem.AddResidualBlock(cost, new ceres::CauchyLoss(config.robust_scale_m), x);
+        }
+        ceres::Solver::Options options;
+        options.minimizer_type = ceres::TRUST_REGION;
+        options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+        options.linear_solver_type = ceres::DENSE_QR;
+        options.max_num_iterations = config.max_solver_iterations;
+        options.num_threads = 1;
+        options.logging_type = ceres::SILENT;
+        ceres::Solver::Summary summary;
+        ceres::Solve(options, &problem, &summary);
+
+        const Eigen::Matrix4d T_after = toMatrix(x);
+        const Eigen::Matrix4d delta = T_before.inverse() * T_after;
+        const double dt = delta.block<3, 1>(0, 3).norm();
+        const double dr = Eigen::AngleAxisd(Eigen::Matrix3d(delta.block<3, 3>(0, 0))).angle();
+        if (dt < config.converged_translation_m && dr < config.converged_rotation_rad) {
+            result.converged = true;
+            break;
+        }
+    }
+    const Eigen::Matrix4d T = toMatrix(x);
+    result.T_target_source = T;
+
+    // Statistics and covariance at the solution with renewed pairs.
+    findPairs(target.impl(), centres, rad, real, T, config, vpairs, ppairs);
+    result.virtual_inliers = static_cast<int>(vpairs.size());
+    result.real_inliers = static_cast<int>(ppairs.size());
+    result.inliers = result.virtual_inliers + result.real_inliers;
+    if (result.inliers < config.min_inliers) {
+        result.converged = false;
+        return result;
+    }
+    const Eigen::Matrix3d R = T.block<3, 3>(0, 0);
+    const Eigen::Vector3d t = T.block<3, 1>(0, 3);
+    // Each pair: transformed point q, residual direction, residual, Cauchy IRLS weight.
+    std::vector<Eigen::Vector3d> qs, dirs;
+    std::vector<double> res, wts;
+    auto add = [&](const Eigen::Vector3d &q, const Eigen::Vector3d &dir, double r, double w) {
+        const double u = r / config.robust_scale_m;
+        qs.push_back(q);
+        dirs.push_back(dir);
+        res.push_back(r);
+        wts.push_back(w / (1.0 + u * u));
+    };
+    double vsum = 0.0, psum = 0.0;
+    for (const auto &v : vpairs) {
+        const Eigen::Vector3d q = R * v.centre + t;
+        const Eigen::Vector3d d = q - v.target;
+        const double dn = std::max(d.norm(), 1e-9);
+        const double r = dn - v.radius;
+        vsum += r * r;
+        add(q, d / dn, r, config.virtual_weight);
+    }
+    for (const auto &p : ppairs) {
+        const Eigen::Vector3d q = R * p.source + t;
+        const double r = p.normal.dot(q - p.origin);
+        psum += r * r;
+        add(q, p.normal, r, 1.0);
+    }
+    result.virtual_rms_m = vpairs.empty() ? 0.0 : std::sqrt(vsum / vpairs.size());
+    result.real_rms_m = ppairs.empty() ? 0.0 : std::sqrt(psum / ppairs.size());
+    result.rmse = std::sqrt((vsum + psum) / static_cast<double>(qs.size()));
+
+    const std::size_t m = qs.size();
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto &q : qs) centroid += q;
+    centroid /= static_cast<double>(m);
+    double spread = 0.0;
+    for (const auto &q : qs) spread += (q - centroid).squaredNorm();
+    spread = std::max(std::sqrt(spread / m), 1e-6);
+    // H: information for a left perturbation [dt, dw] (d q / d dw = -[q]x). Hn: the same
+    // about the centroid with rotation scaled by the feature spread, so that the degeneracy
+    // test depends neither on where the frame origin lies nor on units.
+    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 6> Hn = Eigen::Matrix<double, 6, 6>::Zero();
+    double wr2 = 0.0, wsum = 0.0;
+    for (std::size_t i = 0; i < m; ++i) {
+        Eigen::Matrix<double, 1, 6> J, Jn;
+        J << dirs[i].transpose(), qs[i].cross(dirs[i]).transpose();
+        Jn << dirs[i].transpose(), (qs[i] - centroid).cross(dirs[i]).transpose() / spread;
+        H += wts[i] * J.transpose() * J;
+        Hn += wts[i] * Jn.transpose() * Jn;
+        wr2 += wts[i] * res[i] * res[i];
+        wsum += wts[i];
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(Hn);
+    const double emax = eig.eigenvalues().maxCoeff();
+    const double emin = eig.eigenvalues().minCoeff();
+    result.degenerate = !(emax > 0.0) || emin / emax < config.degenerate_eigen_ratio;
+    const double dof = std::max(1.0, static_cast<double>(m) - 6.0);
+    const double sigma2 = std::max(wr2 / wsum * m / dof, 1e-8);
+    const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(H);
+    if (lu.isInvertible()) {
+        result.covariance = sigma2 * lu.inverse();
+    } else {
+        result.covariance = Matrix6d::Identity() * kUnobservedVariance;
+        result.degenerate = true;
+    }
+    return result;
+}
+
+}  // namespace forestslam

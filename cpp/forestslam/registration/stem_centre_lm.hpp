@@ -1,0 +1,69 @@
+// Stem-centre Levenberg-Marquardt registration (Shao et al., ISPRS 2020, Sec. 3.3):
+// virtual features (stem centres with radius) pair with their nearest target point (residual
+// d - r); real features (e.g. DoG keypoints) pair with the plane through their three nearest
+// non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM with a robust loss,
+// correspondences renewed between solves. Works frame-to-frame and frame-to-map.
+#pragma once
+
+#include <memory>
+
+#include "forestslam/registration/result.hpp"
+
+namespace forestslam {
+
+struct StemCentreLmConfig {
+    int max_rounds = 12;                  // correspondence renewals
+    int max_solver_iterations = 8;        // LM iterations per round
+    double virtual_gate_m = 0.30;         // |d - r| gate for virtual-feature pairs
+    int virtual_neighbours = 3;           // target points paired with each stem centre
+    double real_gate_m = 0.50;            // max distance keypoint -> nearest target point
+    double plane_gate_m = 0.25;           // max |point-to-plane| distance of a kept pair
+    double min_triangle_ratio = 0.2;      // non-collinearity: 2*area / longest_edge^2
+    double robust_scale_m = 0.05;         // Cauchy loss scale
+    double virtual_weight = 2.0;          // weight of a virtual residual relative to a real one
+    double converged_translation_m = 1e-4;  // stop when a round moves less than this ...
+    double converged_rotation_rad = 1e-5;   // ... and rotates less than this
+    int min_inliers = 12;                 // fewer pairs than this: not converged
+    double degenerate_eigen_ratio = 1e-3;  // min/max eigenvalue of the normalised information
+};
+
+// RegistrationResult (T_target_source, 6x6 covariance over the left perturbation
+// [tx, ty, tz, rx, ry, rz] from the Gauss-Newton information scaled by the residual variance,
+// converged, degenerate, inliers, iterations = correspondence rounds, rmse over all pairs) plus
+// the split by feature kind.
+struct StemCentreLmResult : RegistrationResult {
+    int virtual_inliers = 0;
+    int real_inliers = 0;
+    double virtual_rms_m = 0.0;  // RMS of d - r over virtual pairs at the solution (0 if none)
+    double real_rms_m = 0.0;     // RMS point-to-plane distance over real pairs (0 if none)
+};
+
+// Target surface: a KD-tree over a map or frame cloud, built once and reused for many frames.
+class StemCentreTarget {
+public:
+    explicit StemCentreTarget(const Eigen::Ref<const Points3> &points);
+    ~StemCentreTarget();
+    StemCentreTarget(const StemCentreTarget &) = delete;
+    StemCentreTarget &operator=(const StemCentreTarget &) = delete;
+
+    Eigen::Index size() const;
+    const Points3 &points() const;
+
+    struct Impl;
+    const Impl &impl() const { return *impl_; }
+
+private:
+    std::unique_ptr<Impl> impl_;
+};
+
+// Register source features onto the target. virtual_centres (V,3) with radii (V,), real
+// points (R,3), both in the source frame. Either set may be empty; with too few pairs the
+// result is flagged not converged / degenerate and T stays at the initial guess.
+StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
+                                        const Eigen::Ref<const Points3> &virtual_centres,
+                                        const Eigen::Ref<const Eigen::VectorXd> &radii,
+                                        const Eigen::Ref<const Points3> &real_points,
+                                        const Eigen::Matrix4d &T_initial,
+                                        const StemCentreLmConfig &config = {});
+
+}  // namespace forestslam
