@@ -1,11 +1,17 @@
 #include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
 #include <limits>
+#include <optional>
 
 #include "bindings.hpp"
 #include "forestslam/common/circle_fit.hpp"
+#include "forestslam/perception/detector.hpp"
+#include "forestslam/perception/preprocess.hpp"
+#include "forestslam/perception/segmentation.hpp"
+#include "forestslam/perception/stems.hpp"
 
 namespace py = pybind11;
 
@@ -21,6 +27,196 @@ py::dict circleDict(const CircleFit &f) {
     d["rms_m"] = f.rms_m;
     d["arc_coverage"] = f.arc_coverage;
     d["inlier_indices"] = f.inlier_indices;
+    return d;
+}
+
+namespace pc = forestslam::perception;
+
+// Copy the keys of a (flat) dict onto struct fields of the same name; Python validates names.
+#define FS_GET(dict, obj, field) \
+    if (dict.contains(#field)) obj.field = dict[#field].cast<decltype(obj.field)>()
+
+pc::GroundOptions groundOptions(const py::dict &d) {
+    pc::GroundOptions o;
+    FS_GET(d, o, cell_size_m);
+    FS_GET(d, o, max_window_cells);
+    FS_GET(d, o, slope);
+    FS_GET(d, o, initial_distance_m);
+    FS_GET(d, o, max_distance_m);
+    FS_GET(d, o, base);
+    FS_GET(d, o, exponential);
+    FS_GET(d, o, cell_height_m);
+    FS_GET(d, o, max_range_m);
+    return o;
+}
+
+pc::NormalFilterOptions filterOptions(const py::dict &d) {
+    pc::NormalFilterOptions o;
+    FS_GET(d, o, adaptive);
+    FS_GET(d, o, ring_min_m);
+    FS_GET(d, o, ring_max_m);
+    FS_GET(d, o, rings);
+    FS_GET(d, o, radius_scale);
+    FS_GET(d, o, min_radius_m);
+    FS_GET(d, o, max_radius_m);
+    FS_GET(d, o, fixed_radius_m);
+    FS_GET(d, o, max_normal_angle_rad);
+    FS_GET(d, o, min_neighbours);
+    FS_GET(d, o, max_neighbours);
+    FS_GET(d, o, min_height_m);
+    FS_GET(d, o, max_height_m);
+    FS_GET(d, o, voxel_m);
+    return o;
+}
+
+pc::SegmentationOptions segmentationOptions(const py::dict &d) {
+    pc::SegmentationOptions o;
+    FS_GET(d, o, block_cols);
+    FS_GET(d, o, beta_min_rad);
+    FS_GET(d, o, max_neighbour_gap_m);
+    FS_GET(d, o, max_pixel_gap);
+    FS_GET(d, o, min_votes);
+    FS_GET(d, o, euclidean_tolerance_m);
+    FS_GET(d, o, dbscan_k);
+    FS_GET(d, o, dbscan_min_neighbours);
+    FS_GET(d, o, dbscan_min_eps_m);
+    FS_GET(d, o, dbscan_max_eps_m);
+    FS_GET(d, o, map_dbscan_eps_m);
+    FS_GET(d, o, min_points);
+    FS_GET(d, o, min_length_m);
+    FS_GET(d, o, max_axis_angle_rad);
+    FS_GET(d, o, min_sv_ratio);
+    FS_GET(d, o, max_width_m);
+    FS_GET(d, o, merge_xy_m);
+    FS_GET(d, o, max_range_m);
+    FS_GET(d, o, ground_search_m);
+    return o;
+}
+
+pc::DiameterOptions diameterOptions(const py::dict &d) {
+    pc::DiameterOptions o;
+    FS_GET(d, o, band_low_m);
+    FS_GET(d, o, band_high_m);
+    FS_GET(d, o, band_max_half_m);
+    FS_GET(d, o, min_band_points);
+    FS_GET(d, o, min_radius_m);
+    FS_GET(d, o, max_radius_m);
+    FS_GET(d, o, inlier_threshold_m);
+    FS_GET(d, o, min_arc_coverage);
+    FS_GET(d, o, cylinder_iterations);
+    FS_GET(d, o, cylinder_normal_weight);
+    FS_GET(d, o, cylinder_section_low_m);
+    FS_GET(d, o, cylinder_section_high_m);
+    FS_GET(d, o, max_lean_rad);
+    return o;
+}
+
+py::dict sub(const py::dict &d, const char *key) {
+    return d.contains(key) ? py::dict(d[key]) : py::dict();
+}
+
+pc::PerceptionOptions perceptionOptions(const py::dict &d) {
+    pc::PerceptionOptions o;
+    if (d.contains("intensity_threshold") && !d["intensity_threshold"].is_none())
+        o.intensity_threshold = d["intensity_threshold"].cast<double>();
+    FS_GET(d, o, ground_voxel_m);
+    o.ground = groundOptions(sub(d, "ground"));
+    o.filter = filterOptions(sub(d, "filter"));
+    o.segmentation = segmentationOptions(sub(d, "segmentation"));
+    o.diameter = diameterOptions(sub(d, "diameter"));
+    return o;
+}
+
+pc::SensorGeometry sensorGeometry(const py::dict &d) {
+    pc::SensorGeometry s;
+    FS_GET(d, s, has_range_image);
+    FS_GET(d, s, image_rows);
+    FS_GET(d, s, image_cols);
+    FS_GET(d, s, horizontal_fov_rad);
+    FS_GET(d, s, vertical_angles_rad);
+    FS_GET(d, s, theta_v_rad);
+    return s;
+}
+
+py::dict fitDict(const pc::DiameterFit &f) {
+    py::dict d;
+    d["valid"] = f.valid;
+    d["radius"] = f.radius;
+    d["centre"] = f.centre;
+    d["axis"] = f.axis;
+    d["inliers"] = f.inliers;
+    d["rms_m"] = f.rms_m;
+    d["arc_coverage"] = f.arc_coverage;
+    d["score"] = f.score;
+    return d;
+}
+
+py::dict diameterDict(const pc::StemDiameter &s) {
+    py::dict d;
+    d["circle"] = fitDict(s.circle);
+    d["cylinder"] = fitDict(s.cylinder);
+    d["method"] = s.method == 1 ? "circle" : s.method == 2 ? "cylinder" : "none";
+    d["dbh"] = s.dbh;
+    d["centre"] = s.centre;
+    d["band_points"] = s.band_points;
+    return d;
+}
+
+py::list clustersList(const pc::Clusters &c) {
+    py::list out;
+    for (const auto &rows : c) out.append(py::array_t<int>(static_cast<py::ssize_t>(rows.size()), rows.data()));
+    return out;
+}
+
+std::vector<int> toRows(const py::array_t<int, py::array::c_style | py::array::forcecast> &a) {
+    return std::vector<int>(a.data(), a.data() + a.size());
+}
+
+py::dict detectionDict(const pc::Detection &det) {
+    const auto k = static_cast<Eigen::Index>(det.stems.size());
+    Points2 xy(k, 2);
+    Eigen::VectorXd z(k), dbh(k), base(k);
+    Points3 mean(k, 3), axis(k, 3);
+    Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
+    Eigen::VectorXi ground_found(k);
+    py::list pts, diam;
+    for (Eigen::Index i = 0; i < k; ++i) {
+        const pc::Stem &s = det.stems[static_cast<size_t>(i)];
+        xy.row(i) = s.breast.head<2>().transpose();
+        z(i) = s.breast.z();
+        dbh(i) = s.diameter.dbh;
+        base(i) = s.base_z;
+        mean.row(i) = s.shape.mean.transpose();
+        axis.row(i) = s.shape.axis.transpose();
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) cov(i, 3 * r + c) = s.shape.cov(r, c);
+        ground_found(i) = s.ground_found ? 1 : 0;
+        pts.append(py::cast(s.points));
+        diam.append(diameterDict(s.diameter));
+    }
+    py::dict d;
+    d["xy"] = xy;
+    d["z"] = z;
+    d["dbh"] = dbh;
+    d["base_z"] = base;
+    d["mean"] = mean;
+    d["cov"] = cov;
+    d["axis"] = axis;
+    d["ground_found"] = ground_found;
+    d["points"] = pts;
+    d["diameters"] = diam;
+    d["ground"] = det.ground;
+    d["up"] = det.up;
+    d["timing"] = det.timing_ms;
+    py::dict counts;
+    counts["input"] = det.input_points;
+    counts["after_intensity"] = det.after_intensity;
+    counts["finite"] = det.finite_points;
+    counts["ground"] = det.ground_points;
+    counts["filtered"] = det.filtered_points;
+    counts["coarse_clusters"] = det.coarse_clusters;
+    counts["refined_clusters"] = det.refined_clusters;
+    d["counts"] = counts;
     return d;
 }
 
@@ -56,6 +252,129 @@ void define_perception(py::module_ &m) {
         "fit_circle_algebraic",
         [](const Eigen::Ref<const Points2> &xy) { return circleDict(fitCircleAlgebraic(xy)); },
         py::arg("xy"), "Plain Taubin algebraic circle fit of xy (N,2); same dict as fit_circle.");
+
+    using IntArray = py::array_t<int, py::array::c_style | py::array::forcecast>;
+    m.def(
+        "perception_detect",
+        [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXd> intensity,
+           std::optional<Eigen::VectorXi> ring, const py::dict &sensor, bool scan_centred,
+           const py::dict &options) {
+            const pc::SensorGeometry g = sensorGeometry(sensor);
+            const pc::PerceptionOptions o = perceptionOptions(options);
+            const Eigen::VectorXd in = intensity ? *intensity : Eigen::VectorXd();
+            const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
+            pc::Detection det;
+            {
+                py::gil_scoped_release release;
+                det = pc::detectStems(points, in, rg, g, scan_centred, o);
+            }
+            return detectionDict(det);
+        },
+        py::arg("points"), py::arg("intensity"), py::arg("ring"), py::arg("sensor"),
+        py::arg("scan_centred"), py::arg("options"),
+        "Whole perception chain on points (N,3) (intensity (N,)|None, ring (N,)|None).\n"
+        "sensor: dict of SensorGeometry fields; options: nested dict of PerceptionOptions.\n"
+        "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
+        "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
+        "diameters list[dict], ground (G,3), up (3,), timing dict ms, counts dict.");
+    m.def(
+        "perception_intensity_filter",
+        [](const Eigen::VectorXd &intensity, double threshold) {
+            return pc::intensityFilter(intensity, threshold, intensity.size());
+        },
+        py::arg("intensity"), py::arg("threshold"),
+        "Rows (list[int]) with intensity <= threshold (all rows when threshold is NaN).");
+    m.def(
+        "perception_segment_ground",
+        [](const Eigen::Ref<const Points3> &points, const py::dict &options) {
+            const pc::GroundSegmentation gs = pc::segmentGround(points, groundOptions(options));
+            py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
+            auto mm = mask.mutable_unchecked<1>();
+            for (size_t i = 0; i < gs.is_ground.size(); ++i) mm(static_cast<py::ssize_t>(i)) = gs.is_ground[i] != 0;
+            py::dict d;
+            d["is_ground"] = mask;
+            d["grid_z"] = gs.grid.z;
+            d["grid_origin"] = gs.grid.origin;
+            d["grid_cell"] = gs.grid.cell;
+            return d;
+        },
+        py::arg("points"), py::arg("options"),
+        "Approximate progressive morphological ground filter of points (N,3). Returns dict:\n"
+        "is_ground (N,) bool, grid_z (rows,cols) ground height (NaN unknown), grid_origin (2,),\n"
+        "grid_cell (m).");
+    m.def(
+        "perception_normal_filter",
+        [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
+           const py::dict &options) {
+            const pc::NormalFilterResult r = pc::normalFilter(points, toRows(candidates), theta_v, filterOptions(options), nullptr);
+            py::dict d;
+            d["kept"] = r.kept;
+            d["normals"] = r.normals;
+            d["radius_per_ring"] = r.radius_per_ring;
+            return d;
+        },
+        py::arg("points"), py::arg("candidates"), py::arg("theta_v_rad"), py::arg("options"),
+        "Adaptive ring-based normal filter over rows `candidates` of points (N,3). Returns dict:\n"
+        "kept list[int] (rows), normals (M,3), radius_per_ring list[float].");
+    m.def(
+        "perception_range_image_clusters",
+        [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXi> ring,
+           const py::dict &sensor, const py::dict &options, int min_size) {
+            const pc::SensorGeometry g = sensorGeometry(sensor);
+            const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
+            const auto proj = pc::projectToRangeImage(points, rg, g);
+            return clustersList(pc::rangeImageClusters(points, proj, g, segmentationOptions(options), min_size));
+        },
+        py::arg("points"), py::arg("ring"), py::arg("sensor"), py::arg("options"),
+        py::arg("min_size") = 2, "Divide-and-merge range-image clusters: list of row arrays.");
+    m.def(
+        "perception_euclidean_clusters",
+        [](const Eigen::Ref<const Points3> &points, double tolerance, int min_size) {
+            return clustersList(pc::euclideanClusters(points, tolerance, min_size));
+        },
+        py::arg("points"), py::arg("tolerance_m"), py::arg("min_size") = 2,
+        "3D Euclidean clusters of points (N,3): list of row arrays.");
+    m.def(
+        "perception_dbscan",
+        [](const Eigen::Ref<const Points3> &points, double eps, int min_neighbours) {
+            std::vector<int> rows(static_cast<size_t>(points.rows()));
+            for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
+            return clustersList(pc::dbscan(points, rows, eps, min_neighbours));
+        },
+        py::arg("points"), py::arg("eps"), py::arg("min_neighbours") = 2,
+        "DBSCAN of points (N,3): list of row arrays (noise dropped).");
+    m.def(
+        "perception_cluster_shape",
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up, const py::dict &options) {
+            std::vector<int> rows(static_cast<size_t>(points.rows()));
+            for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
+            const pc::ClusterShape s = pc::clusterShape(points, rows, up);
+            py::dict d;
+            d["mean"] = s.mean;
+            d["cov"] = s.cov;
+            d["axis"] = s.axis;
+            d["singular"] = s.singular;
+            d["length"] = s.length;
+            d["width"] = s.width;
+            d["axis_angle"] = s.axis_angle;
+            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), segmentationOptions(options));
+            return d;
+        },
+        py::arg("points"), py::arg("up"), py::arg("options"),
+        "SVD shape of one cluster (M,3) and the stem decision: dict mean, cov (3,3), axis,\n"
+        "singular (3,), length, width, axis_angle (rad), is_stem.");
+    m.def(
+        "perception_estimate_diameter",
+        [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
+           const Eigen::Vector3d &up, const py::dict &options) {
+            const Points3 n = normals ? *normals : Points3(0, 3);
+            return diameterDict(pc::estimateDiameter(points, n, base_z, up, diameterOptions(options)));
+        },
+        py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"),
+        py::arg("options"),
+        "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: dict with\n"
+        "circle / cylinder fits (valid, radius, centre, axis, inliers, rms_m, arc_coverage,\n"
+        "score), method, dbh (NaN if none accepted), centre (3,), band_points.");
 }
 
 }  // namespace forestslam::python

@@ -1,0 +1,157 @@
+#include "forestslam/perception/detector.hpp"
+
+#include <pcl/console/print.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "forestslam/perception/preprocess.hpp"
+#include "forestslam/perception/segmentation.hpp"
+
+namespace forestslam::perception {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point &t) {
+    const auto now = Clock::now();
+    const double ms = std::chrono::duration<double, std::milli>(now - t).count();
+    t = now;
+    return ms;
+}
+
+}  // namespace
+
+Eigen::Vector3d groundNormal(const Eigen::Ref<const Points3> &ground) {
+    if (ground.rows() < 10) return Eigen::Vector3d::UnitZ();
+    const Eigen::RowVector3d mean = ground.colwise().mean();
+    const Eigen::MatrixXd c = ground.rowwise() - mean;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(c.transpose() * c);
+    Eigen::Vector3d n = eig.eigenvectors().col(0);
+    if (n.z() < 0) n = -n;
+    // A cloud of ground points that is not a plane (a slope + bank) or is steep: keep +z.
+    if (n.z() < std::cos(0.5236) || !n.allFinite()) return Eigen::Vector3d::UnitZ();
+    return n;
+}
+
+Detection detectStems(const Eigen::Ref<const Points3> &points,
+                      const Eigen::Ref<const Eigen::VectorXd> &intensity,
+                      const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
+                      bool scan_centred, const PerceptionOptions &opt) {
+    // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.
+    pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
+    Detection det;
+    det.input_points = static_cast<int>(points.rows());
+    auto t = Clock::now();
+    const auto t0 = t;
+
+    // 1. Finite rows within the intensity threshold.
+    std::vector<int> keep = intensityFilter(intensity, opt.intensity_threshold, points.rows());
+    det.after_intensity = static_cast<int>(keep.size());
+    std::vector<int> finite;
+    finite.reserve(keep.size());
+    for (int i : keep)
+        if (points.row(i).allFinite()) finite.push_back(i);
+    det.finite_points = static_cast<int>(finite.size());
+    const Points3 pts = selectRows(points, finite);
+    Eigen::VectorXi ring_sel;
+    if (ring.size() == points.rows()) {
+        ring_sel.resize(static_cast<Eigen::Index>(finite.size()));
+        for (size_t k = 0; k < finite.size(); ++k) ring_sel(static_cast<Eigen::Index>(k)) = ring(finite[k]);
+    }
+    det.timing_ms["intensity"] = msSince(t);
+
+    // 2. Ground.
+    GroundOptions gopt = opt.ground;
+    if (!scan_centred) gopt.max_range_m = 0;
+    GroundSegmentation gs = segmentGround(pts, gopt);
+    det.ground_points = gs.ground_count;
+    det.ground = thinGround(pts, gs.is_ground, opt.ground_voxel_m);
+    det.up = groundNormal(det.ground);
+    det.timing_ms["ground"] = msSince(t);
+
+    // 3. Adaptive normals and filter on the non-ground points.
+    std::vector<int> candidates;
+    candidates.reserve(finite.size());
+    const double range_max = scan_centred ? opt.segmentation.max_range_m : 0.0;
+    for (Eigen::Index i = 0; i < pts.rows(); ++i) {
+        if (gs.is_ground[static_cast<size_t>(i)]) continue;
+        if (range_max > 0 && std::hypot(pts(i, 0), pts(i, 1)) > range_max) continue;
+        candidates.push_back(static_cast<int>(i));
+    }
+    NormalFilterOptions fopt = opt.filter;
+    if (!scan_centred) fopt.adaptive = false;
+    const NormalFilterResult nf = normalFilter(pts, candidates, sensor.theta_v_rad, fopt,
+                                               gs.grid.z.size() > 0 ? &gs.grid : nullptr);
+    const Points3 filtered = selectRows(pts, nf.kept);
+    det.filtered_points = static_cast<int>(filtered.rows());
+    det.timing_ms["normals"] = msSince(t);
+
+    // 4. Coarse clusters: range image for single scans, 3D otherwise.
+    const SegmentationOptions &so = opt.segmentation;
+    Clusters coarse;
+    if (sensor.has_range_image && scan_centred) {
+        Eigen::VectorXi ring_f;
+        if (ring_sel.size() > 0) {
+            ring_f.resize(static_cast<Eigen::Index>(nf.kept.size()));
+            for (size_t k = 0; k < nf.kept.size(); ++k)
+                ring_f(static_cast<Eigen::Index>(k)) = ring_sel(nf.kept[k]);
+        }
+        const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
+        coarse = rangeImageClusters(filtered, proj, sensor, so, std::max(2, so.min_points / 2));
+    } else {
+        coarse = euclideanClusters(filtered, so.euclidean_tolerance_m,
+                                   std::max(2, so.min_points / 2));
+    }
+    det.coarse_clusters = static_cast<int>(coarse.size());
+    det.timing_ms["clustering"] = msSince(t);
+
+    // 5. DBSCAN refinement and SVD classification.
+    Clusters stems;
+    for (const auto &c : coarse) {
+        const double eps = (sensor.has_range_image && scan_centred)
+                               ? adaptiveEps(filtered, c, sensor.theta_v_rad, so)
+                               : so.map_dbscan_eps_m;
+        for (auto &sub : dbscan(filtered, c, eps, so.dbscan_min_neighbours)) {
+            ++det.refined_clusters;
+            const ClusterShape s = clusterShape(filtered, sub, det.up);
+            if (isStem(s, static_cast<int>(sub.size()), so)) stems.push_back(std::move(sub));
+        }
+    }
+    stems = mergeStemClusters(filtered, stems, so);
+    det.timing_ms["classification"] = msSince(t);
+
+    // 6. Per stem: shape, local ground, breast-height centre and diameter.
+    for (const auto &rows : stems) {
+        Stem st;
+        st.points = selectRows(filtered, rows);
+        st.normals = selectRows(nf.normals, rows);
+        st.shape = clusterShape(filtered, rows, det.up);
+        if (!isStem(st.shape, static_cast<int>(rows.size()), so)) continue;  // merged oddly
+        const Eigen::Vector2d xy = st.shape.mean.head<2>();
+        double base = localGroundHeight(det.ground, xy, so.ground_search_m);
+        if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
+        if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
+        st.ground_found = std::isfinite(base);
+        if (!st.ground_found) base = st.points.col(2).minCoeff();
+        st.base_z = base;
+        st.diameter = estimateDiameter(st.points, st.normals, base, det.up, opt.diameter);
+        if (st.diameter.centre.allFinite()) {
+            st.breast = st.diameter.centre;
+        } else {
+            // No accepted fit: the principal axis at breast height.
+            const double zb = base + 0.5 * (opt.diameter.band_low_m + opt.diameter.band_high_m);
+            const Eigen::Vector3d &a = st.shape.axis;
+            st.breast = st.shape.mean + a * ((zb - st.shape.mean.z()) / std::max(a.z(), 0.2));
+        }
+        det.stems.push_back(std::move(st));
+    }
+    for (size_t k = 0; k < det.stems.size(); ++k) det.stems[k].id = static_cast<int>(k);
+    det.timing_ms["diameter"] = msSince(t);
+    det.timing_ms["total"] = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+    return det;
+}
+
+}  // namespace forestslam::perception

@@ -1,0 +1,263 @@
+#include "forestslam/perception/preprocess.hpp"
+
+#include <pcl/common/centroid.h>
+#include <pcl/features/normal_3d.h>
+#include <pcl/kdtree/kdtree_flann.h>
+#include <pcl/segmentation/approximate_progressive_morphological_filter.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <unordered_map>
+
+namespace forestslam::perception {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+inline std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
+    return (ix << 32) ^ (iy & 0xffffffffLL);
+}
+
+inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
+    return std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2));
+}
+
+}  // namespace
+
+std::vector<int> intensityFilter(const Eigen::Ref<const Eigen::VectorXd> &intensity,
+                                 double threshold, Eigen::Index rows) {
+    std::vector<int> keep;
+    keep.reserve(static_cast<size_t>(rows));
+    const bool active = std::isfinite(threshold) && intensity.size() == rows;
+    for (Eigen::Index i = 0; i < rows; ++i) {
+        if (!active || (std::isfinite(intensity(i)) && intensity(i) <= threshold))
+            keep.push_back(static_cast<int>(i));
+    }
+    return keep;
+}
+
+double GroundGrid::heightAt(double x, double y) const {
+    if (z.size() == 0) return kNaN;
+    const auto c = static_cast<Eigen::Index>(std::floor((x - origin.x()) / cell));
+    const auto r = static_cast<Eigen::Index>(std::floor((y - origin.y()) / cell));
+    if (r < 0 || c < 0 || r >= z.rows() || c >= z.cols()) return kNaN;
+    return z(r, c);
+}
+
+GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
+                                 const GroundOptions &opt) {
+    GroundSegmentation out;
+    const Eigen::Index n = points.rows();
+    out.is_ground.assign(static_cast<size_t>(n), 0);
+    const double cell = opt.cell_size_m > 0 ? opt.cell_size_m : 0.5;
+    const double range2 = opt.max_range_m > 0 ? opt.max_range_m * opt.max_range_m : kNaN;
+
+    // Lowest point per cell: the min-grid the morphological filter works on.
+    std::unordered_map<std::int64_t, int> lowest;
+    lowest.reserve(static_cast<size_t>(n / 4 + 16));
+    for (Eigen::Index i = 0; i < n; ++i) {
+        if (!finiteRow(points, i)) continue;
+        const double x = points(i, 0), y = points(i, 1);
+        if (std::isfinite(range2) && x * x + y * y > range2) continue;
+        const auto key = cellKey(static_cast<std::int64_t>(std::floor(x / cell)),
+                                 static_cast<std::int64_t>(std::floor(y / cell)));
+        auto [it, inserted] = lowest.emplace(key, static_cast<int>(i));
+        if (!inserted && points(i, 2) < points(it->second, 2)) it->second = static_cast<int>(i);
+    }
+    if (lowest.size() < 3) return out;
+
+    pcl::PointCloud<pcl::PointXYZ>::Ptr cells(new pcl::PointCloud<pcl::PointXYZ>);
+    std::vector<int> cell_rows;
+    cells->reserve(lowest.size());
+    cell_rows.reserve(lowest.size());
+    for (const auto &[key, row] : lowest) {
+        (void)key;
+        cells->push_back(pcl::PointXYZ(static_cast<float>(points(row, 0)),
+                                       static_cast<float>(points(row, 1)),
+                                       static_cast<float>(points(row, 2))));
+        cell_rows.push_back(row);
+    }
+    pcl::ApproximateProgressiveMorphologicalFilter<pcl::PointXYZ> pmf;
+    pmf.setInputCloud(cells);
+    pmf.setCellSize(static_cast<float>(cell));
+    pmf.setMaxWindowSize(opt.max_window_cells);
+    pmf.setSlope(static_cast<float>(opt.slope));
+    pmf.setInitialDistance(static_cast<float>(opt.initial_distance_m));
+    pmf.setMaxDistance(static_cast<float>(opt.max_distance_m));
+    pmf.setBase(static_cast<float>(opt.base));
+    pmf.setExponential(opt.exponential);
+    pmf.setNumberOfThreads(1);  // one core: OpenMP teams only lose on a loaded field computer
+    pcl::Indices ground_cells;
+    pmf.extract(ground_cells);
+    if (ground_cells.empty()) return out;
+
+    // Dense grid of ground-cell heights over their bounding box.
+    double xmin = std::numeric_limits<double>::max(), ymin = xmin;
+    double xmax = std::numeric_limits<double>::lowest(), ymax = xmax;
+    for (int k : ground_cells) {
+        const int row = cell_rows[static_cast<size_t>(k)];
+        xmin = std::min(xmin, points(row, 0)), xmax = std::max(xmax, points(row, 0));
+        ymin = std::min(ymin, points(row, 1)), ymax = std::max(ymax, points(row, 1));
+    }
+    GroundGrid &g = out.grid;
+    g.cell = cell;
+    g.origin = Eigen::Vector2d(std::floor(xmin / cell) * cell, std::floor(ymin / cell) * cell);
+    const auto cols = static_cast<Eigen::Index>(std::floor((xmax - g.origin.x()) / cell)) + 1;
+    const auto rows = static_cast<Eigen::Index>(std::floor((ymax - g.origin.y()) / cell)) + 1;
+    if (static_cast<double>(rows) * static_cast<double>(cols) > 5e7) return out;  // > 3.5 km wide
+    g.z.setConstant(rows, cols, kNaN);
+    for (int k : ground_cells) {
+        const int row = cell_rows[static_cast<size_t>(k)];
+        const auto c = static_cast<Eigen::Index>(std::floor((points(row, 0) - g.origin.x()) / cell));
+        const auto r = static_cast<Eigen::Index>(std::floor((points(row, 1) - g.origin.y()) / cell));
+        if (r >= 0 && c >= 0 && r < rows && c < cols) g.z(r, c) = points(row, 2);
+    }
+    // Fill holes (cells under stems, shadows) from known neighbours, a few cells deep.
+    for (int pass = 0; pass < 4; ++pass) {
+        Eigen::MatrixXd next = g.z;
+        for (Eigen::Index r = 0; r < rows; ++r) {
+            for (Eigen::Index c = 0; c < cols; ++c) {
+                if (std::isfinite(g.z(r, c))) continue;
+                double s = 0;
+                int cnt = 0;
+                for (Eigen::Index dr = -1; dr <= 1; ++dr)
+                    for (Eigen::Index dc = -1; dc <= 1; ++dc) {
+                        const Eigen::Index rr = r + dr, cc = c + dc;
+                        if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
+                        if (std::isfinite(g.z(rr, cc))) s += g.z(rr, cc), ++cnt;
+                    }
+                if (cnt >= 2) next(r, c) = s / cnt;
+            }
+        }
+        g.z.swap(next);
+    }
+    for (Eigen::Index i = 0; i < n; ++i) {
+        if (!finiteRow(points, i)) continue;
+        const double x = points(i, 0), y = points(i, 1);
+        if (std::isfinite(range2) && x * x + y * y > range2) continue;
+        const double h = points(i, 2) - g.heightAt(x, y);
+        if (std::isfinite(h) && h <= opt.cell_height_m) {
+            out.is_ground[static_cast<size_t>(i)] = 1;
+            ++out.ground_count;
+        }
+    }
+    return out;
+}
+
+Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
+                   double voxel_m) {
+    std::unordered_map<std::int64_t, int> keep;
+    std::vector<int> order;
+    const double v = voxel_m > 0 ? voxel_m : 1e-6;
+    for (Eigen::Index i = 0; i < points.rows(); ++i) {
+        if (!is_ground[static_cast<size_t>(i)]) continue;
+        const auto ix = static_cast<std::int64_t>(std::floor(points(i, 0) / v));
+        const auto iy = static_cast<std::int64_t>(std::floor(points(i, 1) / v));
+        const auto iz = static_cast<std::int64_t>(std::floor(points(i, 2) / v));
+        const std::int64_t key = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791);
+        auto [it, inserted] = keep.emplace(key, static_cast<int>(i));
+        if (inserted)
+            order.push_back(static_cast<int>(i));
+        else if (points(i, 2) < points(it->second, 2))
+            it->second = static_cast<int>(i);
+    }
+    Points3 out(static_cast<Eigen::Index>(keep.size()), 3);
+    Eigen::Index k = 0;
+    for (int first : order) {
+        const auto ix = static_cast<std::int64_t>(std::floor(points(first, 0) / v));
+        const auto iy = static_cast<std::int64_t>(std::floor(points(first, 1) / v));
+        const auto iz = static_cast<std::int64_t>(std::floor(points(first, 2) / v));
+        const std::int64_t key = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791);
+        auto it = keep.find(key);
+        if (it == keep.end() || it->second < 0) continue;
+        out.row(k++) = points.row(it->second);
+        it->second = -1;
+    }
+    out.conservativeResize(k, 3);
+    return out;
+}
+
+NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
+                                const std::vector<int> &candidates, double theta_v_rad,
+                                const NormalFilterOptions &opt, const GroundGrid *grid) {
+    NormalFilterResult out;
+    // Height band above the local ground, then thinning to one point per small voxel.
+    std::vector<int> rows;
+    rows.reserve(candidates.size());
+    std::unordered_map<std::int64_t, char> voxels;
+    const double v = opt.voxel_m;
+    for (int i : candidates) {
+        if (!finiteRow(points, i)) continue;
+        if (grid != nullptr) {
+            const double h = points(i, 2) - grid->heightAt(points(i, 0), points(i, 1));
+            if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
+        }
+        if (v > 0) {
+            const auto ix = static_cast<std::int64_t>(std::floor(points(i, 0) / v));
+            const auto iy = static_cast<std::int64_t>(std::floor(points(i, 1) / v));
+            const auto iz = static_cast<std::int64_t>(std::floor(points(i, 2) / v));
+            if (!voxels.emplace((ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791), 1).second)
+                continue;
+        }
+        rows.push_back(i);
+    }
+    // Ring radii: geomspace(ring_min, ring_max, rings) edges, one search radius per ring.
+    std::vector<double> edges;
+    const int n_edges = std::max(2, opt.rings);
+    const double lo = std::max(1e-3, opt.ring_min_m), hi = std::max(lo * 1.0001, opt.ring_max_m);
+    for (int k = 0; k < n_edges; ++k)
+        edges.push_back(lo * std::pow(hi / lo, static_cast<double>(k) / (n_edges - 1)));
+    if (opt.adaptive) {
+        for (int k = 0; k + 1 < n_edges; ++k) {
+            const double d = opt.radius_scale * theta_v_rad * 0.5 * (edges[k] + edges[k + 1]);
+            out.radius_per_ring.push_back(std::clamp(d, opt.min_radius_m, opt.max_radius_m));
+        }
+    } else {
+        out.radius_per_ring.push_back(opt.fixed_radius_m);
+    }
+    if (rows.size() < 3) {
+        out.normals.resize(0, 3);
+        return out;
+    }
+    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
+    cloud->resize(rows.size());
+    for (size_t k = 0; k < rows.size(); ++k) {
+        const int i = rows[k];
+        (*cloud)[k] = pcl::PointXYZ(static_cast<float>(points(i, 0)),
+                                    static_cast<float>(points(i, 1)),
+                                    static_cast<float>(points(i, 2)));
+    }
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+    tree.setInputCloud(cloud);
+    const double max_nz = std::sin(opt.max_normal_angle_rad);
+    pcl::Indices nn;
+    std::vector<float> d2;
+    std::vector<Eigen::Vector3d> normals;
+    for (size_t k = 0; k < rows.size(); ++k) {
+        const int i = rows[k];
+        double radius = out.radius_per_ring.front();
+        if (opt.adaptive) {
+            const double r = std::hypot(points(i, 0), points(i, 1));
+            const auto ring = std::upper_bound(edges.begin(), edges.end(), r) - edges.begin() - 1;
+            radius = out.radius_per_ring[static_cast<size_t>(
+                std::clamp<long>(ring, 0, static_cast<long>(out.radius_per_ring.size()) - 1))];
+        }
+        const int found =
+            tree.radiusSearch((*cloud)[k], radius, nn, d2, std::max(opt.max_neighbours, 3));
+        if (found - 1 < opt.min_neighbours || found < 3) continue;  // the query is in nn
+        Eigen::Vector4f plane;
+        float curvature;
+        if (!pcl::computePointNormal(*cloud, nn, plane, curvature)) continue;
+        if (!std::isfinite(plane(2)) || std::abs(plane(2)) > max_nz) continue;
+        out.kept.push_back(i);
+        normals.emplace_back(plane(0), plane(1), plane(2));
+    }
+    out.normals.resize(static_cast<Eigen::Index>(normals.size()), 3);
+    for (size_t k = 0; k < normals.size(); ++k)
+        out.normals.row(static_cast<Eigen::Index>(k)) = normals[k].transpose();
+    return out;
+}
+
+}  // namespace forestslam::perception

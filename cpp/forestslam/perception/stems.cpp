@@ -1,0 +1,233 @@
+#include "forestslam/perception/stems.hpp"
+
+#include <pcl/ModelCoefficients.h>
+#include <pcl/point_types.h>
+#include <pcl/sample_consensus/method_types.h>
+#include <pcl/sample_consensus/model_types.h>
+#include <pcl/segmentation/sac_segmentation.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "forestslam/common/circle_fit.hpp"
+
+namespace forestslam::perception {
+namespace {
+
+double median(std::vector<double> v) {
+    if (v.empty()) return kNaN;
+    const size_t m = v.size() / 2;
+    std::nth_element(v.begin(), v.begin() + static_cast<long>(m), v.end());
+    return v[m];
+}
+
+// Quality of a circle (centre on an axis through `centre` along `axis`, radius r) on `band`.
+void evaluate(const Eigen::Ref<const Points3> &band, const DiameterOptions &opt, DiameterFit &f) {
+    const Eigen::Vector3d a = f.axis.normalized();
+    Eigen::Vector3d u = a.unitOrthogonal(), v = a.cross(u);
+    Points2 plane(band.rows(), 2);
+    double ss = 0;
+    std::vector<int> in;
+    for (Eigen::Index i = 0; i < band.rows(); ++i) {
+        const Eigen::Vector3d d = band.row(i).transpose() - f.centre;
+        const Eigen::Vector3d radial = d - d.dot(a) * a;
+        plane.row(i) << radial.dot(u), radial.dot(v);
+        const double e = radial.norm() - f.radius;
+        if (std::abs(e) <= opt.inlier_threshold_m) {
+            in.push_back(static_cast<int>(i));
+            ss += e * e;
+        }
+    }
+    f.inliers = static_cast<int>(in.size());
+    f.rms_m = in.empty() ? kNaN : std::sqrt(ss / static_cast<double>(in.size()));
+    f.arc_coverage = arcCoverage(plane, in, Eigen::Vector2d::Zero(), 36);
+    const double ratio = band.rows() > 0 ? static_cast<double>(in.size()) / band.rows() : 0.0;
+    f.score = in.empty() ? 0.0 : ratio * f.arc_coverage / std::max(f.rms_m, 0.005);
+    f.valid = f.valid && f.inliers >= 3 && f.arc_coverage >= opt.min_arc_coverage &&
+              f.radius >= opt.min_radius_m && f.radius <= opt.max_radius_m;
+}
+
+Points3 rowsBetween(const Eigen::Ref<const Points3> &p, double lo, double hi,
+                    std::vector<int> *rows_out = nullptr) {
+    std::vector<int> rows;
+    for (Eigen::Index i = 0; i < p.rows(); ++i)
+        if (p(i, 2) >= lo && p(i, 2) <= hi) rows.push_back(static_cast<int>(i));
+    if (rows_out) *rows_out = rows;
+    return selectRows(p, rows);
+}
+
+}  // namespace
+
+ClusterShape clusterShape(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows,
+                          const Eigen::Vector3d &up) {
+    ClusterShape s;
+    const size_t n = rows.size();
+    if (n == 0) return s;
+    for (int i : rows) s.mean += points.row(i).transpose();
+    s.mean /= static_cast<double>(n);
+    for (int i : rows) {
+        const Eigen::Vector3d d = points.row(i).transpose() - s.mean;
+        s.cov += d * d.transpose();
+    }
+    s.cov /= static_cast<double>(std::max<size_t>(1, n - 1));
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(s.cov);
+    const Eigen::Vector3d ev = eig.eigenvalues().cwiseMax(0.0);  // ascending
+    s.singular << std::sqrt(ev(2)), std::sqrt(ev(1)), std::sqrt(ev(0));
+    s.axis = eig.eigenvectors().col(2);
+    if (s.axis.dot(up) < 0) s.axis = -s.axis;
+    const Eigen::Vector3d second = eig.eigenvectors().col(1);
+    double lo = 1e300, hi = -1e300, wlo = 1e300, whi = -1e300;
+    for (int i : rows) {
+        const Eigen::Vector3d d = points.row(i).transpose() - s.mean;
+        lo = std::min(lo, d.dot(s.axis)), hi = std::max(hi, d.dot(s.axis));
+        wlo = std::min(wlo, d.dot(second)), whi = std::max(whi, d.dot(second));
+    }
+    s.length = hi - lo;
+    s.width = whi - wlo;
+    s.axis_angle = std::acos(std::clamp(s.axis.dot(up.normalized()), -1.0, 1.0));
+    return s;
+}
+
+bool isStem(const ClusterShape &s, int count, const SegmentationOptions &o) {
+    return count >= o.min_points && s.length >= o.min_length_m &&
+           s.axis_angle <= o.max_axis_angle_rad && s.width <= o.max_width_m &&
+           s.singular(0) >= o.min_sv_ratio * std::max(s.singular(1), 1e-9);
+}
+
+Clusters mergeStemClusters(const Eigen::Ref<const Points3> &points, const Clusters &stems,
+                           const SegmentationOptions &o) {
+    const size_t n = stems.size();
+    std::vector<Eigen::Vector2d> xy(n, Eigen::Vector2d::Zero());
+    for (size_t k = 0; k < n; ++k) {
+        for (int i : stems[k]) xy[k] += points.block<1, 2>(i, 0).transpose();
+        xy[k] /= static_cast<double>(std::max<size_t>(1, stems[k].size()));
+    }
+    std::vector<int> parent(n);
+    std::iota(parent.begin(), parent.end(), 0);
+    auto find = [&](int a) {
+        while (parent[a] != a) a = parent[a] = parent[parent[a]];
+        return a;
+    };
+    for (size_t a = 0; a < n; ++a)
+        for (size_t b = a + 1; b < n; ++b)
+            if ((xy[a] - xy[b]).norm() < o.merge_xy_m)
+                parent[find(static_cast<int>(a))] = find(static_cast<int>(b));
+    std::vector<std::vector<int>> groups(n);
+    for (size_t k = 0; k < n; ++k) {
+        auto &g = groups[static_cast<size_t>(find(static_cast<int>(k)))];
+        g.insert(g.end(), stems[k].begin(), stems[k].end());
+    }
+    Clusters out;
+    for (auto &g : groups)
+        if (!g.empty()) out.push_back(std::move(g));
+    return out;
+}
+
+double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
+                         double radius) {
+    std::vector<double> z;
+    const double r2 = radius * radius;
+    for (Eigen::Index i = 0; i < ground.rows(); ++i) {
+        const double dx = ground(i, 0) - xy.x(), dy = ground(i, 1) - xy.y();
+        if (dx * dx + dy * dy <= r2) z.push_back(ground(i, 2));
+    }
+    return median(std::move(z));
+}
+
+StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
+                              const Eigen::Ref<const Points3> &normals, double base_z,
+                              const Eigen::Vector3d &up, const DiameterOptions &opt) {
+    StemDiameter out;
+    if (points.rows() < 3 || !std::isfinite(base_z)) return out;
+    // Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a
+    // VLP-16 at 10 m has one ring per 0.35 m).
+    const double mid = base_z + 0.5 * (opt.band_low_m + opt.band_high_m);
+    double half = 0.5 * (opt.band_high_m - opt.band_low_m);
+    Points3 band = rowsBetween(points, mid - half, mid + half);
+    while (band.rows() < opt.min_band_points && half < opt.band_max_half_m) {
+        half = std::min(opt.band_max_half_m, half + 0.1);
+        band = rowsBetween(points, mid - half, mid + half);
+    }
+    out.band_points = static_cast<int>(band.rows());
+    const Eigen::Vector3d axis_up = up.normalized();
+
+    // Robust circle fit of the band in the horizontal plane.
+    if (band.rows() >= 3) {
+        CircleFitOptions co;
+        co.inlier_threshold_m = opt.inlier_threshold_m;
+        co.min_radius_m = opt.min_radius_m;
+        co.max_radius_m = opt.max_radius_m;
+        const Points2 xy = band.leftCols<2>();
+        const CircleFit cf = fitCircle(xy, co);
+        if (cf.valid) {
+            out.circle.valid = true;
+            out.circle.radius = cf.radius;
+            out.circle.centre << cf.centre.x(), cf.centre.y(), mid;
+            out.circle.axis = Eigen::Vector3d::UnitZ();
+            evaluate(band, opt, out.circle);
+        }
+    }
+    // SAC cylinder (with normals) on the lower stem section.
+    if (normals.rows() == points.rows() && points.rows() >= 8) {
+        std::vector<int> rows;
+        Points3 sec = rowsBetween(points, base_z + opt.cylinder_section_low_m,
+                                  base_z + opt.cylinder_section_high_m, &rows);
+        if (sec.rows() < 8) {
+            rows.resize(static_cast<size_t>(points.rows()));
+            std::iota(rows.begin(), rows.end(), 0);
+            sec = points;
+        }
+        pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
+        pcl::PointCloud<pcl::Normal>::Ptr cn(new pcl::PointCloud<pcl::Normal>);
+        for (int i : rows) {
+            cloud->push_back(pcl::PointXYZ(static_cast<float>(points(i, 0)),
+                                           static_cast<float>(points(i, 1)),
+                                           static_cast<float>(points(i, 2))));
+            cn->push_back(pcl::Normal(static_cast<float>(normals(i, 0)),
+                                      static_cast<float>(normals(i, 1)),
+                                      static_cast<float>(normals(i, 2))));
+        }
+        pcl::SACSegmentationFromNormals<pcl::PointXYZ, pcl::Normal> seg;
+        seg.setOptimizeCoefficients(true);
+        seg.setModelType(pcl::SACMODEL_CYLINDER);
+        seg.setMethodType(pcl::SAC_RANSAC);
+        seg.setNormalDistanceWeight(opt.cylinder_normal_weight);
+        seg.setMaxIterations(opt.cylinder_iterations);
+        seg.setDistanceThreshold(opt.inlier_threshold_m);
+        seg.setRadiusLimits(opt.min_radius_m, opt.max_radius_m);
+        seg.setAxis(axis_up.cast<float>());
+        seg.setEpsAngle(opt.max_lean_rad);
+        seg.setInputCloud(cloud);
+        seg.setInputNormals(cn);
+        pcl::PointIndices inl;
+        pcl::ModelCoefficients coef;
+        seg.segment(inl, coef);
+        if (coef.values.size() == 7 && inl.indices.size() >= 3) {
+            Eigen::Vector3d p0(coef.values[0], coef.values[1], coef.values[2]);
+            Eigen::Vector3d a(coef.values[3], coef.values[4], coef.values[5]);
+            if (a.norm() > 0 && std::abs(a.normalized().dot(axis_up)) > 1e-3) {
+                a.normalize();
+                if (a.dot(axis_up) < 0) a = -a;
+                DiameterFit &f = out.cylinder;
+                f.valid = true;
+                f.axis = a;
+                f.radius = coef.values[6];
+                f.centre = p0 + a * ((mid - p0.z()) / a.z());  // axis at breast height
+                evaluate(band.rows() >= 3 ? Points3(band) : sec, opt, f);
+            }
+        }
+    }
+    const DiameterFit *best = nullptr;
+    if (out.circle.valid) best = &out.circle, out.method = 1;
+    if (out.cylinder.valid && (!best || out.cylinder.score > best->score))
+        best = &out.cylinder, out.method = 2;
+    if (best) {
+        out.dbh = 2.0 * best->radius;
+        out.centre = best->centre;
+    }
+    return out;
+}
+
+}  // namespace forestslam::perception

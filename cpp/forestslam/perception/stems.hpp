@@ -1,0 +1,78 @@
+// Stem classification from the SVD of each refined cluster, merging of the pieces of one tree,
+// per-stem properties (mean, covariance, axis, base height) and the stem diameter at breast
+// height (PCL SAC cylinder and the robust circle fit, the better by quality).
+#pragma once
+
+#include <Eigen/Core>
+#include <limits>
+#include <vector>
+
+#include "forestslam/common/types.hpp"
+#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/segmentation.hpp"
+
+namespace forestslam::perception {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Shape of one cluster from the SVD of its centred points.
+struct ClusterShape {
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();  // principal axis, pointing up
+    Eigen::Vector3d singular = Eigen::Vector3d::Zero();  // s0 >= s1 >= s2 (sqrt of eigenvalues)
+    double length = 0;       // extent along the axis
+    double width = 0;        // extent along the second axis
+    double axis_angle = 0;   // angle between axis and `up`
+};
+ClusterShape clusterShape(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows,
+                          const Eigen::Vector3d &up);
+
+// The paper's heuristics: count, length, angle to up, s0/s1, plus a width cap.
+bool isStem(const ClusterShape &shape, int count, const SegmentationOptions &options);
+
+// Union of stem clusters whose XY means are closer than options.merge_xy_m.
+Clusters mergeStemClusters(const Eigen::Ref<const Points3> &points, const Clusters &stems,
+                           const SegmentationOptions &options);
+
+// One diameter estimate with its quality (evaluated on the same breast-height band points).
+struct DiameterFit {
+    bool valid = false;
+    double radius = kNaN;
+    Eigen::Vector3d centre = Eigen::Vector3d::Constant(kNaN);  // at breast height
+    Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();
+    int inliers = 0;
+    double rms_m = kNaN;
+    double arc_coverage = 0;
+    double score = 0;  // inlier ratio * arc coverage / max(rms, 5 mm): larger is better
+};
+
+struct StemDiameter {
+    DiameterFit circle, cylinder;
+    int method = 0;  // 0 none accepted, 1 circle, 2 cylinder
+    double dbh = kNaN;
+    Eigen::Vector3d centre = Eigen::Vector3d::Constant(kNaN);
+    int band_points = 0;
+};
+
+// Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
+StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
+                              const Eigen::Ref<const Points3> &normals, double base_z,
+                              const Eigen::Vector3d &up, const DiameterOptions &options);
+
+struct Stem {
+    int id = 0;
+    Points3 points;
+    Points3 normals;
+    ClusterShape shape;
+    double base_z = kNaN;        // local ground height under the stem
+    bool ground_found = false;   // false: base_z is the stem's lowest point
+    Eigen::Vector3d breast = Eigen::Vector3d::Constant(kNaN);  // centre at 1.3 m
+    StemDiameter diameter;
+};
+
+// Local ground height: median z of `ground` points within `radius` (XY) of `xy`; NaN if none.
+double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
+                         double radius);
+
+}  // namespace forestslam::perception

@@ -1,0 +1,102 @@
+"""Perception parameters (Gupta et al. 2023, Sections 3.1-3.2). Lengths in metres, angles in
+radians; field names match the C++ option structs in cpp/forestslam/perception/options.hpp."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class GroundConfig:
+    """Approximate progressive morphological filter (PCL), run on the lowest point of every
+    `cell_size_m` cell; all points within `cell_height_m` above their cell's ground are ground."""
+
+    cell_size_m: float = 0.5
+    max_window_cells: int = 9  # windows 3, 5, 9 cells
+    slope: float = 0.5
+    initial_distance_m: float = 0.2
+    max_distance_m: float = 1.0
+    base: float = 2.0
+    exponential: bool = True
+    cell_height_m: float = 0.2
+    max_range_m: float = 40.0  # single scans: ground searched within this XY range
+
+
+@dataclass
+class NormalFilterConfig:
+    """Adaptive ring-based normals: rings geomspace(ring_min_m, ring_max_m, rings), per ring
+    radius radius_scale * theta_V * (r_in + r_out) / 2 clamped to [min_radius_m, max_radius_m];
+    `adaptive=False` uses `fixed_radius_m` everywhere (the paper's ablation)."""
+
+    adaptive: bool = True
+    ring_min_m: float = 1.0
+    ring_max_m: float = 40.0
+    rings: int = 12
+    radius_scale: float = 1.5
+    min_radius_m: float = 0.1
+    max_radius_m: float = 1.0
+    fixed_radius_m: float = 0.3
+    max_normal_angle_rad: float = 0.5236  # theta_th: normals within 30 deg of horizontal
+    min_neighbours: int = 5  # N_min
+    max_neighbours: int = 48  # nearest neighbours used per normal (speed cap)
+    min_height_m: float = 0.3  # band above the local ground searched for stems
+    max_height_m: float = 8.0
+    voxel_m: float = 0.04  # thinning before normals (0 = none)
+
+
+@dataclass
+class SegmentationConfig:
+    """Range-image divide-and-merge, adaptive DBSCAN and SVD stem classification."""
+
+    block_cols: int = 32
+    beta_min_rad: float = 0.1745
+    max_neighbour_gap_m: float = 0.5
+    max_pixel_gap: int = 2
+    min_votes: int = 2
+    euclidean_tolerance_m: float = 0.15  # coarse 3D clustering of map / tls clouds
+    dbscan_k: float = 1.25
+    dbscan_min_neighbours: int = 2
+    dbscan_min_eps_m: float = 0.08
+    dbscan_max_eps_m: float = 1.0
+    map_dbscan_eps_m: float = 0.1
+    min_points: int = 8
+    min_length_m: float = 0.4
+    max_axis_angle_rad: float = 0.5236
+    min_sv_ratio: float = 1.5
+    max_width_m: float = 1.5
+    merge_xy_m: float = 0.4
+    max_range_m: float = 30.0  # single scans: stems farther away are ignored (0 = no limit)
+    ground_search_m: float = 2.0
+
+
+@dataclass
+class DiameterConfig:
+    """DBH on the 1.15-1.45 m band (widened around 1.3 m up to band_max_half_m when sparse) by
+    the robust circle fit and by PCL's SAC cylinder; the better quality wins."""
+
+    band_low_m: float = 1.15
+    band_high_m: float = 1.45
+    band_max_half_m: float = 0.5
+    min_band_points: int = 6
+    min_radius_m: float = 0.025
+    max_radius_m: float = 0.75
+    inlier_threshold_m: float = 0.03
+    min_arc_coverage: float = 0.1
+    cylinder_iterations: int = 200
+    cylinder_normal_weight: float = 0.1
+    cylinder_section_low_m: float = 0.5
+    cylinder_section_high_m: float = 3.0
+    max_lean_rad: float = 0.35
+
+
+@dataclass
+class PerceptionConfig:
+    """Per-scan perception. `intensity_filter` applies the sensor profile's
+    intensity_threshold (skipped when the profile has none or the scan has no intensity)."""
+
+    intensity_filter: bool = True
+    ground_voxel_m: float = 0.25  # ground output: one point per voxel
+    ground: GroundConfig = field(default_factory=GroundConfig)
+    filter: NormalFilterConfig = field(default_factory=NormalFilterConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    diameter: DiameterConfig = field(default_factory=DiameterConfig)

@@ -1,0 +1,252 @@
+"""Per-scan tree-stem perception: the facade `detect` and every stage on its own.
+
+The chain (all C++, forestslam._core): intensity filter -> approximate progressive
+morphological ground filter -> adaptive ring-based normal filter -> coarse clusters (range-image
+divide-and-merge for spinning / solid-state scans, 3D Euclidean for `map` / `tls` clouds) ->
+adaptive DBSCAN -> SVD stem classification and merge -> local ground, breast-height centre and
+DBH (SAC cylinder and robust circle fit, chosen by quality).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from forestslam.config_utils import to_dict
+from forestslam.errors import InputError
+from forestslam.io.scan import Scan
+from forestslam.perception.config import PerceptionConfig
+from forestslam.perception.stems import Stems
+from forestslam.sensors import SensorProfile, load_profile
+
+log = logging.getLogger(__name__)
+
+MAX_POINTS = 50_000_000  # beyond this a cloud is refused rather than exhausting memory
+
+
+def _core():
+    from forestslam import _core
+
+    return _core
+
+
+def sensor_geometry(sensor: str | SensorProfile) -> dict:
+    """The sensor facts the C++ chain needs, as a dict of SensorGeometry fields."""
+    profile = load_profile(sensor)
+    return {
+        "has_range_image": bool(profile.has_range_image),
+        "image_rows": int(profile.image_rows),
+        "image_cols": int(profile.image_cols),
+        "horizontal_fov_rad": math.radians(profile.horizontal_fov_deg),
+        "vertical_angles_rad": [float(a) for a in profile.vertical_angles_rad]
+        if profile.channels > 0
+        else [],
+        "theta_v_rad": float(profile.theta_v_rad),
+    }
+
+
+def _as_scan(scan: Scan | np.ndarray) -> Scan:
+    if isinstance(scan, Scan):
+        points = scan.points
+    else:
+        points = np.asarray(scan, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise InputError(f"points must have shape (N,3), got {points.shape}")
+        scan = Scan(0.0, points)
+        points = scan.points
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"scan points must have shape (N,3), got {points.shape}")
+    if len(points) > MAX_POINTS:
+        raise InputError(
+            f"cloud has {len(points):,} points, more than {MAX_POINTS:,}: crop or thin it first"
+        )
+    return scan
+
+
+def _options(profile: SensorProfile, config: PerceptionConfig, scan: Scan) -> dict:
+    options = to_dict(config)
+    threshold = profile.intensity_threshold
+    use = config.intensity_filter and threshold is not None and scan.intensity is not None
+    options["intensity_threshold"] = float(threshold) if use else None
+    options.pop("intensity_filter", None)
+    return options
+
+
+def _ring(profile: SensorProfile, scan: Scan) -> np.ndarray | None:
+    if scan.ring is None or not profile.has_range_image or len(scan) == 0:
+        return None
+    ring = np.asarray(scan.ring).astype(np.int32)
+    if ring.min() < 0 or ring.max() >= profile.image_rows:
+        log.warning(
+            "ring field spans %d..%d, outside the %d rows of %s: using elevation angles",
+            ring.min(),
+            ring.max(),
+            profile.image_rows,
+            profile.name,
+        )
+        return None
+    return ring
+
+
+def detect(
+    scan: Scan | np.ndarray, sensor: str | SensorProfile, config: PerceptionConfig | None = None
+) -> Stems:
+    """Stems of one scan (or one map / TLS cloud with sensor `map` / `tls`), sensor frame.
+
+    Empty, all-NaN or stem-less input gives empty Stems; a malformed array or an over-large
+    cloud raises InputError.
+    """
+    config = config or PerceptionConfig()
+    profile = load_profile(sensor)
+    scan = _as_scan(scan)
+    if len(scan) == 0:
+        return Stems.empty(timing={"total": 0.0})
+    intensity = None
+    if scan.intensity is not None:
+        intensity = np.asarray(scan.intensity, dtype=np.float64)
+    result = _core().perception_detect(
+        scan.points,
+        intensity,
+        _ring(profile, scan),
+        sensor_geometry(profile),
+        profile.kind != "map",
+        _options(profile, config, scan),
+    )
+    k = len(result["z"])
+    stems = Stems(
+        xy=np.asarray(result["xy"]).reshape(k, 2),
+        dbh=np.asarray(result["dbh"]),
+        z=np.asarray(result["z"]),
+        mean=np.asarray(result["mean"]).reshape(k, 3),
+        cov=np.asarray(result["cov"]).reshape(k, 3, 3),
+        axis=np.asarray(result["axis"]).reshape(k, 3),
+        points=[np.asarray(p).reshape(-1, 3) for p in result["points"]],
+        base_z=np.asarray(result["base_z"]),
+        ground=np.asarray(result["ground"]).reshape(-1, 3),
+        diameters=list(result["diameters"]),
+        timing=dict(result["timing"]),
+        counts=dict(result["counts"]),
+    )
+    log.debug("%d stems, %d ground points, %.1f ms", k, len(stems.ground), stems.timing["total"])
+    return stems
+
+
+# ---- stages on their own (for debugging and for the ablation) ----
+
+
+def intensity_filter(
+    scan: Scan, sensor: str | SensorProfile, config: PerceptionConfig | None = None
+) -> Scan:
+    """The scan without returns brighter than the profile's intensity threshold (foliage);
+    unchanged when the profile or the scan has no intensity."""
+    profile = load_profile(sensor)
+    config = config or PerceptionConfig()
+    if not config.intensity_filter or profile.intensity_threshold is None:
+        return scan
+    if scan.intensity is None or len(scan) == 0:
+        return scan
+    rows = _core().perception_intensity_filter(
+        np.asarray(scan.intensity, dtype=np.float64), float(profile.intensity_threshold)
+    )
+    return scan.select(np.asarray(rows, dtype=np.int64))
+
+
+def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -> np.ndarray:
+    """(N,) bool ground mask of points (N,3) by the approximate progressive morphological
+    filter (single-scan XY range limit of config.ground.max_range_m applies)."""
+    config = config or PerceptionConfig()
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    out = _core().perception_segment_ground(points, to_dict(config.ground))
+    return np.asarray(out["is_ground"], dtype=bool)
+
+
+def filter_normals(
+    points: np.ndarray,
+    sensor: str | SensorProfile,
+    config: PerceptionConfig | None = None,
+    candidates: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Adaptive (or fixed-radius) normal filter of non-ground points (N,3): returns the kept
+    rows (M,) and their unit normals (M,3). No height band (no ground grid) here."""
+    config = config or PerceptionConfig()
+    profile = load_profile(sensor)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    rows = np.arange(len(points), dtype=np.int32) if candidates is None else candidates
+    out = _core().perception_normal_filter(
+        points, np.asarray(rows, dtype=np.int32), profile.theta_v_rad, to_dict(config.filter)
+    )
+    return np.asarray(out["kept"], dtype=np.int64), np.asarray(out["normals"]).reshape(-1, 3)
+
+
+def coarse_clusters(
+    points: np.ndarray,
+    sensor: str | SensorProfile,
+    config: PerceptionConfig | None = None,
+    ring: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """Coarse clusters (row arrays) of filtered points: range-image divide-and-merge when the
+    sensor has a range image, else 3D Euclidean clustering."""
+    config = config or PerceptionConfig()
+    profile = load_profile(sensor)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    seg = to_dict(config.segmentation)
+    min_size = max(2, config.segmentation.min_points // 2)
+    if profile.has_range_image:
+        ring32 = None if ring is None else np.asarray(ring, dtype=np.int32)
+        return _core().perception_range_image_clusters(
+            points, ring32, sensor_geometry(profile), seg, min_size
+        )
+    return _core().perception_euclidean_clusters(
+        points, config.segmentation.euclidean_tolerance_m, min_size
+    )
+
+
+def refine_cluster(
+    points: np.ndarray, sensor: str | SensorProfile, config: PerceptionConfig | None = None
+) -> list[np.ndarray]:
+    """DBSCAN of one coarse cluster (M,3) with eps = k * theta_V * |mean_xy| (clamped)."""
+    config = config or PerceptionConfig()
+    profile = load_profile(sensor)
+    seg = config.segmentation
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return []
+    if profile.has_range_image:
+        eps = seg.dbscan_k * profile.theta_v_rad * float(np.linalg.norm(points[:, :2].mean(0)))
+        eps = float(np.clip(eps, seg.dbscan_min_eps_m, seg.dbscan_max_eps_m))
+    else:
+        eps = seg.map_dbscan_eps_m
+    return _core().perception_dbscan(points, eps, seg.dbscan_min_neighbours)
+
+
+def classify_cluster(
+    points: np.ndarray, config: PerceptionConfig | None = None, up: np.ndarray | None = None
+) -> dict:
+    """SVD shape of one cluster (M,3) and whether it is a stem: dict mean, cov, axis,
+    singular, length, width, axis_angle, is_stem."""
+    config = config or PerceptionConfig()
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    return _core().perception_cluster_shape(points, up, to_dict(config.segmentation))
+
+
+def estimate_diameter(
+    points: np.ndarray,
+    base_z: float,
+    normals: np.ndarray | None = None,
+    config: PerceptionConfig | None = None,
+    up: np.ndarray | None = None,
+) -> dict:
+    """DBH of one stem's points (M,3) above ground height base_z: circle fit on the
+    breast-height band and (with normals (M,3)) the SAC cylinder; dict with both fits, the
+    chosen `method` and `dbh` (NaN when none is accepted)."""
+    config = config or PerceptionConfig()
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if normals is not None:
+        normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    return _core().perception_estimate_diameter(
+        points, normals, float(base_z), up, to_dict(config.diameter)
+    )

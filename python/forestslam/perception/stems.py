@@ -1,0 +1,74 @@
+"""The result of per-scan perception: detected stems, all in the sensor (input) frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Stems:
+    """K stems of one scan.
+
+    xy (K,2) breast-height centres (1.3 m above local ground); z (K,) their height;
+    dbh (K,) metres, NaN where no diameter fit was accepted; mean (K,3) and cov (K,3,3) of the
+    stem points (the Gaussians of shape-to-shape registration); axis (K,3) principal axis
+    (unit, pointing up); base_z (K,) local ground height; points list of (Mi,3);
+    ground (G,3) ground points thinned to one per voxel; diameters list of per-stem fit
+    quality dicts (circle / cylinder: radius, inliers, rms_m, arc_coverage, score; method);
+    timing dict of per-stage milliseconds; counts dict of per-stage point / cluster counts.
+    """
+
+    xy: np.ndarray
+    dbh: np.ndarray
+    z: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    axis: np.ndarray
+    points: list[np.ndarray]
+    base_z: np.ndarray
+    ground: np.ndarray
+    diameters: list[dict] = field(default_factory=list)
+    timing: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @property
+    def ids(self) -> np.ndarray:
+        return np.arange(len(self), dtype=np.int64)
+
+    @classmethod
+    def empty(cls, ground: np.ndarray | None = None, timing: dict | None = None) -> Stems:
+        return cls(
+            xy=np.zeros((0, 2)),
+            dbh=np.zeros(0),
+            z=np.zeros(0),
+            mean=np.zeros((0, 3)),
+            cov=np.zeros((0, 3, 3)),
+            axis=np.zeros((0, 3)),
+            points=[],
+            base_z=np.zeros(0),
+            ground=np.zeros((0, 3)) if ground is None else ground,
+            timing=dict(timing or {}),
+        )
+
+    def select(self, mask: np.ndarray) -> Stems:
+        """The stems selected by a boolean mask or index array (ground and timing kept)."""
+        idx = np.arange(len(self))[mask]
+        return Stems(
+            xy=self.xy[idx],
+            dbh=self.dbh[idx],
+            z=self.z[idx],
+            mean=self.mean[idx],
+            cov=self.cov[idx],
+            axis=self.axis[idx],
+            points=[self.points[i] for i in idx],
+            base_z=self.base_z[idx],
+            ground=self.ground,
+            diameters=[self.diameters[i] for i in idx] if self.diameters else [],
+            timing=dict(self.timing),
+            counts=dict(self.counts),
+        )
