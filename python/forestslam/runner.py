@@ -1,7 +1,8 @@
 """The main job: scans -> odometry -> landmark SLAM -> tree map (-> ground map), written as it goes.
 
 Modes: `odometry` (odometry.tum, timing.json), `slam` (+ trajectory.tum, trees.csv/.geojson,
-map.png), `map3d` (+ scan-to-map ICP refinement of keyframes, ground.ply, dtm.npz/.csv/.png).
+map.png), `map3d` (+ voxelized ground map rebuilt from the optimised keyframes: ground.ply,
+dtm.npz/.csv/.png).
 Output frame: the first processed scan's sensor frame.
 
 Reliability: trajectory.tum, odometry.tum, trees.csv and trees.geojson are rewritten atomically
@@ -133,11 +134,6 @@ class Pipeline:
             if mode == "map3d"
             else None
         )
-        self.refiner = None
-        if mode == "map3d" and config.mapping.refine_with_icp:
-            from forestslam.mapping.refine import ScanToMapRefiner
-
-            self.refiner = ScanToMapRefiner(config.mapping)
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []

@@ -27,10 +27,5 @@ class MappingConfig:
     ground_voxel_m: float = 0.2
     dtm_cell_m: float = 0.5
     dtm_min_points: int = 2
-    # map3d: scan-to-map point-to-plane ICP refinement of keyframes on stem + ground points.
-    refine_with_icp: bool = True
-    icp_local_map_keyframes: int = 20
-    icp_max_correspondence_m: float = 0.5
-    icp_max_correction_m: float = 0.5  # a larger ICP correction is rejected as a failure
     # Outputs: trajectory / trees rewritten atomically every this many scans.
     checkpoint_every_scans: int = 100

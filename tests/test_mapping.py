@@ -1,0 +1,114 @@
+"""Tree map (windowed DBH fusion), voxel grid, ground map and DTM against known geometry."""
+
+import numpy as np
+import pytest
+
+from forestslam.mapping import (
+    GroundMap,
+    MappingConfig,
+    TreeMap,
+    dtm_grid,
+    voxel_downsample,
+    write_dtm,
+)
+
+
+def test_voxel_downsample_centroids_and_counts():
+    pts = np.array([[0.01, 0.01, 0.01], [0.09, 0.09, 0.09], [0.5, 0.5, 0.5], [np.nan, 0, 0]])
+    c, n = voxel_downsample(pts, 0.1, return_counts=True)
+    order = np.argsort(c[:, 0])
+    np.testing.assert_allclose(c[order], [[0.05, 0.05, 0.05], [0.5, 0.5, 0.5]])
+    assert n[order].tolist() == [2, 1]
+    assert voxel_downsample(np.zeros((0, 3)), 0.1).shape == (0, 3)
+
+
+def test_dtm_of_a_plane_and_files(tmp_path):
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 10, size=(20000, 2))
+    z = 0.1 * xy[:, 0] - 0.05 * xy[:, 1] + 2.0
+    dtm = dtm_grid(np.column_stack([xy, z]), cell_m=0.5)
+    assert dtm["z"].shape == (20, 20)
+    gx = dtm["x0"] + np.arange(20) * 0.5
+    gy = dtm["y0"] + np.arange(20) * 0.5
+    expect = 0.1 * gx[None, :] - 0.05 * gy[:, None] + 2.0
+    np.testing.assert_allclose(dtm["z"], expect, atol=0.01)  # cell mean of a plane
+    write_dtm(tmp_path, dtm)
+    back = np.load(tmp_path / "dtm.npz")
+    np.testing.assert_allclose(back["z"], dtm["z"])
+    rows = np.loadtxt(tmp_path / "dtm.csv", delimiter=",", skiprows=1)
+    assert rows.shape == (400, 3)
+
+
+def test_ground_map_uses_keyframe_poses():
+    g = GroundMap(keyframe_voxel_m=0.2, voxel_m=0.2)
+    local = np.column_stack(
+        [
+            np.repeat(np.arange(0, 2, 0.05), 40),
+            np.tile(np.arange(0, 2, 0.05), 40),
+            np.full(1600, -1.0),
+        ]
+    )
+    g.add_keyframe(0, local)
+    g.add_keyframe(1, local)
+    poses = np.tile(np.eye(4), (2, 1, 1))
+    poses[1, :3, 3] = [10.0, 0.0, 0.5]
+    m = g.build(poses)
+    assert len(m) == 200  # two 10x10 voxel patches
+    assert np.isclose(m[m[:, 0] > 5, 2], -0.5).all() and np.isclose(m[m[:, 0] < 5, 2], -1).all()
+
+
+def stem_scan(sensor_xy, centre, radius, rng, base_z=-1.0):
+    """Points of the visible half of a vertical stem (sensor frame), band heights 1.0-1.6 m."""
+    to_sensor = np.asarray(sensor_xy) - centre
+    facing = np.arctan2(to_sensor[1], to_sensor[0])
+    ang = facing + rng.uniform(-np.pi / 2.2, np.pi / 2.2, 120)
+    r = radius + rng.normal(scale=0.008, size=120)
+    world = np.column_stack(
+        [
+            centre[0] + r * np.cos(ang),
+            centre[1] + r * np.sin(ang),
+            base_z + rng.uniform(1.0, 1.6, 120),
+        ]
+    )
+    return world - [sensor_xy[0], sensor_xy[1], 0.0]
+
+
+def test_tree_map_fuses_dbh_over_windows():
+    rng = np.random.default_rng(4)
+    cfg = MappingConfig(dbh_window_scans=25)
+    tm = TreeMap(cfg)
+    centre, radius = np.array([5.0, 2.0]), 0.15
+    for i in range(40):
+        sensor = np.array([0.1 * i, 0.0])
+        T = np.eye(4)
+        T[:2, 3] = sensor
+        pts = stem_scan(sensor, centre, radius, rng)
+        tm.add(
+            i, T, np.array([7]), [pts], np.array([-1.0]), np.array([0.3]), np.array([0.40])
+        )  # a bad per-scan DBH: the window fit must win
+    tm.flush(None)
+    dbh, std, n = tm.dbh(7)
+    assert n == 2
+    assert dbh == pytest.approx(0.30, abs=0.01)
+    assert std < 0.01
+    table = tm.table(np.array([7, 8]), np.array([[5.0, 2.0], [1.0, 1.0]]), np.array([5, 1]))
+    assert table["id"].tolist() == [7]  # tree 8 has too few observations
+    assert table["dbh_m"][0] == pytest.approx(dbh)
+    assert table["z"][0] == pytest.approx(0.3)
+
+
+def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
+    tm = TreeMap(MappingConfig())
+    for i in range(3):
+        tm.add(
+            i,
+            np.eye(4),
+            np.array([-1, 2]),
+            [np.zeros((0, 3)), np.zeros((0, 3))],
+            np.array([0.0, 0.0]),
+            np.array([1.0, 1.0]),
+            np.array([0.5, 0.2 + 0.01 * i]),
+        )
+    dbh, std, n = tm.dbh(2)
+    assert dbh == pytest.approx(0.21) and n == 0 and np.isnan(std)
+    assert np.isnan(tm.dbh(5)[0])
