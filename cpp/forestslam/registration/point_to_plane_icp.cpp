@@ -1,0 +1,188 @@
+#include "forestslam/registration/point_to_plane_icp.hpp"
+
+#include <pcl/kdtree/kdtree_flann.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "forestslam/common/pcl_adapter.hpp"
+
+namespace forestslam {
+
+struct PlaneTarget::Impl {
+    Points3 points;
+    Points3 normals;
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+};
+
+PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_k)
+    : impl_(std::make_unique<Impl>()) {
+    impl_->points = finiteRows(points_in);
+    const Eigen::Index m = impl_->points.rows();
+    impl_->normals = Points3::Constant(m, 3, std::numeric_limits<double>::quiet_NaN());
+    if (m == 0) return;
+    impl_->tree.setInputCloud(detail::toPcl(impl_->points));
+    const int k = std::max(3, std::min<int>(normal_k, static_cast<int>(m)));
+    if (m < 3) return;
+    std::vector<int> idx(k);
+    std::vector<float> d2(k);
+    pcl::PointXYZ q;
+    for (Eigen::Index i = 0; i < m; ++i) {
+        q.getVector3fMap() = impl_->points.row(i).transpose().cast<float>();
+        const int found = impl_->tree.nearestKSearch(q, k, idx, d2);
+        if (found < 3) continue;
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (int j = 0; j < found; ++j) mean += impl_->points.row(idx[j]).transpose();
+        mean /= found;
+        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+        for (int j = 0; j < found; ++j) {
+            const Eigen::Vector3d d = impl_->points.row(idx[j]).transpose() - mean;
+            cov += d * d.transpose();
+        }
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+        const Eigen::Vector3d ev = eig.eigenvalues();
+        // Reject lines and isolated points: the two larger spreads must be well above the normal.
+        if (!(ev(1) > 3.0 * ev(0)) || !(ev(1) > 1e-8)) continue;
+        impl_->normals.row(i) = eig.eigenvectors().col(0).transpose();
+    }
+}
+
+PlaneTarget::~PlaneTarget() = default;
+PlaneTarget::PlaneTarget(PlaneTarget &&) noexcept = default;
+PlaneTarget &PlaneTarget::operator=(PlaneTarget &&) noexcept = default;
+
+const Points3 &PlaneTarget::points() const { return impl_->points; }
+const Points3 &PlaneTarget::normals() const { return impl_->normals; }
+Eigen::Index PlaneTarget::size() const { return impl_->points.rows(); }
+
+int PlaneTarget::nearest(const Eigen::Vector3d &query, double &squared_distance) const {
+    if (impl_->points.rows() == 0) return -1;
+    std::vector<int> idx(1);
+    std::vector<float> d2(1);
+    pcl::PointXYZ q;
+    q.getVector3fMap() = query.cast<float>();
+    if (impl_->tree.nearestKSearch(q, 1, idx, d2) < 1) return -1;
+    squared_distance = (impl_->points.row(idx[0]).transpose() - query).squaredNorm();
+    return idx[0];
+}
+
+double pointToPlaneResidual(const Pose3 &T, const Eigen::Vector3d &p, const Eigen::Vector3d &q,
+                            const Eigen::Vector3d &n, Eigen::Matrix<double, 1, 6> *jacobian) {
+    const Eigen::Vector3d pw = T * p;
+    if (jacobian) {
+        jacobian->head<3>() = n.transpose();
+        jacobian->tail<3>() = pw.cross(n).transpose();
+    }
+    return n.dot(pw - q);
+}
+
+namespace {
+
+// Rotation vector of R (log map).
+Eigen::Vector3d logSO3(const Eigen::Matrix3d &R) {
+    const Eigen::AngleAxisd aa(R);
+    return aa.angle() * aa.axis();
+}
+
+}  // namespace
+
+RegistrationResult icpPointToPlane(const PlaneTarget &target,
+                                   const Eigen::Ref<const Points3> &source_in, const Pose3 &T_init,
+                                   const IcpConfig &config, const Matrix6d &prior_information,
+                                   const Pose3 &T_prior) {
+    RegistrationResult result;
+    result.T_target_source = T_init.matrix();
+    result.covariance = Matrix6d::Identity() * kUnobservedVariance;
+    const Points3 source = finiteRows(source_in);
+    if (target.size() < 3 || source.rows() == 0) return result;
+
+    const Points3 &tp = target.points();
+    const Points3 &tn = target.normals();
+    Pose3 T = T_init;
+    double max_d = std::max(config.max_correspondence_m, config.final_correspondence_m);
+    const double shrink = config.max_iterations > 1
+                              ? std::pow(config.final_correspondence_m / max_d,
+                                         1.0 / std::max(1, std::min(config.shrink_iterations, config.max_iterations / 2)))
+                              : 1.0;
+    Matrix6d H = Matrix6d::Zero();
+    int used = 0;
+    double sse = 0.0;
+    bool converged = false;
+    int it = 0;
+    for (; it < config.max_iterations; ++it) {
+        H.setZero();
+        Vector6d b = Vector6d::Zero();
+        used = 0;
+        sse = 0.0;
+        const double max_d2 = max_d * max_d;
+        Eigen::Matrix<double, 1, 6> J;
+        for (Eigen::Index i = 0; i < source.rows(); ++i) {
+            const Eigen::Vector3d p = source.row(i).transpose();
+            double d2 = 0.0;
+            const int j = target.nearest(T * p, d2);
+            if (j < 0 || d2 > max_d2 || std::isnan(tn(j, 0))) continue;
+            const double r = pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
+            const double a = std::abs(r);
+            const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
+            H.noalias() += w * J.transpose() * J;
+            b.noalias() += w * r * J.transpose();
+            sse += w * r * r;
+            ++used;
+        }
+        if (used < config.min_correspondences) break;
+        Matrix6d A = H;
+        Vector6d g = b;
+        if (!prior_information.isZero()) {
+            const Pose3 E = T * T_prior.inverse();
+            Vector6d e;
+            e.head<3>() = E.translation();
+            e.tail<3>() = logSO3(E.linear());
+            A += prior_information;
+            g += prior_information * e;
+        }
+        const Vector6d delta = A.ldlt().solve(-g);
+        if (!delta.allFinite()) break;
+        T = expSE3(delta) * T;
+        max_d = std::max(config.final_correspondence_m, max_d * shrink);
+        if (delta.head<3>().norm() < config.translation_tolerance_m &&
+            delta.tail<3>().norm() < config.rotation_tolerance_rad && max_d <= config.final_correspondence_m + 1e-9) {
+            converged = true;
+            ++it;
+            break;
+        }
+    }
+    result.iterations = it;
+    result.inliers = used;
+    result.T_target_source = T.matrix();
+    if (used < config.min_correspondences) return result;
+    result.converged = converged;
+    result.rmse = std::sqrt(sse / used);
+
+    // Degeneracy: eigenvalues of the per-correspondence information with rotations in metres.
+    Matrix6d S = Matrix6d::Identity();
+    S.bottomRightCorner<3, 3>() *= 1.0 / config.degeneracy_length_m;
+    const Matrix6d Hn = S * H * S / used;
+    Eigen::SelfAdjointEigenSolver<Matrix6d> eig(Hn);
+    result.degenerate = !(eig.eigenvalues()(0) > config.degeneracy_threshold);
+    // Covariance: (H + prior)^-1 scaled by the residual variance.
+    const double sigma2 = sse / std::max(1, used - 6);
+    Matrix6d info = H / std::max(sigma2, 1e-8) + prior_information;
+    Eigen::SelfAdjointEigenSolver<Matrix6d> eig_info(info);
+    if (eig_info.eigenvalues()(0) > 1e-12) {
+        result.covariance = info.inverse();
+    } else {
+        // Invert on the observed subspace only; unobserved directions get kUnobservedVariance.
+        Matrix6d cov = Matrix6d::Zero();
+        for (int k = 0; k < 6; ++k) {
+            const double l = eig_info.eigenvalues()(k);
+            const double v = l > 1e-12 ? 1.0 / l : kUnobservedVariance;
+            cov += v * eig_info.eigenvectors().col(k) * eig_info.eigenvectors().col(k).transpose();
+        }
+        result.covariance = cov;
+    }
+    return result;
+}
+
+}  // namespace forestslam

@@ -1,0 +1,61 @@
+// Point-to-plane ICP over 6 DoF (Gauss-Newton, Huber weights) against a target with normals.
+// The target (KD-tree + normals from its own neighbourhoods) is built once and reused, so a
+// local map serves many scans.
+#pragma once
+
+#include <memory>
+
+#include "forestslam/registration/result.hpp"
+
+namespace forestslam {
+
+class PlaneTarget {
+  public:
+    // points (M,3), non-finite rows dropped. Normals from the normal_k nearest neighbours (PCA);
+    // points whose neighbourhood is not planar enough (or too small) get no normal and are skipped.
+    explicit PlaneTarget(const Eigen::Ref<const Points3> &points, int normal_k = 10);
+    ~PlaneTarget();
+    PlaneTarget(PlaneTarget &&) noexcept;
+    PlaneTarget &operator=(PlaneTarget &&) noexcept;
+
+    const Points3 &points() const;
+    const Points3 &normals() const;  // (M,3), NaN rows where no normal
+    Eigen::Index size() const;
+    // Index and squared distance of the nearest target point (-1 if the target is empty).
+    int nearest(const Eigen::Vector3d &query, double &squared_distance) const;
+
+  private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+};
+
+struct IcpConfig {
+    int max_iterations = 30;
+    double max_correspondence_m = 1.0;   // first iterations
+    double final_correspondence_m = 0.3;  // shrinks geometrically towards this
+    int shrink_iterations = 5;            // ... reaching it after this many iterations
+    double huber_m = 0.05;               // robust kernel width on point-to-plane residuals
+    double translation_tolerance_m = 1e-4;
+    double rotation_tolerance_rad = 1e-5;
+    int min_correspondences = 20;
+    // A direction is degenerate when its share of constraint per correspondence is below this
+    // (rotations scaled by degeneracy_length_m so that they are compared as metres of arc).
+    double degeneracy_threshold = 2e-3;
+    double degeneracy_length_m = 10.0;
+};
+
+// The residual of one correspondence and its Jacobian with respect to the left perturbation
+// (tx, ty, tz, rx, ry, rz) of T: r = n . (T p - q). Exposed for derivative tests.
+double pointToPlaneResidual(const Pose3 &T, const Eigen::Vector3d &p, const Eigen::Vector3d &q,
+                            const Eigen::Vector3d &n, Eigen::Matrix<double, 1, 6> *jacobian);
+
+// Register source (N,3) onto target from T_init. prior_information (6x6, optional, may be zero)
+// pulls the pose towards T_prior (e.g. the constant-velocity prediction) in the same left
+// perturbation coordinates; it regularises directions the geometry does not constrain.
+RegistrationResult icpPointToPlane(const PlaneTarget &target,
+                                   const Eigen::Ref<const Points3> &source, const Pose3 &T_init,
+                                   const IcpConfig &config = {},
+                                   const Matrix6d &prior_information = Matrix6d::Zero(),
+                                   const Pose3 &T_prior = Pose3::Identity());
+
+}  // namespace forestslam

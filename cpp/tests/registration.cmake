@@ -1,0 +1,4 @@
+forestslam_add_test(tree_correspondences registration)
+forestslam_add_test(shape_registration registration)
+forestslam_add_test(point_to_plane_icp registration)
+forestslam_add_test(fpfh_ransac registration)

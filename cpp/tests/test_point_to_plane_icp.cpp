@@ -1,0 +1,95 @@
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "forestslam/registration/point_to_plane_icp.hpp"
+#include "registration_fixtures.hpp"
+
+using namespace forestslam;
+
+namespace {
+
+Pose3 knownPose() {
+    Pose3 T = Pose3::Identity();
+    T.linear() = (Eigen::AngleAxisd(0.08, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(0.02, Eigen::Vector3d::UnitX()) *
+                  Eigen::AngleAxisd(-0.015, Eigen::Vector3d::UnitY()))
+                     .toRotationMatrix();
+    T.translation() << 0.35, -0.2, 0.05;
+    return T;
+}
+
+void expectPoseNear(const Pose3 &a, const Pose3 &b, double meters, double degrees) {
+    EXPECT_LT((a.translation() - b.translation()).norm(), meters);
+    const double angle = Eigen::AngleAxisd(a.linear().transpose() * b.linear()).angle();
+    EXPECT_LT(angle * 180.0 / M_PI, degrees);
+}
+
+}  // namespace
+
+TEST(PointToPlaneIcp, JacobianMatchesNumeric) {
+    const Pose3 T = knownPose();
+    const Eigen::Vector3d p(2.0, -1.0, 0.7), q(2.5, -1.2, 0.6), n = Eigen::Vector3d(0.3, 0.5, 0.8).normalized();
+    Eigen::Matrix<double, 1, 6> J;
+    pointToPlaneResidual(T, p, q, n, &J);
+    const double h = 1e-6;
+    for (int k = 0; k < 6; ++k) {
+        Vector6d d = Vector6d::Zero();
+        d(k) = h;
+        const double rp = pointToPlaneResidual(expSE3(d) * T, p, q, n, nullptr);
+        const double rm = pointToPlaneResidual(expSE3(-d) * T, p, q, n, nullptr);
+        EXPECT_NEAR(J(k), (rp - rm) / (2 * h), 1e-6) << "column " << k;
+    }
+}
+
+TEST(PointToPlaneIcp, ScanAgainstItselfMovedRecoversTransform) {
+    const auto stems = synth::randomStems(15, 15.0, 1);
+    const Points3 target = synth::sceneCloud(stems, 15.0, 2);
+    const Pose3 T = knownPose();
+    const Points3 source = transformPoints(T.inverse(), target);
+    const PlaneTarget plane_target(target, 10);
+    const RegistrationResult r = icpPointToPlane(plane_target, source, Pose3::Identity());
+    expectPoseNear(Pose3(r.T_target_source), T, 0.01, 0.1);
+    EXPECT_TRUE(r.converged);
+    EXPECT_FALSE(r.degenerate);
+    EXPECT_LT(r.rmse, 0.01);
+    EXPECT_GT(r.inliers, source.rows() / 2);
+    EXPECT_LT(r.covariance(0, 0), 1e-4);
+}
+
+TEST(PointToPlaneIcp, NoisyResampledScanRecoversTransform) {
+    const auto stems = synth::randomStems(15, 15.0, 4);
+    const Points3 target = synth::sceneCloud(stems, 15.0, 5, 0.01);
+    const Pose3 T = knownPose();
+    const Points3 source = transformPoints(T.inverse(), synth::sceneCloud(stems, 15.0, 6, 0.01));
+    const RegistrationResult r = icpPointToPlane(PlaneTarget(target), source, Pose3::Identity());
+    expectPoseNear(Pose3(r.T_target_source), T, 0.03, 0.2);
+}
+
+TEST(PointToPlaneIcp, FlatGroundOnlyIsDegenerateAndPriorHoldsIt) {
+    Points3 ground(0, 3);
+    std::vector<Eigen::Vector3d> pts;
+    for (double x = -10; x <= 10; x += 0.5)
+        for (double y = -10; y <= 10; y += 0.5) pts.emplace_back(x, y, -1.0);
+    ground.resize(pts.size(), 3);
+    for (size_t i = 0; i < pts.size(); ++i) ground.row(i) = pts[i].transpose();
+    const Pose3 prior = Pose3(Eigen::Translation3d(0.4, 0.1, 0.0));
+    Matrix6d info = Matrix6d::Identity() * 100.0;
+    const RegistrationResult r = icpPointToPlane(PlaneTarget(ground), ground, prior, {}, info, prior);
+    EXPECT_TRUE(r.degenerate);
+    // x, y, yaw unobserved by a plane: the prior keeps them.
+    expectPoseNear(Pose3(r.T_target_source), prior, 1e-3, 0.01);
+    EXPECT_GT(r.covariance(0, 0), 100.0 * r.covariance(2, 2));
+}
+
+TEST(PointToPlaneIcp, EmptyInputs) {
+    Points3 empty(0, 3);
+    const auto stems = synth::randomStems(5, 10.0, 1);
+    const Points3 cloud = synth::sceneCloud(stems, 10.0, 2);
+    RegistrationResult r = icpPointToPlane(PlaneTarget(empty), cloud, Pose3::Identity());
+    EXPECT_FALSE(r.converged);
+    EXPECT_TRUE(r.degenerate);
+    r = icpPointToPlane(PlaneTarget(cloud), empty, Pose3::Identity());
+    EXPECT_FALSE(r.converged);
+    EXPECT_TRUE(r.T_target_source.isIdentity());
+}
