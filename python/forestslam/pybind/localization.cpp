@@ -1,9 +1,148 @@
+// Bindings of the global localization core: Delaunay triangulation, triangle stars, the tree
+// map with its star index, and trunk extraction from a map cloud.
+#include <pybind11/eigen.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
 #include "bindings.hpp"
+#include "forestslam/localization/delaunay.hpp"
+#include "forestslam/localization/global_localizer.hpp"
+#include "forestslam/localization/triangle_star.hpp"
+#include "forestslam/localization/trunk_extraction.hpp"
 
 namespace py = pybind11;
 
 namespace forestslam::python {
+namespace {
 
-void define_localization(py::module_ &m) { (void)m; }
+using IntRows = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;
+using IntRows6 = Eigen::Matrix<int, Eigen::Dynamic, 6, Eigen::RowMajor>;
+
+IntRows toRows(const std::vector<std::array<int, 3>> &v) {
+    IntRows out(v.size(), 3);
+    for (size_t i = 0; i < v.size(); ++i) out.row(i) << v[i][0], v[i][1], v[i][2];
+    return out;
+}
+
+py::dict starsToDict(const StarSet &set) {
+    IntRows6 vertices(set.stars.size(), 6);
+    Eigen::VectorXi centre(set.stars.size());
+    for (size_t i = 0; i < set.stars.size(); ++i) {
+        for (int k = 0; k < 6; ++k) vertices(i, k) = set.stars[i].vertices[k];
+        centre[i] = set.stars[i].centre;
+    }
+    py::dict d;
+    d["descriptors"] = set.descriptors;
+    d["centre"] = centre;
+    d["vertices"] = vertices;
+    d["features"] = set.features();
+    return d;
+}
+
+}  // namespace
+
+void define_localization(py::module_ &m) {
+    m.def(
+        "delaunay",
+        [](const Eigen::Ref<const Points2> &xy, double duplicate_tolerance) {
+            const Triangulation tri = delaunayTriangulation(xy, duplicate_tolerance);
+            return py::make_tuple(toRows(tri.triangles), toRows(tri.neighbours));
+        },
+        py::arg("xy"), py::arg("duplicate_tolerance") = 1e-6,
+        "Delaunay triangulation of xy (N,2) float64 -> (triangles (T,3) int32 counter-clockwise "
+        "row indices, neighbours (T,3) int32: triangle across the edge opposite each vertex, -1 "
+        "on the hull). Non-finite and duplicate rows are skipped; collinear input gives T = 0.");
+
+    m.def(
+        "triangle_stars",
+        [](const Eigen::Ref<const Points2> &xy) {
+            const Triangulation tri = delaunayTriangulation(xy);
+            return starsToDict(buildStars(tri, xy));
+        },
+        py::arg("xy"),
+        "Triangle stars of the Delaunay triangulation of xy (N,2) -> dict: descriptors (T,2) "
+        "[area, squared perimeter] per triangle, centre (S,) centre triangle, vertices (S,6) "
+        "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
+        "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
+
+    py::class_<GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
+        .def(py::init<>())
+        .def_readwrite("candidates_per_star", &GlobalLocalizerConfig::candidates_per_star)
+        .def_readwrite("max_feature_distance_m", &GlobalLocalizerConfig::max_feature_distance_m)
+        .def_readwrite("rotation_ambiguity", &GlobalLocalizerConfig::rotation_ambiguity)
+        .def_readwrite("edge_tolerance_m", &GlobalLocalizerConfig::edge_tolerance_m)
+        .def_readwrite("inlier_gate_m", &GlobalLocalizerConfig::inlier_gate_m)
+        .def_readwrite("min_inliers", &GlobalLocalizerConfig::min_inliers)
+        .def_readwrite("min_inlier_fraction", &GlobalLocalizerConfig::min_inlier_fraction)
+        .def_readwrite("ambiguity_ratio", &GlobalLocalizerConfig::ambiguity_ratio)
+        .def_readwrite("distinct_translation_m", &GlobalLocalizerConfig::distinct_translation_m)
+        .def_readwrite("distinct_yaw_rad", &GlobalLocalizerConfig::distinct_yaw_rad)
+        .def_readwrite("refine_iterations", &GlobalLocalizerConfig::refine_iterations)
+        .def_readwrite("min_sigma_m", &GlobalLocalizerConfig::min_sigma_m)
+        .def_readwrite("duplicate_tolerance_m", &GlobalLocalizerConfig::duplicate_tolerance_m)
+        .def_readwrite("skip_hull_stars", &GlobalLocalizerConfig::skip_hull_stars)
+        .def_readwrite("triangle_fallback", &GlobalLocalizerConfig::triangle_fallback)
+        .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle);
+
+    py::class_<GlobalLocalization>(m, "GlobalLocalization")
+        .def_readonly("rejected", &GlobalLocalization::rejected)
+        .def_readonly("reason", &GlobalLocalization::reason)
+        .def_readonly("x", &GlobalLocalization::x)
+        .def_readonly("y", &GlobalLocalization::y)
+        .def_readonly("yaw", &GlobalLocalization::yaw)
+        .def_readonly("covariance", &GlobalLocalization::covariance, "(3,3) over x, y, yaw")
+        .def_readonly("inliers", &GlobalLocalization::inliers)
+        .def_readonly("second_inliers", &GlobalLocalization::second_inliers)
+        .def_readonly("hypotheses", &GlobalLocalization::hypotheses)
+        .def_readonly("query_stars", &GlobalLocalization::query_stars)
+        .def_readonly("local_trunks", &GlobalLocalization::local_trunks)
+        .def_readonly("rms_m", &GlobalLocalization::rms_m)
+        .def_property_readonly(
+            "matches",
+            [](const GlobalLocalization &r) {
+                Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor> out(r.matches.size(), 2);
+                for (size_t i = 0; i < r.matches.size(); ++i)
+                    out.row(i) << r.matches[i].first, r.matches[i].second;
+                return out;
+            },
+            "(K,2) int32 inlier pairs (local row, map row)")
+        .def("transform", &GlobalLocalization::transform, "(3,3) homogeneous T_map_local");
+
+    py::class_<TreeMap>(m, "TreeMapIndex")
+        .def(py::init<const Eigen::Ref<const Points2> &, double>(), py::arg("xy"),
+             py::arg("duplicate_tolerance_m") = 0.01,
+             "Triangulate map trunks xy (M,2) float64 and index their triangle stars.")
+        .def("localize", &TreeMap::localize, py::arg("local_xy"),
+             py::arg("config") = GlobalLocalizerConfig(),
+             py::call_guard<py::gil_scoped_release>(),
+             "Pose of the local frame in the map from local trunks (K,2) -> GlobalLocalization.")
+        .def_property_readonly("points", &TreeMap::points, "(M,2) map trunks")
+        .def_property_readonly("triangles",
+                               [](const TreeMap &t) { return toRows(t.triangulation().triangles); })
+        .def_property_readonly("neighbours",
+                               [](const TreeMap &t) { return toRows(t.triangulation().neighbours); })
+        .def_property_readonly("stars", [](const TreeMap &t) { return starsToDict(t.stars()); });
+
+    py::class_<TrunkExtractionConfig>(m, "TrunkExtractionConfig")
+        .def(py::init<>())
+        .def_readwrite("voxel_m", &TrunkExtractionConfig::voxel_m)
+        .def_readwrite("height_offset_m", &TrunkExtractionConfig::height_offset_m)
+        .def_readwrite("neighbour_radius_m", &TrunkExtractionConfig::neighbour_radius_m)
+        .def_readwrite("cluster_tolerance_m", &TrunkExtractionConfig::cluster_tolerance_m)
+        .def_readwrite("min_cluster_points", &TrunkExtractionConfig::min_cluster_points)
+        .def_readwrite("max_cluster_points", &TrunkExtractionConfig::max_cluster_points);
+
+    m.def(
+        "extract_trunks",
+        [](const Eigen::Ref<const Points3> &cloud, const TrunkExtractionConfig &config) {
+            const Trunks t = extractTrunks(cloud, config);
+            Eigen::VectorXi sizes = Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
+            return py::make_tuple(t.xy, sizes);
+        },
+        py::arg("cloud"), py::arg("config") = TrunkExtractionConfig(),
+        py::call_guard<py::gil_scoped_release>(),
+        "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> (xy (K,2), "
+        "points per trunk cluster (K,)).");
+}
 
 }  // namespace forestslam::python

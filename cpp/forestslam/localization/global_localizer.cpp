@@ -1,0 +1,359 @@
+#include "forestslam/localization/global_localizer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_set>
+
+namespace forestslam {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+double wrapAngle(double a) {
+    a = std::fmod(a + kPi, 2 * kPi);
+    if (a < 0) a += 2 * kPi;
+    return a - kPi;
+}
+
+
+Eigen::Vector2d apply(const Eigen::Vector3d &pose, const Eigen::Vector2d &p) {
+    const double c = std::cos(pose[2]), s = std::sin(pose[2]);
+    return {c * p.x() - s * p.y() + pose[0], s * p.x() + c * p.y() + pose[1]};
+}
+
+// Local row -> map row, each map trunk used once (the closer local trunk wins).
+std::vector<std::pair<int, int>> associate(const Points2 &local, const Eigen::Vector3d &pose,
+                                           const PointGrid &grid, double gate,
+                                           std::vector<double> *d2s = nullptr) {
+    std::vector<std::tuple<int, int, double>> pairs;
+    for (Eigen::Index i = 0; i < local.rows(); ++i) {
+        const Eigen::Vector2d q = apply(pose, local.row(i).transpose());
+        double d2 = 0;
+        const int j = grid.nearest(q.x(), q.y(), gate, &d2);
+        if (j >= 0) pairs.emplace_back(static_cast<int>(i), j, d2);
+    }
+    std::sort(pairs.begin(), pairs.end(), [](const auto &a, const auto &b) {
+        return std::get<1>(a) != std::get<1>(b) ? std::get<1>(a) < std::get<1>(b)
+                                                : std::get<2>(a) < std::get<2>(b);
+    });
+    std::vector<std::pair<int, int>> out;
+    if (d2s) d2s->clear();
+    for (size_t k = 0; k < pairs.size(); ++k) {
+        if (k > 0 && std::get<1>(pairs[k]) == std::get<1>(pairs[k - 1])) continue;
+        out.emplace_back(std::get<0>(pairs[k]), std::get<1>(pairs[k]));
+        if (d2s) d2s->push_back(std::get<2>(pairs[k]));
+    }
+    return out;
+}
+
+// Consensus score only (cheap): local trunks landing within the gate of some map trunk.
+int consensus(const Points2 &local, const Eigen::Vector3d &pose, const PointGrid &grid,
+              double gate) {
+    int count = 0;
+    for (Eigen::Index i = 0; i < local.rows(); ++i) {
+        const Eigen::Vector2d q = apply(pose, local.row(i).transpose());
+        if (grid.nearest(q.x(), q.y(), gate) >= 0) ++count;
+    }
+    return count;
+}
+
+// Vertex correspondence check of two stars: the nine edges agree in length and every triangle
+// of the star has the same orientation on both sides (the side test).
+bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
+                const Eigen::Ref<const Points2> &map, const Star &ms,
+                double tol) {
+    auto L = [&](int k) { return Eigen::Vector2d(local.row(ls.vertices[k]).transpose()); };
+    auto M = [&](int k) { return Eigen::Vector2d(map.row(ms.vertices[k]).transpose()); };
+    static const int edges[9][2] = {{0, 1}, {1, 2}, {2, 0}, {0, 3}, {1, 3},
+                                    {1, 4}, {2, 4}, {2, 5}, {0, 5}};
+    for (const auto &e : edges) {
+        if (std::abs((L(e[0]) - L(e[1])).norm() - (M(e[0]) - M(e[1])).norm()) > tol) return false;
+    }
+    // Side test: the apex across edge (a, b) lies on the other side of it from the centre.
+    static const int sides[4][3] = {{0, 1, 2}, {1, 0, 3}, {2, 1, 4}, {0, 2, 5}};
+    for (const auto &s : sides) {
+        const double ol = orient2d(L(s[0]), L(s[1]), L(s[2]));
+        const double om = orient2d(M(s[0]), M(s[1]), M(s[2]));
+        if (ol * om <= 0) return false;
+    }
+    return true;
+}
+
+// Edge lengths of triangle t counter-clockwise from edge `rotation`.
+Eigen::Vector3d triangleEdges(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, int t,
+                              int rotation) {
+    return {edgeLength(tri, xy, t, rotation), edgeLength(tri, xy, t, (rotation + 1) % 3),
+            edgeLength(tri, xy, t, (rotation + 2) % 3)};
+}
+
+// Verified hypotheses; poses that fall in the same small cell are verified once.
+struct Hypotheses {
+    std::vector<Hypothesis> list;
+    std::unordered_set<uint64_t> seen;
+
+    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate) {
+        const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
+        const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
+        const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
+        const uint64_t h = (uint64_t(qx) * 73856093ULL) ^ (uint64_t(qy) * 19349663ULL) ^
+                           (uint64_t(qa) * 83492791ULL);
+        if (!seen.insert(h).second) return;
+        list.push_back({pose, consensus(local, pose, grid, gate)});
+    }
+};
+
+// Rigid fit of corresponding points; false when any residual exceeds tol.
+bool fitConsistent(const std::vector<Eigen::Vector2d> &a, const std::vector<Eigen::Vector2d> &b,
+                   double tol, Eigen::Vector3d &pose) {
+    pose = fitRigid2D(a, b);
+    for (size_t k = 0; k < a.size(); ++k)
+        if ((apply(pose, a[k]) - b[k]).norm() > tol) return false;
+    return true;
+}
+
+// Starting edges worth trying for a local triangle: the shortest, and any edge that noise could
+// make the shortest.
+std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, int t,
+                                const GlobalLocalizerConfig &cfg) {
+    const int r0 = shortestEdge(tri, xy, t);
+    const double shortest = edgeLength(tri, xy, t, r0);
+    std::vector<int> out = {r0};
+    for (int dr = 1; dr < 3; ++dr) {
+        const int r = (r0 + dr) % 3;
+        if (edgeLength(tri, xy, t, r) <= shortest * (1 + cfg.rotation_ambiguity) + cfg.edge_tolerance_m)
+            out.push_back(r);
+    }
+    return out;
+}
+
+}  // namespace
+
+Eigen::Matrix3d GlobalLocalization::transform() const {
+    Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
+    T(0, 0) = std::cos(yaw);
+    T(0, 1) = -std::sin(yaw);
+    T(1, 0) = std::sin(yaw);
+    T(1, 1) = std::cos(yaw);
+    T(0, 2) = x;
+    T(1, 2) = y;
+    return T;
+}
+
+Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
+                           const std::vector<Eigen::Vector2d> &map) {
+    const size_t n = std::min(local.size(), map.size());
+    if (n == 0) return Eigen::Vector3d::Zero();
+    Eigen::Vector2d lc = Eigen::Vector2d::Zero(), mc = Eigen::Vector2d::Zero();
+    for (size_t i = 0; i < n; ++i) {
+        lc += local[i];
+        mc += map[i];
+    }
+    lc /= double(n);
+    mc /= double(n);
+    double sxx = 0, sxy = 0;  // sum of dot and cross products of centred pairs
+    for (size_t i = 0; i < n; ++i) {
+        const Eigen::Vector2d p = local[i] - lc, q = map[i] - mc;
+        sxx += p.dot(q);
+        sxy += p.x() * q.y() - p.y() * q.x();
+    }
+    const double yaw = std::atan2(sxy, sxx);
+    const double c = std::cos(yaw), s = std::sin(yaw);
+    const Eigen::Vector2d t = mc - Eigen::Vector2d(c * lc.x() - s * lc.y(), s * lc.x() + c * lc.y());
+    return {t.x(), t.y(), yaw};
+}
+
+TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m) : xy_(xy) {
+    tri_ = delaunayTriangulation(xy_, duplicate_tolerance_m);
+    stars_ = buildStars(tri_, xy_);
+    KdTree::Matrix feats(stars_.stars.size(), 8);
+    for (size_t i = 0; i < stars_.stars.size(); ++i)
+        feats.row(i) = embedFeature(stars_.stars[i].feature).transpose();
+    index_ = KdTree(std::move(feats));
+    KdTree::Matrix edges(tri_.size(), 3);
+    for (size_t t = 0; t < tri_.size(); ++t)
+        edges.row(t) = triangleEdges(tri_, xy_, int(t), shortestEdge(tri_, xy_, int(t))).transpose();
+    triangle_index_ = KdTree(std::move(edges));
+    grid_ = PointGrid(xy_, 1.0);
+}
+
+GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
+                                     const GlobalLocalizerConfig &cfg) const {
+    GlobalLocalization res;
+    const Triangulation tri = delaunayTriangulation(local_in, cfg.duplicate_tolerance_m);
+    // Usable local trunks: finite and de-duplicated (the rows the triangulation kept).
+    Points2 local(tri.used_points.size(), 2);
+    for (size_t k = 0; k < tri.used_points.size(); ++k)
+        local.row(k) = local_in.row(tri.used_points[k]);
+    res.local_trunks = static_cast<int>(local.rows());
+    if (tri.size() == 0) {
+        res.reason = local_in.rows() < 3 ? "fewer than 3 trunks"
+                                         : "fewer than 3 distinct, non-collinear trunks";
+        return res;
+    }
+    if (tri_.size() == 0) {
+        res.reason = "map has no triangles";
+        return res;
+    }
+
+    std::vector<bool> on_hull(local_in.rows(), false);
+    for (size_t t = 0; t < tri.size(); ++t)
+        for (int k = 0; k < 3; ++k)
+            if (tri.neighbours[t][k] < 0) {
+                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
+                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
+            }
+
+    // Stage 1 (the paper's method): triangle stars matched by feature distance, vertex
+    // correspondence by edge lengths and the side test, rigid fit, consensus.
+    Hypotheses hyps;
+    std::vector<int> idx;
+    std::vector<double> dist;
+    std::vector<Eigen::Vector2d> lp(6), mp(6);
+    Eigen::Vector3d pose;
+    const StarSet lstars = buildStars(tri, local_in);
+    Star star;
+    for (const Star &canon : lstars.stars) {
+        if (cfg.skip_hull_stars) {
+            bool hull = false;
+            for (int v : canon.vertices) hull = hull || on_hull[v];
+            if (hull) continue;
+        }
+        ++res.query_stars;
+        for (int r : rotationsToTry(tri, local_in, canon.centre, cfg)) {
+            makeStar(tri, local_in, lstars.descriptors, canon.centre, r, star);
+            if (stars_.stars.empty()) break;
+            index_.knn(embedFeature(star.feature), cfg.candidates_per_star,
+                       cfg.max_feature_distance_m, idx, dist);
+            for (int m : idx) {
+                const Star &ms = stars_.stars[m];
+                if (!starsAgree(local_in, star, xy_, ms, cfg.edge_tolerance_m)) continue;
+                for (int k = 0; k < 6; ++k) {
+                    lp[k] = local_in.row(star.vertices[k]).transpose();
+                    mp[k] = xy_.row(ms.vertices[k]).transpose();
+                }
+                if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
+                    hyps.add(pose, local, grid_, cfg.inlier_gate_m);
+            }
+        }
+    }
+    res.hypotheses = static_cast<int>(hyps.list.size());
+    GlobalLocalization stage1 = decide(res, hyps.list, local, tri.used_points, cfg);
+    if (!stage1.rejected || !cfg.triangle_fallback) {
+        if (stage1.rejected && hyps.list.empty())
+            stage1.reason = res.query_stars == 0 ? "no interior triangles in the local trunks"
+                                                 : "no matching triangle star in the map";
+        return stage1;
+    }
+
+    // Stage 2 (fallback when a missed or false trunk broke every star): single triangles,
+    // matched by their three edge lengths, verified by the same consensus and ratio test.
+    lp.resize(3);
+    mp.resize(3);
+    const double tol = cfg.edge_tolerance_m;
+    for (size_t t = 0; t < tri.size(); ++t) {
+        const auto &v = tri.triangles[t];
+        if (cfg.skip_hull_stars && !tri.interior(int(t))) continue;
+        for (int r : rotationsToTry(tri, local_in, int(t), cfg)) {
+            const Eigen::Vector3d e = triangleEdges(tri, local_in, int(t), r);
+            triangle_index_.knn(e, cfg.candidates_per_triangle, std::sqrt(3.0) * tol, idx, dist);
+            for (int m : idx) {
+                const Eigen::Vector3d me = triangleEdges(tri_, xy_, m, shortestEdge(tri_, xy_, m));
+                if ((me - e).cwiseAbs().maxCoeff() > tol) continue;
+                const int mr = shortestEdge(tri_, xy_, m);
+                for (int k = 0; k < 3; ++k) {
+                    lp[k] = local_in.row(v[(r + k) % 3]).transpose();
+                    mp[k] = xy_.row(tri_.triangles[m][(mr + k) % 3]).transpose();
+                }
+                if (fitConsistent(lp, mp, tol, pose)) hyps.add(pose, local, grid_, cfg.inlier_gate_m);
+            }
+        }
+    }
+    res.hypotheses = static_cast<int>(hyps.list.size());
+    GlobalLocalization stage2 = decide(res, hyps.list, local, tri.used_points, cfg);
+    if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
+    return stage2;
+}
+
+GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
+                                   const Points2 &local, const std::vector<int> &local_rows,
+                                   const GlobalLocalizerConfig &cfg) const {
+    GlobalLocalization res = base;
+    if (hyps.empty()) {
+        res.reason = "no hypothesis";
+        return res;
+    }
+    std::sort(hyps.begin(), hyps.end(),
+              [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
+    const Hypothesis &best = hyps.front();
+    res.second_inliers = 0;
+    for (const Hypothesis &h : hyps) {
+        const bool distinct =
+            (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
+            std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
+        if (distinct) {
+            res.second_inliers = h.score;
+            break;
+        }
+    }
+
+    // Least-squares refinement over all inliers, re-associating each round.
+    Eigen::Vector3d pose = best.pose;
+    std::vector<std::pair<int, int>> pairs;
+    for (int it = 0; it < std::max(1, cfg.refine_iterations); ++it) {
+        pairs = associate(local, pose, grid_, cfg.inlier_gate_m);
+        if (pairs.size() < 3) break;
+        std::vector<Eigen::Vector2d> a, b;
+        for (const auto &[i, j] : pairs) {
+            a.push_back(local.row(i).transpose());
+            b.push_back(xy_.row(j).transpose());
+        }
+        const Eigen::Vector3d next = fitRigid2D(a, b);
+        const bool converged = (next - pose).head<2>().norm() < 1e-9 &&
+                               std::abs(wrapAngle(next[2] - pose[2])) < 1e-11;
+        pose = next;
+        if (converged) break;
+    }
+    pairs = associate(local, pose, grid_, cfg.inlier_gate_m);
+    pose[2] = wrapAngle(pose[2]);
+    res.x = pose[0];
+    res.y = pose[1];
+    res.yaw = pose[2];
+    res.inliers = static_cast<int>(pairs.size());
+    res.matches.clear();
+    for (const auto &[i, j] : pairs) res.matches.emplace_back(local_rows[i], j);
+
+    // Covariance sigma^2 (J^T J)^-1 with r_i = R p_i + t - q_i.
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    double sse = 0;
+    const double c = std::cos(pose[2]), s = std::sin(pose[2]);
+    for (const auto &[i, j] : pairs) {
+        const Eigen::Vector2d p = local.row(i).transpose();
+        const Eigen::Vector2d r = apply(pose, p) - xy_.row(j).transpose();
+        sse += r.squaredNorm();
+        Eigen::Matrix<double, 2, 3> J;
+        J << 1, 0, -s * p.x() - c * p.y(), 0, 1, c * p.x() - s * p.y();
+        JtJ += J.transpose() * J;
+    }
+    const int n = res.inliers;
+    res.rms_m = n > 0 ? std::sqrt(sse / n) : 0.0;
+    const double dof = std::max(1, 2 * n - 3);
+    const double sigma2 = std::max(sse / dof, cfg.min_sigma_m * cfg.min_sigma_m);
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
+    if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
+
+    const int best_score = std::max(best.score, 1);
+    res.rejected = true;
+    if (n < cfg.min_inliers) {
+        res.reason = "too few inliers";
+    } else if (n < cfg.min_inlier_fraction * res.local_trunks) {
+        res.reason = "inlier fraction too low";
+    } else if (res.second_inliers >= cfg.ambiguity_ratio * best_score) {
+        res.reason = "ambiguous: second-best hypothesis nearly as good";
+    } else {
+        res.rejected = false;
+        res.reason.clear();
+    }
+    return res;
+}
+
+}  // namespace forestslam

@@ -1,0 +1,87 @@
+// Global localization of a set of locally observed trunks in a prior tree map by matching
+// Delaunay triangle stars (Li et al., "Localization in Unstructured Environments: Towards
+// Autonomous Robots in Forests with Delaunay Triangulation").
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "forestslam/common/types.hpp"
+#include "forestslam/localization/delaunay.hpp"
+#include "forestslam/localization/feature_index.hpp"
+#include "forestslam/localization/triangle_star.hpp"
+
+namespace forestslam {
+
+struct GlobalLocalizerConfig {
+    int candidates_per_star = 8;           // k nearest map stars per query star
+    double max_feature_distance_m = 1.5;   // in the embedded (sqrt) feature space
+    double rotation_ambiguity = 0.15;      // also try starting edges this much longer than the shortest
+    double edge_tolerance_m = 0.35;        // |local - map| for the nine star edges
+    double inlier_gate_m = 0.5;            // local trunk within this of a map trunk: consensus
+    int min_inliers = 6;                   // fewer: rejected
+    double min_inlier_fraction = 0.25;     // of the local trunks
+    double ambiguity_ratio = 0.8;          // rejected when second-best >= ratio * best
+    double distinct_translation_m = 1.0;   // hypotheses further apart than this are distinct
+    double distinct_yaw_rad = 0.0873;      // 5 deg
+    int refine_iterations = 5;
+    double min_sigma_m = 0.02;             // floor of the residual sigma in the covariance
+    double duplicate_tolerance_m = 0.01;   // local trunks closer than this are one trunk
+    bool skip_hull_stars = false;          // drop query stars with a vertex on the local hull
+    bool triangle_fallback = true;         // single-triangle matching when no star hypothesis wins
+    int candidates_per_triangle = 8;       // k nearest map triangles per local triangle (fallback)
+};
+
+struct Hypothesis {
+    Eigen::Vector3d pose;  // x, y, yaw of T_map_local
+    int score = 0;         // consensus: local trunks within the gate of a map trunk
+};
+
+struct GlobalLocalization {
+    bool rejected = true;
+    std::string reason;
+    // T_map_local: map = R(yaw) * local + (x, y).
+    double x = 0, y = 0, yaw = 0;
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity() * 1e6;  // x, y, yaw
+    int inliers = 0;
+    int second_inliers = 0;   // consensus of the best distinct alternative
+    int hypotheses = 0;       // verified distinct-by-hash hypotheses
+    int query_stars = 0;
+    int local_trunks = 0;     // usable (finite, de-duplicated) local trunks
+    double rms_m = 0;
+    std::vector<std::pair<int, int>> matches;  // (local row, map row) inlier pairs
+    Eigen::Matrix3d transform() const;         // homogeneous 2D T_map_local
+};
+
+// 2D rigid transform minimizing sum |R p_i + t - q_i|^2 (closed form); returns (x, y, yaw).
+Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
+                           const std::vector<Eigen::Vector2d> &map);
+
+class TreeMap {
+public:
+    TreeMap() = default;
+    // Triangulates xy (M,2), builds the star features and their index.
+    explicit TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m = 0.01);
+
+    GlobalLocalization localize(const Eigen::Ref<const Points2> &local_xy,
+                                const GlobalLocalizerConfig &config = {}) const;
+
+    const Points2 &points() const { return xy_; }
+    const Triangulation &triangulation() const { return tri_; }
+    const StarSet &stars() const { return stars_; }
+
+private:
+    GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
+                              const Points2 &local, const std::vector<int> &local_rows,
+                              const GlobalLocalizerConfig &cfg) const;
+
+    Points2 xy_;
+    Triangulation tri_;
+    StarSet stars_;
+    KdTree index_;           // embedded star features
+    KdTree triangle_index_;  // edge lengths ccw from the shortest, per triangle
+    PointGrid grid_;
+};
+
+}  // namespace forestslam

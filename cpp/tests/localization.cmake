@@ -1,0 +1,5 @@
+forestslam_add_test(delaunay localization)
+forestslam_add_test(triangle_star localization)
+forestslam_add_test(feature_index localization)
+forestslam_add_test(global_localizer localization)
+forestslam_add_test(trunk_extraction localization)

@@ -1,0 +1,145 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "forestslam/localization/global_localizer.hpp"
+
+using forestslam::Points2;
+
+namespace {
+
+// A forest-like stand: random positions with a minimum spacing (dart throwing).
+Points2 stand(int n, double extent, unsigned seed, double min_spacing = 2.0) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0, extent);
+    std::vector<Eigen::Vector2d> pts;
+    for (int tries = 0; int(pts.size()) < n && tries < 100000; ++tries) {
+        const Eigen::Vector2d p(u(rng), u(rng));
+        bool ok = true;
+        for (const auto &q : pts) ok = ok && (p - q).norm() >= min_spacing;
+        if (ok) pts.push_back(p);
+    }
+    Points2 xy(pts.size(), 2);
+    for (size_t i = 0; i < pts.size(); ++i) xy.row(i) = pts[i].transpose();
+    return xy;
+}
+
+// Trees within radius of `centre`, seen in a local frame with pose (x, y, yaw) in the map,
+// with position noise, missed trees and false trunks.
+Points2 observe(const Points2 &map, const Eigen::Vector3d &pose, double radius, double noise,
+                double miss, int outliers, unsigned seed) {
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> g(0, noise);
+    std::uniform_real_distribution<double> u(0, 1);
+    const double c = std::cos(pose[2]), s = std::sin(pose[2]);
+    std::vector<Eigen::Vector2d> out;
+    for (Eigen::Index i = 0; i < map.rows(); ++i) {
+        const Eigen::Vector2d d = map.row(i).transpose() - pose.head<2>();
+        if (d.norm() > radius || u(rng) < miss) continue;
+        out.emplace_back(c * d.x() + s * d.y() + g(rng), -s * d.x() + c * d.y() + g(rng));
+    }
+    for (int k = 0; k < outliers; ++k) {
+        const double r = radius * std::sqrt(u(rng)), a = 2 * M_PI * u(rng);
+        out.emplace_back(r * std::cos(a), r * std::sin(a));
+    }
+    Points2 xy(out.size(), 2);
+    for (size_t i = 0; i < out.size(); ++i) xy.row(i) = out[i].transpose();
+    return xy;
+}
+
+}  // namespace
+
+TEST(GlobalLocalizer, FitRigid2DRecoversExactTransform) {
+    std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}, {4, -3}}, b;
+    const double yaw = -2.5, c = std::cos(yaw), s = std::sin(yaw);
+    for (const auto &p : a) b.emplace_back(c * p.x() - s * p.y() + 7, s * p.x() + c * p.y() - 4);
+    const Eigen::Vector3d pose = forestslam::fitRigid2D(a, b);
+    EXPECT_NEAR(pose[0], 7, 1e-12);
+    EXPECT_NEAR(pose[1], -4, 1e-12);
+    EXPECT_NEAR(pose[2], yaw, 1e-12);
+}
+
+TEST(GlobalLocalizer, RecoversKnownPoseWithNoiseOutliersAndMissingTrunks) {
+    const Points2 map = stand(900, 200, 1);
+    const forestslam::TreeMap tree_map(map);
+    std::mt19937 rng(2);
+    std::uniform_real_distribution<double> u(40, 160), a(-M_PI, M_PI);
+    int accepted = 0;
+    for (int q = 0; q < 20; ++q) {
+        const Eigen::Vector3d truth(u(rng), u(rng), a(rng));
+        const Points2 local = observe(map, truth, 20.0, 0.03, 0.2, 4, 100 + q);
+        const auto res = tree_map.localize(local);
+        if (res.rejected) continue;
+        ++accepted;
+        EXPECT_NEAR(res.x, truth[0], 0.1);
+        EXPECT_NEAR(res.y, truth[1], 0.1);
+        EXPECT_NEAR(std::remainder(res.yaw - truth[2], 2 * M_PI), 0.0, 0.01);
+        EXPECT_GE(res.inliers, 10);
+        EXPECT_GT(res.covariance(0, 0), 0.0);
+        EXPECT_LT(std::sqrt(res.covariance(0, 0)), 0.1);
+    }
+    EXPECT_GE(accepted, 19);
+}
+
+TEST(GlobalLocalizer, NoiseFreeRecoveryIsExact) {
+    const Points2 map = stand(400, 150, 4);
+    const forestslam::TreeMap tree_map(map);
+    const Eigen::Vector3d truth(70, 80, 0.7);
+    const Points2 local = observe(map, truth, 25.0, 0.0, 0.0, 0, 9);
+    const auto res = tree_map.localize(local);
+    ASSERT_FALSE(res.rejected) << res.reason;
+    EXPECT_NEAR(res.x, truth[0], 1e-9);
+    EXPECT_NEAR(res.y, truth[1], 1e-9);
+    EXPECT_NEAR(res.yaw, truth[2], 1e-11);
+    EXPECT_EQ(res.inliers, int(local.rows()));
+}
+
+TEST(GlobalLocalizer, InvariantToTrunkOrder) {
+    const Points2 map = stand(600, 180, 5);
+    const forestslam::TreeMap tree_map(map);
+    const Points2 local = observe(map, {90, 60, -1.2}, 20.0, 0.04, 0.15, 3, 6);
+    const auto a = tree_map.localize(local);
+    std::vector<int> perm(local.rows());
+    for (size_t i = 0; i < perm.size(); ++i) perm[i] = int(i);
+    std::shuffle(perm.begin(), perm.end(), std::mt19937(8));
+    Points2 shuffled(local.rows(), 2);
+    for (size_t i = 0; i < perm.size(); ++i) shuffled.row(i) = local.row(perm[i]);
+    const auto b = tree_map.localize(shuffled);
+    ASSERT_FALSE(a.rejected);
+    ASSERT_FALSE(b.rejected);
+    EXPECT_NEAR(a.x, b.x, 1e-9);
+    EXPECT_NEAR(a.y, b.y, 1e-9);
+    EXPECT_NEAR(a.yaw, b.yaw, 1e-11);
+    EXPECT_EQ(a.inliers, b.inliers);
+}
+
+TEST(GlobalLocalizer, RejectsAPlaceThatIsNotInTheMap) {
+    const Points2 map = stand(900, 200, 1);
+    const forestslam::TreeMap tree_map(map);
+    const Points2 elsewhere = stand(900, 200, 77);
+    for (int q = 0; q < 10; ++q) {
+        const Points2 local = observe(elsewhere, {50.0 + 10 * q, 100, 0.3 * q}, 20.0, 0.03, 0.1, 2, q);
+        EXPECT_TRUE(tree_map.localize(local).rejected) << "query " << q;
+    }
+}
+
+TEST(GlobalLocalizer, DegenerateQueriesAreRejectedNotThrown) {
+    const Points2 map = stand(300, 120, 3);
+    const forestslam::TreeMap tree_map(map);
+    EXPECT_TRUE(tree_map.localize(Points2(0, 2)).rejected);
+    Points2 two(2, 2);
+    two << 0, 0, 3, 4;
+    EXPECT_TRUE(tree_map.localize(two).rejected);
+    Points2 line(8, 2);
+    for (int i = 0; i < 8; ++i) line.row(i) << i * 2.0, 1.0;
+    const auto collinear = tree_map.localize(line);
+    EXPECT_TRUE(collinear.rejected);
+    EXPECT_FALSE(collinear.reason.empty());
+    Points2 dups(6, 2);
+    dups << 1, 1, 1, 1, 1, 1, 5, 5, 5, 5, NAN, 2;
+    EXPECT_TRUE(tree_map.localize(dups).rejected);
+    // Empty map.
+    const forestslam::TreeMap empty(Points2(0, 2));
+    EXPECT_TRUE(empty.localize(observe(map, {60, 60, 0}, 20, 0, 0, 0, 1)).rejected);
+}
