@@ -3,6 +3,7 @@ writer for both in the Velodyne driver layout (see forestslam.io.pointcloud2).""
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
@@ -29,7 +30,9 @@ POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
+@functools.lru_cache(maxsize=2)
 def _typestore(ros1: bool):
+    """rosbags type store (cached: building one takes a few hundred ms)."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
@@ -222,20 +225,15 @@ class Ros1BagSource(_BagSource):
             if index.damaged:
                 self.stats.lost_bytes = index.lost_bytes
                 pct = 100.0 * index.lost_bytes / max(index.size, 1)
+                sizes = [e[4] for e in index.entries]
+                lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
+                about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
                 line += (
                     f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
-                    f"({pct:.1f} %) at the end"
+                    f"({pct:.1f} %{about}) at the end"
                 )
             self.stats.warnings.append(line)
             log.warning(line)
-            from rosbags.typesys.msg import get_types_from_msg
-
-            for conn in index.connections.values():
-                if conn.msgtype and conn.msgtype not in self._store.types and conn.msgdef:
-                    try:
-                        self._store.register(get_types_from_msg(conn.msgdef, conn.msgtype))
-                    except Exception:  # noqa: BLE001 - unknown types are listed, not read
-                        log.debug("cannot register %s", conn.msgtype)
             by_topic: dict[str, TopicInfo] = {}
             for conn in index.connections.values():
                 msgtype = _normalize_msgtype(conn.msgtype)

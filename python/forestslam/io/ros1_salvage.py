@@ -164,9 +164,13 @@ def _walk(path: Path, blob: mmap.mmap) -> SalvageIndex:
                 raw = decompress(blob[data_start : data_start + present], compression, partial)
                 used = _read_chunk_records(index, len(index.chunks) - 1, raw)
                 if partial:
-                    # Compressed bytes do not map to message bytes: count the whole partial
-                    # compressed chunk as lost even though its complete messages are kept.
-                    index.end_of_data = data_start + used if compression == "none" else data_start
+                    # Compressed bytes map to message bytes only roughly: estimate the lost
+                    # share of the partial chunk from the share of its output we could use.
+                    if compression == "none":
+                        index.end_of_data = data_start + used
+                    else:
+                        share = used / len(raw) if len(raw) else 0.0
+                        index.end_of_data = data_start + int(present * share)
                     index.damaged = True
                     index.reason = "the last chunk is incomplete"
                     break

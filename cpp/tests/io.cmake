@@ -1,0 +1,1 @@
+forestslam_add_test(lzf io)

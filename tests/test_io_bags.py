@@ -1,0 +1,211 @@
+"""ROS bags: write_scans/read_scans round trips, topic choice, damaged and corrupt bags."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from forestslam.errors import InputError
+from forestslam.io import Scan, open_source, read_scans, write_scans
+from forestslam.io.bags import POINTCLOUD2, _message, _typestore
+
+
+def make_scans(count: int, n: int = 500, seed: int = 0) -> list[Scan]:
+    rng = np.random.default_rng(seed)
+    scans = []
+    for k in range(count):
+        m = n + k  # different sizes per scan
+        scans.append(
+            Scan(
+                1_600_000_000.0 + 0.1 * k + 1e-6 * k,
+                rng.uniform(-30, 30, (m, 3)),
+                rng.uniform(0, 255, m).astype(np.float32),
+                rng.integers(0, 16, m).astype(np.uint16),
+                np.sort(rng.uniform(0, 0.1, m)),
+            )
+        )
+    return scans
+
+
+def assert_same(a: Scan, b: Scan) -> None:
+    assert b.stamp == pytest.approx(a.stamp, abs=1e-6)  # float64 at 1.6e9 s
+    np.testing.assert_array_equal(b.points, a.points.astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(b.intensity, a.intensity)
+    np.testing.assert_array_equal(b.ring, a.ring)
+    np.testing.assert_array_equal(b.time, a.time.astype(np.float32).astype(np.float64))
+
+
+@pytest.mark.parametrize("suffix", [".bag", ".mcap", ".db3"])
+def test_round_trip(tmp_path, suffix):
+    scans = make_scans(12)
+    path = tmp_path / f"seq{suffix}"
+    assert write_scans(path, iter(scans)) == 12  # a generator is fine
+    assert path.is_file() and [p.name for p in tmp_path.iterdir()] == [path.name]
+    stream = read_scans(path)
+    assert len(stream) == 12
+    out = list(stream)
+    assert len(out) == 12
+    for a, b in zip(scans, out, strict=True):
+        assert_same(a, b)
+    assert stream.stats.scans == 12 and stream.stats.skipped == 0
+    source = open_source(path)
+    assert source.format in ("ros1", "ros2-mcap", "ros2-db3")
+    assert [(t.name, t.msgtype, t.count) for t in source.topics()] == [
+        ("/velodyne_points", POINTCLOUD2, 12)
+    ]
+    assert source.fields() == {
+        "x": "float32",
+        "y": "float32",
+        "z": "float32",
+        "intensity": "float32",
+        "ring": "uint16",
+        "time": "float32",
+    }
+
+
+def test_overwrite_missing_fields_and_empty_scan(tmp_path):
+    path = tmp_path / "a.bag"
+    write_scans(path, make_scans(2))
+    scans = [Scan(5.0, np.ones((3, 3))), Scan(5.1, np.zeros((0, 3)))]
+    write_scans(path, scans, topic="/points", frame_id="lidar")  # replaces the old bag
+    out = list(read_scans(path, topic="/points"))
+    assert len(out) == 2 and len(out[1]) == 0
+    np.testing.assert_array_equal(out[0].points, np.ones((3, 3)))
+    np.testing.assert_array_equal(out[0].ring, np.zeros(3))  # written as 0 in the layout
+
+
+def test_bad_suffix(tmp_path):
+    with pytest.raises(InputError, match="suffix"):
+        write_scans(tmp_path / "a.txt", make_scans(1))
+
+
+def write_topics(path, topics: dict[str, list[Scan]]):
+    from rosbags.rosbag1 import Writer
+
+    store = _typestore(True)
+    with Writer(path) as writer:
+        for topic, scans in topics.items():
+            conn = writer.add_connection(topic, POINTCLOUD2, typestore=store)
+            for k, scan in enumerate(scans):
+                ns, msg = _message(store, True, scan, k, "x")
+                writer.write(conn, ns, store.serialize_ros1(msg, POINTCLOUD2))
+        imu = writer.add_connection("/imu", "std_msgs/msg/String", typestore=store)
+        writer.write(
+            imu,
+            1,
+            store.serialize_ros1(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"),
+        )
+
+
+def test_topic_choice(tmp_path):
+    path = tmp_path / "two.bag"
+    write_topics(path, {"/front": make_scans(3), "/rear": make_scans(2, seed=1)})
+    with pytest.raises(InputError) as err:
+        read_scans(path)
+    text = str(err.value)
+    assert "several PointCloud2 topics" in text and "/front (3 msgs)" in text
+    assert "/rear (2 msgs)" in text and str(path) in text
+    assert len(list(read_scans(path, topic="/rear"))) == 2
+    with pytest.raises(InputError, match=r"no topic '/top'.*/front.*3 msgs.*/imu"):
+        read_scans(path, topic="/top")
+    with pytest.raises(InputError, match="not PointCloud2"):
+        read_scans(path, topic="/imu")
+
+
+def test_time_order_across_interleaved_writes(tmp_path):
+    scans = make_scans(6)
+    path = tmp_path / "shuffled.bag"
+    write_scans(path, [scans[i] for i in (3, 0, 5, 1, 4, 2)])
+    stamps = [s.stamp for s in read_scans(path)]
+    assert stamps == sorted(stamps) and len(stamps) == 6
+
+
+def _kill_recorder(data: bytes, keep: float) -> bytes:
+    """What a killed recorder leaves: index_pos 0 in the bag header, the file cut short."""
+    out = bytearray(data[: int(len(data) * keep)])
+    i = out.index(b"index_pos=") + len(b"index_pos=")
+    out[i : i + 8] = bytes(8)
+    return bytes(out)
+
+
+@pytest.mark.parametrize("compression", [None, "lz4", "bz2"])
+def test_truncated_bag_reads_intact_chunks(tmp_path, compression, caplog):
+    from rosbags.rosbag1 import Writer
+
+    scans = make_scans(40, n=1000)  # 22 kB each: about 5 per 100 kB chunk
+    full = tmp_path / "full.bag"
+    store = _typestore(True)
+    writer = Writer(full)
+    writer.chunk_threshold = 100_000
+    if compression:
+        writer.set_compression(Writer.CompressionFormat[compression.upper()])
+    with writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, True, scan, k, "velodyne")
+            writer.write(conn, ns, store.serialize_ros1(msg, POINTCLOUD2))
+    data = full.read_bytes()
+    for name, blob in (
+        ("killed.bag", _kill_recorder(data, 0.6)),
+        ("cut.bag", data[: int(len(data) * 0.6)]),  # index_pos points past the end
+    ):
+        path = tmp_path / name
+        path.write_bytes(blob)
+        stream = read_scans(path)
+        out = list(stream)
+        # Everything read is exact and in order; most of what fits in 60 % is recovered.
+        assert 12 <= len(out) <= 24
+        for a, b in zip(scans, out, strict=False):
+            assert_same(a, b)
+        assert stream.stats.lost_bytes > 0
+        assert any("lost" in w for w in stream.stats.warnings)
+    assert "lost" in caplog.text
+
+
+def test_truncated_before_first_chunk(tmp_path):
+    path = tmp_path / "a.bag"
+    write_scans(path, make_scans(3))
+    path.write_bytes(_kill_recorder(path.read_bytes(), 1.0)[:3000])
+    with pytest.raises(InputError, match=str(path)):
+        read_scans(path)
+
+
+def test_corrupt_message_mid_bag_is_skipped_and_counted(tmp_path, caplog):
+    from rosbags.rosbag1 import Writer
+
+    scans = make_scans(5)
+    store = _typestore(True)
+    path = tmp_path / "corrupt.bag"
+    with Writer(path) as writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, True, scan, k, "velodyne")
+            raw = bytes(store.serialize_ros1(msg, POINTCLOUD2))
+            if k == 2:
+                raw = raw[:200]  # cut inside the point data
+            writer.write(conn, ns, raw)
+    stream = read_scans(path)
+    out = list(stream)
+    assert [s.stamp for s in out] == pytest.approx([scans[i].stamp for i in (0, 1, 3, 4)])
+    assert stream.stats.skipped == 1 and stream.stats.messages == 5
+    assert "corrupt message skipped" in caplog.text
+
+
+@pytest.mark.parametrize("content", [b"", b"not a bag at all\n" * 50])
+def test_garbage_bag(tmp_path, content):
+    path = tmp_path / "bad.bag"
+    path.write_bytes(content)
+    with pytest.raises(InputError, match="bad.bag"):
+        read_scans(path)
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(InputError, match="bad.mcap"):
+        read_scans(path)
+
+
+def test_missing_and_unsupported(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        read_scans(tmp_path / "nope.bag")
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(InputError, match="unsupported input type '.txt'"):
+        read_scans(tmp_path / "notes.txt")
