@@ -8,6 +8,8 @@ namespace forestslam {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+constexpr int kMapTriangleNeighbours = 8;  // map triangles: each trunk with 2 of its 8 nearest
+constexpr double kMaxTriangleEdge = 30.0;  // metres
 
 double wrapAngle(double a) {
     a = std::fmod(a + kPi, 2 * kPi);
@@ -77,13 +79,6 @@ bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
         if (ol * om <= 0) return false;
     }
     return true;
-}
-
-// Edge lengths of triangle t counter-clockwise from edge `rotation`.
-Eigen::Vector3d triangleEdges(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, int t,
-                              int rotation) {
-    return {edgeLength(tri, xy, t, rotation), edgeLength(tri, xy, t, (rotation + 1) % 3),
-            edgeLength(tri, xy, t, (rotation + 2) % 3)};
 }
 
 // Verified hypotheses; poses that fall in the same small cell are verified once.
@@ -169,10 +164,10 @@ TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance
     for (size_t i = 0; i < stars_.stars.size(); ++i)
         feats.row(i) = embedFeature(stars_.stars[i].feature).transpose();
     index_ = KdTree(std::move(feats));
-    KdTree::Matrix edges(tri_.size(), 3);
-    for (size_t t = 0; t < tri_.size(); ++t)
-        edges.row(t) = triangleEdges(tri_, xy_, int(t), shortestEdge(tri_, xy_, int(t))).transpose();
-    triangle_index_ = KdTree(std::move(edges));
+    triplets_ = neighbourTriangles(xy_, tri_.used_points, kMapTriangleNeighbours, kMaxTriangleEdge);
+    KdTree::Matrix sides(triplets_.size(), 3);
+    for (size_t t = 0; t < triplets_.size(); ++t) sides.row(t) = triangleSides(xy_, triplets_[t]).transpose();
+    triangle_index_ = KdTree(std::move(sides));
     grid_ = PointGrid(xy_, 1.0);
 }
 
@@ -245,24 +240,27 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         return stage1;
     }
 
-    // Stage 2 (fallback when a missed or false trunk broke every star): single triangles,
-    // matched by their three edge lengths, verified by the same consensus and ratio test.
+    // Stage 2 (fallback when missed or false trunks broke every star): triangles of each trunk
+    // with two of its nearest neighbours, matched by their side lengths against the map's such
+    // triangles, verified by the same consensus and ratio test.
+    if (triplets_.empty() || tri.used_points.size() < 3) return stage1;
     lp.resize(3);
     mp.resize(3);
     const double tol = cfg.edge_tolerance_m;
-    for (size_t t = 0; t < tri.size(); ++t) {
-        const auto &v = tri.triangles[t];
-        if (cfg.skip_hull_stars && !tri.interior(int(t))) continue;
-        for (int r : rotationsToTry(tri, local_in, int(t), cfg)) {
-            const Eigen::Vector3d e = triangleEdges(tri, local_in, int(t), r);
+    std::vector<std::array<int, 3>> ltris =
+        neighbourTriangles(local_in, tri.used_points, cfg.triangle_neighbours, kMaxTriangleEdge);
+    for (const auto &t : ltris) {
+        const Eigen::Vector3d s0 = triangleSides(local_in, t);
+        for (int r = 0; r < 3; ++r) {
+            const Eigen::Vector3d e = triangleSides(local_in, t, r);
+            if (r > 0 && e[0] > s0[0] * (1 + cfg.rotation_ambiguity) + tol) continue;
             triangle_index_.knn(e, cfg.candidates_per_triangle, std::sqrt(3.0) * tol, idx, dist);
             for (int m : idx) {
-                const Eigen::Vector3d me = triangleEdges(tri_, xy_, m, shortestEdge(tri_, xy_, m));
-                if ((me - e).cwiseAbs().maxCoeff() > tol) continue;
-                const int mr = shortestEdge(tri_, xy_, m);
+                const auto &mt = triplets_[m];
+                if ((triangleSides(xy_, mt) - e).cwiseAbs().maxCoeff() > tol) continue;
                 for (int k = 0; k < 3; ++k) {
-                    lp[k] = local_in.row(v[(r + k) % 3]).transpose();
-                    mp[k] = xy_.row(tri_.triangles[m][(mr + k) % 3]).transpose();
+                    lp[k] = local_in.row(t[(r + k) % 3]).transpose();
+                    mp[k] = xy_.row(mt[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, tol, pose)) hyps.add(pose, local, grid_, cfg.inlier_gate_m);
             }

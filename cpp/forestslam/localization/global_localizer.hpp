@@ -30,7 +30,8 @@ struct GlobalLocalizerConfig {
     double duplicate_tolerance_m = 0.01;   // local trunks closer than this are one trunk
     bool skip_hull_stars = false;          // drop query stars with a vertex on the local hull
     bool triangle_fallback = true;         // single-triangle matching when no star hypothesis wins
-    int candidates_per_triangle = 8;       // k nearest map triangles per local triangle (fallback)
+    int candidates_per_triangle = 16;      // k nearest map triangles per local triangle (fallback)
+    int triangle_neighbours = 5;           // local triangles: each trunk with 2 of its k nearest
 };
 
 struct Hypothesis {
@@ -80,7 +81,8 @@ private:
     Triangulation tri_;
     StarSet stars_;
     KdTree index_;           // embedded star features
-    KdTree triangle_index_;  // edge lengths ccw from the shortest, per triangle
+    std::vector<std::array<int, 3>> triplets_;  // nearest-neighbour triangles (fallback)
+    KdTree triangle_index_;                     // their side lengths, ccw from the shortest
     PointGrid grid_;
 };
 

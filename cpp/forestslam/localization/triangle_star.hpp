@@ -48,6 +48,22 @@ bool makeStar(const Triangulation &tri, const Eigen::Ref<const Points2> &xy,
 
 StarSet buildStars(const Triangulation &tri, const Eigen::Ref<const Points2> &xy);
 
+// Triangles (i, j, l) of every point i with two of its k nearest neighbours (edges at most
+// max_edge), deduplicated, plus nothing else: unlike Delaunay triangles they survive a missed
+// or an extra trunk nearby. Each is counter-clockwise with its shortest edge v0-v1 first.
+// Only the rows in `rows` take part (all rows when empty).
+std::vector<std::array<int, 3>> neighbourTriangles(const Eigen::Ref<const Points2> &xy,
+                                                   const std::vector<int> &rows, int k,
+                                                   double max_edge);
+
+// Counter-clockwise order of a, b, c rotated so that edge v0-v1 is the shortest; false when
+// the three points are (nearly) collinear.
+bool canonicalTriangle(const Eigen::Ref<const Points2> &xy, std::array<int, 3> &tri);
+
+// Side lengths |v0v1|, |v1v2|, |v2v0| of a triangle rotated to start at vertex `rotation`.
+Eigen::Vector3d triangleSides(const Eigen::Ref<const Points2> &xy, const std::array<int, 3> &tri,
+                              int rotation = 0);
+
 // Search-space form of a feature, in metres: [sqrt(A_i), sqrt(l_i)] per triangle, so that
 // trunk position noise moves every coordinate by a comparable amount.
 StarFeature embedFeature(const StarFeature &feature);

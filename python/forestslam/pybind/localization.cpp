@@ -82,7 +82,8 @@ void define_localization(py::module_ &m) {
         .def_readwrite("duplicate_tolerance_m", &GlobalLocalizerConfig::duplicate_tolerance_m)
         .def_readwrite("skip_hull_stars", &GlobalLocalizerConfig::skip_hull_stars)
         .def_readwrite("triangle_fallback", &GlobalLocalizerConfig::triangle_fallback)
-        .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle);
+        .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle)
+        .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours);
 
     py::class_<GlobalLocalization>(m, "GlobalLocalization")
         .def_readonly("rejected", &GlobalLocalization::rejected)

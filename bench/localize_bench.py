@@ -1,0 +1,283 @@
+"""Global localization benchmark (issue 7): Delaunay triangle stars against prior tree maps.
+
+1. Simulated LiDAR views against the whole longleaf stand map (584 trees): trees within range of
+   random drivable poses, trunk occlusion, detection dropout (higher for saplings), 5 cm noise,
+   false trunks; 1 frame and 5 aggregated frames (odometry noise between frames).
+2. Real: FORTLS plots. One global map of the 10 field-measured plots placed side by side; each
+   plot's TLS-detected trees localized in it.
+3. Speed: per query against a 2,000-tree map; map build time for 10,000 trees.
+
+Run: PYTHONPATH=python:build/dev-NAME/python .venv/bin/python bench/localize_bench.py [--queries N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+
+
+def load_stand(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    d = np.genfromtxt(path, delimiter=",", names=True)
+    return np.column_stack([d["x"], d["y"]]), np.asarray(d["dbh_m"], dtype=float)
+
+
+def visible_trees(
+    xy: np.ndarray,
+    dbh: np.ndarray,
+    pos: np.ndarray,
+    rng: np.random.Generator,
+    max_range: float,
+    dropout: float,
+    sapling_dropout: float,
+) -> np.ndarray:
+    """Indices of trees a LiDAR at pos would detect: in range, not hidden behind a closer trunk
+    (shadow of radius dbh/2 + 0.15 m for branches), minus random detection misses."""
+    d = xy - pos
+    r = np.hypot(d[:, 0], d[:, 1])
+    cand = np.flatnonzero((r < max_range) & (r > 0.5))
+    cand = cand[np.argsort(r[cand])]
+    bearing = np.arctan2(d[cand, 1], d[cand, 0])
+    half = np.arcsin(np.clip((dbh[cand] / 2 + 0.15) / r[cand], 0, 1))
+    diff = np.abs((bearing[None, :] - bearing[:, None] + np.pi) % (2 * np.pi) - np.pi)
+    # occluded[j]: some closer tree i (i < j) covers the bearing of j.
+    covers = (diff < half[:, None]) & np.tri(len(cand), k=-1, dtype=bool).T
+    hidden = covers.any(axis=0)
+    p_miss = np.where(dbh[cand] < 0.1, sapling_dropout, dropout)
+    seen = ~hidden & (rng.uniform(size=len(cand)) >= p_miss)
+    return cand[seen]
+
+
+def drivable_pose(
+    xy: np.ndarray, rng: np.random.Generator, lo: float, hi: float, steps: np.ndarray
+):
+    """A start position and heading whose path of `steps` metres keeps 1.5 m off every trunk."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(xy)
+    while True:
+        start = rng.uniform(lo, hi, 2)
+        heading = rng.uniform(-math.pi, math.pi)
+        path = start + np.outer(steps, [math.cos(heading), math.sin(heading)])
+        if ((path >= lo) & (path <= hi)).all() and (tree.query(path)[0] > 1.5).all():
+            return path, heading
+
+
+def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
+    """Local trunks (K,2) in the last frame's sensor frame and its true pose (x, y, yaw).
+
+    Frames lie `args.spacing` m apart along a drivable straight path; their odometry poses
+    carry a random-walk error (2 cm, 0.2 deg per frame). False trunks: `args.false_trunks`
+    persistent objects near the path (stumps, posts: seen like trees) plus
+    `args.transient_false` per frame on average (clutter that does not repeat)."""
+    from forestslam.localization import LocalizationConfig, aggregate_stems
+
+    lo = float(xy.min()) + args.margin if lo is None else lo
+    hi = float(xy.max()) - args.margin if hi is None else hi
+    path, heading = drivable_pose(xy, rng, lo, hi, args.spacing * np.arange(frames))
+    n_fake = rng.poisson(args.false_trunks)
+    rr = args.range * np.sqrt(rng.uniform(size=n_fake))
+    aa = rng.uniform(-math.pi, math.pi, n_fake)
+    fakes = path[-1] + np.column_stack([rr * np.cos(aa), rr * np.sin(aa)])
+    xys, poses = [], []
+    drift = np.zeros(3)
+    true_pose = None
+    for k, pos in enumerate(path):
+        yaw = heading + rng.normal(0, 0.05)
+        idx = visible_trees(xy, dbh, pos, rng, args.range, args.dropout, args.sapling_dropout)
+        fake_seen = fakes[np.hypot(*(fakes - pos).T) < args.range]
+        d = np.vstack([xy[idx], fake_seen]) - pos
+        c, s = math.cos(yaw), math.sin(yaw)
+        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+        local += rng.normal(0, args.noise, local.shape)
+        nt = rng.poisson(args.transient_false)
+        rt = args.range * np.sqrt(rng.uniform(size=nt))
+        at = rng.uniform(-math.pi, math.pi, nt)
+        local = np.vstack([local, np.column_stack([rt * np.cos(at), rt * np.sin(at)])])
+        if k > 0:
+            drift += [rng.normal(0, 0.02), rng.normal(0, 0.02), rng.normal(0, math.radians(0.2))]
+        if k == len(path) - 1:
+            drift[:] = 0  # the local frame is the last frame: its odometry pose is the reference
+            true_pose = (pos[0], pos[1], yaw)
+        cy, sy = math.cos(yaw + drift[2]), math.sin(yaw + drift[2])
+        T = np.eye(4)
+        T[:2, :2] = [[cy, -sy], [sy, cy]]
+        T[:2, 3] = pos + drift[:2]
+        xys.append(local)
+        poses.append(T)
+    config = LocalizationConfig(min_observations=args.min_observations)
+    return aggregate_stems(xys, poses, config), true_pose
+
+
+def pose_error(loc, truth):
+    dxy = math.hypot(loc.x - truth[0], loc.y - truth[1])
+    dyaw = abs(math.degrees(math.remainder(loc.yaw - truth[2], 2 * math.pi)))
+    return dxy, dyaw
+
+
+def run_simulated(args) -> None:
+    from forestslam.localization import build_map, localize
+
+    xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
+    tree_map = build_map(xy, dbh)
+    print(f"\n== Simulated queries against longleaf ({tree_map}) ==")
+    print(
+        f"view: range {args.range} m, trunk occlusion, dropout {args.dropout:.0%} "
+        f"(saplings dbh<0.1 m {args.sapling_dropout:.0%}), noise {args.noise} m, "
+        f"false trunks ~{args.false_trunks} persistent + ~{args.transient_false}/frame transient; "
+        f"frames {args.spacing} m apart"
+    )
+    print(
+        f"{'frames':>6} {'queries':>7} {'success':>8} {'rejected':>8} {'wrong acc':>9} "
+        f"{'median err m':>12} {'median deg':>10} {'trunks':>6} {'ms/query':>8}"
+    )
+    for frames in (1, 5):
+        rng = np.random.default_rng(args.seed + frames)
+        ok = rej = wrong = 0
+        errs, degs, trunks, times = [], [], [], []
+        for _ in range(args.queries):
+            local, truth = simulate_query(xy, dbh, rng, frames, args)
+            loc = localize(tree_map, local)
+            trunks.append(len(local))
+            times.append(loc.time_ms)
+            if loc.rejected:
+                rej += 1
+                continue
+            e, d = pose_error(loc, truth)
+            if e < 0.5 and d < 2.0:
+                ok += 1
+                errs.append(e)
+                degs.append(d)
+            else:
+                wrong += 1
+        n = args.queries
+        print(
+            f"{frames:>6} {n:>7} {ok / n:>8.1%} {rej / n:>8.1%} {wrong / n:>9.1%} "
+            f"{np.median(errs) if errs else float('nan'):>12.3f} "
+            f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
+            f"{np.median(times):>8.2f}"
+        )
+
+
+def run_fortls() -> None:
+    from forestslam.io import read_trees_csv
+    from forestslam.localization import build_map, localize
+
+    field_path, tls_path = DATA / "fortls" / "field_trees.csv", DATA / "fortls" / "tls_trees.csv"
+    if not field_path.is_file():
+        print("\n== FORTLS: skipped (../shared/data/fortls absent) ==")
+        return
+    field, tls = read_trees_csv(field_path), read_trees_csv(tls_path)
+    plots = sorted(set(field["plot"].astype(int)))
+    spacing = 100.0  # plots are 20 m radius; place them 100 m apart along x
+    offsets = {p: np.array([spacing * k, 0.0]) for k, p in enumerate(plots)}
+    map_xy = np.vstack(
+        [np.column_stack([field["x"], field["y"]])[field["plot"] == p] + offsets[p] for p in plots]
+    )
+    tree_map = build_map(map_xy)
+    print(f"\n== FORTLS: TLS trees of each plot in one map of {len(plots)} field plots ==")
+    print(f"global map: {tree_map}, plot p centred at ({spacing:.0f}*(p-1), 0)")
+    print(
+        f"{'plot':>4} {'field':>5} {'tls':>4} {'found':>6} {'plot hit':>8} {'inliers':>7} "
+        f"{'rot deg':>8} {'dx m':>7} {'dy m':>7} {'rms m':>6} {'ms':>6}"
+    )
+    correct = 0
+    for p in plots:
+        local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
+        loc = localize(tree_map, local)
+        # Which plot did the local centre land in?
+        hit = int(np.argmin([np.hypot(loc.x - o[0], loc.y - o[1]) for o in offsets.values()]))
+        hit_plot = plots[hit]
+        right = (not loc.rejected) and hit_plot == p
+        correct += right
+        off = np.array([loc.x, loc.y]) - offsets[p]
+        print(
+            f"{p:>4} {int((field['plot'] == p).sum()):>5} {len(local):>4} "
+            f"{'yes' if not loc.rejected else 'REJ':>6} {'right' if right else 'WRONG':>8} "
+            f"{loc.inliers:>7} {math.degrees(loc.yaw):>8.2f} {off[0]:>7.2f} {off[1]:>7.2f} "
+            f"{loc.rms_m:>6.3f} {loc.time_ms:>6.2f}"
+        )
+    print(f"right plot found for {correct}/{len(plots)} plots")
+
+
+def random_stand(n: int, density: float, rng: np.random.Generator) -> np.ndarray:
+    side = math.sqrt(n / density)
+    xy = rng.uniform(0, side, (int(n * 1.3), 2))
+    from scipy.spatial import cKDTree
+
+    # Thin pairs closer than 1 m (a forest has a minimum stem spacing).
+    pairs = cKDTree(xy).query_pairs(1.0, output_type="ndarray")
+    keep = np.ones(len(xy), bool)
+    keep[pairs[:, 1]] = False
+    return xy[keep][:n]
+
+
+def run_speed(args) -> None:
+    from forestslam.localization import build_map, localize
+
+    rng = np.random.default_rng(args.seed)
+    print("\n== Speed (one core) ==")
+    for n in (2000, 10000):
+        xy = random_stand(n, 0.02, rng)
+        t0 = time.perf_counter()
+        tree_map = build_map(xy)
+        build_s = time.perf_counter() - t0
+        print(f"map build {len(xy)} trees: {build_s * 1e3:.1f} ms ({tree_map})")
+    xy = random_stand(2000, 0.02, rng)
+    dbh = np.full(len(xy), 0.3)
+    tree_map = build_map(xy, dbh)
+    for frames in (1, 5):
+        times, ok = [], 0
+        for _ in range(args.speed_queries):
+            lo, hi = float(xy.min() + 5), float(xy.max() - 5)
+            local, truth = simulate_query(xy, dbh, rng, frames, args, lo, hi)
+            loc = localize(tree_map, local)
+            times.append(loc.time_ms)
+            e, d = pose_error(loc, truth)
+            ok += (not loc.rejected) and e < 0.5 and d < 2
+        t = np.array(times)
+        print(
+            f"query vs 2,000-tree map, {frames} frame(s): median {np.median(t):.2f} ms, "
+            f"p95 {np.percentile(t, 95):.2f} ms, max {t.max():.2f} ms "
+            f"(success {ok}/{len(t)})"
+        )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--queries", type=int, default=1000)
+    parser.add_argument("--speed-queries", type=int, default=200)
+    parser.add_argument("--range", type=float, default=18.0)
+    parser.add_argument("--dropout", type=float, default=0.15)
+    parser.add_argument("--sapling-dropout", type=float, default=0.5)
+    parser.add_argument("--noise", type=float, default=0.05)
+    parser.add_argument("--false-trunks", type=float, default=2.0, help="persistent, per query")
+    parser.add_argument("--transient-false", type=float, default=1.0, help="per frame")
+    parser.add_argument("--spacing", type=float, default=3.0, help="metres between frames")
+    parser.add_argument("--min-observations", type=int, default=1)
+    parser.add_argument(
+        "--margin", type=float, default=20.0, help="poses this far inside the stand"
+    )
+    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--only", choices=["sim", "fortls", "speed"], default=None)
+    args = parser.parse_args()
+    if not (DATA / "stands" / "longleaf.csv").is_file():
+        print("../shared/data absent: nothing to benchmark", file=sys.stderr)
+        return 1
+    if args.only in (None, "sim"):
+        run_simulated(args)
+    if args.only in (None, "fortls"):
+        run_fortls()
+    if args.only in (None, "speed"):
+        run_speed(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""Configuration of global localization against a prior tree map (Li et al. triangle stars)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class LocalizationConfig:
+    """Star matching, verification and acceptance of a query; aggregation of frames (CLI)."""
+
+    candidates_per_star: int = 8  # k nearest map stars per local star
+    max_feature_distance_m: float = 1.5  # in the sqrt feature space (sqrt area, perimeter)
+    rotation_ambiguity: float = 0.15  # try other start edges up to this much longer
+    edge_tolerance_m: float = 0.35  # edge-length agreement of corresponding triangles
+    inlier_gate_m: float = 0.5  # local trunk this close to a map trunk counts as consensus
+    min_inliers: int = 6  # fewer: rejected
+    min_inlier_fraction: float = 0.25  # of the local trunks; fewer: rejected
+    ambiguity_ratio: float = 0.8  # rejected when the second-best distinct pose scores this much
+    distinct_translation_m: float = 1.0  # poses further apart than this are distinct
+    distinct_yaw_deg: float = 5.0
+    refine_iterations: int = 5  # least-squares refinement rounds over all inliers
+    min_sigma_m: float = 0.02  # floor of the residual sigma used for the covariance
+    duplicate_tolerance_m: float = 0.01  # local trunks closer than this are one trunk
+    skip_hull_stars: bool = False  # drop local stars touching the local convex hull
+    triangle_fallback: bool = True  # single-triangle matching when no star hypothesis is accepted
+    candidates_per_triangle: int = 16  # k nearest map triangles per local triangle (fallback)
+    triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
+    # Aggregation of several scans into one query (CLI / aggregate_stems).
+    merge_radius_m: float = 0.3  # detections of one trunk from several frames are merged
+    min_observations: int = 1  # with >= 3 frames, trunks seen fewer times are dropped
+    max_range_m: float = 25.0  # detections further from their sensor are dropped

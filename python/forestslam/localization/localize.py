@@ -1,0 +1,216 @@
+"""Global localization facade: local trunks -> pose of the local frame in a prior tree map."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from forestslam.errors import InputError
+from forestslam.localization.config import LocalizationConfig
+from forestslam.localization.tree_map import TreeMap
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Localization:
+    """Pose of the local frame in the map frame: ``map = R(yaw) @ local + (x, y)``."""
+
+    x: float
+    y: float
+    yaw: float  # radians
+    covariance: np.ndarray  # (3,3) over x, y, yaw
+    inliers: int
+    rejected: bool
+    reason: str = ""  # why it was rejected ("" when accepted)
+    second_inliers: int = 0  # consensus of the best distinct alternative pose
+    hypotheses: int = 0
+    local_trunks: int = 0
+    rms_m: float = 0.0
+    matches: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int32))
+    time_ms: float = 0.0
+
+    @property
+    def accepted(self) -> bool:
+        return not self.rejected
+
+    def matrix(self) -> np.ndarray:
+        """(4,4) T_map_local (planar: z, roll and pitch zero)."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        T = np.eye(4)
+        T[:2, :2] = [[c, -s], [s, c]]
+        T[:2, 3] = [self.x, self.y]
+        return T
+
+    def to_dict(self) -> dict:
+        return {
+            "accepted": self.accepted,
+            "x": self.x,
+            "y": self.y,
+            "yaw": self.yaw,
+            "inliers": self.inliers,
+            "second_inliers": self.second_inliers,
+            "local_trunks": self.local_trunks,
+            "rms_m": self.rms_m,
+            "reason": self.reason,
+            "covariance": np.asarray(self.covariance).tolist(),
+        }
+
+
+def _core_config(config: LocalizationConfig):
+    from forestslam import _core
+
+    c = _core.GlobalLocalizerConfig()
+    for name in (
+        "candidates_per_star",
+        "max_feature_distance_m",
+        "rotation_ambiguity",
+        "edge_tolerance_m",
+        "inlier_gate_m",
+        "min_inliers",
+        "min_inlier_fraction",
+        "ambiguity_ratio",
+        "distinct_translation_m",
+        "refine_iterations",
+        "min_sigma_m",
+        "duplicate_tolerance_m",
+        "skip_hull_stars",
+        "triangle_fallback",
+        "candidates_per_triangle",
+        "triangle_neighbours",
+    ):
+        setattr(c, name, getattr(config, name))
+    c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)
+    return c
+
+
+def localize(
+    tree_map: TreeMap, local_xy: np.ndarray, config: LocalizationConfig | None = None
+) -> Localization:
+    """Pose of the frame of ``local_xy`` (K,2) trunk positions in ``tree_map``'s frame.
+
+    Never raises for few, collinear, duplicate or NaN trunks: the result is ``rejected`` with a
+    ``reason``. A ``(K,2)`` shape is required (InputError otherwise).
+    """
+    import time
+
+    config = config or LocalizationConfig()
+    local = np.asarray(local_xy, dtype=np.float64)
+    if local.ndim != 2 or (local.shape[1] != 2 and len(local) > 0):
+        raise InputError(f"localize: local trunks must have shape (K,2), got {local.shape}")
+    local = np.ascontiguousarray(local.reshape(-1, 2))
+    t0 = time.perf_counter()
+    r = tree_map.index.localize(local, _core_config(config))
+    ms = 1e3 * (time.perf_counter() - t0)
+    result = Localization(
+        x=r.x,
+        y=r.y,
+        yaw=r.yaw,
+        covariance=np.array(r.covariance),
+        inliers=r.inliers,
+        rejected=r.rejected,
+        reason=r.reason,
+        second_inliers=r.second_inliers,
+        hypotheses=r.hypotheses,
+        local_trunks=r.local_trunks,
+        rms_m=r.rms_m,
+        matches=np.array(r.matches),
+        time_ms=ms,
+    )
+    log.debug(
+        "localize: %d trunks -> %s (%d inliers, second %d, %d hypotheses, %.2f ms)",
+        r.local_trunks,
+        "rejected: " + r.reason if r.rejected else "accepted",
+        r.inliers,
+        r.second_inliers,
+        r.hypotheses,
+        ms,
+    )
+    return result
+
+
+def aggregate_stems(
+    xys: list[np.ndarray],
+    poses: list[np.ndarray],
+    config: LocalizationConfig | None = None,
+) -> np.ndarray:
+    """Trunks seen in several scans, in the frame of the last scan.
+
+    ``xys[i]`` (K_i,2) stem centres in scan i's sensor frame, ``poses[i]`` (4,4)
+    T_world_sensor of scan i (odometry). Detections beyond ``max_range_m`` are dropped,
+    detections of one trunk from several scans (closer than ``merge_radius_m``) are averaged,
+    and with at least 3 scans a trunk must be seen in ``min_observations`` of them (transient
+    false detections do not repeat). Returns (K,2) in the last scan's sensor frame (planar).
+    """
+    config = config or LocalizationConfig()
+    if len(xys) != len(poses):
+        raise InputError(f"aggregate_stems: {len(xys)} stem sets for {len(poses)} poses")
+    if not xys:
+        return np.zeros((0, 2))
+    T_last_world = np.linalg.inv(np.asarray(poses[-1], dtype=np.float64))
+    parts, frame_ids = [], []
+    for k, (xy, pose) in enumerate(zip(xys, poses, strict=True)):
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        xy = xy[np.hypot(xy[:, 0], xy[:, 1]) <= config.max_range_m]
+        if len(xy) == 0:
+            continue
+        T = T_last_world @ np.asarray(pose, dtype=np.float64)
+        pts = np.column_stack([xy, np.zeros(len(xy)), np.ones(len(xy))])
+        parts.append((pts @ T.T)[:, :2])
+        frame_ids.append(np.full(len(xy), k))
+    if not parts:
+        return np.zeros((0, 2))
+    points = np.concatenate(parts)
+    centres, labels = merge_close(points, config.merge_radius_m, return_labels=True)
+    if len(xys) >= 3 and config.min_observations > 1:
+        frames = np.concatenate(frame_ids)
+        seen = np.zeros((len(centres), len(xys)), dtype=bool)
+        seen[labels, frames] = True
+        centres = centres[seen.sum(axis=1) >= config.min_observations]
+    return centres
+
+
+def merge_close(xy: np.ndarray, radius: float, return_labels: bool = False):
+    """Average points into clusters whose members are chained closer than ``radius``.
+    Returns the (C,2) centres, and with ``return_labels`` the cluster of every point too."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    n = len(xy)
+    if n < 2 or radius <= 0:
+        labels = np.arange(n)
+        return (xy, labels) if return_labels else xy
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    k, labels = connected_components(graph, directed=False)
+    sums = np.zeros((k, 2))
+    np.add.at(sums, labels, xy)
+    centres = sums / np.bincount(labels, minlength=k)[:, None]
+    return (centres, labels) if return_labels else centres
+
+
+def extract_trunks(cloud: np.ndarray, height_offset_m: float = 1.0, **kwargs) -> np.ndarray:
+    """Trunk positions (K,2) from a map point cloud (N,3) (Li et al. Algorithm 1).
+
+    Keyword arguments set ``forestslam._core.TrunkExtractionConfig`` fields (voxel_m,
+    neighbour_radius_m, cluster_tolerance_m, min_cluster_points, max_cluster_points).
+    """
+    from forestslam import _core
+
+    cloud = np.asarray(cloud, dtype=np.float64)
+    if cloud.ndim != 2 or cloud.shape[1] != 3:
+        raise InputError(f"extract_trunks: cloud must have shape (N,3), got {cloud.shape}")
+    cfg = _core.TrunkExtractionConfig()
+    cfg.height_offset_m = height_offset_m
+    for key, value in kwargs.items():
+        if not hasattr(cfg, key):
+            raise InputError(f"extract_trunks: unknown option {key}")
+        setattr(cfg, key, value)
+    xy, _sizes = _core.extract_trunks(np.ascontiguousarray(cloud), cfg)
+    return np.asarray(xy)
