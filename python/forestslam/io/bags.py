@@ -211,7 +211,9 @@ class Ros1BagSource(_BagSource):
                     TopicInfo(name, info.msgtype or "?", info.msgcount)
                     for name, info in sorted(reader.topics.items())
                 ]
-        except ReaderError as exc:
+        except (ReaderError, UnicodeDecodeError, ValueError, OSError) as exc:
+            if isinstance(exc, (PermissionError, IsADirectoryError)):
+                raise InputError(f"{self.path}: cannot open ({exc})") from None
             with self.path.open("rb") as f:
                 if f.read(len(ros1_salvage.MAGIC)) != ros1_salvage.MAGIC:
                     raise InputError(f"{self.path}: not a ROS1 bag ({exc})") from None

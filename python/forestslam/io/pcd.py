@@ -23,6 +23,8 @@ def _lzf():
         raise InputError(
             f"binary_compressed PCD needs the compiled forestslam._core ({exc})"
         ) from None
+    if not hasattr(_core, "lzf_decompress"):
+        raise InputError("binary_compressed PCD: this forestslam._core build lacks LZF")
     return _core
 
 

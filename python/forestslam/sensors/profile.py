@@ -88,10 +88,68 @@ def _from_mapping(data: dict, where: str) -> SensorProfile:
     if unknown or missing:
         raise InputError(f"{where}: unknown keys {unknown}, missing keys {missing}")
     data = dict(data)
-    data["vertical_fov_deg"] = tuple(data["vertical_fov_deg"])
-    if data.get("vertical_angles_deg") is not None:
-        data["vertical_angles_deg"] = tuple(data["vertical_angles_deg"])
+    try:
+        data["name"] = str(data["name"])
+        data["kind"] = str(data["kind"])
+        for key in _INT_KEYS:
+            value = data[key]
+            if isinstance(value, bool) or int(value) != float(value):
+                raise ValueError(f"{key} must be an integer, not {value!r}")
+            data[key] = int(value)
+        for key in _FLOAT_KEYS:
+            data[key] = float(data[key])
+        if data["intensity_threshold"] is not None:
+            data["intensity_threshold"] = float(data["intensity_threshold"])
+        fov = tuple(float(v) for v in data["vertical_fov_deg"])
+        if len(fov) != 2 or not fov[0] <= fov[1]:
+            raise ValueError(f"vertical_fov_deg must be [low, high], not {fov}")
+        data["vertical_fov_deg"] = fov
+        if data.get("vertical_angles_deg") is not None:
+            data["vertical_angles_deg"] = tuple(float(v) for v in data["vertical_angles_deg"])
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: bad sensor profile value ({exc})") from None
+    scanning = data["kind"] in ("spinning", "solid_state")
+    bad = [
+        text
+        for ok, text in (
+            (data["channels"] >= (1 if scanning else 0), "channels >= 1"),
+            (data["rate_hz"] > 0 if scanning else data["rate_hz"] >= 0, "rate_hz > 0"),
+            (data["azimuth_resolution_deg"] > 0, "azimuth_resolution_deg > 0"),
+            (0 < data["horizontal_fov_deg"] <= 360, "0 < horizontal_fov_deg <= 360"),
+            (data["range_noise_m"] >= 0, "range_noise_m >= 0"),
+            (0 <= data["dropout_rate"] < 1, "0 <= dropout_rate < 1"),
+            (data["image_rows"] >= 0 and data["image_cols"] >= 0, "image size >= 0"),
+        )
+        if not ok
+    ]
+    if bad:
+        raise InputError(f"{where}: sensor profile needs {', '.join(bad)}")
     return SensorProfile(**data)
+
+
+_INT_KEYS = ("channels", "image_rows", "image_cols")
+_FLOAT_KEYS = (
+    "horizontal_fov_deg",
+    "azimuth_resolution_deg",
+    "rate_hz",
+    "range_min_m",
+    "range_max_m",
+    "range_noise_m",
+    "dropout_rate",
+)
+
+
+def _load_yaml(text: str, where: str) -> dict:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).splitlines()[0]
+        raise InputError(f"{where}: not valid YAML ({first})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: a sensor profile must be a YAML mapping of keys to values")
+    return data
 
 
 def load_profile(name_or_path: str | Path | SensorProfile) -> SensorProfile:
@@ -103,11 +161,11 @@ def load_profile(name_or_path: str | Path | SensorProfile) -> SensorProfile:
     if path.suffix in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise InputError(f"{path}: sensor profile file not found")
-        return _from_mapping(yaml.safe_load(path.read_text()) or {}, str(path))
+        return _from_mapping(_load_yaml(path.read_text(), str(path)), str(path))
     if text not in available_profiles():
         raise InputError(
             f"unknown sensor {text!r}; shipped: {', '.join(available_profiles())}"
             " (or give a profile YAML file)"
         )
     resource = resources.files("forestslam.sensors") / "profiles" / f"{text}.yaml"
-    return _from_mapping(yaml.safe_load(resource.read_text()), text)
+    return _from_mapping(_load_yaml(resource.read_text(), text), text)
