@@ -136,12 +136,15 @@ void define_localization(py::module_ &m) {
     m.def(
         "extract_trunks",
         [](const Eigen::Ref<const Points3> &cloud, const TrunkExtractionConfig &config) {
-            const Trunks t = extractTrunks(cloud, config);
+            Trunks t;
+            {
+                py::gil_scoped_release release;  // numpy results are built with the GIL held
+                t = extractTrunks(cloud, config);
+            }
             Eigen::VectorXi sizes = Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
             return py::make_tuple(t.xy, sizes);
         },
         py::arg("cloud"), py::arg("config") = TrunkExtractionConfig(),
-        py::call_guard<py::gil_scoped_release>(),
         "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> (xy (K,2), "
         "points per trunk cluster (K,)).");
 }
