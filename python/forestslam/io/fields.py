@@ -69,25 +69,21 @@ def scan_from_structured(arr: np.ndarray, stamp: float | None, where: str) -> Sc
     if missing:
         raise InputError(f"{where}: point fields {list(names)} lack {', '.join(missing)}")
     flat = arr.reshape(-1)
-    points = np.empty((len(flat), 3), dtype=np.float64)
+    # Mask on strided views of the records, then one gather of the kept records.
+    x, y, z = (_first_component(flat[available[c]]) for c in "xyz")
+    with np.errstate(over="ignore", invalid="ignore"):
+        keep = np.isfinite(x + y + z) & ((x != 0) | (y != 0) | (z != 0))
+    # np.take is ~10x faster than boolean indexing on records of odd size (e.g. 22 bytes).
+    kept = flat if keep.all() else np.take(flat, np.flatnonzero(keep))
+    points = np.empty((len(kept), 3), dtype=np.float64)
     for k, c in enumerate("xyz"):
-        points[:, k] = _first_component(flat[available[c]])
-    px, py, pz = points[:, 0], points[:, 1], points[:, 2]
-    keep = np.isfinite(px + py + pz) & ((px != 0.0) | (py != 0.0) | (pz != 0.0))
+        points[:, k] = _first_component(kept[available[c]])
 
     intensity = ring = time = None
     if (name := _find(INTENSITY_NAMES, available)) is not None:
-        intensity = _first_component(flat[name]).astype(np.float32)
+        intensity = _first_component(kept[name]).astype(np.float32)
     if (name := _find(RING_NAMES, available)) is not None:
-        ring = _first_component(flat[name]).astype(np.uint16)
+        ring = _first_component(kept[name]).astype(np.uint16)
     if (name := _find(TIME_NAMES, available)) is not None:
-        raw = _first_component(flat[name])
-        time, stamp = relative_time(raw[keep] if stamp is None else raw, stamp)
-        if len(time) != len(flat):  # computed on kept points only (stamp from the points)
-            full = np.zeros(len(flat))
-            full[keep] = time
-            time = full
-    if stamp is None:
-        stamp = 0.0
-    scan = Scan(float(stamp), points, intensity, ring, time)
-    return scan if keep.all() else scan.select(keep)
+        time, stamp = relative_time(_first_component(kept[name]), stamp)
+    return Scan(float(0.0 if stamp is None else stamp), points, intensity, ring, time)
