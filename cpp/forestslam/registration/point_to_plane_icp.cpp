@@ -43,8 +43,9 @@ PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_
         }
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
         const Eigen::Vector3d ev = eig.eigenvalues();
-        // Reject lines and isolated points: the two larger spreads must be well above the normal.
-        if (!(ev(1) > 3.0 * ev(0)) || !(ev(1) > 1e-8)) continue;
+        // Reject lines (a single scan ring) and blobs: the middle spread must be a fair share of
+        // the largest and well above the normal direction's.
+        if (!(ev(1) > 3.0 * ev(0)) || !(ev(1) > 0.02 * ev(2)) || !(ev(1) > 1e-8)) continue;
         impl_->normals.row(i) = eig.eigenvectors().col(0).transpose();
     }
 }

@@ -1,9 +1,166 @@
+// Registration bindings: tree correspondences, shape-to-shape, point-to-plane ICP, FPFH baseline.
+#include <pybind11/eigen.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
 #include "bindings.hpp"
+#include "forestslam/registration/fpfh_ransac.hpp"
+#include "forestslam/registration/point_to_plane_icp.hpp"
+#include "forestslam/registration/shape_registration.hpp"
+#include "forestslam/registration/tree_correspondences.hpp"
 
 namespace py = pybind11;
 
 namespace forestslam::python {
+namespace {
 
-void define_registration(py::module_ &m) { (void)m; }
+using PairArray = Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor>;
+
+std::vector<std::pair<int, int>> toPairs(const PairArray &a) {
+    std::vector<std::pair<int, int>> out(a.rows());
+    for (Eigen::Index i = 0; i < a.rows(); ++i) out[i] = {a(i, 0), a(i, 1)};
+    return out;
+}
+
+}  // namespace
+
+void define_registration(py::module_ &m) {
+    py::class_<RegistrationResult>(m, "RegistrationResult",
+                                   "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
+                                   "left perturbation (planar methods fill x,y,yaw = 0,1,5); "
+                                   "converged, degenerate, inliers, iterations, rmse (m).")
+        .def(py::init<>())
+        .def_readwrite("T_target_source", &RegistrationResult::T_target_source)
+        .def_readwrite("covariance", &RegistrationResult::covariance)
+        .def_readwrite("converged", &RegistrationResult::converged)
+        .def_readwrite("degenerate", &RegistrationResult::degenerate)
+        .def_readwrite("inliers", &RegistrationResult::inliers)
+        .def_readwrite("iterations", &RegistrationResult::iterations)
+        .def_readwrite("rmse", &RegistrationResult::rmse)
+        .def("__repr__", [](const RegistrationResult &r) {
+            return "RegistrationResult(converged=" + std::to_string(r.converged) +
+                   ", degenerate=" + std::to_string(r.degenerate) +
+                   ", inliers=" + std::to_string(r.inliers) + ", rmse=" + std::to_string(r.rmse) + ")";
+        });
+
+    py::class_<ShapeRegistrationConfig>(m, "ShapeRegistrationConfig")
+        .def(py::init<>())
+        .def_readwrite("min_sigma_m", &ShapeRegistrationConfig::min_sigma_m)
+        .def_readwrite("consensus_tolerance_m", &ShapeRegistrationConfig::consensus_tolerance_m)
+        .def_readwrite("inlier_threshold_m", &ShapeRegistrationConfig::inlier_threshold_m)
+        .def_readwrite("max_consensus_pairs", &ShapeRegistrationConfig::max_consensus_pairs)
+        .def_readwrite("max_iterations", &ShapeRegistrationConfig::max_iterations)
+        .def_readwrite("min_inliers_not_degenerate",
+                       &ShapeRegistrationConfig::min_inliers_not_degenerate);
+
+    py::class_<IcpConfig>(m, "IcpConfig")
+        .def(py::init<>())
+        .def_readwrite("max_iterations", &IcpConfig::max_iterations)
+        .def_readwrite("max_correspondence_m", &IcpConfig::max_correspondence_m)
+        .def_readwrite("final_correspondence_m", &IcpConfig::final_correspondence_m)
+        .def_readwrite("shrink_iterations", &IcpConfig::shrink_iterations)
+        .def_readwrite("huber_m", &IcpConfig::huber_m)
+        .def_readwrite("translation_tolerance_m", &IcpConfig::translation_tolerance_m)
+        .def_readwrite("rotation_tolerance_rad", &IcpConfig::rotation_tolerance_rad)
+        .def_readwrite("min_correspondences", &IcpConfig::min_correspondences)
+        .def_readwrite("degeneracy_threshold", &IcpConfig::degeneracy_threshold)
+        .def_readwrite("degeneracy_length_m", &IcpConfig::degeneracy_length_m);
+
+    py::class_<FpfhConfig>(m, "FpfhConfig")
+        .def(py::init<>())
+        .def_readwrite("voxel_m", &FpfhConfig::voxel_m)
+        .def_readwrite("normal_radius_m", &FpfhConfig::normal_radius_m)
+        .def_readwrite("feature_radius_m", &FpfhConfig::feature_radius_m)
+        .def_readwrite("ransac_iterations", &FpfhConfig::ransac_iterations)
+        .def_readwrite("correspondence_randomness", &FpfhConfig::correspondence_randomness)
+        .def_readwrite("similarity_threshold", &FpfhConfig::similarity_threshold)
+        .def_readwrite("inlier_distance_m", &FpfhConfig::inlier_distance_m)
+        .def_readwrite("inlier_fraction", &FpfhConfig::inlier_fraction)
+        .def_readwrite("seed", &FpfhConfig::seed)
+        .def_readwrite("icp", &FpfhConfig::icp);
+
+    m.def(
+        "match_trees",
+        [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
+           const Eigen::Matrix4d &T_pred, double gate_m, double ratio) {
+            const auto pairs = matchTrees(source, target, Pose3(T_pred), gate_m, ratio);
+            PairArray out(pairs.size(), 2);
+            for (size_t i = 0; i < pairs.size(); ++i) out.row(i) << pairs[i].first, pairs[i].second;
+            return out;
+        },
+        py::arg("source"), py::arg("target"), py::arg("T_target_source_predicted"),
+        py::arg("gate_m"), py::arg("ratio") = 1.0,
+        "Mutually exclusive nearest stems in XY: source (K,3), target (M,3) -> pairs (P,2) int "
+        "(source index, target index) within gate_m after applying the predicted (4,4) pose.");
+
+    m.def(
+        "register_shapes",
+        [](const Eigen::Ref<const Points3> &source_means, const Covariances &source_covs,
+           const Eigen::Ref<const Points3> &target_means, const Covariances &target_covs,
+           const PairArray &pairs, const Eigen::Matrix4d &T_init,
+           const ShapeRegistrationConfig &config) {
+            return registerShapes(source_means, source_covs, target_means, target_covs,
+                                  toPairs(pairs), Pose3(T_init), config);
+        },
+        py::arg("source_means"), py::arg("source_covs"), py::arg("target_means"),
+        py::arg("target_covs"), py::arg("pairs"), py::arg("T_init"),
+        py::arg("config") = ShapeRegistrationConfig(),
+        "Shape-to-shape Gaussian registration over x, y, yaw (Eq. 3): means (K,3), covs (K,9) "
+        "row-major 3x3, pairs (P,2) -> RegistrationResult.");
+
+    m.def(
+        "consensus_pairs",
+        [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
+           const PairArray &pairs, const Eigen::Matrix4d &T_init,
+           const ShapeRegistrationConfig &config) {
+            auto [T, inliers] = consensusPairs(source, target, toPairs(pairs), Pose3(T_init), config);
+            return py::make_tuple(Eigen::Matrix4d(T.matrix()), inliers);
+        },
+        py::arg("source"), py::arg("target"), py::arg("pairs"), py::arg("T_init"),
+        py::arg("config") = ShapeRegistrationConfig(),
+        "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair indices).");
+
+    py::class_<PlaneTarget>(m, "PlaneTarget",
+                            "ICP target: points (M,3) with a KD-tree and PCA normals (M,3; NaN rows "
+                            "where the neighbourhood is not planar).")
+        .def(py::init([](const Eigen::Ref<const Points3> &points, int normal_k) {
+                 py::gil_scoped_release release;
+                 return std::make_unique<PlaneTarget>(points, normal_k);
+             }),
+             py::arg("points"), py::arg("normal_k") = 10)
+        .def_property_readonly("points", &PlaneTarget::points)
+        .def_property_readonly("normals", &PlaneTarget::normals)
+        .def("__len__", [](const PlaneTarget &t) { return t.size(); });
+
+    m.def(
+        "icp_point_to_plane",
+        [](const PlaneTarget &target, const Eigen::Ref<const Points3> &source,
+           const Eigen::Matrix4d &T_init, const IcpConfig &config, const Matrix6d &prior_information,
+           const Eigen::Matrix4d &T_prior) {
+            py::gil_scoped_release release;
+            return icpPointToPlane(target, source, Pose3(T_init), config, prior_information,
+                                   Pose3(T_prior));
+        },
+        py::arg("target"), py::arg("source"), py::arg("T_init"), py::arg("config") = IcpConfig(),
+        py::arg("prior_information") = Matrix6d::Zero(),
+        py::arg("T_prior") = Eigen::Matrix4d::Identity(),
+        "Point-to-plane ICP, 6 DoF: source (N,3) onto a PlaneTarget from T_init (4,4); optional "
+        "prior information (6,6) towards T_prior (4,4) -> RegistrationResult.");
+
+    m.def(
+        "register_fpfh",
+        [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
+           const Eigen::Matrix4d &T_init, const FpfhConfig &config) {
+            py::gil_scoped_release release;
+            return registerFpfh(source, target, Pose3(T_init), config);
+        },
+        py::arg("source"), py::arg("target"), py::arg("T_init") = Eigen::Matrix4d::Identity(),
+        py::arg("config") = FpfhConfig(),
+        "FPFH + RANSAC (SampleConsensusPrerejective) + point-to-plane ICP baseline: source (N,3), "
+        "target (M,3) -> RegistrationResult (inliers = RANSAC inliers).");
+
+    m.def("voxel_downsample", &voxelDownsample, py::arg("points"), py::arg("voxel_m"),
+          "Voxel-grid centroids of points (N,3) -> (M,3).");
+}
 
 }  // namespace forestslam::python
