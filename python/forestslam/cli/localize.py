@@ -1,13 +1,56 @@
-"""`forestslam localize` (not wired yet)."""
+"""`forestslam localize`: global localization in a prior tree map along a sequence."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("localize", help="(not available yet)")
-    def _command() -> None:
-        from forestslam.errors import ForestSlamError
+    @app.command(
+        "localize",
+        help="Find the sensor pose in a prior tree map (saved map .npz or tree CSV with x,y"
+        "[,dbh_m]) by Delaunay triangle stars: a query every K scans from the last N scans "
+        "(aggregated with odometry). Writes OUT/localization.json (every query) and "
+        "OUT/localization.tum (accepted queries: sensor pose in the map frame).",
+    )
+    def _command(
+        input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
+        map_path: Path = typer.Option(..., "--map", help="Map file (.npz) or tree CSV."),
+        sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
+        out: Path = typer.Option(..., "--out", help="Output directory."),
+        frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
+        every: int = typer.Option(1, "--every", help="A query every K scans."),
+        config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
+        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
+        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
+        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
+        save_map: Path | None = typer.Option(
+            None, "--save-map", help="Also save the map (e.g. built from a CSV) as .npz."
+        ),
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+    ) -> None:
+        from forestslam.localization import load_map
+        from forestslam.localization.runner import run_localization
 
-        raise ForestSlamError("'localize' is not available in this build yet")
+        tree_map = load_map(map_path)
+        if save_map is not None:
+            print(f"map saved to {tree_map.save(save_map)}")
+        r = run_localization(
+            input_path,
+            tree_map,
+            sensor,
+            out,
+            frames=frames,
+            every=every,
+            config_path=config,
+            topic=topic,
+            start=start,
+            max_scans=max_scans,
+            progress=not no_progress,
+        )
+        print(
+            f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "
+            f"median {r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+        )

@@ -1,0 +1,176 @@
+"""Global localization along a recorded sequence: a query every K scans from the last N scans.
+
+Stems come from `forestslam.perception.detect` (one frame) or from the odometry steps
+(`forestslam.odometry.Odometry`, several frames aggregated in the last scan's frame). Every
+query is appended to ``localization.json``; accepted ones give the sensor pose in the map frame
+in ``localization.tum``. Both files are rewritten atomically after every query, so a killed run
+leaves valid files up to its last query.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from forestslam.errors import InputError, ProcessingError
+from forestslam.localization.config import LocalizationConfig
+from forestslam.localization.localize import Localization, aggregate_stems, localize
+from forestslam.localization.tree_map import TreeMap, load_map
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LocalizationRun:
+    out_dir: Path
+    scans: int = 0
+    queries: list[dict] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    @property
+    def accepted(self) -> int:
+        return sum(1 for q in self.queries if q["accepted"])
+
+    @property
+    def median_query_ms(self) -> float:
+        return float(np.median([q["time_ms"] for q in self.queries])) if self.queries else 0.0
+
+
+def _query_record(stamp: float, scan: int, trunks: int, loc: Localization) -> dict:
+    return {
+        "stamp": float(stamp),
+        "scan": int(scan),
+        "accepted": loc.accepted,
+        "x": float(loc.x),
+        "y": float(loc.y),
+        "yaw": float(loc.yaw),
+        "inliers": int(loc.inliers),
+        "second_inliers": int(loc.second_inliers),
+        "trunks": int(trunks),
+        "rms_m": float(loc.rms_m),
+        "covariance": np.asarray(loc.covariance, dtype=float).tolist(),
+        "reason": loc.reason,
+        "time_ms": float(loc.time_ms),
+    }
+
+
+def _write_outputs(run: LocalizationRun, meta: dict) -> None:
+    from forestslam.io import write_tum
+    from forestslam.io.atomic import atomic_write_text
+
+    doc = dict(meta)
+    doc["queries"] = run.queries
+    doc["accepted"] = run.accepted
+    atomic_write_text(run.out_dir / "localization.json", json.dumps(doc, indent=1) + "\n")
+    acc = [q for q in run.queries if q["accepted"]]
+    poses = np.zeros((len(acc), 4, 4))
+    for i, q in enumerate(acc):
+        c, s = math.cos(q["yaw"]), math.sin(q["yaw"])
+        poses[i] = np.eye(4)
+        poses[i, :2, :2] = [[c, -s], [s, c]]
+        poses[i, :2, 3] = [q["x"], q["y"]]
+    write_tum(run.out_dir / "localization.tum", np.array([q["stamp"] for q in acc]), poses)
+
+
+def run_localization(
+    input_path: str | Path,
+    map_path: str | Path | TreeMap,
+    sensor: str,
+    out_dir: str | Path,
+    frames: int = 1,
+    every: int = 1,
+    config_path: str | Path | None = None,
+    topic: str | None = None,
+    start: int = 0,
+    max_scans: int | None = None,
+    progress: bool = False,
+) -> LocalizationRun:
+    """Localize along the scans of ``input_path`` in the map; writes the two output files.
+
+    The local frame of a query is the sensor frame of its last scan; the pose written is that
+    sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
+    """
+    from forestslam.config import load_config
+    from forestslam.io import read_scans
+    from forestslam.sensors import load_profile
+
+    if frames < 1 or every < 1:
+        raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
+    root = load_config(config_path)
+    cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
+    profile = load_profile(sensor)
+    tree_map = map_path if isinstance(map_path, TreeMap) else load_map(map_path)
+    if len(tree_map) < 3:
+        raise InputError(f"{map_path}: the map holds {len(tree_map)} trees; at least 3 needed")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    run = LocalizationRun(out)
+    meta = {
+        "input": str(input_path),
+        "map": str(map_path) if not isinstance(map_path, TreeMap) else "(in memory)",
+        "map_trees": len(tree_map),
+        "sensor": profile.name,
+        "frames": frames,
+        "every": every,
+        "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
+    }
+
+    odometry = None
+    if frames > 1:
+        try:
+            from forestslam.odometry import Odometry
+        except ImportError as exc:
+            raise ProcessingError(
+                f"--frames {frames} needs odometry, not available: {exc}"
+            ) from exc
+        odometry = Odometry(
+            profile, getattr(root, "odometry", None), getattr(root, "perception", None)
+        )
+    from forestslam.perception import detect
+
+    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=frames)
+    scans = read_scans(input_path, topic=topic)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(scans) if hasattr(scans, "__len__") else None, unit="scan")
+    t0 = time.perf_counter()
+    try:
+        for i, scan in enumerate(scans):
+            if i < start:
+                continue
+            if max_scans is not None and run.scans >= max_scans:
+                break
+            run.scans += 1
+            if odometry is not None:
+                step = odometry.step(scan)
+                stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
+            else:
+                stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
+            xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
+            window.append((xy, T))
+            if bar is not None:
+                bar.update(1)
+            # First query when the window is full, then every `every` scans.
+            if len(window) < frames or (run.scans - frames) % every != 0:
+                continue
+            local = aggregate_stems([w[0] for w in window], [w[1] for w in window], cfg)
+            loc = localize(tree_map, local, cfg)
+            run.queries.append(_query_record(scan.stamp, i, len(local), loc))
+            _write_outputs(run, meta)
+            if bar is not None:
+                bar.set_postfix(queries=len(run.queries), accepted=run.accepted)
+    finally:
+        if bar is not None:
+            bar.close()
+    run.wall_s = time.perf_counter() - t0
+    _write_outputs(run, meta)
+    return run

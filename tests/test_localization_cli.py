@@ -1,0 +1,105 @@
+"""`forestslam localize`: query schedule, frame aggregation and output files, with perception and
+odometry replaced by test doubles that see a known stand from a known trajectory."""
+
+from __future__ import annotations
+
+import json
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from forestslam.io import Scan, read_tum
+from forestslam.localization import TreeMap
+from forestslam.localization.runner import run_localization
+
+
+def _stand(seed: int = 2) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 150, (1000, 2))
+    pairs = cKDTree(xy).query_pairs(2.5, output_type="ndarray")
+    keep = np.ones(len(xy), bool)
+    keep[pairs[:, 1]] = False
+    return xy[keep]
+
+
+def _pose(t: float) -> np.ndarray:
+    """True T_map_sensor at time t: a slow arc through the stand."""
+    yaw = 0.3 + 0.05 * t
+    T = np.eye(4)
+    T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+    T[:2, 3] = [50 + 1.0 * t * math.cos(yaw), 60 + 1.0 * t * math.sin(yaw)]
+    return T
+
+
+@pytest.fixture
+def doubles(monkeypatch):
+    stand = _stand()
+    T0_inv = np.linalg.inv(_pose(0.0))
+    rng = np.random.default_rng(5)
+
+    def detect(scan, sensor, config=None):
+        T = _pose(scan.stamp)
+        d = np.column_stack([stand, np.zeros(len(stand)), np.ones(len(stand))]) @ np.linalg.inv(T).T
+        xy = d[:, :2][np.hypot(d[:, 0], d[:, 1]) < 15.0]
+        xy = xy[rng.uniform(size=len(xy)) > 0.1]
+        return SimpleNamespace(xy=xy + rng.normal(0, 0.03, xy.shape))
+
+    class Odometry:  # world = first scan's sensor frame, like the real one
+        def __init__(self, sensor, config=None, perception_config=None):
+            pass
+
+        def step(self, scan):
+            return SimpleNamespace(
+                stamp=scan.stamp,
+                T_world_sensor=T0_inv @ _pose(scan.stamp),
+                stems=detect(scan, None),
+            )
+
+    def read_scans(path, topic=None):
+        return iter([Scan(0.5 * k, np.zeros((1, 3))) for k in range(12)])
+
+    import forestslam.io
+    import forestslam.odometry
+    import forestslam.perception
+
+    monkeypatch.setattr(forestslam.perception, "detect", detect)
+    monkeypatch.setattr(forestslam.odometry, "Odometry", Odometry)
+    monkeypatch.setattr(forestslam.io, "read_scans", read_scans)
+    return stand
+
+
+@pytest.mark.parametrize(
+    ("frames", "every", "expected_scans"), [(1, 3, [0, 3, 6, 9]), (4, 4, [3, 7, 11])]
+)
+def test_queries_and_outputs(doubles, tmp_path, frames, every, expected_scans):
+    tree_map = TreeMap(doubles)
+    csv = tmp_path / "map.csv"
+    csv.write_text("x,y,dbh_m\n" + "".join(f"{x},{y},0.3\n" for x, y in doubles))
+    run = run_localization("seq.bag", csv, "vlp16", tmp_path / "out", frames=frames, every=every)
+    doc = json.loads((tmp_path / "out" / "localization.json").read_text())
+    assert [q["scan"] for q in doc["queries"]] == expected_scans
+    assert doc["map_trees"] == len(tree_map)
+    for q in doc["queries"]:
+        assert set(q) >= {"stamp", "accepted", "x", "y", "yaw", "inliers", "covariance"}
+        assert np.asarray(q["covariance"]).shape == (3, 3)
+    assert run.accepted == len(expected_scans)
+    stamps, poses = read_tum(tmp_path / "out" / "localization.tum")
+    assert len(stamps) == run.accepted
+    for stamp, T in zip(stamps, poses, strict=True):
+        truth = _pose(stamp)
+        assert np.hypot(*(T[:2, 3] - truth[:2, 3])) < 0.1
+        yaw = math.atan2(T[1, 0], T[0, 0])
+        assert abs(math.remainder(yaw - math.atan2(truth[1, 0], truth[0, 0]), 2 * math.pi)) < 0.01
+
+
+def test_cli_reports_bad_arguments(doubles, tmp_path):
+    from forestslam.errors import InputError
+
+    with pytest.raises(InputError):
+        run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path, frames=0)
+    with pytest.raises(InputError):
+        run_localization("seq.bag", tmp_path / "none.npz", "vlp16", tmp_path)
