@@ -209,3 +209,40 @@ def test_missing_and_unsupported(tmp_path):
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(InputError, match="unsupported input type '.txt'"):
         read_scans(tmp_path / "notes.txt")
+
+
+@pytest.mark.parametrize("compression", [None, "lz4"])
+def test_damaged_chunk_mid_bag_is_skipped_and_the_rest_read(tmp_path, compression, caplog):
+    from rosbags.rosbag1 import Writer
+
+    from forestslam.io.ros1_salvage import build_index
+
+    scans = make_scans(30, n=1000)
+    path = tmp_path / "damaged.bag"
+    store = _typestore(True)
+    writer = Writer(path)
+    writer.chunk_threshold = 100_000
+    if compression:
+        writer.set_compression(Writer.CompressionFormat[compression.upper()])
+    with writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, True, scan, k, "velodyne")
+            writer.write(conn, ns, store.serialize_ros1(msg, POINTCLOUD2))
+    index = build_index(path)
+    assert len(index.chunks) >= 4 and not index.bad_chunks
+    victim = index.chunks[2]
+    lost = {e[0] for e in index.entries if e[2] == 2}
+    data = bytearray(path.read_bytes())
+    # Break the lz4 frame magic, or the first record header inside an uncompressed chunk.
+    data[victim.datapos : victim.datapos + 4] = b"\xff\xff\xff\x7f"
+    path.write_bytes(bytes(data))
+
+    stream = read_scans(path)
+    out = list(stream)
+    expected = [s for s in scans if round(s.stamp * 1e9) not in lost]
+    assert len(lost) >= 2 and len(out) == len(expected) == 30 - len(lost)
+    for a, b in zip(expected, out, strict=True):
+        assert_same(a, b)
+    assert stream.stats.skipped == len(lost) and stream.stats.damaged_chunks == 1
+    assert "damaged chunk" in caplog.text

@@ -37,6 +37,7 @@ def summarize(path: Path, topic: str | None, rate_hz: float) -> dict:
         "fields": source.fields() if len(source) else {},
         "skipped": stats.skipped,
         "lost_bytes": stats.lost_bytes,
+        "damaged_chunks": stats.damaged_chunks,
         "warnings": stats.warnings,
     }
 
@@ -59,10 +60,10 @@ def _text(info: dict) -> str:
         ),
         "fields:   " + (", ".join(f"{k} {v}" for k, v in info["fields"].items()) or "-"),
     ]
-    if info["skipped"] or info["lost_bytes"]:
+    if info["skipped"] or info["lost_bytes"] or info["damaged_chunks"]:
         lines.append(
-            f"damage:   {info['skipped']} corrupt messages skipped, "
-            f"{info['lost_bytes']} bytes lost (see warnings above)"
+            f"damage:   {info['skipped']} messages skipped, {info['damaged_chunks']} damaged "
+            f"chunks, {info['lost_bytes']} bytes lost at the end (see warnings above)"
         )
     return "\n".join(lines)
 

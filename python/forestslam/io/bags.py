@@ -3,6 +3,7 @@ writer for both in the Velodyne driver layout (see forestslam.io.pointcloud2).""
 
 from __future__ import annotations
 
+import collections
 import functools
 import logging
 import os
@@ -194,7 +195,8 @@ class _BagSource:
 
 
 class Ros1BagSource(_BagSource):
-    """ROS1 .bag via rosbags; a bag without a usable index is walked (ros1_salvage)."""
+    """ROS1 .bag via rosbags; a bag without a usable index, or with a chunk rosbags cannot
+    read, is walked record by record (ros1_salvage) and its damage reported in `stats`."""
 
     format = "ros1"
 
@@ -217,53 +219,69 @@ class Ros1BagSource(_BagSource):
             with self.path.open("rb") as f:
                 if f.read(len(ros1_salvage.MAGIC)) != ros1_salvage.MAGIC:
                     raise InputError(f"{self.path}: not a ROS1 bag ({exc})") from None
-            index = ros1_salvage.build_index(self.path)
-            self._salvage = ros1_salvage.SalvageReader(self.path, index)
-            msgs = len(index.entries)
-            line = (
-                f"{self.path}: bag index unusable ({exc}); read {msgs} messages by walking "
-                f"the chunks"
+            self._salvage = self._walk(f"bag index unusable ({exc})")
+        by_topic: dict[str, TopicInfo] = {}
+        for conn in self._salvage.index.connections.values():
+            msgtype = _normalize_msgtype(conn.msgtype)
+            t = by_topic.setdefault(conn.topic, TopicInfo(conn.topic, msgtype, 0))
+            t.count += conn.count
+        return sorted(by_topic.values(), key=lambda t: t.name)
+
+    def _walk(self, why: str):
+        """Index the bag by walking its records; warn about everything that was lost."""
+        from forestslam.io import ros1_salvage
+
+        index = ros1_salvage.build_index(self.path)
+        line = f"{self.path}: {why}; found {len(index.entries)} messages by walking the chunks"
+        for problem in index.bad_chunks:
+            line += f"; skipped a damaged chunk: {problem}"
+        self.stats.damaged_chunks = len(index.bad_chunks)
+        if index.damaged:
+            self.stats.lost_bytes = index.lost_bytes
+            pct = 100.0 * index.lost_bytes / max(index.size, 1)
+            sizes = [e[4] for e in index.entries]
+            lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
+            about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
+            line += (
+                f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
+                f"({pct:.1f} %{about}) at the end"
             )
-            if index.damaged:
-                self.stats.lost_bytes = index.lost_bytes
-                pct = 100.0 * index.lost_bytes / max(index.size, 1)
-                sizes = [e[4] for e in index.entries]
-                lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
-                about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
-                line += (
-                    f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
-                    f"({pct:.1f} %{about}) at the end"
-                )
-            self.stats.warnings.append(line)
-            log.warning(line)
-            by_topic: dict[str, TopicInfo] = {}
-            for conn in index.connections.values():
-                msgtype = _normalize_msgtype(conn.msgtype)
-                t = by_topic.setdefault(conn.topic, TopicInfo(conn.topic, msgtype, 0))
-                t.count += conn.count
-            return sorted(by_topic.values(), key=lambda t: t.name)
+        self.stats.warnings.append(line)
+        log.warning(line)
+        return ros1_salvage.SalvageReader(self.path, index)
+
+    def _salvaged(self, salvage) -> Iterator[tuple[int, bytes]]:
+        conns = {c.conn for c in salvage.index.connections.values() if c.topic == self.topic}
+        for _conn, time_ns, raw in salvage.messages(conns):
+            yield time_ns, raw
 
     def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
         if self._salvage is not None:
-            conns = {
-                c.conn for c in self._salvage.index.connections.values() if c.topic == self.topic
-            }
-            for _conn, time_ns, raw in self._salvage.messages(conns):
-                yield time_ns, raw
+            yield from self._salvaged(self._salvage)
             return
-        from rosbags.rosbag1 import Reader, ReaderError
+        from rosbags.rosbag1 import Reader
 
+        done: list[int] = []  # stamps already yielded (to resume after a damaged chunk)
         with Reader(self.path) as reader:
             conns = [c for c in reader.connections if c.topic == self.topic]
             try:
                 for _conn, time_ns, raw in reader.messages(connections=conns):
                     yield time_ns, raw
-            except (ReaderError, OSError, ValueError, EOFError) as exc:
-                # A damaged chunk ends rosbags' iteration: the rest of that chunk is lost.
-                self.stats.skipped += 1
-                line = f"{self.path}: damaged chunk, stopped reading ({exc})"
-                self.stats.warnings.append(line)
-                log.warning(line)
+                    done.append(time_ns)
+                return
+            except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
+                failure = exc
+        # rosbags stops at a chunk it cannot read: walk the bag and resume after that chunk.
+        salvage = self._walk(f"damaged chunk ({failure})")
+        seen = collections.Counter(done)
+        got = len(done)
+        for time_ns, raw in self._salvaged(salvage):
+            if seen[time_ns] > 0:
+                seen[time_ns] -= 1
+                continue
+            got += 1
+            yield time_ns, raw
+        self.stats.skipped += max(len(self) - got, 0)
 
     def _deserialize(self, raw):
         return self._store.deserialize_ros1(raw, POINTCLOUD2)

@@ -1,7 +1,8 @@
 """Single point-cloud files: one registry of readers by suffix, and the matching writers.
 
 Readers (suffix -> structured points): .pcd, .ply, .las/.laz (laspy; GPS time becomes per-point
-time relative to its minimum, which is the stamp; extra dimensions such as Ring are kept),
+time relative to its minimum, which is the stamp; classification is kept when set, and extra
+dimensions such as Ring; `read_cloud_array` gives them all, `read_cloud` the Scan fields),
 KITTI .bin (float32 x, y, z, intensity), .npy ((N,3) x,y,z, (N,4) x,y,z,intensity, or a
 structured array with named fields).
 """
@@ -60,6 +61,9 @@ def _read_las(path: Path) -> tuple[np.ndarray, float | None]:
         gps = None
     if gps is not None:
         fields.append(("time", "f8"))
+    classes = np.asarray(las.classification, dtype=np.uint8)
+    if classes.any():  # ground (2), vegetation ... for checks against classified clouds
+        fields.append(("classification", "u1"))
     names = {f[0] for f in fields}
     fields += [(name, dt) for name, dt in extra if name.lower() not in names]
     out = np.zeros(n, dtype=fields)
@@ -69,7 +73,9 @@ def _read_las(path: Path) -> tuple[np.ndarray, float | None]:
     if gps is not None:
         stamp = float(gps.min()) if n else 0.0
         out["time"] = gps - stamp
-    for name, _dt in fields[4 + (gps is not None) :]:
+    if classes.any():
+        out["classification"] = classes
+    for name, _dt in fields[4 + (gps is not None) + bool(classes.any()) :]:
         out[name] = las[name]
     return out, stamp
 

@@ -55,6 +55,7 @@ class SalvageIndex:
     end_of_data: int = 0  # file offset after the last complete record we could use
     damaged: bool = False
     reason: str = ""
+    bad_chunks: list[str] = field(default_factory=list)  # chunks skipped mid-bag, and why
 
     @property
     def lost_bytes(self) -> int:
@@ -117,24 +118,30 @@ def _connection(header: dict[str, bytes], data: bytes) -> SalvageConnection:
     )
 
 
-def _read_chunk_records(index: SalvageIndex, chunk_id: int, raw: bytes) -> int:
-    """Index the messages of one decompressed chunk; return bytes of it that were usable."""
+def _read_chunk_records(index: SalvageIndex, chunk_id: int, raw: bytes) -> tuple[int, str]:
+    """Index the messages of one decompressed chunk up to the first damaged record.
+    Returns (bytes of the chunk that were usable, "" or what was wrong)."""
     used = 0
-    for header, data_start, dlen, rec_end in _records(raw):
-        if rec_end > len(raw):
-            break
-        op = header.get("op", b"\0")[0]
-        if op == OP_CONNECTION:
-            conn = _connection(header, raw[data_start:rec_end])
-            index.connections.setdefault(conn.conn, conn)
-        elif op == OP_MSG:
-            conn = U32.unpack(header["conn"])[0]
-            sec, nsec = struct.unpack("<II", header["time"])
-            index.entries.append((sec * 10**9 + nsec, conn, chunk_id, data_start, dlen))
-            if conn in index.connections:
-                index.connections[conn].count += 1
-        used = rec_end
-    return used
+    try:
+        for header, data_start, dlen, rec_end in _records(raw):
+            if rec_end > len(raw):
+                break
+            op = header.get("op", b"\0")[0]
+            if op == OP_CONNECTION:
+                conn = _connection(header, raw[data_start:rec_end])
+                index.connections.setdefault(conn.conn, conn)
+            elif op == OP_MSG:
+                conn = U32.unpack(header["conn"])[0]
+                sec, nsec = struct.unpack("<II", header["time"])
+                index.entries.append((sec * 10**9 + nsec, conn, chunk_id, data_start, dlen))
+            else:
+                raise ValueError(f"record op {op} inside a chunk")
+            used = rec_end
+    except (ValueError, KeyError, struct.error, UnicodeDecodeError) as exc:
+        return used, f"damaged record at chunk byte {used} ({exc})"
+    if used < len(raw):
+        return used, f"damaged record at chunk byte {used} of {len(raw)}"
+    return used, ""
 
 
 def build_index(path: Path) -> SalvageIndex:
@@ -161,12 +168,21 @@ def _walk(path: Path, blob: mmap.mmap) -> SalvageIndex:
                     present = len(blob) - data_start
                 chunk = _Chunk(data_start, present, compression, partial)
                 index.chunks.append(chunk)
-                raw = decompress(blob[data_start : data_start + present], compression, partial)
-                used = _read_chunk_records(index, len(index.chunks) - 1, raw)
+                try:
+                    raw = decompress(blob[data_start : data_start + present], compression, partial)
+                except Exception as exc:  # noqa: BLE001 - lz4/bz2 raise several types
+                    raw = b""
+                    problem = f"chunk at byte {data_start} does not decompress ({exc})"
+                else:
+                    used, problem = _read_chunk_records(index, len(index.chunks) - 1, raw)
+                if problem and not partial:
+                    index.bad_chunks.append(problem)
                 if partial:
                     # Compressed bytes map to message bytes only roughly: estimate the lost
                     # share of the partial chunk from the share of its output we could use.
-                    if compression == "none":
+                    if not raw:
+                        index.end_of_data = data_start
+                    elif compression == "none":
                         index.end_of_data = data_start + used
                     else:
                         share = used / len(raw) if len(raw) else 0.0

@@ -22,14 +22,16 @@ class ReadStats:
     """Counters a reader keeps while yielding scans; the pipeline runner reports them.
 
     messages: messages (or files) read on the chosen topic; scans: scans yielded;
-    skipped: corrupt messages/files skipped (each one logged); lost_bytes: bytes of a damaged
-    bag that could not be read (truncated recording); warnings: one line per problem.
+    skipped: corrupt messages/files skipped (each one logged); lost_bytes: bytes at the end of
+    a damaged bag that could not be read (truncated recording); damaged_chunks: ROS1 chunks
+    skipped mid-bag; warnings: one line per problem.
     """
 
     messages: int = 0
     scans: int = 0
     skipped: int = 0
     lost_bytes: int = 0
+    damaged_chunks: int = 0
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -38,6 +40,7 @@ class ReadStats:
             "scans": self.scans,
             "skipped": self.skipped,
             "lost_bytes": self.lost_bytes,
+            "damaged_chunks": self.damaged_chunks,
             "warnings": list(self.warnings),
         }
 
