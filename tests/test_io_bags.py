@@ -246,3 +246,57 @@ def test_damaged_chunk_mid_bag_is_skipped_and_the_rest_read(tmp_path, compressio
         assert_same(a, b)
     assert stream.stats.skipped == len(lost) and stream.stats.damaged_chunks == 1
     assert "damaged chunk" in caplog.text
+
+
+def test_killed_recorder_with_unfinished_chunk_header(tmp_path):
+    """rosbag (C++) writes a chunk header with data length 0 and rewrites it when the chunk
+    closes; a recorder killed mid-chunk leaves the 0 and message records running to the end."""
+    from rosbags.rosbag1 import Writer
+
+    from forestslam.io.ros1_salvage import build_index
+
+    scans = make_scans(20, n=1000)
+    path = tmp_path / "rec.bag"
+    store = _typestore(True)
+    writer = Writer(path)
+    writer.chunk_threshold = 100_000
+    with writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, True, scan, k, "velodyne")
+            writer.write(conn, ns, store.serialize_ros1(msg, POINTCLOUD2))
+    index = build_index(path)
+    last = index.chunks[-2]  # cut inside the second-to-last chunk
+    in_last = sorted(e[3] + e[4] for e in index.entries if e[2] == len(index.chunks) - 2)
+    cut = last.datapos + (in_last[0] + in_last[1]) // 2  # after its first message, mid second
+    data = bytearray(_kill_recorder(path.read_bytes(), 1.0)[:cut])
+    data[last.datapos - 4 : last.datapos] = bytes(4)  # chunk data length never rewritten
+    damaged = tmp_path / "killed.bag"
+    damaged.write_bytes(bytes(data))
+    before = sum(1 for e in index.entries if e[2] < len(index.chunks) - 2)
+    stream = read_scans(damaged)
+    out = list(stream)
+    assert len(out) == before + 1  # every earlier chunk plus the complete first message
+    for a, b in zip(scans, out, strict=False):
+        assert_same(a, b)
+    assert 0 < stream.stats.lost_bytes < in_last[1] - in_last[0]
+
+
+@pytest.mark.parametrize("plugin", ["SQLITE3", "MCAP"])
+def test_ros2_bag_directory(tmp_path, plugin):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    scans = make_scans(4)
+    store = _typestore(False)
+    bagdir = tmp_path / "rosbag2_dir"
+    with Writer(bagdir, version=8, storage_plugin=StoragePlugin[plugin]) as writer:
+        conn = writer.add_connection("/ouster/points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, False, scan, k, "os_sensor")
+            writer.write(conn, ns, store.serialize_cdr(msg, POINTCLOUD2))
+    source = open_source(bagdir)
+    assert source.format == "ros2-dir" and source.topic == "/ouster/points"
+    out = list(source.scans())
+    assert len(out) == 4
+    for a, b in zip(scans, out, strict=True):
+        assert_same(a, b)
