@@ -181,3 +181,15 @@ def test_bad_layouts_raise_input_error(cloud):
     msg.fields[0].datatype = 9
     with pytest.raises(InputError, match="datatype"):
         decode_pointcloud2(msg)
+
+
+def test_float_nanosecond_timestamps_and_empty_header_stamp(cloud):
+    stamp_ns = 1_700_000_000_500_000_000
+    cols = dict(cloud, timestamp=stamp_ns + cloud["time"] * 1e9)
+    layout = [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("timestamp", 12, "f8")]
+    scan = decode_pointcloud2(make_msg(cols, layout, 20, stamp=stamp_ns * 1e-9))
+    np.testing.assert_allclose(scan.time, cloud["time"], atol=1e-6)
+    # header.stamp left at 0: the stamp becomes the earliest point time.
+    scan = decode_pointcloud2(make_msg(cols, layout, 20, stamp=0.0))
+    assert scan.stamp == pytest.approx(stamp_ns * 1e-9, abs=1e-6)
+    np.testing.assert_allclose(scan.time, cloud["time"], atol=1e-6)

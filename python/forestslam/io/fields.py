@@ -6,9 +6,10 @@ Accepted field names, first match wins (matching ignores case):
 - ring: `ring`, `channel`, `line`, `laser_id`.
 - time: `time`, `t`, `timestamp`, `offset_time`, `time_offset`, `gps_time`.
   Integer time fields are nanoseconds (Ouster `t`, Livox `offset_time`, uint64 stamps), float
-  fields seconds (Velodyne `time`, Hesai/Robosense `timestamp`). Values larger than 1e6 s are
-  absolute times and are made relative to the scan stamp (the stamp is the earliest point time
-  when the container gives none).
+  fields seconds (Velodyne `time`, Hesai/Robosense `timestamp`) unless larger than 1e14 (float
+  nanoseconds since the epoch, Livox ROS2 `timestamp`). Times larger than 1e6 s are absolute
+  and are made relative to the scan stamp (the stamp is the earliest point time when the
+  container gives none or 0).
 Points with a non-finite coordinate, and points exactly at the origin (how Ouster and other
 drivers mark "no return" in organized clouds), are dropped with one mask applied to every array.
 """
@@ -23,7 +24,8 @@ from forestslam.io.scan import Scan
 INTENSITY_NAMES = ("intensity", "i", "reflectivity", "signal")
 RING_NAMES = ("ring", "channel", "line", "laser_id")
 TIME_NAMES = ("time", "t", "timestamp", "offset_time", "time_offset", "gps_time")
-ABSOLUTE_TIME_S = 1e6
+ABSOLUTE_TIME_S = 1e6  # larger per-point times are absolute (seconds since some epoch)
+ABSOLUTE_NS = 1e14  # larger float times are nanoseconds since the epoch
 
 
 def _find(names: tuple[str, ...], available: dict[str, str]) -> str | None:
@@ -39,20 +41,27 @@ def _first_component(values: np.ndarray) -> np.ndarray:
 
 
 def relative_time(values: np.ndarray, stamp: float | None) -> tuple[np.ndarray, float]:
-    """Per-point times (any dtype, see module doc) -> (seconds relative to stamp, stamp)."""
+    """Per-point times (any dtype, see module doc) -> (seconds relative to stamp, stamp).
+
+    A stamp of None or 0 (drivers that leave header.stamp empty) is replaced by the earliest
+    absolute point time."""
+    unknown = stamp is None or stamp == 0.0
     if values.dtype.kind in "iu":
         ns = values.astype(np.int64)
         if len(ns) and np.abs(ns).max() > ABSOLUTE_TIME_S * 1e9:
-            base_ns = int(ns.min()) if stamp is None else int(round(stamp * 1e9))
+            base_ns = int(ns.min()) if unknown else int(round(stamp * 1e9))
             return (ns - base_ns).astype(np.float64) * 1e-9, base_ns * 1e-9
         return ns.astype(np.float64) * 1e-9, 0.0 if stamp is None else stamp
     seconds = values.astype(np.float64)
-    if len(seconds) and (biggest := np.abs(seconds).max()) > ABSOLUTE_TIME_S:
-        if not np.isfinite(biggest):
-            biggest = np.nanmax(np.abs(seconds[np.isfinite(seconds)]), initial=0.0)
-        if biggest > ABSOLUTE_TIME_S:
-            base = float(np.nanmin(seconds)) if stamp is None else stamp
-            return seconds - base, base
+    biggest = np.abs(seconds).max() if len(seconds) else 0.0
+    if not np.isfinite(biggest):
+        biggest = np.nanmax(np.abs(seconds[np.isfinite(seconds)]), initial=0.0)
+    if biggest > ABSOLUTE_NS:  # float nanoseconds since the epoch (e.g. Livox `timestamp`)
+        base_ns = float(np.nanmin(seconds)) if unknown else stamp * 1e9
+        return (seconds - base_ns) * 1e-9, base_ns * 1e-9
+    if biggest > ABSOLUTE_TIME_S:
+        base = float(np.nanmin(seconds)) if unknown else stamp
+        return seconds - base, base
     return seconds, 0.0 if stamp is None else stamp
 
 
