@@ -300,3 +300,16 @@ def test_ros2_bag_directory(tmp_path, plugin):
     assert len(out) == 4
     for a, b in zip(scans, out, strict=True):
         assert_same(a, b)
+
+
+def test_failed_write_leaves_no_file(tmp_path):
+    def scans_then_crash():
+        yield from make_scans(2)
+        raise RuntimeError("simulator crashed")
+
+    path = tmp_path / "seq.bag"
+    write_scans(path, make_scans(3))  # a previous complete bag stays intact
+    with pytest.raises(RuntimeError, match="crashed"):
+        write_scans(path, scans_then_crash())
+    assert [p.name for p in tmp_path.iterdir()] == ["seq.bag"]
+    assert len(list(read_scans(path))) == 3
