@@ -313,3 +313,15 @@ def test_failed_write_leaves_no_file(tmp_path):
         write_scans(path, scans_then_crash())
     assert [p.name for p in tmp_path.iterdir()] == ["seq.bag"]
     assert len(list(read_scans(path))) == 3
+
+
+def test_start_skips_without_decoding(tmp_path):
+    scans = make_scans(6)
+    path = tmp_path / "a.mcap"
+    write_scans(path, scans)
+    stream = read_scans(path, start=4)
+    out = list(stream)
+    assert len(stream) == 6 and stream.stats.messages == 2
+    assert [s.stamp for s in out] == pytest.approx([scans[4].stamp, scans[5].stamp])
+    with pytest.raises(InputError, match="start"):
+        read_scans(path, start=-1)

@@ -177,8 +177,10 @@ class _BagSource:
             log.warning(line)
             return None
 
-    def scans(self) -> Iterator[Scan]:
-        for time_ns, raw in self._raw_messages():
+    def scans(self, start: int = 0) -> Iterator[Scan]:
+        for k, (time_ns, raw) in enumerate(self._raw_messages()):
+            if k < start:  # skipped without decoding
+                continue
             self.stats.messages += 1
             scan = self._decode(raw, time_ns)
             if scan is not None:

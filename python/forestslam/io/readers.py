@@ -113,8 +113,10 @@ class CloudFilesSource:
             for n in arr.dtype.names
         }
 
-    def scans(self) -> Iterator[Scan]:
+    def scans(self, start: int = 0) -> Iterator[Scan]:
         for k, (file, stamp) in enumerate(zip(self.files, self.stamps, strict=True)):
+            if k < start:
+                continue
             self.stats.messages += 1
             try:
                 arr, file_stamp = read_cloud_array(file)
@@ -175,9 +177,9 @@ def open_source(
 class ScanStream(Iterator[Scan]):
     """Iterator over scans with the source's `stats` (skipped messages, lost bytes) and len()."""
 
-    def __init__(self, source: ScanSource) -> None:
+    def __init__(self, source: ScanSource, start: int = 0) -> None:
         self.source = source
-        self._it = source.scans()
+        self._it = source.scans(start)
 
     @property
     def stats(self) -> ReadStats:
@@ -194,11 +196,17 @@ class ScanStream(Iterator[Scan]):
 
 
 def read_scans(
-    path: str | Path, topic: str | None = None, rate_hz: float = DEFAULT_RATE_HZ
+    path: str | Path,
+    topic: str | None = None,
+    rate_hz: float = DEFAULT_RATE_HZ,
+    start: int = 0,
 ) -> ScanStream:
     """Scans of a bag, folder or file in time order (see the module doc for formats).
 
+    `start` skips that many messages/files without decoding them (len() still counts all).
     Raises InputError at once for a missing file, unknown type, or an ambiguous/wrong topic.
     Corrupt messages are skipped, logged and counted in `.stats`.
     """
-    return ScanStream(open_source(path, topic, rate_hz))
+    if start < 0:
+        raise InputError(f"start must be >= 0, not {start}")
+    return ScanStream(open_source(path, topic, rate_hz), start)

@@ -70,6 +70,7 @@ class ScanSource(Protocol):
         """Number of scans the source holds (messages on the topic, or files)."""
         ...
 
-    def scans(self) -> Iterator[Scan]:
-        """Scans in time order, finite points only."""
+    def scans(self, start: int = 0) -> Iterator[Scan]:
+        """Scans in time order, finite points only; the first `start` messages or files are
+        skipped without being decoded."""
         ...
