@@ -260,3 +260,24 @@ def test_real_laz(name, points):
         assert scan.ring is not None  # the Ring extra dimension
     extent = scan.points.max(axis=0) - scan.points.min(axis=0)
     assert (extent[:2] > 0.2).all() and (extent[:2] < 200).all()
+
+
+FIXTURES = Path(__file__).resolve().parent / "data" / "io"
+
+
+def test_pcd_written_by_pcl():
+    """binary_compressed files written by PCL itself (see tests/data/io/README.md)."""
+    need_lzf()
+    scan = read_cloud(FIXTURES / "xyzi_compressed.pcd")
+    i = np.delete(np.arange(500), 7)  # point 7 is a NaN hole
+    expected = np.column_stack([10 * np.cos(0.01 * i), 10 * np.sin(0.01 * i), 0.001 * i - 1])
+    np.testing.assert_allclose(scan.points, expected, atol=1e-5)
+    np.testing.assert_array_equal(scan.intensity, i % 100)
+    arr = read_pcd(FIXTURES / "rgbnormal_compressed.pcd")
+    i = np.arange(300)
+    np.testing.assert_array_equal(arr["x"], i)
+    np.testing.assert_array_equal(arr["z"], 0.5 * i)
+    np.testing.assert_array_equal(arr["rgb"] >> 16 & 0xFF, i % 255)
+    np.testing.assert_array_equal(arr["rgb"] & 0xFF, 4)
+    np.testing.assert_array_equal(arr["normal_z"], 1)
+    np.testing.assert_array_equal(arr["curvature"], 0.25)
