@@ -1,6 +1,7 @@
 """`forestslam evaluate` on hand-made run and truth directories."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -78,7 +79,8 @@ def test_evaluate_run_metrics(dirs):
 
 def test_evaluate_cli_prints_table_and_fails_cleanly(dirs, tmp_path):
     run, truth = dirs
-    env = {"PYTHONPATH": str(REPO / "python")}
+    path = [str(REPO / "python")] + os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in path if p))
     cmd = [sys.executable, "-m", "forestslam.cli.main", "evaluate", str(run), "--truth"]
     ok = subprocess.run(cmd + [str(truth)], capture_output=True, text=True, env=env)
     assert ok.returncode == 0, ok.stderr
