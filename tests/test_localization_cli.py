@@ -96,6 +96,17 @@ def test_queries_and_outputs(doubles, tmp_path, frames, every, expected_scans):
         assert abs(math.remainder(yaw - math.atan2(truth[1, 0], truth[0, 0]), 2 * math.pi)) < 0.01
 
 
+def test_keyframe_distance_spreads_the_frames(doubles, tmp_path):
+    run = run_localization(
+        "seq.bag", TreeMap(doubles), "vlp16", tmp_path, frames=3, every=1, keyframe_distance_m=1.0
+    )
+    # Consecutive frames would fill the window at scan 2; keyframes >= 1 m apart (the doubles
+    # move about 0.5 m per scan) fill it later.
+    assert run.queries[0]["scan"] >= 3
+    assert len(run.queries) == 12 - run.queries[0]["scan"]
+    assert run.accepted == len(run.queries)
+
+
 def test_cli_reports_bad_arguments(doubles, tmp_path):
     from forestslam.errors import InputError
 

@@ -22,6 +22,11 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", help="Output directory."),
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
+        keyframe_distance: float | None = typer.Option(
+            None,
+            "--keyframe-distance-m",
+            help="Aggregate frames at least this far apart (wider view); default: consecutive.",
+        ),
         config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
         topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
@@ -49,6 +54,7 @@ def register(app: typer.Typer) -> None:
             start=start,
             max_scans=max_scans,
             progress=not no_progress,
+            keyframe_distance_m=keyframe_distance,
         )
         print(
             f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "

@@ -28,5 +28,6 @@ class LocalizationConfig:
     triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
     # Aggregation of several scans into one query (CLI / aggregate_stems).
     merge_radius_m: float = 0.3  # detections of one trunk from several frames are merged
+    keyframe_distance_m: float = 0.0  # frames of a query this far apart; 0 = consecutive scans
     min_observations: int = 1  # with >= 3 frames, trunks seen fewer times are dropped
     max_range_m: float = 25.0  # detections further from their sensor are dropped

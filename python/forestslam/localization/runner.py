@@ -91,6 +91,7 @@ def run_localization(
     start: int = 0,
     max_scans: int | None = None,
     progress: bool = False,
+    keyframe_distance_m: float | None = None,
 ) -> LocalizationRun:
     """Localize along the scans of ``input_path`` in the map; writes the two output files.
 
@@ -105,6 +106,8 @@ def run_localization(
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
     root = load_config(config_path)
     cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
+    if keyframe_distance_m is not None:
+        cfg.keyframe_distance_m = keyframe_distance_m
     profile = load_profile(sensor)
     tree_map = map_path if isinstance(map_path, TreeMap) else load_map(map_path)
     if len(tree_map) < 3:
@@ -119,6 +122,7 @@ def run_localization(
         "sensor": profile.name,
         "frames": frames,
         "every": every,
+        "keyframe_distance_m": cfg.keyframe_distance_m,
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
     }
 
@@ -135,7 +139,9 @@ def run_localization(
         )
     from forestslam.perception import detect
 
-    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=frames)
+    # Earlier frames of the query window (keyframes at least keyframe_distance_m apart); the
+    # current scan is always the last frame of a query.
+    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=frames - 1)
     scans = read_scans(input_path, topic=topic)
     bar = None
     if progress:
@@ -150,19 +156,30 @@ def run_localization(
             if max_scans is not None and run.scans >= max_scans:
                 break
             run.scans += 1
-            if odometry is not None:
-                step = odometry.step(scan)
-                stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
-            else:
-                stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
-            xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
-            window.append((xy, T))
             if bar is not None:
                 bar.update(1)
             # First query when the window is full, then every `every` scans.
-            if len(window) < frames or (run.scans - frames) % every != 0:
+            due = run.scans >= frames and (run.scans - frames) % every == 0
+            if odometry is not None:  # every scan: odometry needs them all
+                step = odometry.step(scan)
+                stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
+            elif due:  # one frame per query: only query scans need stems
+                stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
+            else:
                 continue
-            local = aggregate_stems([w[0] for w in window], [w[1] for w in window], cfg)
+            xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
+            if due and len(window) == frames - 1:
+                frames_xy = [w[0] for w in window] + [xy]
+                local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], cfg)
+            else:
+                local = None
+            if frames > 1 and (
+                not window
+                or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= cfg.keyframe_distance_m
+            ):
+                window.append((xy, T))
+            if local is None:
+                continue
             loc = localize(tree_map, local, cfg)
             run.queries.append(_query_record(scan.stamp, i, len(local), loc))
             _write_outputs(run, meta)
