@@ -325,3 +325,48 @@ def test_start_skips_without_decoding(tmp_path):
     assert [s.stamp for s in out] == pytest.approx([scans[4].stamp, scans[5].stamp])
     with pytest.raises(InputError, match="start"):
         read_scans(path, start=-1)
+
+
+def test_truncated_mcap_reads_intact_chunks(tmp_path, caplog):
+    """`ros2 bag record` killed: the MCAP has no summary or footer and ends mid-chunk."""
+    scans = make_scans(30, n=3000)  # 66 kB each, 1 MB chunks
+    full = tmp_path / "full.mcap"
+    write_scans(full, scans)
+    data = full.read_bytes()
+    for keep in (0.3, 0.6, 0.97):
+        path = tmp_path / f"cut{keep}.mcap"
+        path.write_bytes(data[: int(len(data) * keep)])
+        stream = read_scans(path)
+        out = list(stream)
+        assert int(30 * keep) - 2 <= len(out) <= int(30 * keep)
+        for a, b in zip(scans, out, strict=False):
+            assert_same(a, b)
+        assert stream.stats.lost_bytes > 0
+    assert "MCAP summary unusable" in caplog.text
+    path = tmp_path / "head.mcap"
+    path.write_bytes(data[:40])
+    with pytest.raises(InputError, match="head.mcap"):
+        read_scans(path)
+
+
+def test_mcap_damaged_chunk_mid_file(tmp_path):
+    from forestslam.io.mcap_salvage import build_index
+
+    scans = make_scans(40, n=3000)
+    path = tmp_path / "d.mcap"
+    write_scans(path, scans)
+    index = build_index(path)
+    assert len(index.chunks) >= 3 and not index.damaged
+    lost = {e[0] for e in index.entries if e[2] == 1}
+    first_message = min(e[3] for e in index.entries if e[2] == 1)
+    data = bytearray(path.read_bytes())
+    start = index.chunks[1].datapos + first_message - 22 - 9  # the record's opcode and length
+    data[start + 1 : start + 9] = (2**60).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+    stream = read_scans(path)
+    out = list(stream)
+    expected = [s for s in scans if round(s.stamp * 1e9) not in lost]
+    assert len(lost) >= 10 and len(out) == len(expected)
+    for a, b in zip(expected, out, strict=True):
+        assert_same(a, b)
+    assert stream.stats.skipped == len(lost) and stream.stats.damaged_chunks == 1

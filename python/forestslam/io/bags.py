@@ -187,6 +187,25 @@ class _BagSource:
                 self.stats.scans += 1
                 yield scan
 
+    def _report(self, why: str, index) -> None:
+        """Log and record what a walk over a damaged bag (ros1/mcap salvage index) found."""
+        line = f"{self.path}: {why}; found {len(index.entries)} messages by walking the chunks"
+        for problem in index.bad_chunks:
+            line += f"; skipped a damaged chunk: {problem}"
+        self.stats.damaged_chunks = len(index.bad_chunks)
+        if index.damaged:
+            self.stats.lost_bytes = index.lost_bytes
+            pct = 100.0 * index.lost_bytes / max(index.size, 1)
+            sizes = [e[4] for e in index.entries]
+            lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
+            about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
+            line += (
+                f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
+                f"({pct:.1f} %{about}) at the end"
+            )
+        self.stats.warnings.append(line)
+        log.warning(line)
+
     def fields(self) -> dict[str, str]:
         for time_ns, raw in self._raw_messages():
             try:
@@ -234,22 +253,7 @@ class Ros1BagSource(_BagSource):
         from forestslam.io import ros1_salvage
 
         index = ros1_salvage.build_index(self.path)
-        line = f"{self.path}: {why}; found {len(index.entries)} messages by walking the chunks"
-        for problem in index.bad_chunks:
-            line += f"; skipped a damaged chunk: {problem}"
-        self.stats.damaged_chunks = len(index.bad_chunks)
-        if index.damaged:
-            self.stats.lost_bytes = index.lost_bytes
-            pct = 100.0 * index.lost_bytes / max(index.size, 1)
-            sizes = [e[4] for e in index.entries]
-            lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
-            about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
-            line += (
-                f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
-                f"({pct:.1f} %{about}) at the end"
-            )
-        self.stats.warnings.append(line)
-        log.warning(line)
+        self._report(why, index)
         return ros1_salvage.SalvageReader(self.path, index)
 
     def _salvaged(self, salvage) -> Iterator[tuple[int, bytes]]:
@@ -308,6 +312,7 @@ class Ros2BagSource(_BagSource):
 
     def _read_topics(self) -> list[TopicInfo]:
         self._store = _typestore(False)
+        self._salvage = None
         try:
             with self._open() as reader:
                 return [
@@ -317,19 +322,65 @@ class Ros2BagSource(_BagSource):
         except InputError:
             raise
         except Exception as exc:  # noqa: BLE001 - rosbags raises several types here
-            raise InputError(f"{self.path}: cannot read ROS2 bag ({exc})") from None
+            if not self._is_mcap_file():
+                raise InputError(f"{self.path}: cannot read ROS2 bag ({exc})") from None
+            self._salvage = self._walk(f"MCAP summary unusable ({exc})")
+        by_topic: dict[str, TopicInfo] = {}
+        for ch in self._salvage.index.channels.values():
+            t = by_topic.setdefault(ch.topic, TopicInfo(ch.topic, ch.msgtype, 0))
+            t.count += ch.count
+        return sorted(by_topic.values(), key=lambda t: t.name)
+
+    def _is_mcap_file(self) -> bool:
+        from forestslam.io.mcap_salvage import MAGIC
+
+        if not self.path.is_file():
+            return False
+        with self.path.open("rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+
+    def _walk(self, why: str):
+        from forestslam.io import mcap_salvage
+
+        index = mcap_salvage.build_index(self.path)
+        self._report(why, index)
+        return mcap_salvage.McapSalvageReader(self.path, index)
+
+    def _salvaged(self, salvage) -> Iterator[tuple[int, bytes]]:
+        ids = {c.id for c in salvage.index.channels.values() if c.topic == self.topic}
+        for _ch, time_ns, raw in salvage.messages(ids):
+            yield time_ns, raw
 
     def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        if self._salvage is not None:
+            yield from self._salvaged(self._salvage)
+            return
+        done: list[int] = []
         with self._open() as reader:
             conns = [c for c in reader.connections if c.topic == self.topic]
             try:
                 for _conn, time_ns, raw in reader.messages(connections=conns):
                     yield time_ns, raw
+                    done.append(time_ns)
+                return
             except Exception as exc:  # noqa: BLE001 - storage damage ends the iteration
-                self.stats.skipped += 1
-                line = f"{self.path}: damaged storage, stopped reading ({exc})"
-                self.stats.warnings.append(line)
-                log.warning(line)
+                failure = exc
+        if not self._is_mcap_file():
+            self.stats.skipped += max(len(self) - len(done), 0)
+            line = f"{self.path}: damaged storage, stopped reading ({failure})"
+            self.stats.warnings.append(line)
+            log.warning(line)
+            return
+        salvage = self._walk(f"damaged chunk ({failure})")
+        seen = collections.Counter(done)
+        got = len(done)
+        for time_ns, raw in self._salvaged(salvage):
+            if seen[time_ns] > 0:
+                seen[time_ns] -= 1
+                continue
+            got += 1
+            yield time_ns, raw
+        self.stats.skipped += max(len(self) - got, 0)
 
     def _deserialize(self, raw):
         return self._store.deserialize_cdr(raw, POINTCLOUD2)
