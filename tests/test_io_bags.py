@@ -370,3 +370,25 @@ def test_mcap_damaged_chunk_mid_file(tmp_path):
     for a, b in zip(expected, out, strict=True):
         assert_same(a, b)
     assert stream.stats.skipped == len(lost) and stream.stats.damaged_chunks == 1
+
+
+def test_truncated_zstd_mcap(tmp_path):
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    scans = make_scans(30, n=3000)
+    store = _typestore(False)
+    bagdir = tmp_path / "z"
+    writer = Writer(bagdir, version=8, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k, scan in enumerate(scans):
+            ns, msg = _message(store, False, scan, k, "velodyne")
+            writer.write(conn, ns, store.serialize_cdr(msg, POINTCLOUD2))
+    data = (bagdir / "z.mcap").read_bytes()
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data[: int(len(data) * 0.7)])
+    out = list(read_scans(path))
+    assert 10 <= len(out) <= 21  # complete chunks plus the decodable part of the cut one
+    for a, b in zip(scans, out, strict=False):
+        assert_same(a, b)

@@ -2,7 +2,7 @@
 
 `ros2 bag record` writes MCAP by default; when it dies the file ends mid-chunk. We walk the
 records from the start: every complete chunk is read, the cut last chunk as far as its bytes go
-(uncompressed and lz4 streams allow it; zstd when the `zstandard` module is installed), and
+(uncompressed, lz4 and zstd streams all allow it), and
 every complete message is kept; what follows the last complete message is reported as lost.
 """
 
@@ -91,10 +91,10 @@ def decompress(data: bytes, compression: str, partial: bool) -> bytes:
         return lz4.frame.decompress(data)
     if compression == "zstd":
         try:
-            import zstandard
+            from compression import zstd  # Python >= 3.14
         except ImportError:
-            raise ValueError("zstd chunks need the zstandard module") from None
-        return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+            from backports import zstd  # rosbags' own dependency before 3.14
+        return zstd.ZstdDecompressor().decompress(data) if partial else zstd.decompress(data)
     raise ValueError(f"unsupported chunk compression {compression!r}")
 
 
