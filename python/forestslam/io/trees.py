@@ -88,5 +88,7 @@ def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> Non
         }
         for i in range(n)
     ]
-    text = json.dumps({"type": "FeatureCollection", "features": features}, indent=1)
+    text = json.dumps(
+        {"type": "FeatureCollection", "features": features}, indent=1, allow_nan=False
+    )
     atomic_write_text(path, text + "\n")
