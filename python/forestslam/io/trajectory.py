@@ -37,7 +37,7 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         data = np.loadtxt(path, comments="#", ndmin=2)
     except ValueError as exc:
-        raise InputError(f"{path}: not a TUM trajectory ({exc})") from exc
+        raise InputError(f"{path}: not a TUM trajectory ({exc})") from None
     if data.size == 0:
         return np.zeros(0), np.zeros((0, 4, 4))
     if data.shape[1] != 8:
@@ -59,7 +59,12 @@ def read_kitti(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: pose file not found")
-    data = np.loadtxt(path, ndmin=2)
+    try:
+        data = np.loadtxt(path, ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"{path}: not a KITTI pose file ({exc})") from None
+    if data.size == 0:
+        return np.zeros((0, 4, 4))
     if data.shape[1] != 12:
         raise InputError(f"{path}: KITTI pose lines need 12 numbers, found {data.shape[1]}")
     poses = np.tile(np.eye(4), (len(data), 1, 1))

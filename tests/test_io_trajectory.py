@@ -1,0 +1,78 @@
+"""Trajectories (TUM, KITTI) round-trip; atomic writes keep the old file when writing fails."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from forestslam.errors import InputError
+from forestslam.io import read_kitti, read_tum, write_kitti, write_tum
+from forestslam.io.atomic import atomic_write, atomic_write_text
+
+
+@pytest.fixture
+def poses():
+    rng = np.random.default_rng(6)
+    n = 40
+    out = np.tile(np.eye(4), (n, 1, 1))
+    out[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, 1.0, (n, 3))).as_matrix()
+    out[:, :3, 3] = rng.uniform(-100, 100, (n, 3))
+    return 1.7e9 + 0.1 * np.arange(n), out
+
+
+def test_tum_round_trip(tmp_path, poses):
+    stamps, T = poses
+    write_tum(tmp_path / "t.tum", stamps, T)
+    lines = (tmp_path / "t.tum").read_text().splitlines()
+    assert len(lines) == 40 and len(lines[0].split()) == 8
+    s, back = read_tum(tmp_path / "t.tum")
+    np.testing.assert_allclose(s, stamps, atol=1e-6)
+    np.testing.assert_allclose(back, T, atol=1e-8)
+    (tmp_path / "c.tum").write_text("# timestamp tx ty tz qx qy qz qw\n" + lines[0] + "\n")
+    assert read_tum(tmp_path / "c.tum")[1].shape == (1, 4, 4)
+
+
+def test_kitti_round_trip(tmp_path, poses):
+    _, T = poses
+    write_kitti(tmp_path / "k.txt", T)
+    np.testing.assert_allclose(read_kitti(tmp_path / "k.txt"), T, atol=1e-8)
+
+
+def test_trajectory_errors(tmp_path, poses):
+    with pytest.raises(InputError, match="not found"):
+        read_tum(tmp_path / "none.tum")
+    (tmp_path / "bad.tum").write_text("1 2 3\n")
+    with pytest.raises(InputError, match="8 columns"):
+        read_tum(tmp_path / "bad.tum")
+    (tmp_path / "bad.txt").write_text("1 2 3\n")
+    with pytest.raises(InputError, match="12 numbers"):
+        read_kitti(tmp_path / "bad.txt")
+    with pytest.raises(ValueError, match="stamps"):
+        write_tum(tmp_path / "x.tum", poses[0][:3], poses[1])
+
+
+def test_atomic_write_keeps_old_file(tmp_path):
+    path = tmp_path / "f.txt"
+    atomic_write_text(path, "complete\n")
+
+    def crash(handle):
+        handle.write("half")
+        raise RuntimeError("killed")
+
+    with pytest.raises(RuntimeError):
+        atomic_write(path, crash)
+    assert path.read_text() == "complete\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["f.txt"]  # no temporary left behind
+
+
+def test_empty_and_garbage_trajectories(tmp_path):
+    (tmp_path / "e.tum").write_text("")
+    (tmp_path / "e.txt").write_text("")
+    assert read_tum(tmp_path / "e.tum")[1].shape == (0, 4, 4)
+    assert read_kitti(tmp_path / "e.txt").shape == (0, 4, 4)
+    (tmp_path / "g.txt").write_text("a b c\n")
+    with pytest.raises(InputError, match="g.txt"):
+        read_kitti(tmp_path / "g.txt")
+    with pytest.raises(InputError, match="g.txt"):
+        read_tum(tmp_path / "g.txt")
