@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +36,9 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise InputError(f"{path}: trajectory file not found")
     try:
-        data = np.loadtxt(path, comments="#", ndmin=2)
+        with warnings.catch_warnings():  # an empty file is an empty trajectory
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, comments="#", ndmin=2)
     except ValueError as exc:
         raise InputError(f"{path}: not a TUM trajectory ({exc})") from None
     if data.size == 0:
@@ -60,7 +63,9 @@ def read_kitti(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise InputError(f"{path}: pose file not found")
     try:
-        data = np.loadtxt(path, ndmin=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, ndmin=2)
     except ValueError as exc:
         raise InputError(f"{path}: not a KITTI pose file ({exc})") from None
     if data.size == 0:
