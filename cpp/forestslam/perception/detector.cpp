@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 
 #include "forestslam/perception/preprocess.hpp"
 #include "forestslam/perception/segmentation.hpp"
@@ -15,12 +16,25 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double msSince(Clock::time_point &t) {
-    const auto now = Clock::now();
-    const double ms = std::chrono::duration<double, std::milli>(now - t).count();
-    t = now;
-    return ms;
+// CPU time of this thread: the cost on one core, whatever else the machine is doing.
+double threadCpuMs() {
+    timespec ts{};
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
 }
+
+struct StageClock {
+    Clock::time_point wall = Clock::now();
+    double cpu = threadCpuMs();
+    void lap(Detection &det, const std::string &stage) {
+        const auto now = Clock::now();
+        const double c = threadCpuMs();
+        det.timing_ms[stage] = std::chrono::duration<double, std::milli>(now - wall).count();
+        det.cpu_ms[stage] = c - cpu;
+        wall = now;
+        cpu = c;
+    }
+};
 
 }  // namespace
 
@@ -44,8 +58,9 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
     Detection det;
     det.input_points = static_cast<int>(points.rows());
-    auto t = Clock::now();
-    const auto t0 = t;
+    StageClock clock;
+    const auto t0 = clock.wall;
+    const double c0 = clock.cpu;
 
     // 1. Finite rows within the intensity threshold.
     std::vector<int> keep = intensityFilter(intensity, opt.intensity_threshold, points.rows());
@@ -61,7 +76,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         ring_sel.resize(static_cast<Eigen::Index>(finite.size()));
         for (size_t k = 0; k < finite.size(); ++k) ring_sel(static_cast<Eigen::Index>(k)) = ring(finite[k]);
     }
-    det.timing_ms["intensity"] = msSince(t);
+    clock.lap(det, "intensity");
 
     // 2. Ground.
     GroundOptions gopt = opt.ground;
@@ -70,7 +85,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     det.ground_points = gs.ground_count;
     det.ground = thinGround(pts, gs.is_ground, opt.ground_voxel_m);
     det.up = groundNormal(det.ground);
-    det.timing_ms["ground"] = msSince(t);
+    clock.lap(det, "ground");
 
     // 3. Adaptive normals and filter on the non-ground points.
     std::vector<int> candidates;
@@ -87,7 +102,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
                                                gs.grid.z.size() > 0 ? &gs.grid : nullptr);
     const Points3 filtered = selectRows(pts, nf.kept);
     det.filtered_points = static_cast<int>(filtered.rows());
-    det.timing_ms["normals"] = msSince(t);
+    clock.lap(det, "normals");
 
     // 4. Coarse clusters: range image for single scans, 3D otherwise.
     const SegmentationOptions &so = opt.segmentation;
@@ -106,7 +121,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
                                    std::max(2, so.min_points / 2));
     }
     det.coarse_clusters = static_cast<int>(coarse.size());
-    det.timing_ms["clustering"] = msSince(t);
+    clock.lap(det, "clustering");
 
     // 5. DBSCAN refinement and SVD classification.
     Clusters stems;
@@ -121,7 +136,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         }
     }
     stems = mergeStemClusters(filtered, stems, so);
-    det.timing_ms["classification"] = msSince(t);
+    clock.lap(det, "classification");
 
     // 6. Per stem: shape, local ground, breast-height centre and diameter.
     for (const auto &rows : stems) {
@@ -134,6 +149,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         double base = localGroundHeight(det.ground, xy, so.ground_search_m);
         if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
         if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
+        // In the blind circle around the sensor: the plane of the ground seen farther out.
+        if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
         st.ground_found = std::isfinite(base);
         if (!st.ground_found) base = st.points.col(2).minCoeff();
         st.base_z = base;
@@ -149,8 +166,9 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         det.stems.push_back(std::move(st));
     }
     for (size_t k = 0; k < det.stems.size(); ++k) det.stems[k].id = static_cast<int>(k);
-    det.timing_ms["diameter"] = msSince(t);
+    clock.lap(det, "diameter");
     det.timing_ms["total"] = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+    det.cpu_ms["total"] = threadCpuMs() - c0;
     return det;
 }
 

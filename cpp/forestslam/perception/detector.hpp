@@ -20,7 +20,8 @@ struct Detection {
     Eigen::Vector3d up = Eigen::Vector3d::UnitZ();  // ground normal used for the stem axes
     int input_points = 0, finite_points = 0, after_intensity = 0, ground_points = 0;
     int filtered_points = 0, coarse_clusters = 0, refined_clusters = 0;
-    std::map<std::string, double> timing_ms;  // per stage
+    std::map<std::string, double> timing_ms;  // per stage, wall clock
+    std::map<std::string, double> cpu_ms;     // per stage, CPU time of the calling thread
 };
 
 // `intensity` and `ring` may be empty (size 0). `scan_centred`: the points are around the

@@ -30,7 +30,9 @@ struct GroundOptions {
     double base = 2.0;
     bool exponential = true;
     double cell_height_m = 0.2;     // points this close above their cell's ground point
-    double max_range_m = 40.0;      // ground searched within this XY range (0 = everywhere)
+    int min_component_cells = 6;    // ground islands smaller than this (stems in the blind
+                                    // circle around the sensor) are not ground
+    double max_range_m = 30.0;      // ground searched within this XY range (0 = everywhere)
 };
 
 // Adaptive ring-based normals and outlier filter (paper Algorithm 1).
@@ -45,10 +47,10 @@ struct NormalFilterOptions {
     double fixed_radius_m = 0.3;    // radius in fixed mode
     double max_normal_angle_rad = 0.5236;  // theta_th: normal within 30 deg of horizontal
     int min_neighbours = 5;         // N_min points in the radius neighbourhood
-    int max_neighbours = 48;        // nearest neighbours used for the normal (speed cap)
+    int max_neighbours = 32;        // nearest neighbours used for the normal (speed cap)
     double min_height_m = 0.3;      // height band above the local ground grid kept for stems
     double max_height_m = 8.0;
-    double voxel_m = 0.04;          // thinning before normals (0 = none)
+    double voxel_m = 0.05;          // thinning before normals (0 = none)
 };
 
 struct SegmentationOptions {
@@ -59,13 +61,13 @@ struct SegmentationOptions {
     int max_pixel_gap = 2;          // empty pixels bridged between neighbours
     int min_votes = 2;              // edge votes to merge two local clusters
     // 3D coarse clustering for map / tls clouds.
-    double euclidean_tolerance_m = 0.15;
+    double euclidean_tolerance_m = 0.2;
     // DBSCAN refinement: eps = k * theta_V * |mean_xy|, clamped.
     double dbscan_k = 1.25;
     int dbscan_min_neighbours = 2;
     double dbscan_min_eps_m = 0.08;
     double dbscan_max_eps_m = 1.0;
-    double map_dbscan_eps_m = 0.1;  // eps for map / tls clouds (no theta_V)
+    double map_dbscan_eps_m = 0.25;  // eps for map / tls clouds (no theta_V)
     // SVD classification.
     int min_points = 8;
     double min_length_m = 0.4;      // extent along the principal axis
@@ -80,13 +82,14 @@ struct SegmentationOptions {
 struct DiameterOptions {
     double band_low_m = 1.15;       // breast-height band above local ground
     double band_high_m = 1.45;
-    double band_max_half_m = 0.5;   // widened around 1.3 m up to this half-height if too few points
-    int min_band_points = 6;
+    double band_max_half_m = 1.0;   // widened around 1.3 m up to this half-height if too few points
+    int min_band_points = 20;
     double min_radius_m = 0.025;    // fits outside [min, max] radius are rejected
     double max_radius_m = 0.75;
     double inlier_threshold_m = 0.03;
     double min_arc_coverage = 0.1;
-    int cylinder_iterations = 200;
+    int cylinder_iterations = 100;
+    int cylinder_max_points = 150;   // evenly thinned beyond this (speed)
     double cylinder_normal_weight = 0.1;
     double cylinder_section_low_m = 0.5;   // stem section used for the cylinder
     double cylinder_section_high_m = 3.0;

@@ -114,6 +114,34 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
         const auto r = static_cast<Eigen::Index>(std::floor((points(row, 1) - g.origin.y()) / cell));
         if (r >= 0 && c >= 0 && r < rows && c < cols) g.z(r, c) = points(row, 2);
     }
+    // Small islands of "ground" cells are the lowest returns of stems in the blind circle
+    // around the sensor, where the filter has no true ground to compare with: drop them.
+    if (opt.min_component_cells > 1) {
+        Eigen::MatrixXi comp = Eigen::MatrixXi::Constant(rows, cols, -1);
+        std::vector<std::pair<Eigen::Index, Eigen::Index>> stack, members;
+        for (Eigen::Index r0 = 0; r0 < rows; ++r0)
+            for (Eigen::Index c0 = 0; c0 < cols; ++c0) {
+                if (!std::isfinite(g.z(r0, c0)) || comp(r0, c0) >= 0) continue;
+                comp(r0, c0) = 1;
+                stack.assign(1, {r0, c0});
+                members.assign(1, {r0, c0});
+                while (!stack.empty()) {
+                    const auto [r, c] = stack.back();
+                    stack.pop_back();
+                    for (Eigen::Index dr = -2; dr <= 2; ++dr)
+                        for (Eigen::Index dc = -2; dc <= 2; ++dc) {
+                            const Eigen::Index rr = r + dr, cc = c + dc;
+                            if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
+                            if (!std::isfinite(g.z(rr, cc)) || comp(rr, cc) >= 0) continue;
+                            comp(rr, cc) = 1;
+                            stack.push_back({rr, cc});
+                            members.push_back({rr, cc});
+                        }
+                }
+                if (static_cast<int>(members.size()) < opt.min_component_cells)
+                    for (const auto &[r, c] : members) g.z(r, c) = kNaN;
+            }
+    }
     // Fill holes (cells under stems, shadows) from known neighbours, a few cells deep.
     for (int pass = 0; pass < 4; ++pass) {
         Eigen::MatrixXd next = g.z;

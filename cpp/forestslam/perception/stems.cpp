@@ -136,6 +136,34 @@ double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
     return median(std::move(z));
 }
 
+double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
+                         double radius) {
+    std::vector<int> rows;
+    for (Eigen::Index i = 0; i < ground.rows(); ++i)
+        if ((ground.block<1, 2>(i, 0).transpose() - xy).norm() <= radius)
+            rows.push_back(static_cast<int>(i));
+    Eigen::Vector3d abc = Eigen::Vector3d::Constant(kNaN);
+    for (int pass = 0; pass < 2; ++pass) {
+        if (rows.size() < 10) return kNaN;
+        Eigen::MatrixXd A(rows.size(), 3);
+        Eigen::VectorXd b(rows.size());
+        for (size_t k = 0; k < rows.size(); ++k) {
+            A.row(static_cast<Eigen::Index>(k)) << ground(rows[k], 0) - xy.x(),
+                ground(rows[k], 1) - xy.y(), 1.0;
+            b(static_cast<Eigen::Index>(k)) = ground(rows[k], 2);
+        }
+        abc = A.colPivHouseholderQr().solve(b);
+        const Eigen::VectorXd res = (A * abc - b).cwiseAbs();
+        std::vector<double> sorted(res.data(), res.data() + res.size());
+        const double cut = 3.0 * std::max(median(sorted), 0.02);
+        std::vector<int> keep;
+        for (size_t k = 0; k < rows.size(); ++k)
+            if (res(static_cast<Eigen::Index>(k)) <= cut) keep.push_back(rows[k]);
+        rows.swap(keep);
+    }
+    return abc(2);
+}
+
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &opt) {
@@ -179,6 +207,13 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
             std::iota(rows.begin(), rows.end(), 0);
             sec = points;
         }
+        if (opt.cylinder_max_points > 0 && static_cast<int>(rows.size()) > opt.cylinder_max_points) {
+            std::vector<int> thin;
+            const double step = static_cast<double>(rows.size()) / opt.cylinder_max_points;
+            for (int k = 0; k < opt.cylinder_max_points; ++k)
+                thin.push_back(rows[static_cast<size_t>(k * step)]);
+            rows.swap(thin);
+        }
         pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
         pcl::PointCloud<pcl::Normal>::Ptr cn(new pcl::PointCloud<pcl::Normal>);
         for (int i : rows) {
@@ -221,7 +256,9 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     }
     const DiameterFit *best = nullptr;
     if (out.circle.valid) best = &out.circle, out.method = 1;
-    if (out.cylinder.valid && (!best || out.cylinder.score > best->score))
+    // The cylinder wins only when clearly better: on partial arcs its radius runs small
+    // (measured on synthetic stems), while the band circle is the DBH definition itself.
+    if (out.cylinder.valid && (!best || out.cylinder.score > 1.25 * best->score))
         best = &out.cylinder, out.method = 2;
     if (best) {
         out.dbh = 2.0 * best->radius;

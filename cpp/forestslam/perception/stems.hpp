@@ -75,4 +75,9 @@ struct Stem {
 double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
                          double radius);
 
+// Ground height at `xy` from a least-squares plane z = a x + b y + c through the ground points
+// within `radius` (one trimming pass against bushes); NaN with fewer than 10 points.
+double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
+                         double radius);
+
 }  // namespace forestslam::perception

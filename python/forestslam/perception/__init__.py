@@ -1,7 +1,7 @@
 """Per-scan perception: pre-processing, tree-stem segmentation and stem diameter."""
 
 from forestslam.perception.config import PerceptionConfig
-from forestslam.perception.detect import (
+from forestslam.perception.pipeline import (
     classify_cluster,
     coarse_clusters,
     detect,

@@ -19,7 +19,8 @@ class GroundConfig:
     base: float = 2.0
     exponential: bool = True
     cell_height_m: float = 0.2
-    max_range_m: float = 40.0  # single scans: ground searched within this XY range
+    min_component_cells: int = 6  # smaller ground islands (stems near the sensor) are dropped
+    max_range_m: float = 30.0  # single scans: ground searched within this XY range
 
 
 @dataclass
@@ -38,10 +39,10 @@ class NormalFilterConfig:
     fixed_radius_m: float = 0.3
     max_normal_angle_rad: float = 0.5236  # theta_th: normals within 30 deg of horizontal
     min_neighbours: int = 5  # N_min
-    max_neighbours: int = 48  # nearest neighbours used per normal (speed cap)
+    max_neighbours: int = 32  # nearest neighbours used per normal (speed cap)
     min_height_m: float = 0.3  # band above the local ground searched for stems
     max_height_m: float = 8.0
-    voxel_m: float = 0.04  # thinning before normals (0 = none)
+    voxel_m: float = 0.05  # thinning before normals (0 = none)
 
 
 @dataclass
@@ -53,12 +54,12 @@ class SegmentationConfig:
     max_neighbour_gap_m: float = 0.5
     max_pixel_gap: int = 2
     min_votes: int = 2
-    euclidean_tolerance_m: float = 0.15  # coarse 3D clustering of map / tls clouds
+    euclidean_tolerance_m: float = 0.2  # coarse 3D clustering of map / tls clouds
     dbscan_k: float = 1.25
     dbscan_min_neighbours: int = 2
     dbscan_min_eps_m: float = 0.08
     dbscan_max_eps_m: float = 1.0
-    map_dbscan_eps_m: float = 0.1
+    map_dbscan_eps_m: float = 0.25
     min_points: int = 8
     min_length_m: float = 0.4
     max_axis_angle_rad: float = 0.5236
@@ -76,13 +77,14 @@ class DiameterConfig:
 
     band_low_m: float = 1.15
     band_high_m: float = 1.45
-    band_max_half_m: float = 0.5
-    min_band_points: int = 6
+    band_max_half_m: float = 1.0
+    min_band_points: int = 20
     min_radius_m: float = 0.025
     max_radius_m: float = 0.75
     inlier_threshold_m: float = 0.03
     min_arc_coverage: float = 0.1
-    cylinder_iterations: int = 200
+    cylinder_iterations: int = 100
+    cylinder_max_points: int = 150
     cylinder_normal_weight: float = 0.1
     cylinder_section_low_m: float = 0.5
     cylinder_section_high_m: float = 3.0

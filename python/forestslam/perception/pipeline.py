@@ -127,6 +127,7 @@ def detect(
         ground=np.asarray(result["ground"]).reshape(-1, 3),
         diameters=list(result["diameters"]),
         timing=dict(result["timing"]),
+        cpu_ms=dict(result["cpu_ms"]),
         counts=dict(result["counts"]),
     )
     log.debug("%d stems, %d ground points, %.1f ms", k, len(stems.ground), stems.timing["total"])

@@ -17,7 +17,8 @@ class Stems:
     (unit, pointing up); base_z (K,) local ground height; points list of (Mi,3);
     ground (G,3) ground points thinned to one per voxel; diameters list of per-stem fit
     quality dicts (circle / cylinder: radius, inliers, rms_m, arc_coverage, score; method);
-    timing dict of per-stage milliseconds; counts dict of per-stage point / cluster counts.
+    timing dict of per-stage wall-clock milliseconds; cpu_ms the same stages in CPU time of
+    the calling thread (the one-core cost); counts dict of per-stage point / cluster counts.
     """
 
     xy: np.ndarray
@@ -32,6 +33,7 @@ class Stems:
     diameters: list[dict] = field(default_factory=list)
     timing: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
+    cpu_ms: dict[str, float] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -71,4 +73,5 @@ class Stems:
             diameters=[self.diameters[i] for i in idx] if self.diameters else [],
             timing=dict(self.timing),
             counts=dict(self.counts),
+            cpu_ms=dict(self.cpu_ms),
         )

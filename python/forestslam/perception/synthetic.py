@@ -30,8 +30,10 @@ def synthetic_scan(
     el = profile.vertical_angles_rad
     n_az = profile.image_cols
     fov = np.radians(profile.horizontal_fov_deg)
-    az = -fov / 2 + (np.arange(n_az) + 0.5) * fov / n_az if fov < 2 * np.pi - 1e-6 else (
-        -np.pi + (np.arange(n_az) + 0.5) * 2 * np.pi / n_az
+    az = (
+        -fov / 2 + (np.arange(n_az) + 0.5) * fov / n_az
+        if fov < 2 * np.pi - 1e-6
+        else (-np.pi + (np.arange(n_az) + 0.5) * 2 * np.pi / n_az)
     )
     ring = np.repeat(np.arange(len(el)), n_az)
     e = el[ring]
@@ -58,7 +60,8 @@ def synthetic_scan(
         hit = disc >= 0
         th = np.full(len(d), np.inf)
         th[hit] = (-b[hit] - np.sqrt(disc[hit])) / (2 * a2[hit])
-        z = th * d[:, 2]
+        with np.errstate(invalid="ignore"):
+            z = th * d[:, 2]
         zg = -sensor_height_m + sx * cx + sy * cy
         hit &= (th > 0) & (z >= zg) & (z <= zg + tree_height_m) & (th < t)
         t[hit] = th[hit]
@@ -80,9 +83,7 @@ def synthetic_scan(
     rng_m = t[keep] + rng.normal(0.0, noise, keep.sum())
     points = d[keep] * rng_m[:, None]
     intensity = np.choose(kind[keep] - 1, [20.0, 40.0, 160.0]).astype(np.float32)
-    return Scan(
-        0.0, points, intensity=intensity, ring=ring[keep].astype(np.uint16), time=None
-    )
+    return Scan(0.0, points, intensity=intensity, ring=ring[keep].astype(np.uint16), time=None)
 
 
 def random_stand(

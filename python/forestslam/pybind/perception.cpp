@@ -46,6 +46,7 @@ pc::GroundOptions groundOptions(const py::dict &d) {
     FS_GET(d, o, base);
     FS_GET(d, o, exponential);
     FS_GET(d, o, cell_height_m);
+    FS_GET(d, o, min_component_cells);
     FS_GET(d, o, max_range_m);
     return o;
 }
@@ -104,6 +105,7 @@ pc::DiameterOptions diameterOptions(const py::dict &d) {
     FS_GET(d, o, inlier_threshold_m);
     FS_GET(d, o, min_arc_coverage);
     FS_GET(d, o, cylinder_iterations);
+    FS_GET(d, o, cylinder_max_points);
     FS_GET(d, o, cylinder_normal_weight);
     FS_GET(d, o, cylinder_section_low_m);
     FS_GET(d, o, cylinder_section_high_m);
@@ -208,6 +210,7 @@ py::dict detectionDict(const pc::Detection &det) {
     d["ground"] = det.ground;
     d["up"] = det.up;
     d["timing"] = det.timing_ms;
+    d["cpu_ms"] = det.cpu_ms;
     py::dict counts;
     counts["input"] = det.input_points;
     counts["after_intensity"] = det.after_intensity;
@@ -276,7 +279,8 @@ void define_perception(py::module_ &m) {
         "sensor: dict of SensorGeometry fields; options: nested dict of PerceptionOptions.\n"
         "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
         "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
-        "diameters list[dict], ground (G,3), up (3,), timing dict ms, counts dict.");
+        "diameters list[dict], ground (G,3), up (3,), timing dict ms (wall), cpu_ms dict\n"
+        "(thread CPU ms per stage), counts dict.");
     m.def(
         "perception_intensity_filter",
         [](const Eigen::VectorXd &intensity, double threshold) {

@@ -1,0 +1,117 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "forestslam/perception/stems.hpp"
+
+using namespace forestslam;
+using namespace forestslam::perception;
+
+namespace {
+
+// Points on the visible third of a vertical cylinder (ground at z = 0), rings every dz.
+Points3 cylinderArc(double cx, double cy, double r, double z0, double z1, double dz, double noise,
+                    Points3 *normals, unsigned seed = 1) {
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> n(0, noise);
+    const double facing = std::atan2(-cy, -cx);  // towards the sensor at the origin
+    std::vector<Eigen::Vector3d> p, nn;
+    for (double z = z0; z <= z1; z += dz)
+        for (double a = facing - M_PI / 3; a <= facing + M_PI / 3; a += 0.05) {
+            const double rr = r + (noise > 0 ? n(rng) : 0);
+            p.emplace_back(cx + rr * std::cos(a), cy + rr * std::sin(a), z);
+            nn.emplace_back(std::cos(a), std::sin(a), 0);
+        }
+    Points3 out(static_cast<Eigen::Index>(p.size()), 3);
+    if (normals) normals->resize(out.rows(), 3);
+    for (size_t i = 0; i < p.size(); ++i) {
+        out.row(static_cast<Eigen::Index>(i)) = p[i].transpose();
+        if (normals) normals->row(static_cast<Eigen::Index>(i)) = nn[i].transpose();
+    }
+    return out;
+}
+
+std::vector<int> allRows(const Points3 &p) {
+    std::vector<int> r(static_cast<size_t>(p.rows()));
+    for (size_t i = 0; i < r.size(); ++i) r[i] = static_cast<int>(i);
+    return r;
+}
+
+}  // namespace
+
+TEST(Stems, SvdClassifiesVerticalStemsOnly) {
+    SegmentationOptions o;
+    const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
+    const Points3 stem = cylinderArc(5, 0, 0.15, 0.3, 3.0, 0.2, 0.0, nullptr);
+    const ClusterShape s = clusterShape(stem, allRows(stem), up);
+    EXPECT_LT(s.axis_angle, 0.05);
+    EXPECT_NEAR(s.length, 2.6, 0.2);
+    EXPECT_TRUE(isStem(s, static_cast<int>(stem.rows()), o));
+    // A lying log (axis along x) and a round bush are not stems.
+    Points3 log = stem;
+    log.col(0).swap(log.col(2));
+    EXPECT_FALSE(isStem(clusterShape(log, allRows(log), up), static_cast<int>(log.rows()), o));
+    std::mt19937 rng(2);
+    std::normal_distribution<double> g(0, 0.4);
+    Points3 bush(200, 3);
+    for (int i = 0; i < 200; ++i) bush.row(i) << 3 + g(rng), 3 + g(rng), 1 + g(rng);
+    EXPECT_FALSE(isStem(clusterShape(bush, allRows(bush), up), 200, o));
+    // Too few points.
+    EXPECT_FALSE(isStem(s, 3, o));
+}
+
+TEST(Stems, PiecesOfOneTreeMergeNeighboursDoNot) {
+    const Points3 a = cylinderArc(5, 0, 0.15, 0.3, 1.5, 0.2, 0.0, nullptr);
+    const Points3 b = cylinderArc(5, 0, 0.15, 2.5, 4.0, 0.2, 0.0, nullptr);
+    const Points3 c = cylinderArc(6.5, 0, 0.15, 0.3, 3.0, 0.2, 0.0, nullptr);
+    Points3 all(a.rows() + b.rows() + c.rows(), 3);
+    all << a, b, c;
+    Clusters parts(3);
+    for (int i = 0; i < all.rows(); ++i)
+        parts[i < a.rows() ? 0 : i < a.rows() + b.rows() ? 1 : 2].push_back(i);
+    EXPECT_EQ(mergeStemClusters(all, parts, SegmentationOptions{}).size(), 2u);
+}
+
+TEST(Stems, DiameterFromCircleAndCylinderOnAPartialNoisyStem) {
+    // A third of a 0.4 m stem with 1 cm range noise: the radius of such an arc is uncertain
+    // by about +-1.5 cm (1 sigma), so the bounds are on the mean and the worst of 10 seeds.
+    double worst = 0, sum = 0;
+    for (unsigned seed = 0; seed < 10; ++seed) {
+        Points3 n;
+        const Points3 p = cylinderArc(8, 3, 0.2, 0.2, 3.0, 0.1, 0.01, &n, seed);
+        const StemDiameter d = estimateDiameter(p, n, 0.0, Eigen::Vector3d::UnitZ(), {});
+        ASSERT_TRUE(d.circle.valid);
+        ASSERT_GT(d.method, 0);
+        EXPECT_NEAR(d.circle.arc_coverage, 1.0 / 3.0, 0.07);
+        EXPECT_NEAR(d.centre.x(), 8.0, 0.03);
+        EXPECT_NEAR(d.centre.y(), 3.0, 0.03);
+        EXPECT_NEAR(d.centre.z(), 1.3, 1e-9);
+        if (d.cylinder.valid) EXPECT_NEAR(d.cylinder.radius, 0.2, 0.03);
+        worst = std::max(worst, std::abs(d.dbh - 0.4));
+        sum += std::abs(d.dbh - 0.4);
+    }
+    EXPECT_LT(sum / 10, 0.02);  // DBH mean absolute error < 2 cm
+    EXPECT_LT(worst, 0.04);     // and never off by 4 cm
+    // Noise-free: exact.
+    const Points3 exact = cylinderArc(8, 3, 0.2, 0.2, 3.0, 0.1, 0.0, nullptr);
+    EXPECT_NEAR(estimateDiameter(exact, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}).dbh,
+                0.4, 1e-3);
+}
+
+TEST(Stems, ImpossibleDiametersAreRejected) {
+    const Points3 p = cylinderArc(8, 3, 1.2, 0.2, 3.0, 0.1, 0.0, nullptr);  // 2.4 m "stem"
+    const StemDiameter d = estimateDiameter(p, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {});
+    EXPECT_EQ(d.method, 0);
+    EXPECT_TRUE(std::isnan(d.dbh));
+    const StemDiameter none =
+        estimateDiameter(Points3(0, 3), Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {});
+    EXPECT_TRUE(std::isnan(none.dbh));
+}
+
+TEST(Stems, LocalGroundIsTheMedianAround) {
+    Points3 g(4, 3);
+    g << 0, 0, 1.0, 0.5, 0, 1.2, 0, 0.5, 1.1, 10, 10, 9.0;
+    EXPECT_DOUBLE_EQ(localGroundHeight(g, Eigen::Vector2d(0.1, 0.1), 2.0), 1.1);
+    EXPECT_TRUE(std::isnan(localGroundHeight(g, Eigen::Vector2d(50, 50), 2.0)));
+}
