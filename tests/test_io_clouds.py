@@ -281,3 +281,16 @@ def test_pcd_written_by_pcl():
     np.testing.assert_array_equal(arr["rgb"] & 0xFF, 4)
     np.testing.assert_array_equal(arr["normal_z"], 1)
     np.testing.assert_array_equal(arr["curvature"], 0.25)
+
+
+def test_laz_large_extent_and_non_finite(tmp_path):
+    utm = np.array([[500_000.0, 5_000_000.0, 100.0], [501_000.0, 5_000_000.5, 101.25]])
+    write_cloud(tmp_path / "utm.laz", utm)
+    np.testing.assert_allclose(read_cloud(tmp_path / "utm.laz").points, utm, atol=5e-5)
+    wide = np.array([[1.0, 0.0, 1.0], [1e6, 1.0, 1.0]])  # 1000 km: coarser, still exact-ish
+    write_cloud(tmp_path / "wide.laz", wide)
+    np.testing.assert_allclose(read_cloud(tmp_path / "wide.laz").points, wide, atol=5e-3)
+    write_cloud(tmp_path / "nan.laz", np.array([[np.nan, 0.0, 0.0], [1.0, 2.0, 3.0]]), [5, 6])
+    scan = read_cloud(tmp_path / "nan.laz")  # LAS has no NaN: the point is left out
+    np.testing.assert_array_equal(scan.points, [[1, 2, 3]])
+    np.testing.assert_array_equal(scan.intensity, [6])

@@ -9,6 +9,7 @@ structured array with named fields).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from forestslam.errors import InputError
 from forestslam.io.atomic import atomic_write
 from forestslam.io.fields import scan_from_structured
 from forestslam.io.scan import Scan
+
+log = logging.getLogger(__name__)
 
 # A reader returns the points as a structured array and the stamp when the file has one.
 CloudReader = Callable[[Path], tuple[np.ndarray, float | None]]
@@ -149,9 +152,18 @@ def _scan_array(points: np.ndarray, intensity: np.ndarray | None, dtype: str) ->
 def _write_las(path: Path, points: np.ndarray, intensity: np.ndarray | None) -> None:
     import laspy
 
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():
+        log.warning("%s: LAS has no NaN: %d non-finite points left out", path, (~finite).sum())
+        points = points[finite]
+        intensity = None if intensity is None else intensity[finite]
+    low = np.floor(points.min(axis=0)) if len(points) else np.zeros(3)
+    extent = float((points.max(axis=0) - low).max()) if len(points) else 0.0
+    # 0.1 mm resolution while the int32 range allows it, coarser (by 10x steps) beyond 200 km.
+    scale = 1e-4 * 10.0 ** max(0, int(np.ceil(np.log10(max(extent, 1.0) / 2e5))))
     header = laspy.LasHeader(point_format=0, version="1.2")
-    header.scales = np.array([1e-4, 1e-4, 1e-4])
-    header.offsets = np.floor(points.min(axis=0)) if len(points) else np.zeros(3)
+    header.scales = np.array([scale, scale, scale])
+    header.offsets = low
     las = laspy.LasData(header)
     las.x, las.y, las.z = points[:, 0], points[:, 1], points[:, 2]
     if intensity is not None:
@@ -163,7 +175,8 @@ def _write_las(path: Path, points: np.ndarray, intensity: np.ndarray | None) -> 
 def write_cloud(path: str | Path, points: np.ndarray, intensity: np.ndarray | None = None) -> None:
     """Write points (N,3) [and intensity (N,)] atomically; the suffix chooses the format.
 
-    .laz/.las: LAS 1.2 point format 0, 0.1 mm resolution, intensity rounded to uint16.
+    .laz/.las: LAS 1.2 point format 0, 0.1 mm resolution (coarser for extents over 200 km),
+    intensity rounded to uint16; non-finite points are left out with a warning (LAS has no NaN).
     .ply: binary little endian, x,y,z double, intensity float.  .pcd: binary, x,y,z float64.
     .npy: (N,3) float64, or (N,4) with intensity as the 4th column.  .bin: KITTI float32 x4.
     """

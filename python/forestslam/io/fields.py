@@ -2,9 +2,11 @@
 
 Accepted field names, first match wins (matching ignores case):
 - position: `x`, `y`, `z` (required).
-- intensity: `intensity`, `i`, `reflectivity`, `signal`.
+- intensity: `intensity`, `i`, `reflectivity`, `signal`, `scalar_Intensity` (CloudCompare),
+  `remission`.
 - ring: `ring`, `channel`, `line`, `laser_id`.
-- time: `time`, `t`, `timestamp`, `offset_time`, `time_offset`, `gps_time`.
+- time: `time`, `t`, `timestamp`, `offset_time`, `time_offset`, `gps_time`, `gpstime`,
+  `scalar_GpsTime`.
   Integer time fields are nanoseconds (Ouster `t`, Livox `offset_time`, uint64 stamps), float
   fields seconds (Velodyne `time`, Hesai/Robosense `timestamp`) unless larger than 1e14 (float
   nanoseconds since the epoch, Livox ROS2 `timestamp`). Times larger than 1e6 s are absolute
@@ -21,9 +23,10 @@ import numpy as np
 from forestslam.errors import InputError
 from forestslam.io.scan import Scan
 
-INTENSITY_NAMES = ("intensity", "i", "reflectivity", "signal")
+INTENSITY_NAMES = ("intensity", "i", "reflectivity", "signal", "scalar_intensity", "remission")
 RING_NAMES = ("ring", "channel", "line", "laser_id")
-TIME_NAMES = ("time", "t", "timestamp", "offset_time", "time_offset", "gps_time")
+TIME_NAMES = ("time", "t", "timestamp", "offset_time", "time_offset", "gps_time", "gpstime")
+TIME_NAMES += ("scalar_gpstime",)
 ABSOLUTE_TIME_S = 1e6  # larger per-point times are absolute (seconds since some epoch)
 ABSOLUTE_NS = 1e14  # larger float times are nanoseconds since the epoch
 
