@@ -51,7 +51,7 @@ class FakeOdometry:
 
     delay_s = 0.0
 
-    def __init__(self, sensor, config=None):
+    def __init__(self, sensor, config=None, perception_config=None):
         self.trees_xy, self.trees_dbh = make_trees()
         self.rng = np.random.default_rng(0)
         self.prev = None
@@ -180,7 +180,8 @@ def test_run_map3d_and_odometry_modes(tmp_path, monkeypatch):
     install_fake(monkeypatch)
     scans, _ = make_input(tmp_path, 60)
     out = tmp_path / "m3"
-    run(scans, "vlp16", out, mode="map3d", progress=False)
+    s = run(scans, "vlp16", out, mode="map3d", progress=False)
+    assert s.icp_accepted > 0.8 * s.keyframes  # scan-to-map ICP refined the keyframes
     for name in ("ground.ply", "dtm.npz", "dtm.csv", "dtm.png", "trees.csv"):
         assert (out / name).is_file(), name
     dtm = np.load(out / "dtm.npz")

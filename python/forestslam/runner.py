@@ -41,6 +41,8 @@ class RunSummary:
     keyframes: int = 0
     trees: int = 0
     loop_closures: int = 0
+    icp_accepted: int = 0
+    icp_rejected: int = 0
     wall_s: float = 0.0
     scans_per_s: float = 0.0
     status: str = "running"
@@ -56,6 +58,8 @@ class RunSummary:
             "keyframes": self.keyframes,
             "trees": self.trees,
             "loop_closures": self.loop_closures,
+            "icp_accepted": self.icp_accepted,
+            "icp_rejected": self.icp_rejected,
             "wall_s": round(self.wall_s, 3),
             "scans_per_s": round(self.scans_per_s, 2),
             "read_stats": self.read_stats,
@@ -126,7 +130,9 @@ class Pipeline:
         self.cfg = config
         self.mode = mode
         self.out_dir = out_dir
-        self.odometry = Odometry(sensor, getattr(config, "odometry", None))
+        self.odometry = Odometry(
+            sensor, getattr(config, "odometry", None), getattr(config, "perception", None)
+        )
         self.slam = LandmarkSlam(config.slam) if mode != "odometry" else None
         self.trees = TreeMap(config.mapping) if mode != "odometry" else None
         self.ground = (
@@ -134,6 +140,11 @@ class Pipeline:
             if mode == "map3d"
             else None
         )
+        self.refiner = None
+        if mode == "map3d" and config.mapping.refine_with_icp:
+            from forestslam.mapping.refine import ScanToMapRefiner
+
+            self.refiner = ScanToMapRefiner(config.mapping)
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []
@@ -180,7 +191,13 @@ class Pipeline:
             dbh = np.asarray(stems.dbh, dtype=np.float64)
         else:
             centre, level, dbh = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0)
+        source = None
+        if self.refiner is not None and stems is not None:
+            source = self.refiner.source_points(stems)
+            self.slam.refine_hook = self._refine_hook(T, source)
         res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh)
+        if res.keyframe is not None and source is not None:
+            self.refiner.add_keyframe(source, res.T_map_sensor)
         if res.keyframe is not None and self.ground is not None:
             ground = getattr(stems, "ground", None) if stems is not None else None
             if ground is not None and len(ground):
@@ -198,6 +215,25 @@ class Pipeline:
             )
         if i % self.cfg.mapping.dbh_window_scans == 0:
             self.trees.flush(i)
+
+    def _refine_hook(self, T_odom: np.ndarray, source: np.ndarray):
+        """Scan-to-map ICP from the SLAM prediction (planar (3,3)) -> planar pose + covariance."""
+        from forestslam.slam.landmark_slam import lift, planar, pose2_matrix, tilt
+
+        m = self.cfg.mapping
+
+        def hook(pred: np.ndarray):
+            out = self.refiner.refine(source, lift(pred) @ tilt(T_odom))
+            if out is None:
+                return None
+            T, cov6 = out
+            cov = cov6[np.ix_([0, 1, 5], [0, 1, 5])]
+            floor = np.diag([m.icp_sigma_floor_m**2] * 2 + [np.radians(m.icp_sigma_floor_deg) ** 2])
+            if not np.isfinite(cov).all():
+                return None
+            return pose2_matrix(planar(T)), cov + floor
+
+        return hook
 
     # ---------------------------------------------------------------- outputs
     def tree_table(self) -> dict:
@@ -288,7 +324,7 @@ def run(
     profile = load_profile(sensor)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stream = read_scans(input_path, topic)
+    stream = read_scans(input_path, topic, start=start)
     total = len(stream)
     remaining = max(0, total - start)
     if max_scans is not None:
@@ -313,7 +349,7 @@ def run(
     write_meta()
     every = max(1, int(cfg.mapping.checkpoint_every_scans))
     t0 = time.perf_counter()
-    scans = itertools.islice(stream, start, None if max_scans is None else start + max_scans)
+    scans = itertools.islice(stream, max_scans)  # read_scans skipped `start` undecoded
     bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
     try:
         for scan in scans:
@@ -344,6 +380,9 @@ def run(
         if pipe.slam is not None:
             summary.keyframes = pipe.slam.n_keyframes
             summary.loop_closures = pipe.slam.loop_closures
+        if pipe.refiner is not None:
+            summary.icp_accepted = pipe.refiner.accepted
+            summary.icp_rejected = pipe.refiner.rejected
         write_meta()
     if pipe.n == 0:
         raise InputError(f"{input_path}: no scan could be processed")

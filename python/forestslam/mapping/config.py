@@ -27,5 +27,12 @@ class MappingConfig:
     ground_voxel_m: float = 0.2
     dtm_cell_m: float = 0.5
     dtm_min_points: int = 2
+    # map3d: scan-to-map point-to-plane ICP refinement of keyframes on stem + ground points.
+    refine_with_icp: bool = True
+    icp_local_map_keyframes: int = 10
+    icp_voxel_m: float = 0.1
+    icp_max_correction_m: float = 0.5  # a larger ICP correction is rejected as a failure
+    icp_sigma_floor_m: float = 0.02
+    icp_sigma_floor_deg: float = 0.2
     # Outputs: trajectory / trees rewritten atomically every this many scans.
     checkpoint_every_scans: int = 100

@@ -63,6 +63,12 @@ def level_points(T_world_sensor: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ (rz_t @ T_world_sensor[:3, :3]).T
 
 
+def tilt(T: np.ndarray) -> np.ndarray:
+    """T (4,4) with its planar part (x, y, yaw) removed: z, roll and pitch remain, so that
+    T == lift(pose2_matrix(planar(T))) @ tilt(T)."""
+    return np.linalg.inv(lift(pose2_matrix(planar(T)))) @ T
+
+
 @dataclass
 class _Tentative:
     xy: np.ndarray  # running mean, map frame
@@ -105,6 +111,10 @@ class LandmarkSlam:
         self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
         self.loop_closures = 0
         self.n_landmark_factors = 0
+        # Optional scan-to-map refinement, called at keyframes with the predicted planar pose
+        # (3,3); returns a refined planar pose (3,3) and its (3,3) x, y, yaw covariance in the
+        # map frame, or None. Its result is added as a second between factor.
+        self.refine_hook = None
 
     # ------------------------------------------------------------------ public
     @property
@@ -165,7 +175,7 @@ class LandmarkSlam:
             kf = self._add_keyframe(o2, stems_xy[idx], stems_dbh[idx], ids, idx, first)
             self._scan_kf.append(kf)
             pose = self._kf_est[kf]
-            return ScanResult(kf, ids, lift(pose2_matrix(pose)) @ self._level_T(T_odom))
+            return ScanResult(kf, ids, lift(pose2_matrix(pose)) @ tilt(T_odom))
         self._scan_kf.append(self.n_keyframes - 1)
         pred = self._predict(o2)
         if len(idx) and self.n_landmarks:
@@ -181,7 +191,7 @@ class LandmarkSlam:
                 use_consensus=False,
             )
             ids[idx] = res.matches
-        return ScanResult(None, ids, lift(pred) @ self._level_T(T_odom))
+        return ScanResult(None, ids, lift(pred) @ tilt(T_odom))
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Stamps (N,) and optimised poses (N,4,4) of every scan so far, map frame.
@@ -216,12 +226,6 @@ class LandmarkSlam:
         return np.asarray(self._stamps), np.stack(self._odom)
 
     # ---------------------------------------------------------------- internals
-    @staticmethod
-    def _level_T(T_odom: np.ndarray) -> np.ndarray:
-        """T_odom with its planar part removed: roll, pitch and z stay (applied after lift)."""
-        o = planar(T_odom)
-        return np.linalg.inv(lift(pose2_matrix(o))) @ T_odom
-
     def _accumulate_covariance(self, cov, degraded: bool, o2: np.ndarray) -> None:
         cov = None if cov is None else np.asarray(cov, dtype=np.float64)
         if cov is None or cov.shape != (3, 3) or not np.isfinite(cov).all():
@@ -258,6 +262,20 @@ class LandmarkSlam:
         cov = self._cov_acc + np.diag([floor_xy**2, floor_xy**2, floor_yaw**2])
         cov = 0.5 * (cov + cov.T)
         return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+    def _refinement_factor(self, kf: int, pose: np.ndarray, cov_map: np.ndarray):
+        """Between factor from the previous keyframe's estimate to a refined pose (3,3)."""
+        prev = pose2_matrix(self._kf_est[-1])
+        delta = matrix_pose2(np.linalg.inv(prev) @ pose)
+        j = np.eye(3)
+        j[:2, :2] = prev[:2, :2].T  # map-frame covariance -> previous keyframe frame
+        cov = j @ cov_map @ j.T
+        return gtsam.BetweenFactorPose2(
+            X(kf - 1),
+            X(kf),
+            gtsam.Pose2(*delta),
+            gtsam.noiseModel.Gaussian.Covariance(0.5 * (cov + cov.T)),
+        )
 
     def _observation_noise(self, rng: np.ndarray) -> list:
         cfg = self.cfg
@@ -305,6 +323,11 @@ class LandmarkSlam:
             obs_map, obs_dbh, self._lm_xy, self.landmark_sigma(), self._lm_dbh, pose_cov, cfg
         )
         pred = res.correction @ pred
+        if not first and self.refine_hook is not None:
+            refined = self.refine_hook(pred)
+            if refined is not None:
+                pred = refined[0]
+                graph.add(self._refinement_factor(kf, pred, refined[1]))
         obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
         values.insert(X(kf), gtsam.Pose2(*matrix_pose2(pred)))
         bearings = np.arctan2(obs_s[:, 1], obs_s[:, 0])
