@@ -57,7 +57,10 @@ def bag(tmp_path_factory) -> Path:
         n = 800 + 10 * k
         points = rng.normal(0, 10, (n, 3))
         points[:5] = np.nan  # dropped: finite counts are n - 5
-        scans.append(Scan(50.0 + 0.1 * k, points, np.ones(n), np.zeros(n, np.uint16), None))
+        ring = (np.arange(n) % 16).astype(np.uint16)
+        time = np.full(n, 0.5)  # on the NaN points, which are dropped
+        time[5:] = np.linspace(0.0, 0.099, n - 5)
+        scans.append(Scan(50.0 + 0.1 * k, points, np.ones(n), ring, time))
     path = tmp_path_factory.mktemp("info") / "seq.bag"
     write_scans(path, scans)
     return path
@@ -77,6 +80,7 @@ def test_json(bag, run_main):
     assert info["rate_hz"] == pytest.approx(10.0, abs=1e-4)
     assert (info["points_min"], info["points_median"], info["points_max"]) == (795, 865, 935)
     assert info["fields"]["ring"] == "uint16" and info["fields"]["x"] == "float32"
+    assert info["rings"] == 16 and info["time_span_s"] == pytest.approx(0.099, abs=1e-6)
 
 
 def test_text(bag, run_main):

@@ -14,10 +14,14 @@ def summarize(path: Path, topic: str | None, rate_hz: float) -> dict:
     from forestslam.io import open_source
 
     source = open_source(path, topic, rate_hz)
-    stamps, counts = [], []
+    stamps, counts, spans, rings = [], [], [], 0
     for scan in source.scans():
         stamps.append(scan.stamp)
         counts.append(len(scan))
+        if scan.time is not None and len(scan):
+            spans.append(float(scan.time.max() - scan.time.min()))
+        if scan.ring is not None and len(scan):
+            rings = max(rings, int(scan.ring.max()) + 1)
     counts_arr = np.asarray(counts, dtype=np.int64)
     duration = float(max(stamps) - min(stamps)) if stamps else 0.0
     stats = source.stats
@@ -35,6 +39,8 @@ def summarize(path: Path, topic: str | None, rate_hz: float) -> dict:
         "points_median": float(np.median(counts_arr)) if len(counts) else 0.0,
         "points_max": int(counts_arr.max()) if len(counts) else 0,
         "fields": source.fields() if len(source) else {},
+        "time_span_s": float(np.median(spans)) if spans else None,
+        "rings": rings or None,
         "skipped": stats.skipped,
         "lost_bytes": stats.lost_bytes,
         "damaged_chunks": stats.damaged_chunks,
@@ -60,6 +66,10 @@ def _text(info: dict) -> str:
         ),
         "fields:   " + (", ".join(f"{k} {v}" for k, v in info["fields"].items()) or "-"),
     ]
+    if info["time_span_s"] is not None:
+        lines.append(f"sweep:    per-point time spans {info['time_span_s'] * 1e3:.1f} ms (median)")
+    if info["rings"]:
+        lines.append(f"rings:    {info['rings']}")
     if info["skipped"] or info["lost_bytes"] or info["damaged_chunks"]:
         lines.append(
             f"damage:   {info['skipped']} messages skipped, {info['damaged_chunks']} damaged "
