@@ -1,11 +1,10 @@
 """The registry of scan readers, chosen by file type, and `read_scans`.
 
-| input | reader |
-|---|---|
-| `x.bag` | ROS1 bag (rosbags; unindexed/truncated bags are walked chunk by chunk) |
-| `x.mcap`, `x.db3`, a folder with `metadata.yaml` | ROS2 bag (rosbags) |
-| a folder of `.pcd` / `.ply` / `.las` / `.laz` / `.bin` / `.npy` files | one scan per file |
-| one such file | one scan |
+- `x.bag`: ROS1 bag (rosbags; unindexed or truncated bags are walked chunk by chunk).
+- `x.mcap`, `x.db3`, a folder with `metadata.yaml`: ROS2 bag (rosbags; an `.mcap` cut short by
+  a killed recorder is walked chunk by chunk).
+- a folder of `.pcd` / `.ply` / `.las` / `.laz` / `.bin` / `.npy` files: one scan per file.
+- one such file: one scan.
 
 Cloud files get their stamp from per-point absolute times when present (LAS GPS time, a PCD
 `timestamp` field), else from a numeric file name (`1581791678.408339.pcd` seconds,
