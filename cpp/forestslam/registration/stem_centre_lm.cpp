@@ -6,16 +6,27 @@
 #include <pcl/kdtree/kdtree_flann.h>
 
 #include <cmath>
+#include <cstdint>
+#include <unordered_map>
 #include <vector>
 
 #include "forestslam/common/pcl_adapter.hpp"
 
 namespace forestslam {
 
+namespace {
+constexpr double kCell = 0.2;  // hash cell of the target for the virtual-feature search
+std::int64_t cellIndex(double v) { return static_cast<std::int64_t>(std::floor(v / kCell)); }
+std::int64_t cellKey(std::int64_t ix, std::int64_t iy, std::int64_t iz) {
+    return ((ix & 0x1FFFFF) << 42) | ((iy & 0x1FFFFF) << 21) | (iz & 0x1FFFFF);
+}
+}  // namespace
+
 struct StemCentreTarget::Impl {
     Points3 points;
     pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
     pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+    std::unordered_map<std::int64_t, std::vector<int>> cells;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
@@ -23,6 +34,11 @@ StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     impl_->points = finiteRows(points);
     impl_->cloud = detail::toPcl(impl_->points);
     if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
+    for (Eigen::Index i = 0; i < impl_->points.rows(); ++i) {
+        const auto &p = impl_->points.row(i);
+        impl_->cells[cellKey(cellIndex(p(0)), cellIndex(p(1)), cellIndex(p(2)))].push_back(
+            static_cast<int>(i));
+    }
 }
 
 StemCentreTarget::~StemCentreTarget() = default;
@@ -40,9 +56,8 @@ struct VirtualCost {
         const T src[3] = {T(c.x()), T(c.y()), T(c.z())};
         T q[3];
         ceres::AngleAxisRotatePoint(x, src, q);
-        const T dx = q[0] + x[3] - T(p.x()), dy = q[1] + x[4] - T(p.y()),
-                dz = q[2] + x[5] - T(p.z());
-        residual[0] = ceres::sqrt(dx * dx + dy * dy + dz * dz + T(1e-12)) - T(r);
+        const T dx = q[0] + x[3] - T(p.x()), dy = q[1] + x[4] - T(p.y());
+        residual[0] = ceres::sqrt(dx * dx + dy * dy + T(1e-12)) - T(r);
         return true;
     }
     Eigen::Vector3d c, p;
@@ -102,17 +117,42 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
     const Eigen::Vector3d t = T.block<3, 1>(0, 3);
     std::vector<int> idx;
     std::vector<float> d2;
-    const int kv = std::max(1, cfg.virtual_neighbours);
+    const int sectors = std::max(1, cfg.virtual_sectors);
+    const double gate = std::min(cfg.virtual_gate_m, cfg.virtual_max_gate_m);
+    std::vector<int> best(static_cast<std::size_t>(sectors));
+    std::vector<double> best_err(static_cast<std::size_t>(sectors));
     for (Eigen::Index i = 0; i < centres.rows(); ++i) {
         const Eigen::Vector3d c = centres.row(i).transpose();
         const Eigen::Vector3d q = R * c + t;
-        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
-                            static_cast<float>(q.z()));
-        if (target.tree.nearestKSearch(query, kv, idx, d2) <= 0) continue;
-        for (std::size_t k = 0; k < idx.size(); ++k) {
-            const Eigen::Vector3d p = target.points.row(idx[k]).transpose();
-            if (std::abs((q - p).norm() - radii[i]) > cfg.virtual_gate_m) continue;
-            vpairs.push_back({c, p, radii[i]});
+        const double r = radii[i];
+        const double reach = r + gate;
+        std::fill(best.begin(), best.end(), -1);
+        std::fill(best_err.begin(), best_err.end(), gate);
+        for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
+            for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
+                for (auto iz = cellIndex(q.z() - cfg.virtual_window_m);
+                     iz <= cellIndex(q.z() + cfg.virtual_window_m); ++iz) {
+                    const auto it = target.cells.find(cellKey(ix, iy, iz));
+                    if (it == target.cells.end()) continue;
+                    for (int j : it->second) {
+                        const auto &p = target.points.row(j);
+                        if (std::abs(p(2) - q.z()) > cfg.virtual_window_m) continue;
+                        const double dx = p(0) - q.x(), dy = p(1) - q.y();
+                        const double err = std::abs(std::hypot(dx, dy) - r);
+                        if (err >= gate) continue;
+                        auto sector = static_cast<int>((std::atan2(dy, dx) + M_PI) /
+                                                       (2 * M_PI) * sectors);
+                        sector = std::min(std::max(sector, 0), sectors - 1);
+                        if (err < best_err[sector]) {
+                            best_err[sector] = err;
+                            best[sector] = j;
+                        }
+                    }
+                }
+            }
+        }
+        for (int j : best) {
+            if (j >= 0) vpairs.push_back({c, target.points.row(j).transpose(), r});
         }
     }
     constexpr int kPlaneCandidates = 10;
@@ -174,7 +214,14 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     std::vector<PlanePair> ppairs;
     for (int round = 0; round < config.max_rounds; ++round) {
         const Eigen::Matrix4d T_before = toMatrix(x);
-        findPairs(target.impl(), centres, rad, real, T_before, config, vpairs, ppairs);
+        const double scale =
+            std::max(1.0, config.coarse_gate_factor * std::pow(config.gate_decay, round));
+        StemCentreLmConfig round_cfg = config;
+        round_cfg.virtual_gate_m *= scale;
+        round_cfg.real_gate_m *= scale;
+        round_cfg.plane_gate_m *= scale;
+        round_cfg.robust_scale_m *= scale;
+        findPairs(target.impl(), centres, rad, real, T_before, round_cfg, vpairs, ppairs);
         result.iterations = round + 1;
         if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
 
@@ -184,14 +231,14 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                 new VirtualCost(v.centre, v.target, v.radius));
             problem.AddResidualBlock(
                 cost,
-                new ceres::ScaledLoss(new ceres::CauchyLoss(config.robust_scale_m),
+                new ceres::ScaledLoss(new ceres::CauchyLoss(round_cfg.robust_scale_m),
                                       config.virtual_weight, ceres::TAKE_OWNERSHIP),
                 x);
         }
         for (const auto &p : ppairs) {
             auto *cost = new ceres::AutoDiffCostFunction<PlaneCost, 1, 6>(
                 new PlaneCost(p.source, p.origin, p.normal));
-            problem.AddResidualBlock(cost, new ceres::CauchyLoss(config.robust_scale_m), x);
+            problem.AddResidualBlock(cost, new ceres::CauchyLoss(round_cfg.robust_scale_m), x);
         }
         ceres::Solver::Options options;
         options.minimizer_type = ceres::TRUST_REGION;
@@ -207,7 +254,8 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         const Eigen::Matrix4d delta = T_before.inverse() * T_after;
         const double dt = delta.block<3, 1>(0, 3).norm();
         const double dr = Eigen::AngleAxisd(Eigen::Matrix3d(delta.block<3, 3>(0, 0))).angle();
-        if (dt < config.converged_translation_m && dr < config.converged_rotation_rad) {
+        if (scale <= 1.0 && dt < config.converged_translation_m &&
+            dr < config.converged_rotation_rad) {
             result.converged = true;
             break;
         }
@@ -239,7 +287,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     double vsum = 0.0, psum = 0.0;
     for (const auto &v : vpairs) {
         const Eigen::Vector3d q = R * v.centre + t;
-        const Eigen::Vector3d d = q - v.target;
+        const Eigen::Vector3d d(q.x() - v.target.x(), q.y() - v.target.y(), 0.0);
         const double dn = std::max(d.norm(), 1e-9);
         const double r = dn - v.radius;
         vsum += r * r;

@@ -1,6 +1,9 @@
 // Stem-centre Levenberg-Marquardt registration (Shao et al., ISPRS 2020, Sec. 3.3):
-// virtual features (stem centres with radius) pair with their nearest target point (residual
-// d - r); real features (e.g. DoG keypoints) pair with the plane through their three nearest
+// virtual features (stem centres with radius) pair with the nearest target points around them at
+// the same height, one per angular sector (residual d - r, d the horizontal distance in the
+// target frame, whose z axis is taken as vertical: a levelled TLS / map frame; pairing all
+// around the centre rather than only the nearest point removes the mirror minimum outside a
+// fully scanned stem); real features (e.g. DoG keypoints) pair with the plane through their three nearest
 // non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM with a robust loss,
 // correspondences renewed between solves. Works frame-to-frame and frame-to-map.
 #pragma once
@@ -12,14 +15,20 @@
 namespace forestslam {
 
 struct StemCentreLmConfig {
-    int max_rounds = 12;                  // correspondence renewals
+    int max_rounds = 15;                  // correspondence renewals
     int max_solver_iterations = 8;        // LM iterations per round
     double virtual_gate_m = 0.30;         // |d - r| gate for virtual-feature pairs
-    int virtual_neighbours = 3;           // target points paired with each stem centre
+    int virtual_sectors = 12;             // at most one target point per sector around a centre
+    double virtual_window_m = 0.15;       // ... taken within this height of the centre
+    double virtual_max_gate_m = 0.5;      // cap of the coarse virtual gate (bounds the search)
     double real_gate_m = 0.50;            // max distance keypoint -> nearest target point
     double plane_gate_m = 0.25;           // max |point-to-plane| distance of a kept pair
     double min_triangle_ratio = 0.2;      // non-collinearity: 2*area / longest_edge^2
     double robust_scale_m = 0.05;         // Cauchy loss scale
+    // Coarse to fine: the first round's gates and loss scale are coarse_gate_factor times the
+    // above, shrinking by gate_decay per round down to 1x (tolerates a poorer initial guess).
+    double coarse_gate_factor = 4.0;
+    double gate_decay = 0.6;
     double virtual_weight = 2.0;          // weight of a virtual residual relative to a real one
     double converged_translation_m = 1e-4;  // stop when a round moves less than this ...
     double converged_rotation_rad = 1e-5;   // ... and rotates less than this
