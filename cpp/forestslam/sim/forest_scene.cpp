@@ -1,0 +1,319 @@
+#include "forestslam/sim/forest_scene.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace forestslam::sim {
+
+namespace {
+constexpr uint32_t kStemCode = 0u << 30, kCylinderCode = 1u << 30, kFoliageCode = 2u << 30;
+constexpr uint32_t kIndexMask = (1u << 30) - 1;
+}  // namespace
+
+Heightfield::Heightfield(double x0, double y0, double cell, const Eigen::MatrixXd &z)
+    : x0_(x0), y0_(y0), cell_(cell) {
+    if (!(cell > 0.0)) throw std::invalid_argument("heightfield cell must be > 0");
+    if (z.rows() < 2 || z.cols() < 2) throw std::invalid_argument("heightfield needs >= 2x2 vertices");
+    if (!z.allFinite()) throw std::invalid_argument("heightfield heights must be finite");
+    ny_ = static_cast<int>(z.rows()) - 1;
+    nx_ = static_cast<int>(z.cols()) - 1;
+    z_.resize(static_cast<size_t>(z.rows()) * z.cols());
+    for (int iy = 0; iy <= ny_; ++iy)
+        for (int ix = 0; ix <= nx_; ++ix) z_[static_cast<size_t>(iy) * (nx_ + 1) + ix] = z(iy, ix);
+    nbx_ = (nx_ + kBlock - 1) / kBlock;
+    nby_ = (ny_ + kBlock - 1) / kBlock;
+    block_min_.assign(static_cast<size_t>(nbx_) * nby_, kInf);
+    block_max_.assign(static_cast<size_t>(nbx_) * nby_, -kInf);
+    for (int iy = 0; iy <= ny_; ++iy) {
+        for (int ix = 0; ix <= nx_; ++ix) {
+            const double v = vertex(ix, iy);
+            z_max_ = std::max(z_max_, v);
+            // A vertex belongs to every block whose cells touch it.
+            for (int by = std::max(0, (iy - 1) / kBlock); by <= std::min(nby_ - 1, iy / kBlock); ++by)
+                for (int bx = std::max(0, (ix - 1) / kBlock); bx <= std::min(nbx_ - 1, ix / kBlock);
+                     ++bx) {
+                    const size_t b = static_cast<size_t>(by) * nbx_ + bx;
+                    block_min_[b] = std::min(block_min_[b], v);
+                    block_max_[b] = std::max(block_max_[b], v);
+                }
+        }
+    }
+}
+
+double Heightfield::heightAt(double x, double y) const {
+    if (empty()) return std::nan("");
+    const double gx = (x - x0_) / cell_, gy = (y - y0_) / cell_;
+    if (!(gx >= 0.0 && gy >= 0.0 && gx <= nx_ && gy <= ny_)) return std::nan("");
+    const int ix = std::min(static_cast<int>(gx), nx_ - 1), iy = std::min(static_cast<int>(gy), ny_ - 1);
+    const double fx = gx - ix, fy = gy - iy;
+    const double z00 = vertex(ix, iy), z10 = vertex(ix + 1, iy), z01 = vertex(ix, iy + 1),
+                 z11 = vertex(ix + 1, iy + 1);
+    if (fx >= fy) return z00 + fx * (z10 - z00) + fy * (z11 - z10);
+    return z00 + fy * (z01 - z00) + fx * (z11 - z01);
+}
+
+bool Heightfield::intersectCell(int ix, int iy, const Ray &ray, double t0, double t1, Hit &hit) const {
+    const double z00 = vertex(ix, iy), z10 = vertex(ix + 1, iy), z01 = vertex(ix, iy + 1),
+                 z11 = vertex(ix + 1, iy + 1);
+    const double oz = ray.origin.z(), dz = ray.dir.z();
+    const double zr_lo = std::min(oz + t0 * dz, oz + t1 * dz);
+    const double zr_hi = std::max(oz + t0 * dz, oz + t1 * dz);
+    if (zr_lo > std::max(std::max(z00, z10), std::max(z01, z11)) + 1e-9) return false;
+    if (zr_hi < std::min(std::min(z00, z10), std::min(z01, z11)) - 1e-9) {
+        // Ray under the surface (should not happen): report the cell entry as the hit.
+        hit.t = t0;
+        hit.cos_incidence = 1.0;
+        return true;
+    }
+    const double xc = x0_ + ix * cell_, yc = y0_ + iy * cell_;
+    const double fx0 = (ray.origin.x() - xc) / cell_, fdx = ray.dir.x() / cell_;
+    const double fy0 = (ray.origin.y() - yc) / cell_, fdy = ray.dir.y() / cell_;
+    const double tol = 1e-9;
+    double best = kInf, gbx = 0, gby = 0;
+    // Triangle A (fx >= fy): z = z00 + fx (z10 - z00) + fy (z11 - z10); B (fy > fx) likewise.
+    const double grads[2][2] = {{z10 - z00, z11 - z10}, {z11 - z01, z01 - z00}};
+    for (int tri = 0; tri < 2; ++tri) {
+        const double gx = grads[tri][0], gy = grads[tri][1];
+        const double denom = dz - fdx * gx - fdy * gy;
+        if (std::abs(denom) < 1e-15) continue;
+        const double t = (z00 + fx0 * gx + fy0 * gy - oz) / denom;
+        if (t < t0 - tol || t > t1 + tol || t < ray.t_min || t >= best) continue;
+        const double fx = fx0 + t * fdx, fy = fy0 + t * fdy;
+        if (fx < -tol || fx > 1 + tol || fy < -tol || fy > 1 + tol) continue;
+        if (tri == 0 ? fx < fy - tol : fy < fx - tol) continue;
+        best = t;
+        gbx = gx;
+        gby = gy;
+    }
+    if (best == kInf) return false;
+    const Eigen::Vector3d n(-gbx / cell_, -gby / cell_, 1.0);
+    hit.t = best;
+    hit.cos_incidence = std::abs(ray.dir.dot(n)) / n.norm();
+    return true;
+}
+
+bool Heightfield::intersect(const Ray &ray, double t_max, Hit &hit) const {
+    if (empty()) return false;
+    const double oz = ray.origin.z(), dz = ray.dir.z();
+    if (dz >= 0.0 && oz > z_max_) return false;
+    bool found = false;
+    Hit local;
+    const double block = cell_ * kBlock;
+    traverseGrid(x0_, y0_, block, nbx_, nby_, ray, ray.t_min, t_max,
+                 [&](int bx, int by, double tb0, double tb1) {
+                     const double za = oz + tb0 * dz, zb = oz + tb1 * dz;
+                     const size_t b = static_cast<size_t>(by) * nbx_ + bx;
+                     if (std::min(za, zb) > block_max_[b] + 1e-9) {
+                         return !(dz >= 0.0 && za > z_max_);
+                     }
+                     traverseGrid(x0_, y0_, cell_, nx_, ny_, ray, tb0, tb1,
+                                  [&](int ix, int iy, double t0, double t1) {
+                                      if (intersectCell(ix, iy, ray, t0, t1, local)) {
+                                          found = true;
+                                          return false;
+                                      }
+                                      return true;
+                                  });
+                     return !found;
+                 });
+    if (!found) return false;
+    hit = local;
+    hit.surface = kGround;
+    hit.object = -1;
+    return true;
+}
+
+ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
+                         std::vector<Cylinder> cylinders, std::vector<FoliageEllipsoid> foliage,
+                         double cell_m)
+    : terrain_(std::move(terrain)),
+      stems_(std::move(stems)),
+      cylinders_(std::move(cylinders)),
+      foliage_(std::move(foliage)),
+      cell_(cell_m) {
+    if (!(cell_m > 0.0)) throw std::invalid_argument("scene grid cell must be > 0");
+    if (stems_.size() > kIndexMask || cylinders_.size() > kIndexMask || foliage_.size() > kIndexMask)
+        throw std::invalid_argument("too many primitives");
+    struct Box {
+        uint32_t code;
+        double xmin, ymin, xmax, ymax, zmax, zmin;
+    };
+    std::vector<Box> boxes;
+    for (size_t i = 0; i < stems_.size(); ++i) {
+        const Stem &s = stems_[i];
+        if (!(s.semi_a > 0 && s.semi_b > 0)) throw std::invalid_argument("stem semi-axes must be > 0");
+        const double r = std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) +
+                         s.bark_amp;
+        const double xa = s.base.x() + s.shear.x() * s.h_bottom, xb = s.base.x() + s.shear.x() * s.height;
+        const double ya = s.base.y() + s.shear.y() * s.h_bottom, yb = s.base.y() + s.shear.y() * s.height;
+        boxes.push_back({kStemCode | static_cast<uint32_t>(i), std::min(xa, xb) - r, std::min(ya, yb) - r,
+                         std::max(xa, xb) + r, std::max(ya, yb) + r, s.base.z() + s.height,
+                         s.base.z() + s.h_bottom});
+    }
+    for (size_t i = 0; i < cylinders_.size(); ++i) {
+        const Cylinder &c = cylinders_[i];
+        const Eigen::Vector3d lo = c.p0.cwiseMin(c.p1).array() - c.radius;
+        const Eigen::Vector3d hi = c.p0.cwiseMax(c.p1).array() + c.radius;
+        boxes.push_back(
+            {kCylinderCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(), hi.z(), lo.z()});
+    }
+    for (size_t i = 0; i < foliage_.size(); ++i) {
+        const FoliageEllipsoid &f = foliage_[i];
+        if (!(f.radii.minCoeff() > 0 && f.sigma > 0))
+            throw std::invalid_argument("foliage radii and sigma must be > 0");
+        const Eigen::Vector3d lo = f.centre - f.radii, hi = f.centre + f.radii;
+        boxes.push_back(
+            {kFoliageCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(), hi.z(), lo.z()});
+    }
+    if (boxes.empty()) return;
+    double xmin = kInf, ymin = kInf, xmax = -kInf, ymax = -kInf, zmin = kInf;
+    for (const Box &b : boxes) {
+        if (!(std::isfinite(b.xmin) && std::isfinite(b.xmax) && std::isfinite(b.ymin) &&
+              std::isfinite(b.ymax) && std::isfinite(b.zmax) && std::isfinite(b.zmin)))
+            throw std::invalid_argument("primitive with non-finite coordinates");
+        xmin = std::min(xmin, b.xmin);
+        ymin = std::min(ymin, b.ymin);
+        xmax = std::max(xmax, b.xmax);
+        ymax = std::max(ymax, b.ymax);
+        zmin = std::min(zmin, b.zmin);
+        z_max_ = std::max(z_max_, b.zmax);
+    }
+    x0_ = xmin;
+    y0_ = ymin;
+    z0_ = zmin;
+    nx_ = std::max(1, static_cast<int>(std::ceil((xmax - xmin) / cell_)));
+    ny_ = std::max(1, static_cast<int>(std::ceil((ymax - ymin) / cell_)));
+    nl_ = std::clamp(static_cast<int>(std::ceil((z_max_ - zmin) / kLayerM)), 1, 256);
+    layer_m_ = std::max((z_max_ - zmin) / nl_, 1e-3);
+    if (static_cast<double>(nx_) * ny_ * nl_ > 1e8) throw std::invalid_argument("scene grid too large");
+    const size_t ncell = static_cast<size_t>(nx_) * ny_;
+    const size_t nbin = ncell * nl_;
+    std::vector<uint32_t> count(nbin + 1, 0);
+    cell_zmax_.assign(ncell, -kInf);
+    auto cell_range = [&](const Box &b, int &ix0, int &iy0, int &ix1, int &iy1, int &l0, int &l1) {
+        ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
+        ix1 = std::clamp(static_cast<int>(std::floor((b.xmax - x0_) / cell_)), 0, nx_ - 1);
+        iy0 = std::clamp(static_cast<int>(std::floor((b.ymin - y0_) / cell_)), 0, ny_ - 1);
+        iy1 = std::clamp(static_cast<int>(std::floor((b.ymax - y0_) / cell_)), 0, ny_ - 1);
+        l0 = layerOf(b.zmin);
+        l1 = layerOf(b.zmax);
+    };
+    for (const Box &b : boxes) {
+        int ix0, iy0, ix1, iy1, l0, l1;
+        cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
+        for (int iy = iy0; iy <= iy1; ++iy)
+            for (int ix = ix0; ix <= ix1; ++ix) {
+                const size_t c = static_cast<size_t>(iy) * nx_ + ix;
+                for (int l = l0; l <= l1; ++l) ++count[c * nl_ + l + 1];
+                cell_zmax_[c] = std::max(cell_zmax_[c], b.zmax);
+            }
+    }
+    for (size_t c = 0; c < nbin; ++c) count[c + 1] += count[c];
+    bin_start_ = count;
+    items_.resize(count[nbin]);
+    std::vector<uint32_t> fill(bin_start_.begin(), bin_start_.end() - 1);
+    for (const Box &b : boxes) {
+        int ix0, iy0, ix1, iy1, l0, l1;
+        cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
+        const double m = 1e-6;  // keep the rejection conservative under round-off
+        const Item item{b.code, {b.xmin - m, b.ymin - m, b.zmin - m}, {b.xmax + m, b.ymax + m, b.zmax + m}};
+        for (int iy = iy0; iy <= iy1; ++iy)
+            for (int ix = ix0; ix <= ix1; ++ix)
+                for (int l = l0; l <= l1; ++l)
+                    items_[fill[(static_cast<size_t>(iy) * nx_ + ix) * nl_ + l]++] = item;
+    }
+}
+
+bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const {
+    const uint32_t index = code & kIndexMask;
+    switch (code & ~kIndexMask) {
+        case kStemCode:
+            if (!intersectStem(stems_[index], ray, t_max, hit)) return false;
+            hit.surface = kStem;
+            break;
+        case kCylinderCode:
+            if (!intersectCylinder(cylinders_[index], ray, t_max, hit)) return false;
+            hit.surface = cylinders_[index].surface;
+            break;
+        default:
+            if (!intersectFoliage(foliage_[index], static_cast<int32_t>(index), ray, t_max, hit))
+                return false;
+            hit.surface = foliage_[index].surface;
+            break;
+    }
+    hit.object = static_cast<int32_t>(index);
+    return true;
+}
+
+Hit ForestScene::cast(const Ray &ray) const {
+    Hit best;
+    terrain_.intersect(ray, ray.t_max, best);
+    if (nx_ == 0) return best;
+    const double oz = ray.origin.z(), dz = ray.dir.z();
+    const double t_end = std::min(ray.t_max, best.t);
+    traverseGrid(x0_, y0_, cell_, nx_, ny_, ray, ray.t_min, t_end, [&](int ix, int iy, double t0, double t1) {
+        if (t0 > best.t) return false;
+        const size_t c = static_cast<size_t>(iy) * nx_ + ix;
+        const double z_lo = std::min(oz + t0 * dz, oz + t1 * dz);
+        if (z_lo > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
+        // Bounding box of the ray inside this cell (up to the best hit so far).
+        const double t_hi = std::min(t1, best.t);
+        double seg_lo[3], seg_hi[3];
+        for (int a = 0; a < 3; ++a) {
+            const double p0 = ray.origin[a] + t0 * ray.dir[a], p1 = ray.origin[a] + t_hi * ray.dir[a];
+            seg_lo[a] = std::min(p0, p1);
+            seg_hi[a] = std::max(p0, p1);
+        }
+        // Only the vertical layers the ray crosses in this cell. An item in several of them may
+        // be tested twice; the answer is the same.
+        const int l0 = layerOf(seg_lo[2]), l1 = layerOf(seg_hi[2]);
+        for (int l = l0; l <= l1; ++l) {
+            const size_t bin = c * nl_ + l;
+            for (uint32_t k = bin_start_[bin]; k < bin_start_[bin + 1]; ++k) {
+                const Item &item = items_[k];
+                if (item.lo[2] > seg_hi[2] || item.hi[2] < seg_lo[2] || item.lo[0] > seg_hi[0] ||
+                    item.hi[0] < seg_lo[0] || item.lo[1] > seg_hi[1] || item.hi[1] < seg_lo[1])
+                    continue;
+                Hit h;
+                if (testPrimitive(item.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
+                    best = h;
+            }
+        }
+        return best.t > t1;
+    });
+    return best;
+}
+
+CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
+                                 const Eigen::Ref<const Points3> &dirs, double range_min,
+                                 double range_max, uint64_t seed) const {
+    const Eigen::Index n = dirs.rows();
+    if (origins.rows() != n && origins.rows() != 1)
+        throw std::invalid_argument("origins must have one row or one row per direction");
+    CastResult out;
+    out.range.setConstant(n, std::nan(""));
+    out.surface.setZero(n);
+    out.object.setConstant(n, -1);
+    out.cos_incidence.setZero(n);
+    for (Eigen::Index i = 0; i < n; ++i) {
+        Ray ray;
+        ray.origin = origins.row(origins.rows() == 1 ? 0 : i).transpose();
+        ray.dir = dirs.row(i).transpose();
+        const double norm = ray.dir.norm();
+        if (!(norm > 0.0) || !ray.origin.allFinite() || !std::isfinite(norm)) continue;
+        ray.dir /= norm;
+        ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
+        ray.t_max = range_max;
+        ray.key = mixKey(seed, static_cast<uint64_t>(i));
+        const Hit hit = cast(ray);
+        if (!hit.valid() || hit.t < range_min) continue;
+        out.range[i] = hit.t;
+        out.surface[i] = hit.surface;
+        out.object[i] = hit.object;
+        out.cos_incidence[i] = hit.cos_incidence;
+    }
+    return out;
+}
+
+}  // namespace forestslam::sim

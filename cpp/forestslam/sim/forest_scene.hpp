@@ -1,0 +1,102 @@
+// The simulated forest: heightfield terrain plus analytic primitives in a uniform XY grid, and a
+// batch ray caster returning the first hit of each ray (physically correct occlusion).
+#pragma once
+
+#include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "forestslam/common/types.hpp"
+#include "forestslam/sim/ray_primitives.hpp"
+
+namespace forestslam::sim {
+
+// Terrain heights on a regular vertex grid; each cell is split into two triangles along its
+// (0,0)-(1,1) diagonal, so heights are piecewise linear and rays hit it exactly.
+class Heightfield {
+public:
+    Heightfield() = default;
+    // z: (ny+1, nx+1) vertex heights, row iy at y = y0 + iy * cell, column ix at x = x0 + ix * cell.
+    Heightfield(double x0, double y0, double cell, const Eigen::MatrixXd &z);
+
+    bool empty() const { return nx_ == 0; }
+    // Height of the triangulated surface at (x, y); NaN outside the grid.
+    double heightAt(double x, double y) const;
+    bool intersect(const Ray &ray, double t_max, Hit &hit) const;
+
+private:
+    double vertex(int ix, int iy) const { return z_[static_cast<size_t>(iy) * (nx_ + 1) + ix]; }
+    bool intersectCell(int ix, int iy, const Ray &ray, double t0, double t1, Hit &hit) const;
+
+    double x0_ = 0, y0_ = 0, cell_ = 1;
+    int nx_ = 0, ny_ = 0;  // cells
+    std::vector<double> z_;
+    // Coarse blocks of kBlock x kBlock cells with their min/max height, to skip empty air fast.
+    static constexpr int kBlock = 8;
+    int nbx_ = 0, nby_ = 0;
+    std::vector<double> block_min_, block_max_;
+    double z_max_ = -kInf;
+};
+
+struct CastResult {
+    Eigen::VectorXd range;  // NaN where no return
+    Eigen::Matrix<uint8_t, Eigen::Dynamic, 1> surface;
+    Eigen::Matrix<int32_t, Eigen::Dynamic, 1> object;
+    Eigen::VectorXd cos_incidence;
+};
+
+class ForestScene {
+public:
+    ForestScene(Heightfield terrain, std::vector<Stem> stems, std::vector<Cylinder> cylinders,
+                std::vector<FoliageEllipsoid> foliage, double cell_m = 2.0);
+
+    Hit cast(const Ray &ray) const;
+    // One ray per row: origins (N,3) or (1,3) shared, unit directions (N,3). Returns are kept in
+    // [range_min, range_max]. seed makes foliage penetration reproducible: ray i uses key (seed, i).
+    CastResult castRays(const Eigen::Ref<const Points3> &origins,
+                        const Eigen::Ref<const Points3> &dirs, double range_min, double range_max,
+                        uint64_t seed) const;
+
+    const Heightfield &terrain() const { return terrain_; }
+    const std::vector<Stem> &stems() const { return stems_; }
+
+private:
+    void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
+    bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
+
+    Heightfield terrain_;
+    std::vector<Stem> stems_;
+    std::vector<Cylinder> cylinders_;
+    std::vector<FoliageEllipsoid> foliage_;
+    double x0_ = 0, y0_ = 0, cell_ = 2.0;
+    int nx_ = 0, ny_ = 0;
+    // A primitive's code (type in the top bits, row below) and its 3D bounding box, so most
+    // candidates of a cell are rejected without the exact test.
+    struct Item {
+        uint32_t code;
+        double lo[3], hi[3];
+    };
+    // Bins = XY cell x vertical layer, so rays below the crowns never look at foliage.
+    static constexpr double kLayerM = 1.0;
+    int layerOf(double z) const {
+        return std::clamp(static_cast<int>(std::floor((z - z0_) / layer_m_)), 0, nl_ - 1);
+    }
+    double z0_ = 0, layer_m_ = 1.0;
+    int nl_ = 1;
+    std::vector<uint32_t> bin_start_;  // CSR: items of bin b in items_[start[b], start[b+1])
+    std::vector<Item> items_;
+    std::vector<double> cell_zmax_;
+    double z_max_ = -kInf;
+};
+
+// Visits the cells of a uniform 2D grid crossed by the ray's XY projection for t in [t0, t1], in
+// order; visit(ix, iy, t_enter, t_exit) returns false to stop.
+template <class Visit>
+void traverseGrid(double x0, double y0, double cell, int nx, int ny, const Ray &ray, double t0,
+                  double t1, Visit &&visit);
+
+}  // namespace forestslam::sim
+
+#include "forestslam/sim/grid_traversal.ipp"

@@ -1,0 +1,2 @@
+forestslam_add_test(ray_primitives sim)
+forestslam_add_test(forest_scene sim)
