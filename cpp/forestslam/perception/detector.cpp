@@ -70,7 +70,14 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     for (int i : keep)
         if (points.row(i).allFinite()) finite.push_back(i);
     det.finite_points = static_cast<int>(finite.size());
-    const Points3 pts = selectRows(points, finite);
+    Points3 pts = selectRows(points, finite);
+    // Map clouds come in projected coordinates (UTM: 3.8e6 m): PCL works in float, so work
+    // relative to a local origin and add it back to the outputs.
+    Eigen::RowVector3d origin = Eigen::RowVector3d::Zero();
+    if (!scan_centred && pts.rows() > 0) {
+        origin = pts.colwise().minCoeff().array().floor().matrix();
+        pts.rowwise() -= origin;
+    }
     Eigen::VectorXi ring_sel;
     if (ring.size() == points.rows()) {
         ring_sel.resize(static_cast<Eigen::Index>(finite.size()));
@@ -97,7 +104,10 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         candidates.push_back(static_cast<int>(i));
     }
     NormalFilterOptions fopt = opt.filter;
-    if (!scan_centred) fopt.adaptive = false;
+    if (!scan_centred) {
+        fopt.adaptive = false;
+        fopt.voxel_m = std::max(fopt.voxel_m, fopt.map_voxel_m);
+    }
     const NormalFilterResult nf = normalFilter(pts, candidates, sensor.theta_v_rad, fopt,
                                                gs.grid.z.size() > 0 ? &gs.grid : nullptr);
     const Points3 filtered = selectRows(pts, nf.kept);
@@ -165,7 +175,19 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         }
         det.stems.push_back(std::move(st));
     }
-    for (size_t k = 0; k < det.stems.size(); ++k) det.stems[k].id = static_cast<int>(k);
+    for (size_t k = 0; k < det.stems.size(); ++k) {
+        Stem &st = det.stems[k];
+        st.id = static_cast<int>(k);
+        if (origin.isZero()) continue;
+        st.points.rowwise() += origin;
+        st.shape.mean += origin.transpose();
+        st.breast += origin.transpose();
+        st.base_z += origin.z();
+        st.diameter.centre += origin.transpose();
+        st.diameter.circle.centre += origin.transpose();
+        st.diameter.cylinder.centre += origin.transpose();
+    }
+    if (!origin.isZero()) det.ground.rowwise() += origin;
     clock.lap(det, "diameter");
     det.timing_ms["total"] = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     det.cpu_ms["total"] = threadCpuMs() - c0;

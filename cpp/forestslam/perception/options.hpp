@@ -51,6 +51,7 @@ struct NormalFilterOptions {
     double min_height_m = 0.3;      // height band above the local ground grid kept for stems
     double max_height_m = 8.0;
     double voxel_m = 0.05;          // thinning before normals (0 = none)
+    double map_voxel_m = 0.1;       // coarser thinning for map / tls clouds (dense, large)
 };
 
 struct SegmentationOptions {

@@ -43,6 +43,7 @@ class NormalFilterConfig:
     min_height_m: float = 0.3  # band above the local ground searched for stems
     max_height_m: float = 8.0
     voxel_m: float = 0.05  # thinning before normals (0 = none)
+    map_voxel_m: float = 0.1  # coarser thinning for map / tls clouds
 
 
 @dataclass

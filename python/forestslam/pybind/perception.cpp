@@ -67,6 +67,7 @@ pc::NormalFilterOptions filterOptions(const py::dict &d) {
     FS_GET(d, o, min_height_m);
     FS_GET(d, o, max_height_m);
     FS_GET(d, o, voxel_m);
+    FS_GET(d, o, map_voxel_m);
     return o;
 }
 
