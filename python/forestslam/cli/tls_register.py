@@ -1,13 +1,68 @@
-"""`forestslam tls-register` (not wired yet)."""
+"""`forestslam tls-register INPUT --reference REF --sensor P --out DIR`."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("tls-register", help="(not available yet)")
-    def _command() -> None:
-        from forestslam.errors import ForestSlamError
+    @app.command(
+        "tls-register",
+        help="Register a mobile (MLS) sequence onto a terrestrial (TLS) reference scan with "
+        "stem-centre and DoG features (Shao et al. 2020) and merge them. Writes "
+        "DIR/trajectory.tum (MLS poses in the TLS frame), DIR/plot.laz (merged cloud), "
+        "DIR/trees.csv (id,x,y,z,dbh_m,dbh_std_m,observations), DIR/coverage.json (stem "
+        "circumference covered at breast height, TLS alone vs merged) and DIR/plot.png. "
+        "Without --initial-pose the first frame is placed by matching its stems to the "
+        "reference's (the walk must start where it sees 3+ stems the TLS also sees).",
+    )
+    def _command(
+        input: Path = typer.Argument(..., help="MLS bag (.bag/.mcap) or folder of scans."),
+        reference: Path = typer.Option(
+            ...,
+            "--reference",
+            help="TLS reference: a cloud file (.laz/.las/.ply/.pcd/.npy) "
+            "or a bag holding one scan.",
+        ),
+        sensor: str = typer.Option(..., "--sensor", help="MLS profile name or YAML (vlp16...)."),
+        out: Path = typer.Option(..., "--out", help="Output directory."),
+        initial_pose: str | None = typer.Option(
+            None,
+            "--initial-pose",
+            help="First MLS pose in the TLS frame: x,y,yaw_deg or x,y,z,yaw_deg.",
+        ),
+        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic of the bag."),
+        config: Path | None = typer.Option(None, "--config", help="YAML (tls section)."),
+    ) -> None:
+        from tqdm import tqdm
 
-        raise ForestSlamError("'tls-register' is not available in this build yet")
+        from forestslam.config import load_config
+        from forestslam.tls.runner import parse_initial_pose, run_tls_register
+
+        cfg = load_config(config).tls
+        pose = parse_initial_pose(initial_pose)
+        bar = tqdm(unit="frame", desc="tls-register", leave=False)
+
+        def on_frame(record) -> None:
+            bar.update(1)
+            bar.set_postfix(accepted=record.accepted, stems_rms=f"{record.virtual_rms_m:.3f}")
+
+        try:
+            summary = run_tls_register(
+                input, reference, sensor, out, cfg, pose, topic=topic, on_frame=on_frame
+            )
+        finally:
+            bar.close()
+        print(
+            f"{summary['frames']} frames registered ({summary['accepted']} joined the map), "
+            f"{summary['stems']} stems, map {summary['map_points']} points, "
+            f"features+LM {summary['ms_features_lm_mean']:.1f} ms/frame"
+        )
+        if summary["coverage_tls"] is not None:
+            print(
+                f"stem circumference covered at breast height: TLS alone "
+                f"{summary['coverage_tls']:.0%}, merged {summary['coverage_merged']:.0%}"
+            )
+        print(f"wrote {out}/trajectory.tum plot.laz trees.csv coverage.json plot.png")

@@ -1,0 +1,172 @@
+"""Per-frame features for MLS-to-TLS registration and stem-based coarse alignment."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from forestslam.tls.config import FeatureConfig, RegistrationConfig
+
+log = logging.getLogger(__name__)
+
+
+def _core():
+    from forestslam import _core
+
+    return _core
+
+
+@dataclass
+class FrameFeatures:
+    """Features of one frame (its own frame): virtual centres (V,3) with radii (V,), stem
+    positions (S,3) with radii (S,), DoG keypoints (K,3)."""
+
+    centres: np.ndarray
+    radii: np.ndarray
+    stems: np.ndarray
+    stem_radii: np.ndarray
+    keypoints: np.ndarray
+
+
+def frame_features(
+    points: np.ndarray, rings: np.ndarray | None, config: FeatureConfig
+) -> FrameFeatures:
+    """Virtual features per ring (per horizontal layer when rings is None) and DoG keypoints."""
+    core = _core()
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    ring_list = None if rings is None else np.asarray(rings, dtype=np.uint16)
+    vf = core.extract_virtual_features(
+        points,
+        ring_list,
+        min_diameter_m=config.min_diameter_m,
+        max_diameter_m=config.max_diameter_m,
+    )
+    kp, _ = core.detect_dog_keypoints(
+        points,
+        voxel_m=config.keypoint_voxel_m,
+        sigma_small_m=config.sigma_small_m,
+        sigma_large_m=config.sigma_large_m,
+        nms_radius_m=config.nms_radius_m,
+        max_keypoints=config.max_keypoints,
+    )
+    return FrameFeatures(
+        centres=np.asarray(vf["centres"]).reshape(-1, 3),
+        radii=np.asarray(vf["radii"], dtype=np.float64),
+        stems=np.asarray(vf["stems"]).reshape(-1, 3),
+        stem_radii=np.asarray(vf["stem_radii"], dtype=np.float64),
+        keypoints=np.asarray(kp).reshape(-1, 3),
+    )
+
+
+def reference_stems(points: np.ndarray, config: FeatureConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Stem positions (S,3) and radii (S,) of a TLS / map cloud, from horizontal layers between
+    0.5 m and 3.5 m above its lowest ground (cheap, and below most crowns)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if len(points) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    ground = float(np.percentile(points[:, 2], 1.0))
+    vf = _core().extract_virtual_features(
+        points,
+        None,
+        min_diameter_m=config.min_diameter_m,
+        max_diameter_m=config.max_diameter_m,
+        min_z_m=ground + 0.5,
+        max_z_m=ground + 3.5,
+    )
+    return np.asarray(vf["stems"]).reshape(-1, 3), np.asarray(vf["stem_radii"])
+
+
+def _rigid2d(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation R (2,2) and translation t (2,) with dst ~ R src + t."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    h = (src - cs).T @ (dst - cd)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, d]) @ u.T
+    return r, cd - r @ cs
+
+
+def coarse_stem_alignment(
+    src_xy: np.ndarray,
+    src_r: np.ndarray,
+    dst_xy: np.ndarray,
+    dst_r: np.ndarray,
+    config: RegistrationConfig,
+) -> tuple[np.ndarray, int] | None:
+    """Planar pose (x, y, yaw) mapping source stems onto destination stems, by voting over
+    pairs of stems with matching spacing (and radius) and keeping the pose with most stems
+    within coarse_inlier_m; None when fewer than coarse_min_stems agree. Vectorized."""
+    n, m = len(src_xy), len(dst_xy)
+    if n < 2 or m < 2:
+        return None
+    # Nearest 15 source stems suffice and bound the cost.
+    order = np.argsort(np.linalg.norm(src_xy, axis=1))[:15]
+    src_xy, src_r = src_xy[order], src_r[order]
+    n = len(src_xy)
+    si, sj = np.triu_indices(n, 1)
+    ti, tj = np.nonzero(~np.eye(m, dtype=bool))
+    ds = np.linalg.norm(src_xy[si] - src_xy[sj], axis=1)
+    dt = np.linalg.norm(dst_xy[ti] - dst_xy[tj], axis=1)
+    keep_s = ds > 1.0
+    si, sj, ds = si[keep_s], sj[keep_s], ds[keep_s]
+    order_t = np.argsort(dt)
+    dt_sorted = dt[order_t]
+    tol = config.coarse_distance_tolerance_m
+    lo = np.searchsorted(dt_sorted, ds - tol)
+    hi = np.searchsorted(dt_sorted, ds + tol)
+    counts = hi - lo
+    if counts.sum() == 0:
+        return None
+    a = np.repeat(np.arange(len(ds)), counts)
+    b = order_t[np.concatenate([np.arange(x, y) for x, y in zip(lo, hi, strict=True)])]
+    pi, pj, qi, qj = si[a], sj[a], ti[b], tj[b]
+    radius_ok = (np.abs(src_r[pi] - dst_r[qi]) < 0.08) & (np.abs(src_r[pj] - dst_r[qj]) < 0.08)
+    pi, pj, qi, qj = pi[radius_ok], pj[radius_ok], qi[radius_ok], qj[radius_ok]
+    if len(pi) == 0:
+        return None
+    vs = src_xy[pj] - src_xy[pi]
+    vd = dst_xy[qj] - dst_xy[qi]
+    yaw = np.arctan2(vd[:, 1], vd[:, 0]) - np.arctan2(vs[:, 1], vs[:, 0])
+    c, s = np.cos(yaw), np.sin(yaw)
+    mid_s = 0.5 * (src_xy[pi] + src_xy[pj])
+    mid_d = 0.5 * (dst_xy[qi] + dst_xy[qj])
+    tx = mid_d[:, 0] - (c * mid_s[:, 0] - s * mid_s[:, 1])
+    ty = mid_d[:, 1] - (s * mid_s[:, 0] + c * mid_s[:, 1])
+    # Score every hypothesis on all source stems at once.
+    px = c[:, None] * src_xy[None, :, 0] - s[:, None] * src_xy[None, :, 1] + tx[:, None]
+    py = s[:, None] * src_xy[None, :, 0] + c[:, None] * src_xy[None, :, 1] + ty[:, None]
+    tree = cKDTree(dst_xy)
+    dist, _ = tree.query(np.stack([px.ravel(), py.ravel()], axis=1))
+    dist = dist.reshape(px.shape)
+    inl = dist < config.coarse_inlier_m
+    score = inl.sum(axis=1) - np.where(inl, dist, 0.0).sum(axis=1) / config.coarse_inlier_m * 0.5
+    best = int(np.argmax(score))
+    n_in = int(inl[best].sum())
+    if n_in < config.coarse_min_stems:
+        return None
+    # Refine on the inlier pairs.
+    moved = np.stack([px[best], py[best]], axis=1)
+    _, nn = tree.query(moved)
+    mask = inl[best]
+    r, t = _rigid2d(src_xy[mask], dst_xy[nn[mask]])
+    return np.array([t[0], t[1], np.arctan2(r[1, 0], r[0, 0])]), n_in
+
+
+def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:
+    T = np.eye(4)
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def ground_height_near(points: np.ndarray, xy: np.ndarray, radius_m: float = 4.0) -> float | None:
+    """Low (5th percentile) height of points within radius_m of xy: the local ground."""
+    d = np.linalg.norm(points[:, :2] - np.asarray(xy)[None, :], axis=1)
+    near = points[d < radius_m, 2]
+    if len(near) < 20:
+        return None
+    return float(np.percentile(near, 5.0))

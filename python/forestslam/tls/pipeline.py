@@ -1,0 +1,288 @@
+"""MLS-to-TLS plot mapping (Shao et al. 2020): each MLS frame gets an initial pose from 3D-NDT
+against the previous frame chained onto that frame's final pose, then the stem-centre LM
+(virtual + DoG features) against the global map = TLS reference + accepted MLS frames.
+
+The first frame's pose in the TLS frame comes from `initial_pose` when given, else from a
+coarse stem alignment: stem positions of the frame (ring circle fits) are matched to those of
+the reference by pairwise spacing voting (x, y, yaw), the height from the local ground of both
+clouds; the LM then refines all 6 DoF. This needs the walk to start where the frame sees at
+least `coarse_min_stems` stems that the TLS also sees (e.g. inside the plot); frames before the
+first alignable one (up to `coarse_max_frames`) are skipped.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from forestslam.errors import InputError, ProcessingError
+from forestslam.io import Scan
+from forestslam.tls.config import TlsConfig
+from forestslam.tls.features import (
+    coarse_stem_alignment,
+    frame_features,
+    ground_height_near,
+    planar_pose,
+    reference_stems,
+)
+
+log = logging.getLogger(__name__)
+
+
+def _core():
+    from forestslam import _core
+
+    return _core
+
+
+@dataclass
+class FrameRecord:
+    stamp: float
+    T_tls_sensor: np.ndarray
+    accepted: bool
+    converged: bool
+    degenerate: bool
+    virtual_inliers: int
+    virtual_rms_m: float
+    real_inliers: int
+    real_rms_m: float
+    ms_features: float
+    ms_lm: float
+    ms_ndt: float
+
+
+@dataclass
+class TlsRun:
+    """Result: per-frame records (poses T_tls_sensor), the merged map (M,3) in the TLS frame,
+    the reference (R,3), registered stem centres of accepted frames (list of (V,3))."""
+
+    frames: list[FrameRecord]
+    map_points: np.ndarray
+    reference: np.ndarray
+    frame_centres: list[np.ndarray] = field(default_factory=list)
+    initial_method: str = ""
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return np.array([f.stamp for f in self.frames])
+
+    @property
+    def poses(self) -> np.ndarray:
+        return np.array([f.T_tls_sensor for f in self.frames]).reshape(-1, 4, 4)
+
+
+def _check_reference(reference: np.ndarray) -> np.ndarray:
+    ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    ref = ref[np.isfinite(ref).all(axis=1)]
+    if len(ref) < 1000:
+        raise InputError(
+            f"the TLS reference has {len(ref)} valid points; a plot scan needs many more"
+        )
+    return np.ascontiguousarray(ref)
+
+
+def _frame_points(scan: Scan, config: TlsConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    pts = np.asarray(scan.points, dtype=np.float64)
+    rng = np.linalg.norm(pts, axis=1)
+    ok = (
+        np.isfinite(pts).all(axis=1)
+        & (rng >= config.map.frame_min_range_m)
+        & (rng <= config.map.frame_max_range_m)
+    )
+    rings = None if scan.ring is None else np.asarray(scan.ring)[ok]
+    return np.ascontiguousarray(pts[ok]), rings
+
+
+class _GlobalMap:
+    """TLS reference + accepted frames, voxelized; the LM target is rebuilt in batches."""
+
+    def __init__(self, reference: np.ndarray, config: TlsConfig):
+        self.core = _core()
+        self.config = config
+        self.points = self.core.voxel_downsample(reference, config.map.voxel_m)
+        self.pending: list[np.ndarray] = []
+        self.target = self.core.StemCentreTarget(self.points)
+
+    def add(self, points_tls: np.ndarray) -> None:
+        self.pending.append(points_tls)
+        if len(self.pending) >= self.config.map.rebuild_every_frames:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.pending:
+            return
+        merged = np.concatenate([self.points, *self.pending])
+        self.pending.clear()
+        self.points = self.core.voxel_downsample(merged, self.config.map.voxel_m)
+        if len(self.points) > self.config.map.max_points:
+            raise ProcessingError(
+                f"the merged map exceeds {self.config.map.max_points} points; "
+                "raise map.voxel_m or map.max_points"
+            )
+        self.target = self.core.StemCentreTarget(self.points)
+
+
+def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
+    reg = config.registration
+    return core.register_stem_centre_lm(
+        target,
+        feats.centres,
+        feats.radii,
+        feats.keypoints,
+        np.ascontiguousarray(T_init),
+        virtual_gate_m=reg.lm_virtual_gate_m,
+        plane_gate_m=reg.lm_plane_gate_m,
+        robust_scale_m=reg.lm_robust_scale_m,
+        max_rounds=reg.lm_max_rounds,
+    )
+
+
+def _coarse_initial_pose(
+    feats, points: np.ndarray, ref: np.ndarray, ref_stems, config: TlsConfig
+) -> np.ndarray | None:
+    ref_xyz, ref_r = ref_stems
+    found = coarse_stem_alignment(
+        feats.stems[:, :2], feats.stem_radii, ref_xyz[:, :2], ref_r, config.registration
+    )
+    if found is None:
+        return None
+    (x, y, yaw), n_in = found
+    T = planar_pose(x, y, yaw)
+    g_frame = ground_height_near(points, np.zeros(2))
+    g_ref = ground_height_near(ref, np.array([x, y]))
+    if g_frame is not None and g_ref is not None:
+        T[2, 3] = g_ref - g_frame
+    log.info(
+        "coarse stem alignment: %d stems agree, x=%.2f y=%.2f yaw=%.1f deg",
+        n_in,
+        x,
+        y,
+        np.degrees(yaw),
+    )
+    return T
+
+
+def register_mls_to_tls(
+    scans: Iterable[Scan],
+    reference: np.ndarray,
+    config: TlsConfig | None = None,
+    initial_pose: np.ndarray | None = None,
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> TlsRun:
+    """Register MLS scans (sensor frame, ring when available) onto a TLS reference (R,3).
+    initial_pose (4,4) T_tls_sensor of the first frame, or None for the coarse stem alignment.
+    Raises InputError for an unusable reference or no frames, ProcessingError when the first
+    frames cannot be placed in the reference (mismatched data)."""
+    config = config or TlsConfig()
+    core = _core()
+    ref = _check_reference(reference)
+    gmap = _GlobalMap(ref, config)
+    ref_stems = None
+    frames: list[FrameRecord] = []
+    centres: list[np.ndarray] = []
+    prev_points = None
+    T_prev = None
+    T_rel_prev = np.eye(4)
+    seen = 0
+    method = "given" if initial_pose is not None else "stems"
+    for index, scan in enumerate(scans):
+        if index % max(1, config.frame_step):
+            continue
+        seen += 1
+        points, rings = _frame_points(scan, config)
+        if len(points) < 100:
+            log.warning(
+                "frame %d at %.3f has %d usable points: skipped", index, scan.stamp, len(points)
+            )
+            continue
+        t0 = time.process_time()
+        feats = frame_features(points, rings, config.features)
+        ms_features = (time.process_time() - t0) * 1e3
+
+        ms_ndt = 0.0
+        if T_prev is None:
+            if initial_pose is not None:
+                T_init = np.asarray(initial_pose, dtype=np.float64)
+            else:
+                if ref_stems is None:
+                    ref_stems = reference_stems(ref, config.features)
+                    log.info("reference: %d stems", len(ref_stems[0]))
+                T_init = _coarse_initial_pose(feats, points, ref, ref_stems, config)
+                if T_init is None:
+                    if seen >= config.registration.coarse_max_frames:
+                        raise ProcessingError(
+                            f"the first {seen} MLS frames cannot be aligned to the reference by "
+                            "stem positions (do they show the same plot?); give --initial-pose"
+                        )
+                    continue
+        else:
+            t0 = time.process_time()
+            ndt = core.register_ndt(
+                prev_points,
+                points,
+                np.ascontiguousarray(T_rel_prev),
+                voxel_m=config.registration.ndt_voxel_m,
+                resolution_m=config.registration.ndt_resolution_m,
+            )
+            ms_ndt = (time.process_time() - t0) * 1e3
+            T_rel = ndt["T_target_source"] if ndt["converged"] else T_rel_prev
+            T_init = T_prev @ T_rel
+
+        t0 = time.process_time()
+        lm = _lm(core, gmap.target, feats, T_init, config)
+        ms_lm = (time.process_time() - t0) * 1e3
+        ok = lm["converged"] and not lm["degenerate"]
+        T = lm["T_target_source"] if ok else T_init
+        if T_prev is None and not ok:
+            if initial_pose is not None or seen >= config.registration.coarse_max_frames:
+                raise ProcessingError(
+                    "the first MLS frame does not register onto the reference "
+                    f"({lm['inliers']} feature pairs): mismatched data or a wrong initial pose"
+                )
+            continue
+        accepted = (
+            ok
+            and lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
+            and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
+        )
+        if accepted:
+            pts_tls = points @ T[:3, :3].T + T[:3, 3]
+            gmap.add(pts_tls)
+            centres.append(feats.centres @ T[:3, :3].T + T[:3, 3])
+        record = FrameRecord(
+            stamp=float(scan.stamp),
+            T_tls_sensor=np.asarray(T),
+            accepted=bool(accepted),
+            converged=bool(lm["converged"]),
+            degenerate=bool(lm["degenerate"]),
+            virtual_inliers=int(lm["virtual_inliers"]),
+            virtual_rms_m=float(lm["virtual_rms_m"]),
+            real_inliers=int(lm["real_inliers"]),
+            real_rms_m=float(lm["real_rms_m"]),
+            ms_features=ms_features,
+            ms_lm=ms_lm,
+            ms_ndt=ms_ndt,
+        )
+        frames.append(record)
+        if on_frame is not None:
+            on_frame(record)
+        if T_prev is not None:
+            T_rel_prev = np.linalg.inv(T_prev) @ T
+        T_prev = T
+        prev_points = points
+    if seen == 0:
+        raise InputError("the MLS input holds no scans")
+    if not frames:
+        raise ProcessingError("no MLS frame could be registered onto the reference")
+    gmap.flush()
+    return TlsRun(
+        frames=frames,
+        map_points=gmap.points,
+        reference=ref,
+        frame_centres=centres,
+        initial_method=method,
+    )

@@ -1,0 +1,109 @@
+"""Plot figures of MLS-to-TLS mapping (matplotlib, headless)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def plot_tls_run(
+    path: str | Path,
+    map_points: np.ndarray,
+    trees_xyz: np.ndarray,
+    dbh_m: np.ndarray,
+    coverage_tls: np.ndarray,
+    coverage_merged: np.ndarray,
+    poses: np.ndarray,
+    base_z: np.ndarray | None = None,
+    title: str = "MLS + TLS plot",
+) -> None:
+    """Top view: breast-height slice of the merged cloud, stems with DBH circles coloured by
+    merged coverage, MLS trajectory; right: coverage TLS alone vs merged per stem."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [3, 2]})
+    pts = np.asarray(map_points).reshape(-1, 3)
+    if len(pts):
+        if base_z is not None and len(base_z):
+            ref = float(np.median(base_z))
+            band = pts[(pts[:, 2] > ref + 1.0) & (pts[:, 2] < ref + 1.6)]
+        else:
+            band = pts[np.abs(pts[:, 2] - np.median(pts[:, 2])) < 0.3]
+        if len(band) > 200_000:
+            band = band[np.random.default_rng(0).choice(len(band), 200_000, replace=False)]
+        ax.scatter(band[:, 0], band[:, 1], s=0.2, c="0.55", linewidths=0, label="slice")
+    for k in range(len(trees_xyz)):
+        r = 0.5 * dbh_m[k]
+        if np.isfinite(r):
+            ax.add_patch(
+                plt.Circle(
+                    trees_xyz[k, :2],
+                    r,
+                    fill=False,
+                    color=plt.cm.viridis(coverage_merged[k]),
+                    lw=1.5,
+                )
+            )
+    if len(poses):
+        ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=0.8, label="MLS trajectory")
+    ax.plot([0], [0], "k^", label="TLS station")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title)
+    ax.legend(loc="upper right", fontsize=8)
+    order = np.argsort(coverage_tls)
+    bx.plot(
+        coverage_tls[order] * 100,
+        "o-",
+        ms=3,
+        label=f"TLS alone (mean {coverage_tls.mean():.0%})" if len(order) else "TLS alone",
+    )
+    bx.plot(
+        coverage_merged[order] * 100,
+        "o-",
+        ms=3,
+        label=f"merged (mean {coverage_merged.mean():.0%})" if len(order) else "merged",
+    )
+    bx.set_xlabel("stem (sorted by TLS coverage)")
+    bx.set_ylabel("circumference covered at breast height (%)")
+    bx.set_ylim(0, 105)
+    bx.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_breast_height_slice(
+    path: str | Path,
+    points: np.ndarray,
+    trees_xyz: np.ndarray,
+    dbh_m: np.ndarray,
+    base_z: np.ndarray,
+    title: str,
+) -> None:
+    """Breast-height slice (1.2-1.4 m above each stem's ground) with fitted circles."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 7))
+    pts = np.asarray(points).reshape(-1, 3)
+    ref = float(np.median(base_z)) if len(base_z) else float(np.percentile(pts[:, 2], 2))
+    band = pts[(pts[:, 2] > ref + 1.1) & (pts[:, 2] < ref + 1.5)]
+    ax.scatter(band[:, 0], band[:, 1], s=0.3, c="0.5", linewidths=0)
+    for k in range(len(trees_xyz)):
+        ax.add_patch(plt.Circle(trees_xyz[k, :2], 0.5 * dbh_m[k], fill=False, color="r", lw=1.2))
+        ax.annotate(f"{k}: {dbh_m[k] * 100:.1f} cm", trees_xyz[k, :2], fontsize=7)
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,156 @@
+"""Stems, DBH and breast-height coverage of a plot cloud (merged map or TLS alone)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from forestslam.tls.config import FeatureConfig, TreeConfig
+from forestslam.tls.features import reference_stems
+
+
+def _core():
+    from forestslam import _core
+
+    return _core
+
+
+@dataclass
+class PlotTrees:
+    """K stems: xyz (K,3) breast-height centre, dbh_m (K,) (NaN: no fit), dbh_std_m (K,) spread
+    of per-slice diameters, base_z (K,) ground height, band_points list of (Mi,3)."""
+
+    xyz: np.ndarray
+    dbh_m: np.ndarray
+    dbh_std_m: np.ndarray
+    base_z: np.ndarray
+    band_points: list[np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+
+def ground_grid(points: np.ndarray, cell_m: float) -> tuple[cKDTree, np.ndarray]:
+    """Per occupied x-y cell the 3rd-lowest height (robust to a stray low return); returns a
+    KD-tree over cell centres and their heights."""
+    ij = np.floor(points[:, :2] / cell_m).astype(np.int64)
+    order = np.lexsort((points[:, 2], ij[:, 1], ij[:, 0]))
+    ij_s = ij[order]
+    z_s = points[order, 2]
+    start = np.flatnonzero(np.r_[True, np.any(ij_s[1:] != ij_s[:-1], axis=1)])
+    count = np.diff(np.r_[start, len(order)])
+    pick = start + np.minimum(2, count - 1)
+    centres = (ij_s[start] + 0.5) * cell_m
+    return cKDTree(centres), z_s[pick]
+
+
+def ground_at(grid: tuple[cKDTree, np.ndarray], xy: np.ndarray, k: int = 9) -> np.ndarray:
+    """Ground height at xy (K,2): median of the lowest cells around (stems hide the ground
+    right under them)."""
+    tree, heights = grid
+    k = min(k, len(heights))
+    _, idx = tree.query(xy, k=k)
+    idx = np.asarray(idx).reshape(len(xy), -1)
+    h = np.sort(heights[idx], axis=1)
+    return np.median(h[:, : max(1, k // 2 + 1)], axis=1)
+
+
+def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) -> PlotTrees:
+    """Stems from horizontal-layer stem centres, DBH by the robust circle fit on the band
+    config.band_m above the local ground (dbh_std_m from four sub-slices)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    stems, radii = reference_stems(points, features)
+    if len(stems) == 0:
+        empty = np.zeros(0)
+        return PlotTrees(np.zeros((0, 3)), empty, empty, empty, [])
+    grid = ground_grid(points, config.ground_cell_m)
+    base = ground_at(grid, stems[:, :2])
+    core = _core()
+    tree2d = cKDTree(points[:, :2])
+    lo, hi = config.band_m
+    xyz, dbh, dbh_std, bases, bands = [], [], [], [], []
+    for s in range(len(stems)):
+        idx = tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15)
+        near = points[idx]
+        z = near[:, 2] - base[s]
+        band = near[(z >= lo) & (z <= hi)]
+        fit = None
+        if len(band) >= 5:
+            fit = core.fit_circle(
+                np.ascontiguousarray(band[:, :2]),
+                inlier_threshold_m=0.02,
+                min_radius_m=0.5 * features.min_diameter_m,
+                max_radius_m=0.5 * features.max_diameter_m,
+            )
+        if fit is None or not fit["valid"]:
+            continue
+        centre = np.asarray(fit["centre"])
+        # Diameter spread over four sub-slices of the band: the uncertainty of the DBH.
+        edges = np.linspace(lo, hi, 5)
+        zb = band[:, 2] - base[s]
+        sub = []
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            part = band[(zb >= a) & (zb < b)]
+            if len(part) >= 5:
+                f = core.fit_circle(np.ascontiguousarray(part[:, :2]), inlier_threshold_m=0.02)
+                if f["valid"] and abs(f["radius"] - fit["radius"]) < 0.05:
+                    sub.append(2 * f["radius"])
+        xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
+        dbh.append(2 * fit["radius"])
+        dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
+        bases.append(base[s])
+        bands.append(band)
+    return PlotTrees(
+        xyz=np.array(xyz).reshape(-1, 3),
+        dbh_m=np.array(dbh),
+        dbh_std_m=np.array(dbh_std),
+        base_z=np.array(bases),
+        band_points=bands,
+    )
+
+
+def circumference_coverage(points: np.ndarray, trees: PlotTrees, config: TreeConfig) -> np.ndarray:
+    """Share (K,) of each stem's circumference at breast height holding points of `points`:
+    occupied angular sectors within coverage_tolerance_m of the fitted circle."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(trees))
+    if len(points) == 0 or len(trees) == 0:
+        return out
+    tree2d = cKDTree(points[:, :2])
+    lo, hi = config.band_m
+    n = config.coverage_sectors
+    for k in range(len(trees)):
+        r = 0.5 * trees.dbh_m[k]
+        c = trees.xyz[k, :2]
+        idx = tree2d.query_ball_point(c, r + config.coverage_tolerance_m)
+        p = points[idx]
+        z = p[:, 2] - trees.base_z[k]
+        d = np.linalg.norm(p[:, :2] - c, axis=1)
+        on = (z >= lo) & (z <= hi) & (np.abs(d - r) <= config.coverage_tolerance_m)
+        ang = np.arctan2(p[on, 1] - c[1], p[on, 0] - c[0])
+        sectors = np.unique(np.floor((ang + np.pi) / (2 * np.pi) * n).astype(int) % n)
+        out[k] = len(sectors) / n
+    return out
+
+
+def observations(
+    trees: PlotTrees,
+    frame_centres: list[np.ndarray],
+    reference_sees: np.ndarray,
+    radius_margin_m: float = 0.1,
+) -> np.ndarray:
+    """Per stem: number of scans that saw it (TLS reference when reference_sees, plus each
+    accepted MLS frame with a registered stem centre on it)."""
+    counts = reference_sees.astype(np.int64).copy()
+    if len(trees) == 0:
+        return counts
+    tree2d = cKDTree(trees.xyz[:, :2])
+    for centres in frame_centres:
+        if len(centres) == 0:
+            continue
+        d, idx = tree2d.query(centres[:, :2])
+        hit = idx[d <= 0.5 * trees.dbh_m[idx] + radius_margin_m]
+        counts[np.unique(hit)] += 1
+    return counts

@@ -1,0 +1,112 @@
+"""MLS-to-TLS registration on a synthetic plot with known poses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from forestslam.errors import InputError, ProcessingError
+from forestslam.tls import TlsConfig, coarse_stem_alignment, register_mls_to_tls
+from forestslam.tls.config import RegistrationConfig
+from forestslam.tls.runner import parse_initial_pose, write_products
+from tls_world import mls_frame, pose, reference_cloud, stand
+
+
+def _rot_err_deg(a: np.ndarray, b: np.ndarray) -> float:
+    d = a[:3, :3].T @ b[:3, :3]
+    return float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
+
+
+@pytest.fixture(scope="module")
+def world():
+    trees = stand()
+    truth = [pose(1.0 + 0.4 * k, -0.5 + 0.1 * k, 0.3 + 0.02 * k) for k in range(4)]
+    frames = [mls_frame(trees, T, 0.1 * k, seed=k) for k, T in enumerate(truth)]
+    return trees, reference_cloud(trees), truth, frames
+
+
+@pytest.fixture(scope="module")
+def run(world):
+    _, ref, _, frames = world
+    return register_mls_to_tls(frames, ref, TlsConfig())
+
+
+def test_poses_recovered_without_initial_guess(world, run):
+    _, _, truth, _ = world
+    assert run.initial_method == "stems"
+    assert len(run.frames) == len(truth)
+    for rec, T in zip(run.frames, truth, strict=True):
+        assert np.linalg.norm(rec.T_tls_sensor[:3, 3] - T[:3, 3]) < 0.01
+        assert _rot_err_deg(rec.T_tls_sensor, T) < 0.1
+        assert rec.converged and not rec.degenerate
+    assert sum(r.accepted for r in run.frames) >= 3
+    assert len(run.map_points) > len(run.reference) // 4  # voxelized but not lost
+
+
+def test_products_and_coverage(world, run, tmp_path):
+    trees, _, _, _ = world
+    summary = write_products(run, tmp_path, TlsConfig())
+    for name in ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    lines = (tmp_path / "trees.csv").read_text().splitlines()
+    assert lines[0] == "id,x,y,z,dbh_m,dbh_std_m,observations"
+    rows = np.array([[float(v or "nan") for v in ln.split(",")] for ln in lines[1:]])
+    # Every mapped stem is a true stem with its DBH within 1.5 cm.
+    assert len(rows) >= 10
+    for row in rows:
+        d = np.linalg.norm(trees[:, :2] - row[1:3], axis=1)
+        k = int(np.argmin(d))
+        assert d[k] < 0.02
+        assert abs(row[4] - trees[k, 2]) < 0.015
+    cov = json.loads((tmp_path / "coverage.json").read_text())
+    assert cov["mean_merged"] > cov["mean_tls"]
+    assert cov["mean_tls"] <= 0.6  # a single station sees about half of each stem
+    assert summary["frames"] == 4
+
+
+def test_initial_pose_option_and_parse():
+    T = parse_initial_pose("1.0,-0.5,17.2")
+    assert np.allclose(T[:3, 3], [1.0, -0.5, 0.0])
+    assert np.isclose(np.degrees(np.arctan2(T[1, 0], T[0, 0])), 17.2)
+    with pytest.raises(InputError):
+        parse_initial_pose("1,2")
+    with pytest.raises(InputError):
+        parse_initial_pose("a,b,c")
+
+
+def test_empty_reference_is_a_clear_error(world):
+    _, _, _, frames = world
+    with pytest.raises(InputError, match="reference"):
+        register_mls_to_tls(frames[:1], np.zeros((0, 3)))
+    with pytest.raises(InputError, match="reference"):
+        register_mls_to_tls(frames[:1], np.full((5000, 3), np.nan))
+
+
+def test_mismatched_reference_is_a_clear_error(world):
+    _, _, _, frames = world
+    other = reference_cloud(stand(seed=9))
+    cfg = TlsConfig()
+    cfg.registration.coarse_max_frames = 2
+    with pytest.raises(ProcessingError, match="reference"):
+        register_mls_to_tls(frames[:2], other, cfg)
+
+
+def test_coarse_stem_alignment_recovers_planar_pose():
+    rng = np.random.default_rng(4)
+    dst = rng.uniform(-15, 15, (40, 2))
+    r = rng.uniform(0.08, 0.25, 40)
+    x, y, yaw = 3.0, -2.0, 1.1
+    c, s = np.cos(yaw), np.sin(yaw)
+    pick = np.argsort(np.linalg.norm(dst - [x, y], axis=1))[:8]
+    # Source = the 8 stems nearest the sensor, in its frame, with 2 cm noise and one extra.
+    src = (dst[pick] - [x, y]) @ np.array([[c, -s], [s, c]])
+    src = np.vstack([src + rng.normal(0, 0.02, src.shape), [[1.0, 1.0]]])
+    src_r = np.append(r[pick], 0.1)
+    found = coarse_stem_alignment(src, src_r, dst, r, RegistrationConfig())
+    assert found is not None
+    (fx, fy, fyaw), n_in = found
+    assert n_in >= 7
+    assert abs(fx - x) < 0.05 and abs(fy - y) < 0.05 and abs(fyaw - yaw) < np.radians(0.5)
+    assert coarse_stem_alignment(src[:1], src_r[:1], dst, r, RegistrationConfig()) is None
