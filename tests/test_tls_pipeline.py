@@ -6,12 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from tls_world import mls_frame, pose, reference_cloud, stand
 
 from forestslam.errors import InputError, ProcessingError
 from forestslam.tls import TlsConfig, coarse_stem_alignment, register_mls_to_tls
 from forestslam.tls.config import RegistrationConfig
 from forestslam.tls.runner import parse_initial_pose, write_products
-from tls_world import mls_frame, pose, reference_cloud, stand
 
 
 def _rot_err_deg(a: np.ndarray, b: np.ndarray) -> float:
