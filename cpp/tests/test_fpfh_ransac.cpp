@@ -23,7 +23,7 @@ TEST(FpfhRansac, RecoversLargeTransformWithoutInitialGuess) {
 TEST(FpfhRansac, VoxelDownsampleAndEmpty) {
     Points3 p(3, 3);
     p << 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 5, 5, 5;
-    EXPECT_EQ(voxelDownsample(p, 0.25).rows(), 2);
+    EXPECT_EQ(voxelCentroids(p, 0.25).rows(), 2);
     const RegistrationResult r = registerFpfh(Points3(0, 3), p);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);

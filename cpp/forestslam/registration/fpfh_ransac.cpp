@@ -51,7 +51,7 @@ void describe(const Points3 &points, const FpfhConfig &config, CloudN::Ptr &clou
 
 }  // namespace
 
-Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m) {
+Points3 voxelCentroids(const Eigen::Ref<const Points3> &points, double voxel_m) {
     const Points3 finite = finiteRows(points);
     if (finite.rows() == 0 || !(voxel_m > 0.0)) return finite;
     auto cloud = detail::toPcl(finite);
@@ -70,8 +70,8 @@ RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source_in,
     RegistrationResult result;
     result.T_target_source = T_init.matrix();
     result.covariance = Matrix6d::Identity() * kUnobservedVariance;
-    const Points3 src = voxelDownsample(source_in, config.voxel_m);
-    const Points3 tgt = voxelDownsample(target_in, config.voxel_m);
+    const Points3 src = voxelCentroids(source_in, config.voxel_m);
+    const Points3 tgt = voxelCentroids(target_in, config.voxel_m);
     if (src.rows() < 10 || tgt.rows() < 10) return result;
 
     CloudN::Ptr src_cloud, tgt_cloud;

@@ -28,6 +28,6 @@ RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source,
                                 const FpfhConfig &config = {});
 
 // Voxel-grid centroid downsampling (PCL VoxelGrid), non-finite rows dropped.
-Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m);
+Points3 voxelCentroids(const Eigen::Ref<const Points3> &points, double voxel_m);
 
 }  // namespace forestslam

@@ -159,7 +159,7 @@ void define_registration(py::module_ &m) {
         "FPFH + RANSAC (SampleConsensusPrerejective) + point-to-plane ICP baseline: source (N,3), "
         "target (M,3) -> RegistrationResult (inliers = RANSAC inliers).");
 
-    m.def("voxel_downsample", &voxelDownsample, py::arg("points"), py::arg("voxel_m"),
+    m.def("voxel_centroids", &voxelCentroids, py::arg("points"), py::arg("voxel_m"),
           "Voxel-grid centroids of points (N,3) -> (M,3).");
 }
 

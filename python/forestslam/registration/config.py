@@ -30,13 +30,13 @@ class ShapeConfig:
 class IcpConfig:
     """Point-to-plane ICP, 6 DoF, Huber-weighted Gauss-Newton."""
 
-    max_iterations: int = 15
+    max_iterations: int = 12
     max_correspondence_m: float = 1.0
     final_correspondence_m: float = 0.3
-    shrink_iterations: int = 4
+    shrink_iterations: int = 3
     huber_m: float = 0.05
-    translation_tolerance_m: float = 1e-4
-    rotation_tolerance_rad: float = 1e-5
+    translation_tolerance_m: float = 5e-4
+    rotation_tolerance_rad: float = 5e-5
     min_correspondences: int = 20
     degeneracy_threshold: float = 2e-3
     degeneracy_length_m: float = 10.0

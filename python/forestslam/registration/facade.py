@@ -123,4 +123,4 @@ def register_fpfh(
 
 def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     """Voxel-grid centroids of points (N,3) -> (M,3)."""
-    return np.asarray(_core().voxel_downsample(_points(points, "points"), float(voxel_m)))
+    return np.asarray(_core().voxel_centroids(_points(points, "points"), float(voxel_m)))

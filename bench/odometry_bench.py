@@ -1,0 +1,200 @@
+"""Odometry benchmark (issue 5): tree-based odometry beside the FPFH baseline and KISS-ICP.
+
+For each scenario (default vlp16-loop, vlp16-rough, hdl32-loop, rsm1-robot; sequences cached
+under data/cache/sim/, shared with the SLAM bench) runs on the same scans and stamps:
+  trees   forestslam Odometry, method "trees" (perception + stems + shape-to-shape + ICP),
+  fpfh    forestslam Odometry, method "fpfh", scan to scan (FPFH + RANSAC + ICP at 0.25 m),
+  kiss    KISS-ICP (PyPI) through its Python API, frame by frame with per-point times,
+and prints ATE RMSE after SE(3) alignment, relative translation error % over 10 m, final drift,
+ms per scan (wall and CPU of this process; one thread), and the ratios against the targets:
+trees ATE <= KISS-ICP's (VLP-16 scenarios), <= 0.3 x FPFH's; <= 40 ms per VLP-16 scan including
+perception.
+
+    python bench/odometry_bench.py [--scenarios a,b] [--max-scans N] [--methods trees,fpfh,kiss]
+        [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, for the competitor too
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+CACHE = REPO / "data" / "cache"
+SCENARIOS = ("vlp16-loop", "vlp16-rough", "hdl32-loop", "rsm1-robot")
+
+
+def sequence(name: str, max_scans: int | None) -> Path:
+    from forestslam.sim import simulate
+
+    tag = name if max_scans is None else f"{name}-{max_scans}"
+    out = CACHE / "sim" / tag
+    if not (out / "sequence.bag").is_file() or not (out / "truth" / "trajectory.tum").is_file():
+        kw = {} if max_scans is None else {"max_scans": max_scans}
+        t = time.perf_counter()
+        simulate(name, out, **kw)
+        print(f"  simulated {name} in {time.perf_counter() - t:.0f} s -> {out}", flush=True)
+    return out
+
+
+def sensor_of(seq: Path) -> str:
+    import yaml
+
+    doc = yaml.safe_load((seq / "truth" / "scenario.yaml").read_text())
+    return doc["sensor"]["profile"]
+
+
+def evaluate(seq: Path, stamps: list, poses: list, wall: list, cpu: list) -> dict:
+    from forestslam.evaluation import trajectory_errors
+    from forestslam.io import read_tum
+
+    gs, gp = read_tum(seq / "truth" / "trajectory.tum")
+    m = trajectory_errors(np.asarray(stamps), np.stack(poses), gs, gp)
+    m.pop("alignment", None)
+    m["ms_per_scan"] = float(np.mean(wall))
+    m["ms_per_scan_median"] = float(np.median(wall))
+    m["cpu_ms_per_scan"] = float(np.mean(cpu))
+    m["scans"] = len(stamps)
+    return m
+
+
+def run_forestslam(seq: Path, sensor: str, method: str) -> dict:
+    from forestslam.io import read_scans
+    from forestslam.odometry import Odometry, OdometryConfig
+
+    cfg = OdometryConfig(method=method)
+    if method == "fpfh":
+        cfg.mode = "scan_to_scan"  # the paper's baseline registers consecutive scans
+    odo = Odometry(sensor, cfg)
+    stamps, poses, wall, cpu, stages = [], [], [], [], {}
+    degraded = matched = 0
+    for scan in read_scans(seq / "sequence.bag"):
+        w0, c0 = time.perf_counter(), time.process_time()
+        step = odo.step(scan)
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+        stamps.append(step.stamp)
+        poses.append(step.T_world_sensor)
+        degraded += bool(step.degraded)
+        matched += step.matched_stems
+        for k, v in step.timing.items():
+            stages.setdefault(k, []).append(v)
+    m = evaluate(seq, stamps, poses, wall, cpu)
+    m["degraded_share"] = degraded / max(1, len(stamps))
+    m["mean_matched_stems"] = matched / max(1, len(stamps))
+    m["stages_ms"] = {k: float(np.mean(v)) for k, v in stages.items()}
+    return m
+
+
+def run_kiss(seq: Path, sensor: str) -> dict:
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    from forestslam.io import read_scans
+    from forestslam.sensors import load_profile
+
+    profile = load_profile(sensor)
+    cfg = KISSConfig()
+    cfg.data.max_range = float(profile.range_max_m)
+    cfg.data.min_range = float(profile.range_min_m)
+    cfg.data.deskew = profile.kind == "spinning"
+    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
+    cfg.registration.max_num_threads = 1
+    kiss = KissICP(cfg)
+    stamps, poses, wall, cpu = [], [], [], []
+    for scan in read_scans(seq / "sequence.bag"):
+        times = scan.time if scan.time is not None else np.zeros(len(scan))
+        # KISS-ICP normalises the per-point times itself (min..max -> 0..1)
+        w0, c0 = time.perf_counter(), time.process_time()
+        kiss.register_frame(scan.points, times.astype(np.float64))
+        wall.append((time.perf_counter() - w0) * 1e3)
+        cpu.append((time.process_time() - c0) * 1e3)
+        stamps.append(scan.stamp)
+        poses.append(np.asarray(kiss.last_pose).copy())
+    return evaluate(seq, stamps, poses, wall, cpu)
+
+
+def fmt(v, digits=3) -> str:
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS))
+    ap.add_argument("--max-scans", type=int, default=None, help="shorten the sequences")
+    ap.add_argument("--methods", default="trees,fpfh,kiss")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    args = ap.parse_args()
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    results: dict[str, dict] = {}
+    for name in [s.strip() for s in args.scenarios.split(",") if s.strip()]:
+        seq = sequence(name, args.max_scans)
+        sensor = sensor_of(seq)
+        results[name] = {}
+        for method in methods:
+            t = time.perf_counter()
+            m = run_kiss(seq, sensor) if method == "kiss" else run_forestslam(seq, sensor, method)
+            results[name][method] = m
+            print(
+                f"{name:12s} {method:6s} ATE {m['ate_rmse_m']:.3f} m  RPE "
+                f"{fmt(m.get('rpe_percent_10m'), 2)} %  drift {m['final_drift_m']:.2f} m  "
+                f"{m['ms_per_scan']:.1f} ms/scan (cpu {m['cpu_ms_per_scan']:.1f})  "
+                f"[{m['scans']} scans, {time.perf_counter() - t:.0f} s]",
+                flush=True,
+            )
+            if "stages_ms" in m:
+                stages = ", ".join(f"{k} {v:.1f}" for k, v in m["stages_ms"].items())
+                print(
+                    f"{'':19s}stages ms: {stages}; degraded {m['degraded_share']:.1%}, "
+                    f"matched stems {m['mean_matched_stems']:.1f}",
+                    flush=True,
+                )
+
+    print("\nscenario      method  ATE_m   RPE%_10m  drift_m  ms/scan  cpu_ms")
+    for name, per in results.items():
+        for method, m in per.items():
+            rpe = fmt(m.get("rpe_percent_10m"), 2)
+            print(
+                f"{name:13s} {method:6s} {m['ate_rmse_m']:7.3f} {rpe:>8s}"
+                f" {m['final_drift_m']:8.2f} {m['ms_per_scan']:8.1f} {m['cpu_ms_per_scan']:7.1f}"
+            )
+    print("\nratios (targets: trees/kiss <= 1 on VLP-16, trees/fpfh <= 0.3, <= 40 ms VLP-16)")
+    ok = True
+    for name, per in results.items():
+        t = per.get("trees")
+        if not t:
+            continue
+        parts = []
+        vlp16 = name.startswith("vlp16")
+        if "kiss" in per:
+            r = t["ate_rmse_m"] / max(per["kiss"]["ate_rmse_m"], 1e-9)
+            parts.append(f"ATE trees/kiss {r:.2f}")
+            ok &= r <= 1.0 or not vlp16
+            parts.append(f"ms trees/kiss {t['ms_per_scan'] / per['kiss']['ms_per_scan']:.2f}")
+        if "fpfh" in per:
+            r = t["ate_rmse_m"] / max(per["fpfh"]["ate_rmse_m"], 1e-9)
+            parts.append(f"ATE trees/fpfh {r:.2f}")
+            ok &= r <= 0.3
+        if vlp16:
+            parts.append(f"trees cpu {t['cpu_ms_per_scan']:.1f} ms (<= 40)")
+            ok &= t["cpu_ms_per_scan"] <= 40.0
+        print(f"{name:13s} " + "; ".join(parts))
+    print("all targets met" if ok else "some targets missed")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
