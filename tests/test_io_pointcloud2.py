@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from forestslam.errors import InputError
+from forestslam.io import pointcloud2
 from forestslam.io.pointcloud2 import DATATYPES, decode_pointcloud2, structured_points
 
 CODES = {v: k for k, v in DATATYPES.items()}
@@ -56,6 +57,16 @@ def make_msg(
         data=buf,
         is_dense=False,
     )
+
+
+@pytest.fixture(params=["cxx", "numpy"], autouse=True)
+def mask_path(request, monkeypatch):
+    """Every test runs with the C++ finite-point mask and with the numpy one."""
+    if request.param == "numpy":
+        monkeypatch.setattr(pointcloud2, "_REAL_POINT_INDICES", None)
+    elif pointcloud2._REAL_POINT_INDICES is None:
+        pytest.skip("forestslam._core without real_point_indices")
+    return request.param
 
 
 @pytest.fixture

@@ -1,4 +1,5 @@
 forestslam_add_test(lzf io)
+forestslam_add_test(point_mask io)
 
 # Cross-check against PCL's own LZF (what writes binary_compressed PCD files) when pcl_io exists.
 find_library(FORESTSLAM_PCL_IO_LIBRARY NAMES pcl_io HINTS ${PCL_LIBRARY_DIRS})

@@ -68,10 +68,13 @@ def relative_time(values: np.ndarray, stamp: float | None) -> tuple[np.ndarray, 
     return seconds, 0.0 if stamp is None else stamp
 
 
-def scan_from_structured(arr: np.ndarray, stamp: float | None, where: str) -> Scan:
+def scan_from_structured(
+    arr: np.ndarray, stamp: float | None, where: str, keep: np.ndarray | None = None
+) -> Scan:
     """Structured array (any shape; organized clouds are flattened row-major) -> finite Scan.
 
-    `stamp` None: taken from absolute per-point times when present, else 0.
+    `stamp` None: taken from absolute per-point times when present, else 0. `keep`: the
+    row-major indices of the real points when the caller computed them already (in C++).
     """
     names = arr.dtype.names or ()
     available = {}
@@ -81,12 +84,13 @@ def scan_from_structured(arr: np.ndarray, stamp: float | None, where: str) -> Sc
     if missing:
         raise InputError(f"{where}: point fields {list(names)} lack {', '.join(missing)}")
     flat = arr.reshape(-1)
-    # Mask on strided views of the records, then one gather of the kept records.
-    x, y, z = (_first_component(flat[available[c]]) for c in "xyz")
-    with np.errstate(over="ignore", invalid="ignore"):
-        keep = np.isfinite(x + y + z) & ((x != 0) | (y != 0) | (z != 0))
-    # np.take is ~10x faster than boolean indexing on records of odd size (e.g. 22 bytes).
-    kept = flat if keep.all() else np.take(flat, np.flatnonzero(keep))
+    if keep is None:  # mask on strided views of the records
+        x, y, z = (_first_component(flat[available[c]]) for c in "xyz")
+        with np.errstate(over="ignore", invalid="ignore"):
+            keep = np.flatnonzero(np.isfinite(x + y + z) & ((x != 0) | (y != 0) | (z != 0)))
+    # One gather of the kept records; np.take is ~10x faster than boolean indexing on records
+    # of odd size (e.g. 22 bytes).
+    kept = flat if len(keep) == len(flat) else np.take(flat, keep)
     points = np.empty((len(kept), 3), dtype=np.float64)
     for k, c in enumerate("xyz"):
         points[:, k] = _first_component(kept[available[c]])

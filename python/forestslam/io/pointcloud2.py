@@ -103,9 +103,45 @@ def stamp_seconds(header) -> float:
     return float(stamp.sec) + float(stamp.nanosec) * 1e-9
 
 
+def _core_mask():
+    try:
+        from forestslam import _core
+    except ImportError:
+        return None
+    return getattr(_core, "real_point_indices", None)
+
+
+_REAL_POINT_INDICES = _core_mask()
+
+
+def real_point_indices(msg, arr: np.ndarray) -> np.ndarray | None:
+    """Indices of finite, non-origin points computed in C++ in one pass over the buffer, or
+    None (then numpy does it) when x, y, z are not all float32 or all float64."""
+    if _REAL_POINT_INDICES is None or arr.size == 0:
+        return None
+    by_name: dict = {}
+    for f in msg.fields:  # the first field of a name wins, as in fields_dtype
+        by_name.setdefault(str(f.name).lower(), f)
+    xyz = [by_name.get(c) for c in "xyz"]
+    if any(f is None for f in xyz) or {int(f.datatype) for f in xyz} not in ({7}, {8}):
+        return None
+    return _REAL_POINT_INDICES(
+        np.asarray(msg.data, dtype=np.uint8).reshape(-1),
+        int(msg.height),
+        int(msg.width),
+        int(msg.point_step),
+        int(msg.row_step),
+        [int(f.offset) for f in xyz],
+        4 if int(xyz[0].datatype) == 7 else 8,
+        bool(msg.is_bigendian),
+    )
+
+
 def decode_pointcloud2(msg, where: str = "PointCloud2") -> Scan:
     """A deserialized PointCloud2 (rosbags message object) -> Scan with finite points."""
-    return scan_from_structured(structured_points(msg, where), stamp_seconds(msg.header), where)
+    arr = structured_points(msg, where)
+    keep = real_point_indices(msg, arr)
+    return scan_from_structured(arr, stamp_seconds(msg.header), where, keep)
 
 
 def velodyne_array(scan: Scan) -> np.ndarray:
