@@ -208,6 +208,69 @@ def run_fortls() -> None:
     print(f"right plot found for {correct}/{len(plots)} plots")
 
 
+def sequence_errors(out_dir: Path, truth_dir: Path) -> tuple[int, int, list, list, int]:
+    """Queries, accepted, position errors (m) and yaw errors (deg) of accepted queries, and
+    how many accepted queries were wrong (>= 0.5 m or >= 2 deg), against the truth trajectory."""
+    import json
+
+    from forestslam.io import read_tum
+
+    doc = json.loads((out_dir / "localization.json").read_text())
+    ts, tp = read_tum(truth_dir / "trajectory.tum")
+    errs, degs, wrong = [], [], 0
+    for q in doc["queries"]:
+        if not q["accepted"]:
+            continue
+        j = int(np.argmin(np.abs(ts - q["stamp"])))
+        e = math.hypot(q["x"] - tp[j][0, 3], q["y"] - tp[j][1, 3])
+        d = abs(
+            math.degrees(
+                math.remainder(q["yaw"] - math.atan2(tp[j][1, 0], tp[j][0, 0]), 2 * math.pi)
+            )
+        )
+        errs.append(e)
+        degs.append(d)
+        wrong += not (e < 0.5 and d < 2.0)
+    return len(doc["queries"]), doc["accepted"], errs, degs, wrong
+
+
+def run_sequences(args) -> None:
+    """Real detections (perception, odometry) on simulated sequences, via the CLI runner."""
+    from forestslam.localization import load_map
+    from forestslam.localization.runner import run_localization
+
+    print("\n== Simulated sequences: real detections (forestslam.perception + odometry) ==")
+    print(
+        f"{'sequence':>12} {'frames':>6} {'keyframe m':>10} {'queries':>7} {'success':>8} "
+        f"{'wrong acc':>9} {'median err m':>12} {'median deg':>10} {'ms/query':>8}"
+    )
+    for seq in args.sequences:
+        seq = Path(seq)
+        if not (seq / "truth" / "trees.csv").is_file():
+            print(f"{seq}: no simulator output (truth/trees.csv) - skipped")
+            continue
+        tree_map = load_map(seq / "truth" / "trees.csv")
+        bag = next(p for p in seq.iterdir() if p.name.startswith("sequence."))
+        for frames, keyframe in ((1, 0.0), (5, 1.0)):
+            out = Path(args.work_dir) / f"{seq.name}-{frames}"
+            run = run_localization(
+                bag,
+                tree_map,
+                "vlp16",
+                out,
+                frames=frames,
+                every=args.every,
+                keyframe_distance_m=keyframe,
+            )
+            n, acc, errs, degs, wrong = sequence_errors(out, seq / "truth")
+            ok = len(errs) - wrong
+            print(
+                f"{seq.name:>12} {frames:>6} {keyframe:>10.1f} {n:>7} {ok / max(n, 1):>8.1%} "
+                f"{wrong / max(n, 1):>9.1%} {np.median(errs) if errs else float('nan'):>12.3f} "
+                f"{np.median(degs) if degs else float('nan'):>10.2f} {run.median_query_ms:>8.2f}"
+            )
+
+
 def random_stand(n: int, density: float, rng: np.random.Generator) -> np.ndarray:
     side = math.sqrt(n / density)
     xy = rng.uniform(0, side, (int(n * 1.3), 2))
@@ -227,27 +290,33 @@ def run_speed(args) -> None:
     print("\n== Speed (one core) ==")
     for n in (2000, 10000):
         xy = random_stand(n, 0.02, rng)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         tree_map = build_map(xy)
-        build_s = time.perf_counter() - t0
-        print(f"map build {len(xy)} trees: {build_s * 1e3:.1f} ms ({tree_map})")
+        build_s, cpu_s = time.perf_counter() - t0, time.process_time() - c0
+        print(
+            f"map build {len(xy)} trees: {build_s * 1e3:.1f} ms wall, {cpu_s * 1e3:.1f} ms CPU "
+            f"({tree_map})"
+        )
     xy = random_stand(2000, 0.02, rng)
     dbh = np.full(len(xy), 0.3)
     tree_map = build_map(xy, dbh)
     for frames in (1, 5):
-        times, ok = [], 0
+        times, cpu, sizes, ok = [], [], [], 0
+        lo, hi = float(xy.min() + 5), float(xy.max() - 5)
         for _ in range(args.speed_queries):
-            lo, hi = float(xy.min() + 5), float(xy.max() - 5)
             local, truth = simulate_query(xy, dbh, rng, frames, args, lo, hi)
+            c0 = time.process_time()
             loc = localize(tree_map, local)
+            cpu.append(1e3 * (time.process_time() - c0))
+            sizes.append(len(local))
             times.append(loc.time_ms)
             e, d = pose_error(loc, truth)
             ok += (not loc.rejected) and e < 0.5 and d < 2
         t = np.array(times)
         print(
-            f"query vs 2,000-tree map, {frames} frame(s): median {np.median(t):.2f} ms, "
-            f"p95 {np.percentile(t, 95):.2f} ms, max {t.max():.2f} ms "
-            f"(success {ok}/{len(t)})"
+            f"query vs 2,000-tree map, {frames} frame(s), median {np.median(sizes):.0f} trunks: "
+            f"wall median {np.median(t):.2f} ms, p95 {np.percentile(t, 95):.2f} ms, "
+            f"max {t.max():.2f} ms; CPU mean {np.mean(cpu):.2f} ms (success {ok}/{len(t)})"
         )
 
 
@@ -270,7 +339,15 @@ def main() -> int:
         "--margin", type=float, default=20.0, help="poses this far inside the stand"
     )
     parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--only", choices=["sim", "fortls", "speed"], default=None)
+    parser.add_argument(
+        "--sequences",
+        nargs="*",
+        default=[],
+        help="simulator output dirs (forestslam simulate --out DIR) to localize along",
+    )
+    parser.add_argument("--every", type=int, default=10, help="query every K scans (sequences)")
+    parser.add_argument("--work-dir", default="/tmp/localize_bench")
+    parser.add_argument("--only", choices=["sim", "fortls", "speed", "seq"], default=None)
     args = parser.parse_args()
     if not (DATA / "stands" / "longleaf.csv").is_file():
         print("../shared/data absent: nothing to benchmark", file=sys.stderr)
@@ -281,6 +358,8 @@ def main() -> int:
         run_fortls()
     if args.only in (None, "speed"):
         run_speed(args)
+    if args.only in (None, "seq") and args.sequences:
+        run_sequences(args)
     return 0
 
 

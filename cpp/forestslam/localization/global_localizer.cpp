@@ -180,6 +180,16 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     for (size_t k = 0; k < tri.used_points.size(); ++k)
         local.row(k) = local_in.row(tri.used_points[k]);
     res.local_trunks = static_cast<int>(local.rows());
+    // Bounded work on huge local sets: hypotheses are scored on (and the fallback triangles built
+    // from) the trunks nearest the local origin, where the view is most complete.
+    std::vector<int> near_rows = tri.used_points;  // rows of local_in
+    std::sort(near_rows.begin(), near_rows.end(), [&](int a, int b) {
+        return local_in.row(a).squaredNorm() < local_in.row(b).squaredNorm();
+    });
+    if (cfg.max_query_trunks > 0 && int(near_rows.size()) > cfg.max_query_trunks)
+        near_rows.resize(cfg.max_query_trunks);
+    Points2 scoring(near_rows.size(), 2);
+    for (size_t k = 0; k < near_rows.size(); ++k) scoring.row(k) = local_in.row(near_rows[k]);
     if (tri.size() == 0) {
         res.reason = local_in.rows() < 3 ? "fewer than 3 trunks"
                                          : "fewer than 3 distinct, non-collinear trunks";
@@ -227,7 +237,7 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     mp[k] = xy_.row(ms.vertices[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-                    hyps.add(pose, local, grid_, cfg.inlier_gate_m);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
             }
         }
     }
@@ -247,8 +257,11 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     lp.resize(3);
     mp.resize(3);
     const double tol = cfg.edge_tolerance_m;
+    std::vector<int> fallback_rows = near_rows;
+    if (cfg.max_fallback_trunks > 0 && int(fallback_rows.size()) > cfg.max_fallback_trunks)
+        fallback_rows.resize(cfg.max_fallback_trunks);
     std::vector<std::array<int, 3>> ltris =
-        neighbourTriangles(local_in, tri.used_points, cfg.triangle_neighbours, kMaxTriangleEdge);
+        neighbourTriangles(local_in, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
     for (const auto &t : ltris) {
         const Eigen::Vector3d s0 = triangleSides(local_in, t);
         for (int r = 0; r < 3; ++r) {
@@ -262,7 +275,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     lp[k] = local_in.row(t[(r + k) % 3]).transpose();
                     mp[k] = xy_.row(mt[k]).transpose();
                 }
-                if (fitConsistent(lp, mp, tol, pose)) hyps.add(pose, local, grid_, cfg.inlier_gate_m);
+                if (fitConsistent(lp, mp, tol, pose))
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
             }
         }
     }

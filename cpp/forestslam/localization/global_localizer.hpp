@@ -32,6 +32,8 @@ struct GlobalLocalizerConfig {
     bool triangle_fallback = true;         // single-triangle matching when no star hypothesis wins
     int candidates_per_triangle = 16;      // k nearest map triangles per local triangle (fallback)
     int triangle_neighbours = 5;           // local triangles: each trunk with 2 of its k nearest
+    int max_query_trunks = 100;            // hypotheses scored on this many trunks nearest the origin
+    int max_fallback_trunks = 40;          // fallback triangles from this many nearest trunks
 };
 
 struct Hypothesis {

@@ -26,6 +26,8 @@ class LocalizationConfig:
     triangle_fallback: bool = True  # single-triangle matching when no star hypothesis is accepted
     candidates_per_triangle: int = 16  # k nearest map triangles per local triangle (fallback)
     triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
+    max_query_trunks: int = 100  # hypotheses scored on this many trunks nearest the origin
+    max_fallback_trunks: int = 40  # fallback triangles only from this many nearest trunks
     # Aggregation of several scans into one query (CLI / aggregate_stems).
     merge_radius_m: float = 0.3  # detections of one trunk from several frames are merged
     keyframe_distance_m: float = 0.0  # frames of a query this far apart; 0 = consecutive scans

@@ -81,6 +81,8 @@ def _core_config(config: LocalizationConfig):
         "triangle_fallback",
         "candidates_per_triangle",
         "triangle_neighbours",
+        "max_query_trunks",
+        "max_fallback_trunks",
     ):
         setattr(c, name, getattr(config, name))
     c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)

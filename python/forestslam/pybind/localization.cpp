@@ -83,7 +83,9 @@ void define_localization(py::module_ &m) {
         .def_readwrite("skip_hull_stars", &GlobalLocalizerConfig::skip_hull_stars)
         .def_readwrite("triangle_fallback", &GlobalLocalizerConfig::triangle_fallback)
         .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle)
-        .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours);
+        .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours)
+        .def_readwrite("max_query_trunks", &GlobalLocalizerConfig::max_query_trunks)
+        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks);
 
     py::class_<GlobalLocalization>(m, "GlobalLocalization")
         .def_readonly("rejected", &GlobalLocalization::rejected)
