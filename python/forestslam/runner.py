@@ -206,7 +206,7 @@ class Pipeline:
             centre_map = centre @ res.T_map_sensor[:3, :3].T + res.T_map_sensor[:3, 3]
             self.trees.add(
                 i,
-                T,
+                res.T_map_sensor,
                 res.landmark_ids,
                 list(stems.points),
                 np.asarray(stems.base_z, dtype=np.float64),

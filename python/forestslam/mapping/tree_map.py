@@ -2,14 +2,15 @@
 its spread and the observation count.
 
 DBH (the paper's 3D mapping): the stem points of the 1.15-1.45 m band above local ground of
-every scan that observed the tree are moved into the odometry frame (locally consistent over a
-few seconds) and buffered; once a window of `dbh_window_scans` scans is full, one robust circle
-fit (`forestslam._core.fit_circle`, the perception engineer's RANSAC + geometric fit) gives a
-DBH measurement with its quality. Moving past a stem shows it from several sides, so a window
-covers much more arc than one scan. Measurements that pass the quality gates are fused by a
-weighted mean (weight: inliers x arc coverage^2) after dropping outliers beyond 3 MADs of the
-median; dbh_std_m is their weighted standard deviation (NaN with one measurement). Trees
-without any accepted window fall back to the median of the per-scan DBH from perception.
+every scan that observed the tree are moved into the map frame with the scan's SLAM pose
+(keyframes optimised, scans between them aligned onto the tree map) and buffered; once a
+window of `dbh_window_scans` scans is full, one robust circle fit
+(`forestslam._core.fit_circle`, RANSAC + geometric fit) gives a DBH measurement with its
+quality. Moving past a stem shows it from several sides, so a window covers much more arc
+than one scan. Measurements that pass the quality gates are fused by a weighted mean (weight:
+inliers x arc coverage^2) after dropping outliers beyond 3 MADs of the median; dbh_std_m is
+their weighted standard deviation (NaN with one measurement). Trees without any accepted
+window fall back to the median of the per-scan DBH from perception.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class _Tree:
-    band: list = field(default_factory=list)  # (M,3) arrays, odometry frame
+    band: list = field(default_factory=list)  # (M,3) arrays, map frame
     first_scan: int = -1
     last_scan: int = -1
     n_band_scans: int = 0
@@ -82,7 +83,7 @@ class TreeMap:
         """Observations of one scan: ids (K,) tree id per stem (-1 none); points[k] (Mk,3) the
         stem's points and base_z (K,) its local ground height, both in the sensor frame;
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
-        DBH (NaN = none). T_odom (4,4) the odometry pose of the scan."""
+        DBH (NaN = none). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
         lo, hi = self.cfg.dbh_band_m
         for k in np.nonzero(np.asarray(ids) >= 0)[0]:
             tree = self.trees.setdefault(int(ids[k]), _Tree())

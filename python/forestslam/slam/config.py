@@ -39,6 +39,8 @@ class SlamConfig:
     tentative_min_observations: int = 3
     tentative_gate_m: float = 0.5
     tentative_max_age_keyframes: int = 8
+    # Scans between keyframes are aligned onto the tree map when this many stems match (0: off).
+    scan_align_min_matches: int = 4
     # iSAM2
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 1

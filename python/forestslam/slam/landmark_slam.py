@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from forestslam.slam.association import associate, dbh_compatible
+from forestslam.slam.association import associate, dbh_compatible, rigid_2d
 from forestslam.slam.config import SlamConfig
 
 log = logging.getLogger(__name__)
@@ -191,6 +191,7 @@ class LandmarkSlam:
                 use_consensus=False,
             )
             ids[idx] = res.matches
+            pred = self._localize(obs, res.matches) @ pred
         return ScanResult(None, ids, lift(pred) @ tilt(T_odom))
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
@@ -247,6 +248,20 @@ class LandmarkSlam:
             or dyaw >= math.radians(cfg.keyframe_yaw_deg)
             or (dt >= cfg.keyframe_max_interval_s and d >= 0.1 * cfg.keyframe_distance_m)
         )
+
+    def _localize(self, obs_map: np.ndarray, matches: np.ndarray) -> np.ndarray:
+        """Planar correction (3,3) of a non-keyframe scan from its associated stems: a rigid fit
+        of the observed centres onto their trees (>= `scan_align_min_matches` pairs), so scans
+        between keyframes (whose stem points build the DBH windows) do not carry the
+        odometry's short-term error. Identity when too few pairs or an implausible jump."""
+        cfg = self.cfg
+        ok = matches >= 0
+        if cfg.scan_align_min_matches <= 0 or ok.sum() < cfg.scan_align_min_matches:
+            return np.eye(3)
+        corr = rigid_2d(obs_map[ok], self._lm_xy[matches[ok]])
+        if np.hypot(*corr[:2, 2]) > cfg.search_radius_min_m:
+            return np.eye(3)
+        return corr
 
     def _correction(self) -> np.ndarray:
         return pose2_matrix(self._kf_est[-1]) @ np.linalg.inv(pose2_matrix(self._kf_odom2[-1]))
