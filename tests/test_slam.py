@@ -193,3 +193,21 @@ def test_robust_kernel_options(kernel):
     trees = forest(rng, 20)
     slam = run(truth, trees, rng, cfg=SlamConfig(robust_kernel=kernel))
     assert ate(slam, truth)["ate_rmse_m"] < 1e-3
+
+
+def test_root_config_yaml_sections(tmp_path):
+    from forestslam.config import config_to_dict, load_config
+    from forestslam.errors import InputError
+
+    path = tmp_path / "c.yaml"
+    path.write_text("slam:\n  keyframe_distance_m: 1.5\nmapping:\n  dbh_band_m: [1.2, 1.4]\n")
+    cfg = load_config(path)
+    assert cfg.slam.keyframe_distance_m == 1.5
+    assert cfg.mapping.dbh_band_m == (1.2, 1.4)
+    assert config_to_dict(load_config(None))["slam"]["robust_kernel"] == "huber"
+    path.write_text("slam:\n  keyframe_distance: 1.5\n")
+    with pytest.raises(InputError, match="keyframe_distance"):
+        load_config(path)
+    path.write_text("nonsense:\n  a: 1\n")
+    with pytest.raises(InputError, match="nonsense"):
+        load_config(path)
