@@ -114,3 +114,16 @@ def test_cli_reports_bad_arguments(doubles, tmp_path):
         run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path, frames=0)
     with pytest.raises(InputError):
         run_localization("seq.bag", tmp_path / "none.npz", "vlp16", tmp_path)
+
+
+def test_config_file_reaches_the_localizer(doubles, tmp_path):
+    config = tmp_path / "config.yaml"
+    config.write_text("localization:\n  min_inliers: 100000\n")
+    run = run_localization(
+        "seq.bag", TreeMap(doubles), "vlp16", tmp_path / "out", every=4, config_path=config
+    )
+    assert len(run.queries) == 3
+    assert run.accepted == 0
+    assert all(q["reason"] == "too few inliers" for q in run.queries)
+    stamps, _ = read_tum(tmp_path / "out" / "localization.tum")
+    assert len(stamps) == 0

@@ -84,7 +84,10 @@ def _core_config(config: LocalizationConfig):
         "max_query_trunks",
         "max_fallback_trunks",
     ):
-        setattr(c, name, getattr(config, name))
+        if hasattr(c, name):  # an older compiled core lacks the newest options
+            setattr(c, name, getattr(config, name))
+        else:
+            log.debug("compiled core has no localization option %s; default kept", name)
     c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)
     return c
 

@@ -98,13 +98,17 @@ def run_localization(
     The local frame of a query is the sensor frame of its last scan; the pose written is that
     sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
     """
-    from forestslam.config import load_config
     from forestslam.io import read_scans
     from forestslam.sensors import load_profile
 
     if frames < 1 or every < 1:
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
-    root = load_config(config_path)
+    # The root config imports every component's config: only when a file is given.
+    root = None
+    if config_path is not None:
+        from forestslam.config import load_config
+
+        root = load_config(config_path)
     cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
     if keyframe_distance_m is not None:
         cfg.keyframe_distance_m = keyframe_distance_m
