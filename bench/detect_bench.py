@@ -10,7 +10,9 @@
    under resampling.
 
 Usage: python bench/detect_bench.py [--scans 20] [--out DIR] [--sim-dir DIR ...]
-(--sim-dir: read already simulated sequences, `forestslam simulate` output, instead).
+    [--sim-cache DIR [--only-simulate]]
+(--sim-dir: read already simulated sequences, `forestslam simulate` output, instead;
+--sim-cache: keep the simulated scan subset as .npz and reuse it on the next run).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ def match(det_xy: np.ndarray, truth_xy: np.ndarray) -> tuple[np.ndarray, np.ndar
     return r[ok], c[ok]
 
 
-def simulated_scans(name: str, n_scans: int, sim_dir: Path | None):
+def simulated_scans(name: str, n_scans: int, sim_dir: Path | None, cache: Path | None = None):
     """(scans, stamps, T_world_sensor (S,4,4), truth trees dict, profile name)."""
     if sim_dir is not None:
         from forestslam.io import read_scans, read_trees_csv, read_tum
@@ -63,6 +65,8 @@ def simulated_scans(name: str, n_scans: int, sim_dir: Path | None):
             trees,
             scenario["sensor"]["profile"],
         )
+    if cache is not None and (cache / f"{name}.npz").is_file():
+        return load_cache(cache / f"{name}.npz")
     from forestslam.sim import load_scenario
     from forestslam.sim.simulate import scan_at, truth_poses
     from forestslam.sim.world import build_world
@@ -71,7 +75,41 @@ def simulated_scans(name: str, n_scans: int, sim_dir: Path | None):
     stamps, poses = truth_poses(world)
     idx = np.linspace(0, len(stamps) - 1, min(n_scans, len(stamps))).astype(int)
     scans = [scan_at(world, int(k)) for k in idx]
-    return scans, stamps[idx], poses[idx], world.forest.trees, world.profile.name
+    result = scans, stamps[idx], poses[idx], world.forest.trees, world.profile.name
+    if cache is not None:
+        save_cache(cache / f"{name}.npz", *result)
+    return result
+
+
+def save_cache(path: Path, scans, stamps, poses, trees, profile) -> None:
+    arrays = {"stamps": stamps, "poses": poses, "profile": np.array(profile)}
+    for i, s in enumerate(scans):
+        arrays[f"points{i}"] = s.points
+        if s.intensity is not None:
+            arrays[f"intensity{i}"] = s.intensity
+        if s.ring is not None:
+            arrays[f"ring{i}"] = s.ring
+    arrays.update({f"tree_{k}": np.asarray(v) for k, v in trees.items()})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **arrays)
+
+
+def load_cache(path: Path):
+    from forestslam.io import Scan
+
+    z = np.load(path)
+    n = len(z["stamps"])
+    scans = [
+        Scan(
+            float(z["stamps"][i]),
+            z[f"points{i}"],
+            z[f"intensity{i}"] if f"intensity{i}" in z else None,
+            z[f"ring{i}"] if f"ring{i}" in z else None,
+        )
+        for i in range(n)
+    ]
+    trees = {k[5:]: z[k] for k in z.files if k.startswith("tree_")}
+    return scans, z["stamps"], z["poses"], trees, str(z["profile"])
 
 
 def truth_in_sensor(trees: dict, T_world_sensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -92,9 +130,11 @@ def visible(scan_points: np.ndarray, centres: np.ndarray, dbh: np.ndarray) -> np
     return out
 
 
-def evaluate_sequence(name: str, n_scans: int, sim_dir: Path | None) -> dict:
+def evaluate_sequence(
+    name: str, n_scans: int, sim_dir: Path | None, cache: Path | None = None
+) -> dict:
     t0 = time.perf_counter()
-    scans, _stamps, poses, trees, sensor = simulated_scans(name, n_scans, sim_dir)
+    scans, _stamps, poses, trees, sensor = simulated_scans(name, n_scans, sim_dir, cache)
     print(
         f"\n== {name} ({sensor}): {len(scans)} scans simulated in {time.perf_counter() - t0:.1f} s"
     )
@@ -210,7 +250,18 @@ def real_mls(out: Path) -> None:
         d, j = cKDTree(als[:, :2]).query(stems.ground[:, :2], k=3)
         near = d[:, 0] < 2.0
         ref = np.mean(als[j, 2], axis=1)
-        dz = np.abs(stems.ground[near, 2] - ref[near])
+        signed = stems.ground[near, 2] - ref[near]
+        dz = np.abs(signed)
+        low = np.percentile(
+            scan.points[:, 2]
+            - np.mean(als[cKDTree(als[:, :2]).query(scan.points[:, :2], k=3)[1], 2], axis=1),
+            1,
+        )
+        print(
+            f"  MLS vs ALS datum: the lowest 1 % of all MLS points lie {low:+.3f} m from the ALS "
+            f"ground; our ground bias (median dz) {np.median(signed):+.3f} m, "
+            f"bias-corrected median |dz| {np.median(np.abs(signed - np.median(signed))):.3f} m"
+        )
         print(
             f"  ground vs ALS class 2 ({len(als):,} pts): {near.sum():,} of {len(stems.ground):,} "
             f"ground points within 2 m of ALS ground; median |dz| {np.median(dz):.3f} m "
@@ -270,15 +321,28 @@ def main() -> None:
     ap.add_argument("--scenarios", nargs="+", default=["vlp16-loop", "hdl32-loop"])
     ap.add_argument("--sim-dir", type=Path, nargs="*", default=None)
     ap.add_argument("--out", type=Path, default=Path("/tmp/forestslam_detect_bench"))
+    ap.add_argument(
+        "--sim-cache",
+        type=Path,
+        default=None,
+        help="keep the simulated scans in DIR/<scenario>.npz and reuse them",
+    )
+    ap.add_argument(
+        "--only-simulate", action="store_true", help="fill --sim-cache and stop (no perception)"
+    )
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.only_simulate:
+        for name in args.scenarios:
+            simulated_scans(name, args.scans, None, args.sim_cache or args.out)
+        return
     results = {}
     if args.sim_dir:
         for d in args.sim_dir:
             results[d.name] = evaluate_sequence(d.name, args.scans, d)
     else:
         for name in args.scenarios:
-            results[name] = evaluate_sequence(name, args.scans, None)
+            results[name] = evaluate_sequence(name, args.scans, None, args.sim_cache)
     real_mls(args.out)
     real_slice()
     print("\n== summary")

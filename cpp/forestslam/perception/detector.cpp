@@ -149,6 +149,14 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     clock.lap(det, "classification");
 
     // 6. Per stem: shape, local ground, breast-height centre and diameter.
+    SilhouetteSensor silhouette;
+    silhouette.vertical_angles_rad = sensor.vertical_angles_rad;
+    silhouette.azimuth_step_rad =
+        sensor.azimuth_step_rad > 0
+            ? sensor.azimuth_step_rad
+            : (sensor.image_cols > 0 ? sensor.horizontal_fov_rad / sensor.image_cols : 0.0);
+    const bool use_silhouette = opt.diameter.silhouette && scan_centred &&
+                                sensor.has_range_image && !silhouette.vertical_angles_rad.empty();
     for (const auto &rows : stems) {
         Stem st;
         st.points = selectRows(filtered, rows);
@@ -164,7 +172,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         st.ground_found = std::isfinite(base);
         if (!st.ground_found) base = st.points.col(2).minCoeff();
         st.base_z = base;
-        st.diameter = estimateDiameter(st.points, st.normals, base, det.up, opt.diameter);
+        st.diameter = estimateDiameter(st.points, st.normals, base, det.up, opt.diameter,
+                                       use_silhouette ? &silhouette : nullptr);
         if (st.diameter.centre.allFinite()) {
             st.breast = st.diameter.centre;
         } else {

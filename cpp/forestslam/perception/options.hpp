@@ -16,6 +16,7 @@ struct SensorGeometry {
     double horizontal_fov_rad = 6.283185307179586;  // 2 pi: columns wrap around
     std::vector<double> vertical_angles_rad;        // ascending beam elevations (rows)
     double theta_v_rad = 0.0349;                    // vertical angular resolution
+    double azimuth_step_rad = 0.0;  // horizontal resolution (0: horizontal_fov / image_cols)
 };
 
 // Approximate progressive morphological filter (PCL). It runs on the lowest point of every
@@ -95,6 +96,7 @@ struct DiameterOptions {
     double cylinder_section_low_m = 0.5;   // stem section used for the cylinder
     double cylinder_section_high_m = 3.0;
     double max_lean_rad = 0.35;
+    bool silhouette = true;  // single scans: also the silhouette width estimate (preferred)
 };
 
 struct PerceptionOptions {

@@ -9,6 +9,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <numeric>
 
 #include "forestslam/common/circle_fit.hpp"
@@ -164,9 +165,64 @@ double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
     return abc(2);
 }
 
+namespace {
+
+// Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
+DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
+                          const SilhouetteSensor &sensor, const DiameterOptions &opt) {
+    DiameterFit f;
+    const auto &va = sensor.vertical_angles_rad;
+    if (p.rows() < 4 || va.empty() || !(sensor.azimuth_step_rad > 0)) return f;
+    Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    std::map<int, std::vector<int>> lines;
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
+        const auto it = std::lower_bound(va.begin(), va.end(), el);
+        size_t k = static_cast<size_t>(it - va.begin());
+        if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
+        lines[static_cast<int>(k)].push_back(static_cast<int>(i));
+    }
+    std::vector<double> radii, mids, dists;
+    for (const auto &[line, rows] : lines) {
+        (void)line;
+        if (rows.size() < 2) continue;
+        double lo = 1e9, hi = -1e9, dn = 1e9;
+        for (int i : rows) {
+            double a = std::atan2(p(i, 1), p(i, 0)) - bearing;
+            a = std::atan2(std::sin(a), std::cos(a));
+            lo = std::min(lo, a), hi = std::max(hi, a);
+            dn = std::min(dn, std::hypot(p(i, 0), p(i, 1)));
+        }
+        const double s = std::sin(0.5 * (hi - lo + sensor.azimuth_step_rad));
+        if (!(s > 0 && s < 0.9)) continue;
+        radii.push_back(dn * s / (1.0 - s));
+        mids.push_back(0.5 * (lo + hi));
+        dists.push_back(dn);
+    }
+    if (radii.size() < 2) return f;
+    const double r = median(radii);
+    std::vector<double> dev;
+    for (double x : radii) dev.push_back(std::abs(x - r));
+    const double spread = 1.4826 * median(dev);
+    const double az = bearing + median(mids);
+    const double d = median(dists) + r;
+    f.radius = r;
+    f.centre = Eigen::Vector3d(d * std::cos(az), d * std::sin(az), mid_z);
+    f.inliers = static_cast<int>(radii.size());
+    f.rms_m = spread;
+    f.arc_coverage = 0.0;
+    f.score = static_cast<double>(radii.size()) / std::max(spread, 0.005);
+    f.valid = spread <= std::max(0.02, 0.25 * r) && r >= opt.min_radius_m && r <= opt.max_radius_m;
+    return f;
+}
+
+}  // namespace
+
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
-                              const Eigen::Vector3d &up, const DiameterOptions &opt) {
+                              const Eigen::Vector3d &up, const DiameterOptions &opt,
+                              const SilhouetteSensor *sensor) {
     StemDiameter out;
     if (points.rows() < 3 || !std::isfinite(base_z)) return out;
     // Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a
@@ -260,6 +316,12 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     // (measured on synthetic stems), while the band circle is the DBH definition itself.
     if (out.cylinder.valid && (!best || out.cylinder.score > 1.25 * best->score))
         best = &out.cylinder, out.method = 2;
+    if (sensor != nullptr) {
+        const Points3 sec =
+            rowsBetween(points, mid - opt.band_max_half_m, mid + opt.band_max_half_m);
+        out.silhouette = silhouetteFit(sec, mid, *sensor, opt);
+        if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
+    }
     if (best) {
         out.dbh = 2.0 * best->radius;
         out.centre = best->centre;

@@ -47,18 +47,31 @@ struct DiameterFit {
     double score = 0;  // inlier ratio * arc coverage / max(rms, 5 mm): larger is better
 };
 
+// What the silhouette estimate needs: the points are seen from the origin (a single scan) by
+// beams at these elevations, `azimuth_step_rad` apart.
+struct SilhouetteSensor {
+    double azimuth_step_rad = 0.0;
+    std::vector<double> vertical_angles_rad;
+};
+
 struct StemDiameter {
-    DiameterFit circle, cylinder;
-    int method = 0;  // 0 none accepted, 1 circle, 2 cylinder
+    // circle: robust fit of the breast-height band; cylinder: PCL SAC cylinder; silhouette: the
+    // stem's angular width per scan line seen from the sensor, r = d sin(w/2) / (1 - sin(w/2))
+    // (insensitive to range noise, which makes partial-arc fits uncertain).
+    DiameterFit circle, cylinder, silhouette;
+    int method = 0;  // 0 none accepted, 1 circle, 2 cylinder, 3 silhouette
     double dbh = kNaN;
     Eigen::Vector3d centre = Eigen::Vector3d::Constant(kNaN);
     int band_points = 0;
 };
 
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
+// With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
+// lines agree; otherwise the better of circle and cylinder by quality.
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
-                              const Eigen::Vector3d &up, const DiameterOptions &options);
+                              const Eigen::Vector3d &up, const DiameterOptions &options,
+                              const SilhouetteSensor *sensor = nullptr);
 
 struct Stem {
     int id = 0;

@@ -74,7 +74,10 @@ class SegmentationConfig:
 @dataclass
 class DiameterConfig:
     """DBH on the 1.15-1.45 m band (widened around 1.3 m up to band_max_half_m when sparse) by
-    the robust circle fit and by PCL's SAC cylinder; the better quality wins."""
+    the robust circle fit and by PCL's SAC cylinder; the better quality wins. For single scans
+    also the silhouette estimate (angular width of each scan line across the stem seen from
+    the sensor, +-band_max_half_m around 1.3 m), preferred when its scan lines agree: unlike
+    a fit of a one-third arc it does not suffer from range noise."""
 
     band_low_m: float = 1.15
     band_high_m: float = 1.45
@@ -90,6 +93,9 @@ class DiameterConfig:
     cylinder_section_low_m: float = 0.5
     cylinder_section_high_m: float = 3.0
     max_lean_rad: float = 0.35
+    silhouette: bool = (
+        True  # single scans: stem width seen from the sensor, preferred if consistent
+    )
 
 
 @dataclass

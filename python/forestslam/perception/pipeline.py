@@ -44,6 +44,7 @@ def sensor_geometry(sensor: str | SensorProfile) -> dict:
         if profile.channels > 0
         else [],
         "theta_v_rad": float(profile.theta_v_rad),
+        "azimuth_step_rad": math.radians(profile.azimuth_resolution_deg),
     }
 
 

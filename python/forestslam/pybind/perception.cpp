@@ -111,6 +111,7 @@ pc::DiameterOptions diameterOptions(const py::dict &d) {
     FS_GET(d, o, cylinder_section_low_m);
     FS_GET(d, o, cylinder_section_high_m);
     FS_GET(d, o, max_lean_rad);
+    FS_GET(d, o, silhouette);
     return o;
 }
 
@@ -138,6 +139,7 @@ pc::SensorGeometry sensorGeometry(const py::dict &d) {
     FS_GET(d, s, horizontal_fov_rad);
     FS_GET(d, s, vertical_angles_rad);
     FS_GET(d, s, theta_v_rad);
+    FS_GET(d, s, azimuth_step_rad);
     return s;
 }
 
@@ -158,7 +160,11 @@ py::dict diameterDict(const pc::StemDiameter &s) {
     py::dict d;
     d["circle"] = fitDict(s.circle);
     d["cylinder"] = fitDict(s.cylinder);
-    d["method"] = s.method == 1 ? "circle" : s.method == 2 ? "cylinder" : "none";
+    d["silhouette"] = fitDict(s.silhouette);
+    d["method"] = s.method == 1   ? "circle"
+                  : s.method == 2 ? "cylinder"
+                  : s.method == 3 ? "silhouette"
+                                  : "none";
     d["dbh"] = s.dbh;
     d["centre"] = s.centre;
     d["band_points"] = s.band_points;
