@@ -229,6 +229,27 @@ def test_extract_trunks_from_a_cloud():
         assert np.min(np.hypot(*(found - c).T)) < 0.05
 
 
+def test_map_from_a_point_cloud_file(tmp_path):
+    from forestslam.io import write_cloud
+
+    rng = np.random.default_rng(1)
+    g = np.mgrid[0:30:0.3, 0:30:0.3].reshape(2, -1).T
+    parts = [np.column_stack([g, 0.02 * rng.uniform(size=len(g))])]
+    centres = stand(12, 26.0, seed=8, spacing=4.0) + 2.0
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    for c in centres:
+        for z in np.arange(0, 3.5, 0.05):
+            parts.append(
+                np.column_stack([c[0] + 0.15 * np.cos(a), c[1] + 0.15 * np.sin(a), z + 0 * a])
+            )
+    path = tmp_path / "map.ply"
+    write_cloud(path, np.vstack(parts))
+    tree_map = load_map(path)
+    assert len(tree_map) == len(centres)
+    d = np.hypot(*(tree_map.xy[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    assert d.min(axis=1).max() < 0.05
+
+
 @pytest.mark.skipif(not (DATA / "fortls").is_dir(), reason="../shared/data/fortls absent")
 def test_real_fortls_plot_found_among_all_plots():
     from forestslam.io import read_trees_csv

@@ -204,7 +204,8 @@ def extract_trunks(cloud: np.ndarray, height_offset_m: float = 1.0, **kwargs) ->
     """Trunk positions (K,2) from a map point cloud (N,3) (Li et al. Algorithm 1).
 
     Keyword arguments set ``forestslam._core.TrunkExtractionConfig`` fields (voxel_m,
-    neighbour_radius_m, cluster_tolerance_m, min_cluster_points, max_cluster_points).
+    neighbour_radius_m, cluster_tolerance_m, min_cluster_points, max_cluster_points,
+    ground_cell_m, band_min_m, band_max_m, min_cluster_height_m, max_cluster_radius_m).
     """
     from forestslam import _core
 

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 MAP_FORMAT = "forestslam-tree-map"
 MAP_VERSION = 1
+CLOUD_SUFFIXES = (".las", ".laz", ".ply", ".pcd", ".bin")
 
 
 class TreeMap:
@@ -116,6 +117,8 @@ class TreeMap:
             raise InputError(f"{path}: map file not found")
         if path.suffix.lower() == ".csv":
             return cls.from_csv(path)
+        if path.suffix.lower() in CLOUD_SUFFIXES:
+            return cls.from_cloud(path)
         try:
             with np.load(path, allow_pickle=False) as data:
                 if "format" not in data or str(data["format"]) != MAP_FORMAT:
@@ -152,6 +155,17 @@ class TreeMap:
                 break
         return cls(xy, dbh, ids)
 
+    @classmethod
+    def from_cloud(cls, path: str | Path, **options) -> TreeMap:
+        """Trunks extracted from a map point cloud (Li et al. Algorithm 1; options as for
+        ``forestslam.localization.extract_trunks``), e.g. an accumulated harvester map."""
+        from forestslam.io import read_cloud
+        from forestslam.localization.localize import extract_trunks
+
+        xy = extract_trunks(read_cloud(path).points, **options)
+        log.info("%s: %d trunks extracted from the map cloud", path, len(xy))
+        return cls(xy)
+
 
 def build_map(xy: np.ndarray, dbh_m: np.ndarray | None = None) -> TreeMap:
     """Triangulate map trunks ``xy`` (M,2) and index their triangle stars."""
@@ -159,5 +173,6 @@ def build_map(xy: np.ndarray, dbh_m: np.ndarray | None = None) -> TreeMap:
 
 
 def load_map(path: str | Path) -> TreeMap:
-    """A saved map (.npz) or a tree CSV with x, y[, dbh_m]."""
+    """A saved map (.npz), a tree CSV with x, y[, dbh_m], or a map point cloud
+    (.las/.laz/.ply/.pcd/.bin: trunks extracted by ``extract_trunks``)."""
     return TreeMap.load(path)

@@ -133,7 +133,12 @@ void define_localization(py::module_ &m) {
         .def_readwrite("neighbour_radius_m", &TrunkExtractionConfig::neighbour_radius_m)
         .def_readwrite("cluster_tolerance_m", &TrunkExtractionConfig::cluster_tolerance_m)
         .def_readwrite("min_cluster_points", &TrunkExtractionConfig::min_cluster_points)
-        .def_readwrite("max_cluster_points", &TrunkExtractionConfig::max_cluster_points);
+        .def_readwrite("max_cluster_points", &TrunkExtractionConfig::max_cluster_points)
+        .def_readwrite("ground_cell_m", &TrunkExtractionConfig::ground_cell_m)
+        .def_readwrite("band_min_m", &TrunkExtractionConfig::band_min_m)
+        .def_readwrite("band_max_m", &TrunkExtractionConfig::band_max_m)
+        .def_readwrite("min_cluster_height_m", &TrunkExtractionConfig::min_cluster_height_m)
+        .def_readwrite("max_cluster_radius_m", &TrunkExtractionConfig::max_cluster_radius_m);
 
     m.def(
         "extract_trunks",
