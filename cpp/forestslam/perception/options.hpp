@@ -24,7 +24,7 @@ struct SensorGeometry {
 // when its cell's lowest point is ground and it lies within `cell_height_m` above it.
 struct GroundOptions {
     double cell_size_m = 0.5;
-    int max_window_cells = 9;       // windows 3, 5, 9 cells (exponential, base 2)
+    int max_window_cells = 5;       // windows 3, 5 cells (2.5 m: wider than any stem)
     double slope = 0.5;             // terrain slope tolerance (rise / run)
     double initial_distance_m = 0.2;
     double max_distance_m = 1.0;
@@ -90,8 +90,8 @@ struct DiameterOptions {
     double max_radius_m = 0.75;
     double inlier_threshold_m = 0.03;
     double min_arc_coverage = 0.1;
-    int cylinder_iterations = 100;
-    int cylinder_max_points = 150;   // evenly thinned beyond this (speed)
+    int cylinder_iterations = 50;
+    int cylinder_max_points = 100;   // evenly thinned beyond this (speed)
     double cylinder_normal_weight = 0.1;
     double cylinder_section_low_m = 0.5;   // stem section used for the cylinder
     double cylinder_section_high_m = 3.0;

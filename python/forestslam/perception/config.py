@@ -12,7 +12,7 @@ class GroundConfig:
     `cell_size_m` cell; all points within `cell_height_m` above their cell's ground are ground."""
 
     cell_size_m: float = 0.5
-    max_window_cells: int = 9  # windows 3, 5, 9 cells
+    max_window_cells: int = 5  # windows 3, 5 cells (2.5 m: wider than any stem)
     slope: float = 0.5
     initial_distance_m: float = 0.2
     max_distance_m: float = 1.0
@@ -87,8 +87,8 @@ class DiameterConfig:
     max_radius_m: float = 0.75
     inlier_threshold_m: float = 0.03
     min_arc_coverage: float = 0.1
-    cylinder_iterations: int = 100
-    cylinder_max_points: int = 150
+    cylinder_iterations: int = 50
+    cylinder_max_points: int = 100
     cylinder_normal_weight: float = 0.1
     cylinder_section_low_m: float = 0.5
     cylinder_section_high_m: float = 3.0
