@@ -86,6 +86,8 @@ struct Hypotheses {
     std::vector<Hypothesis> list;
     std::unordered_set<uint64_t> seen;
 
+    int best = 0;  // highest consensus so far
+
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate) {
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
@@ -94,6 +96,7 @@ struct Hypotheses {
                            (uint64_t(qa) * 83492791ULL);
         if (!seen.insert(h).second) return;
         list.push_back({pose, consensus(local, pose, grid, gate)});
+        best = std::max(best, list.back().score);
     }
 };
 
@@ -262,7 +265,17 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         fallback_rows.resize(cfg.max_fallback_trunks);
     std::vector<std::array<int, 3>> ltris =
         neighbourTriangles(local_in, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
+    // Nearest triangles first (most completely observed); stop once a pose explains most trunks
+    // (RANSAC-style early exit: bounded time on large local sets).
+    auto reach = [&](const std::array<int, 3> &t) {
+        return std::max({local_in.row(t[0]).squaredNorm(), local_in.row(t[1]).squaredNorm(),
+                         local_in.row(t[2]).squaredNorm()});
+    };
+    std::sort(ltris.begin(), ltris.end(),
+              [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
+    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
     for (const auto &t : ltris) {
+        if (hyps.best >= decisive) break;
         const Eigen::Vector3d s0 = triangleSides(local_in, t);
         for (int r = 0; r < 3; ++r) {
             const Eigen::Vector3d e = triangleSides(local_in, t, r);
