@@ -187,6 +187,12 @@ def evaluate_sequence(
     )
     print(f"  precision         {precision.mean():.3f} / {precision.min():.3f}   (target >= 0.90)")
     print(f"  DBH MAE           {100 * mae.mean():.2f} / {100 * mae.max():.2f} cm (target <= 4 cm)")
+    scan_mae = np.array([r["dbh_mae"] for r in rows])
+    mae_ok = np.mean(scan_mae[np.isfinite(scan_mae)] <= 0.04)
+    print(
+        f"  scans meeting each target: recall {np.mean(recall >= 0.8):.2f}, precision "
+        f"{np.mean(precision >= 0.9):.2f}, DBH MAE {mae_ok:.2f}"
+    )
     print(f"  DBH fitted        {np.nanmean([r['dbh_fitted'] for r in rows]):.3f} of matched stems")
     print(
         f"  truth per scan    {np.mean([r['truth'] for r in rows]):.1f} "
