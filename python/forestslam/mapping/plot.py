@@ -34,7 +34,7 @@ def plot_map(
     fig, ax = plt.subplots(figsize=(8, 8), dpi=120)
     pts = [p for p in (trajectory_xy, trees_xy) if len(p)]
     extent = float(np.ptp(np.vstack(pts), axis=0).max()) if pts else 1.0
-    scale = max(1, int(round(extent / 40.0)))
+    scale = max(1, int(round(extent / 15.0)))
     if odometry_xy is not None and len(odometry_xy):
         ax.plot(*odometry_xy.T, color="0.6", lw=0.8, ls="--", label="odometry")
     if len(trajectory_xy):
@@ -81,7 +81,9 @@ def plot_dtm(path: Path, dtm: dict) -> None:
             dtm["y0"] - c / 2,
             dtm["y0"] + (z.shape[0] - 0.5) * c,
         ]
-        im = ax.imshow(z, origin="lower", extent=ext, cmap="terrain")
+        finite = z[np.isfinite(z)]
+        lo, hi = np.percentile(finite, [2, 98]) if finite.size else (0.0, 1.0)
+        im = ax.imshow(z, origin="lower", extent=ext, cmap="terrain", vmin=lo, vmax=hi)
         fig.colorbar(im, ax=ax, label="ground height [m]")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
