@@ -17,7 +17,11 @@ def register(app: typer.Typer) -> None:
     )
     def _command(
         input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
-        map_path: Path = typer.Option(..., "--map", help="Map file (.npz) or tree CSV."),
+        map_path: Path = typer.Option(
+            ...,
+            "--map",
+            help="Map file (.npz), tree CSV (x,y[,dbh_m]) or map cloud (.laz/.ply...).",
+        ),
         sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
         out: Path = typer.Option(..., "--out", help="Output directory."),
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
