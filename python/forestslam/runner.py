@@ -167,6 +167,10 @@ class Pipeline:
             self.timer.add(i, f"odometry.{name}", ms)
         self.timer.add(i, "odometry", (t_odom - t_start) * 1e3)
         T = np.asarray(step.T_world_sensor, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            self.failed += 1
+            log.warning("scan at %.3f s skipped: non-finite odometry pose", scan.stamp)
+            return
         if self._T0_inv is None:
             self._T0_inv = np.linalg.inv(T)
         T = self._T0_inv @ T  # output frame: the first scan's sensor frame
@@ -174,7 +178,11 @@ class Pipeline:
         self.odom.append(T)
         self.degraded += bool(step.degraded)
         if self.slam is not None:
-            self._map(i, step, T)
+            try:
+                self._map(i, step, T)
+            except ForestSlamError as exc:  # the scan keeps its odometry pose
+                self.failed += 1
+                log.error("scan at %.3f s: mapping failed: %s", scan.stamp, exc)
             self.timer.add(i, "slam_mapping", (time.perf_counter() - t_odom) * 1e3)
         self.timer.add(i, "total", (time.perf_counter() - t_start) * 1e3)
         self.n += 1

@@ -17,6 +17,8 @@ class SlamConfig:
     odom_floor_yaw_deg: float = 0.2
     odom_floor_per_m: float = 0.01  # extra sigma (m, and rad for yaw) per metre travelled
     degraded_inflation: float = 10.0
+    odom_max_sigma_step: float = 0.5  # eigenvalue caps (m / rad) of a step's covariance
+    odom_max_sigma_keyframe: float = 2.0  # ... and of a keyframe factor's covariance
     # Tree observations (range-bearing): the stem centre's position noise, converted to a
     # bearing sigma by the range; observations beyond max range are ignored.
     observation_sigma_m: float = 0.08

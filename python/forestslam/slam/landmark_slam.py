@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
+from forestslam.errors import ProcessingError
 from forestslam.slam.association import associate, dbh_compatible, rigid_2d
 from forestslam.slam.config import SlamConfig
 
@@ -172,7 +173,14 @@ class LandmarkSlam:
         ids = np.full(len(stems_xy), -1, dtype=np.int64)
 
         if first or self._is_keyframe(stamp, o2):
-            kf = self._add_keyframe(o2, stems_xy[idx], stems_dbh[idx], ids, idx, first)
+            try:
+                kf = self._add_keyframe(o2, stems_xy[idx], stems_dbh[idx], ids, idx, first)
+            except ProcessingError:  # forget this scan so the trajectory stays consistent
+                n_kf = self.n_keyframes
+                del self._stamps[-1], self._odom[-1]
+                del self._kf_scan[len(self._kf_est) :], self._kf_odom2[len(self._kf_est) :]
+                log.debug("keyframe %d dropped", n_kf)
+                raise
             self._scan_kf.append(kf)
             pose = self._kf_est[kf]
             return ScanResult(kf, ids, lift(pose2_matrix(pose)) @ tilt(T_odom))
@@ -231,6 +239,11 @@ class LandmarkSlam:
         cov = None if cov is None else np.asarray(cov, dtype=np.float64)
         if cov is None or cov.shape != (3, 3) or not np.isfinite(cov).all():
             cov = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
+        # A degenerate registration may report an enormous (or indefinite) covariance: clip its
+        # eigenvalues so the factor neither vanishes (an indeterminate graph) nor dominates.
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        w = np.clip(w, 1e-10, self.cfg.odom_max_sigma_step**2)
+        cov = (v * w) @ v.T
         if degraded:
             cov = cov * self.cfg.degraded_inflation**2
         self._cov_acc = self._cov_acc + cov
@@ -275,7 +288,8 @@ class LandmarkSlam:
         floor_xy = cfg.odom_floor_xy_m + cfg.odom_floor_per_m * self._dist_acc
         floor_yaw = math.radians(cfg.odom_floor_yaw_deg) + cfg.odom_floor_per_m * self._dist_acc
         cov = self._cov_acc + np.diag([floor_xy**2, floor_xy**2, floor_yaw**2])
-        cov = 0.5 * (cov + cov.T)
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        cov = (v * np.clip(w, 1e-10, self.cfg.odom_max_sigma_keyframe**2)) @ v.T
         return gtsam.noiseModel.Gaussian.Covariance(cov)
 
     def _refinement_factor(self, kf: int, pose: np.ndarray, cov_map: np.ndarray):
@@ -370,7 +384,10 @@ class LandmarkSlam:
 
         self._kf_scan.append(len(self._stamps) - 1)
         self._kf_odom2.append(o2)
-        self.isam.update(graph, values)
+        try:
+            self.isam.update(graph, values)
+        except RuntimeError as exc:  # gtsam's IndeterminateLinearSystemException and kin
+            raise ProcessingError(f"pose graph update failed at keyframe {kf}: {exc}") from exc
         big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
         for _ in range(cfg.extra_updates_on_loop if big else 0):
             self.isam.update()
