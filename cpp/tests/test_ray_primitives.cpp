@@ -129,5 +129,7 @@ TEST(RayPrimitives, FoliageTransmissionFollowsBeerLambert) {
     const bool ha = intersectFoliage(f, 3, makeRay({0, 0, 0}, {1, 0, 0}, 7), kInf, a);
     const bool hb = intersectFoliage(f, 3, makeRay({0, 0, 0}, {1, 0, 0}, 7), kInf, b);
     EXPECT_EQ(ha, hb);
-    if (ha) EXPECT_EQ(a.t, b.t);
+    if (ha) {
+        EXPECT_EQ(a.t, b.t);
+    }
 }

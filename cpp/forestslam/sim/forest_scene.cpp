@@ -186,6 +186,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     ny_ = std::max(1, static_cast<int>(std::ceil((ymax - ymin) / cell_)));
     nl_ = std::clamp(static_cast<int>(std::ceil((z_max_ - zmin) / kLayerM)), 1, 256);
     layer_m_ = std::max((z_max_ - zmin) / nl_, 1e-3);
+    inv_layer_m_ = 1.0 / layer_m_;
     if (static_cast<double>(nx_) * ny_ * nl_ > 1e8) throw std::invalid_argument("scene grid too large");
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
@@ -255,30 +256,28 @@ Hit ForestScene::cast(const Ray &ray) const {
     traverseGrid(x0_, y0_, cell_, nx_, ny_, ray, ray.t_min, t_end, [&](int ix, int iy, double t0, double t1) {
         if (t0 > best.t) return false;
         const size_t c = static_cast<size_t>(iy) * nx_ + ix;
-        const double z_lo = std::min(oz + t0 * dz, oz + t1 * dz);
-        if (z_lo > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
-        // Bounding box of the ray inside this cell (up to the best hit so far).
         const double t_hi = std::min(t1, best.t);
-        double seg_lo[3], seg_hi[3];
-        for (int a = 0; a < 3; ++a) {
-            const double p0 = ray.origin[a] + t0 * ray.dir[a], p1 = ray.origin[a] + t_hi * ray.dir[a];
-            seg_lo[a] = std::min(p0, p1);
-            seg_hi[a] = std::max(p0, p1);
-        }
-        // Only the vertical layers the ray crosses in this cell. An item in several of them may
-        // be tested twice; the answer is the same.
-        const int l0 = layerOf(seg_lo[2]), l1 = layerOf(seg_hi[2]);
-        for (int l = l0; l <= l1; ++l) {
-            const size_t bin = c * nl_ + l;
-            for (uint32_t k = bin_start_[bin]; k < bin_start_[bin + 1]; ++k) {
-                const Item &item = items_[k];
-                if (item.lo[2] > seg_hi[2] || item.hi[2] < seg_lo[2] || item.lo[0] > seg_hi[0] ||
-                    item.hi[0] < seg_lo[0] || item.lo[1] > seg_hi[1] || item.hi[1] < seg_lo[1])
-                    continue;
-                Hit h;
-                if (testPrimitive(item.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
-                    best = h;
-            }
+        const double za = oz + t0 * dz, zb = oz + t_hi * dz;
+        const double z_lo = std::min(za, zb), z_hi = std::max(za, zb);
+        if (z_lo > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
+        // The bins of a cell are consecutive layers, so the layers the ray crosses here are
+        // one contiguous run of items.
+        const size_t first = c * nl_;
+        const uint32_t k0 = bin_start_[first + layerOf(z_lo)];
+        const uint32_t k1 = bin_start_[first + layerOf(z_hi) + 1];
+        if (k0 == k1) return best.t > t1;
+        const double xa = ray.origin.x() + t0 * ray.dir.x(), xb = ray.origin.x() + t_hi * ray.dir.x();
+        const double ya = ray.origin.y() + t0 * ray.dir.y(), yb = ray.origin.y() + t_hi * ray.dir.y();
+        const double x_lo = std::min(xa, xb), x_hi = std::max(xa, xb);
+        const double y_lo = std::min(ya, yb), y_hi = std::max(ya, yb);
+        for (uint32_t k = k0; k < k1; ++k) {
+            const Item &item = items_[k];
+            if (item.lo[2] > z_hi || item.hi[2] < z_lo || item.lo[0] > x_hi || item.hi[0] < x_lo ||
+                item.lo[1] > y_hi || item.hi[1] < y_lo)
+                continue;
+            Hit h;
+            if (testPrimitive(item.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
+                best = h;
         }
         return best.t > t1;
     });
@@ -288,9 +287,12 @@ Hit ForestScene::cast(const Ray &ray) const {
 CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
                                  const Eigen::Ref<const Points3> &dirs, double range_min,
                                  double range_max, uint64_t seed) const {
-    const Eigen::Index n = dirs.rows();
-    if (origins.rows() != n && origins.rows() != 1)
-        throw std::invalid_argument("origins must have one row or one row per direction");
+    const Eigen::Index n = dirs.rows(), n_origins = origins.rows();
+    if (n_origins == 0 || n % n_origins != 0)
+        throw std::invalid_argument(
+            "origins must have one row, one row per direction, or divide the directions into "
+            "equal consecutive groups");
+    const Eigen::Index per_origin = n / n_origins;
     CastResult out;
     out.range.setConstant(n, std::nan(""));
     out.surface.setZero(n);
@@ -298,7 +300,7 @@ CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
     out.cos_incidence.setZero(n);
     for (Eigen::Index i = 0; i < n; ++i) {
         Ray ray;
-        ray.origin = origins.row(origins.rows() == 1 ? 0 : i).transpose();
+        ray.origin = origins.row(i / per_origin).transpose();
         ray.dir = dirs.row(i).transpose();
         const double norm = ray.dir.norm();
         if (!(norm > 0.0) || !ray.origin.allFinite() || !std::isfinite(norm)) continue;

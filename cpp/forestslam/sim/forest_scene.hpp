@@ -53,7 +53,8 @@ public:
                 std::vector<FoliageEllipsoid> foliage, double cell_m = 2.0);
 
     Hit cast(const Ray &ray) const;
-    // One ray per row: origins (N,3) or (1,3) shared, unit directions (N,3). Returns are kept in
+    // One ray per row of dirs (N,3, unit); origins (G,3) with G dividing N: ray i starts at
+    // origin i / (N/G) (G = 1: one shared origin, G = N: one each). Returns are kept in
     // [range_min, range_max]. seed makes foliage penetration reproducible: ray i uses key (seed, i).
     CastResult castRays(const Eigen::Ref<const Points3> &origins,
                         const Eigen::Ref<const Points3> &dirs, double range_min, double range_max,
@@ -81,9 +82,10 @@ private:
     // Bins = XY cell x vertical layer, so rays below the crowns never look at foliage.
     static constexpr double kLayerM = 1.0;
     int layerOf(double z) const {
-        return std::clamp(static_cast<int>(std::floor((z - z0_) / layer_m_)), 0, nl_ - 1);
+        const double l = std::clamp((z - z0_) * inv_layer_m_, 0.0, nl_ - 1.0);
+        return static_cast<int>(l);
     }
-    double z0_ = 0, layer_m_ = 1.0;
+    double z0_ = 0, layer_m_ = 1.0, inv_layer_m_ = 1.0;
     int nl_ = 1;
     std::vector<uint32_t> bin_start_;  // CSR: items of bin b in items_[start[b], start[b+1])
     std::vector<Item> items_;

@@ -115,12 +115,30 @@ bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
             const double h = h0 + t_in * dh;
             if (h < stem.h_bottom || h > stem.height || g(t_in) > 0.0) return false;
         }
-        double lo = t_out, hi = t_in;  // g(lo) >= 0 >= g(hi)
-        for (int it = 0; it < 40 && hi - lo > 1e-7; ++it) {
-            const double mid = 0.5 * (lo + hi);
-            (g(mid) > 0.0 ? lo : hi) = mid;
-        }
+        // Illinois regula falsi on the bracket g(lo) >= 0 >= g(hi): a few evaluations of the
+        // bark function instead of a dozen bisections.
+        double lo = t_out, hi = t_in, glo = g(lo), ghi = g(hi);
         t_hit = hi;
+        int side = 0;
+        for (int it = 0; it < 40 && hi - lo > 1e-9; ++it) {
+            double m = glo != ghi ? hi - ghi * (hi - lo) / (ghi - glo) : 0.5 * (lo + hi);
+            if (!(m > lo && m < hi)) m = 0.5 * (lo + hi);
+            const double gm = g(m);
+            t_hit = m;
+            if (std::abs(gm) < 1e-7) break;  // 1e-7 of the radius: sub-micrometre
+            if (gm > 0.0) {
+                lo = m;
+                glo = gm;
+                if (side == 1) ghi *= 0.5;
+                side = 1;
+            } else {
+                hi = m;
+                ghi = gm;
+                if (side == -1) glo *= 0.5;
+                side = -1;
+            }
+            t_hit = hi;
+        }
         const double h = h0 + t_hit * dh;
         if (h < stem.h_bottom || h > stem.height || t_hit > t_max || t_hit < t_lo) return false;
     }

@@ -89,7 +89,8 @@ void define_sim(py::module_ &m) {
             },
             py::arg("origins"), py::arg("dirs"), py::arg("range_min"), py::arg("range_max"),
             py::arg("seed") = 0,
-            "origins (N,3) or (1,3), unit dirs (N,3) -> (range (N,) NaN = no return, surface (N,) "
+            "origins (G,3) with G dividing N (ray i starts at origin i // (N/G)), unit dirs (N,3) "
+            "-> (range (N,) NaN = no return, surface (N,) "
             "uint8 [0 none 1 ground 2 stem 3 branch 4 foliage 5 shrub 6 log], object (N,) int32 "
             "row in its table, cos_incidence (N,)).")
         .def(

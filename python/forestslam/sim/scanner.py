@@ -10,6 +10,7 @@ point is expressed in the sensor frame at its own measurement time, like a real 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -29,6 +30,14 @@ class ScanPattern:
     group: np.ndarray  # (N,) index into group_time
     group_time: np.ndarray  # (G,)
     period_s: float  # time between scans (0 for a single static station)
+
+    @cached_property
+    def grouped(self) -> bool:
+        """True when the groups are equal runs of consecutive rays (fast path)."""
+        n, g = len(self.group), len(self.group_time)
+        if n % g:
+            return False
+        return bool((self.group == np.repeat(np.arange(g), n // g)).all())
 
 
 def _dirs(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
@@ -109,11 +118,14 @@ def synthesize_scan(
     per-point surface class (N,) uint8 (see forest.SURFACES) and object row (N,) int32 (the tree
     id for stems)."""
     rot = poses[:, :3, :3]
-    origins = np.ascontiguousarray(poses[pattern.group, :3, 3])
-    # World directions per group in one batched product: (G,3,3) x (G,k,3).
-    if len(poses) == 1:
-        world = pattern.dirs @ rot[0].T
+    n_groups = len(poses)
+    if pattern.grouped:
+        # Groups are equal runs of consecutive rays: one origin per group, one batched product.
+        origins = np.ascontiguousarray(poses[:, :3, 3])
+        local = pattern.dirs.reshape(n_groups, -1, 3)
+        world = np.matmul(local, rot.transpose(0, 2, 1)).reshape(-1, 3)
     else:
+        origins = np.ascontiguousarray(poses[pattern.group, :3, 3])
         world = np.einsum("nij,nj->ni", rot[pattern.group], pattern.dirs)
     rng_range, surface, obj, cos_inc = scene.cast(
         origins, np.ascontiguousarray(world), profile.range_min_m, profile.range_max_m, cast_seed
