@@ -5,6 +5,9 @@ Stems come from `forestslam.perception.detect` (one frame) or from the odometry 
 query is appended to ``localization.json``; accepted ones give the sensor pose in the map frame
 in ``localization.tum``. Both files are rewritten atomically after every query, so a killed run
 leaves valid files up to its last query.
+
+With ``keyframe_distance_m`` > 0 the N frames of a query are the current scan and the N-1 latest
+earlier scans at least that far apart (a wider view); 0 means the last N scans.
 """
 
 from __future__ import annotations
