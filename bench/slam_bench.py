@@ -108,17 +108,18 @@ def rss_run(seq: Path, sensor: str, n_scans: int) -> dict:
     offset, n, rss500 = 0.0, 0, None
     t0 = time.perf_counter()
     while n < n_scans:
-        last = 0.0
+        first = last = None
         for scan in read_scans(seq / "sequence.bag"):
-            scan.stamp += offset
+            first = scan.stamp if first is None else first
             last = scan.stamp
+            scan.stamp += offset  # the replay continues in time
             pipe.process(scan)
             n += 1
             if n == 500:
                 rss500 = rss_mb()
             if n >= n_scans:
                 break
-        offset = last + 0.1
+        offset += last - first + 0.1
     return {
         "scans": n,
         "rss_500_mb": rss500,
