@@ -62,6 +62,11 @@ def test_paths_keep_clear_of_stems(path):
     assert stem_clearance(planned.xy, stand).min() >= 0.9 * 1.2
     assert planned.length_m == pytest.approx(120.0, rel=0.15)
     assert planned.closed == (path == "loop")
+    # No cusps: no step of 0.25 m turns by more than 40 degrees (lawnmower ends included).
+    pts = np.vstack([planned.xy, planned.xy[:2]]) if planned.closed else planned.xy
+    step = np.diff(pts, axis=0)
+    turn = np.abs(np.diff(np.unwrap(np.arctan2(step[:, 1], step[:, 0]))))
+    assert np.degrees(turn).max() < 40.0
 
 
 def test_waypoint_file_and_station(tmp_path):

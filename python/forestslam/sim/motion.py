@@ -58,6 +58,9 @@ def _smooth(xy: np.ndarray, closed: bool, weight: float = 0.3) -> np.ndarray:
     else:
         lap = np.zeros_like(xy)
         lap[1:-1] = 0.5 * (xy[:-2] + xy[2:]) - xy[1:-1]
+        if len(xy) >= 3:  # ends drift onto the line through their neighbours (no end kinks)
+            lap[0] = 0.5 * ((2 * xy[1] - xy[2]) - xy[0])
+            lap[-1] = 0.5 * ((2 * xy[-2] - xy[-3]) - xy[-1])
     return xy + weight * lap
 
 
@@ -100,6 +103,16 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
         # settling between two stems where pushes and smoothing balance.
         push = (1.5 * np.clip(deficit, 0, None) / d)[:, :, None] * away
         xy = _resample(_smooth(xy + push.sum(axis=1), closed, 0.25), closed)
+    # Relax: strong smoothing against plain pushes irons out the corners the over-push leaves
+    # (a machine cannot turn on the spot) while keeping the clearance.
+    for _ in range(150):
+        for _ in range(3):
+            xy = _smooth(xy, closed, 0.5)
+        d, j = tree.query(xy, k=k)
+        d, j = d.reshape(len(xy), k), j.reshape(len(xy), k)
+        deficit = need_r[j] + 0.05 - d
+        away = (xy[:, None, :] - stand.xy[j]) / np.maximum(d, 1e-6)[:, :, None]
+        xy = _resample(xy + (np.clip(deficit, 0, None)[:, :, None] * away).sum(axis=1), closed)
     return xy
 
 
