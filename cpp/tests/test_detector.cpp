@@ -38,17 +38,19 @@ TEST(Detector, FindsEveryVisibleStemWithItsDiameter) {
 TEST(Detector, BadInputGivesEmptyResults) {
     const auto g = test::vlp16Geometry();
     const PerceptionOptions o;
-    EXPECT_TRUE(detectStems(Points3(0, 3), Eigen::VectorXd(), Eigen::VectorXi(), g, true, o).stems.empty());
+    const Eigen::VectorXd no_i;
+    const Eigen::VectorXi no_r;
+    EXPECT_TRUE(detectStems(Points3(0, 3), no_i, no_r, g, true, o).stems.empty());
     Points3 nan(100, 3);
     nan.setConstant(std::numeric_limits<double>::quiet_NaN());
-    EXPECT_TRUE(detectStems(nan, Eigen::VectorXd(), Eigen::VectorXi(), g, true, o).stems.empty());
+    EXPECT_TRUE(detectStems(nan, no_i, no_r, g, true, o).stems.empty());
     Points3 one(1, 3);
     one << 1, 2, 3;
-    EXPECT_TRUE(detectStems(one, Eigen::VectorXd(), Eigen::VectorXi(), g, true, o).stems.empty());
+    EXPECT_TRUE(detectStems(one, no_i, no_r, g, true, o).stems.empty());
     // Ring values outside the image are skipped, not a crash.
     const auto scan = test::castScan({{4, 1, 0.3}}, 1.8, 0.0, 1);
     Eigen::VectorXi bad = Eigen::VectorXi::Constant(scan.points.rows(), 99);
-    EXPECT_TRUE(detectStems(scan.points, Eigen::VectorXd(), bad, g, true, o).stems.empty());
+    EXPECT_TRUE(detectStems(scan.points, no_i, bad, g, true, o).stems.empty());
     // The same scan as a map (3D clustering, fixed-radius normals) still finds the stem.
-    EXPECT_EQ(detectStems(scan.points, Eigen::VectorXd(), Eigen::VectorXi(), g, false, o).stems.size(), 1u);
+    EXPECT_EQ(detectStems(scan.points, no_i, no_r, g, false, o).stems.size(), 1u);
 }

@@ -20,7 +20,8 @@ test::SceneScan stemsOnly(const std::vector<test::Tree> &trees) {
     test::SceneScan out;
     out.points = selectRows(s.points, rows);
     out.ring.resize(static_cast<Eigen::Index>(rows.size()));
-    for (size_t k = 0; k < rows.size(); ++k) out.ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
+    for (size_t k = 0; k < rows.size(); ++k)
+        out.ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
     return out;
 }
 

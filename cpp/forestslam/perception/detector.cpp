@@ -81,7 +81,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     Eigen::VectorXi ring_sel;
     if (ring.size() == points.rows()) {
         ring_sel.resize(static_cast<Eigen::Index>(finite.size()));
-        for (size_t k = 0; k < finite.size(); ++k) ring_sel(static_cast<Eigen::Index>(k)) = ring(finite[k]);
+        for (size_t k = 0; k < finite.size(); ++k)
+            ring_sel(static_cast<Eigen::Index>(k)) = ring(finite[k]);
     }
     clock.lap(det, "intensity");
 
@@ -155,6 +156,9 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         sensor.azimuth_step_rad > 0
             ? sensor.azimuth_step_rad
             : (sensor.image_cols > 0 ? sensor.horizontal_fov_rad / sensor.image_cols : 0.0);
+    DiameterOptions dopt = opt.diameter;
+    if (!scan_centred)
+        dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
     const bool use_silhouette = opt.diameter.silhouette && scan_centred &&
                                 sensor.has_range_image && !silhouette.vertical_angles_rad.empty();
     for (const auto &rows : stems) {
@@ -165,14 +169,15 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         if (!isStem(st.shape, static_cast<int>(rows.size()), so)) continue;  // merged oddly
         const Eigen::Vector2d xy = st.shape.mean.head<2>();
         double base = localGroundHeight(det.ground, xy, so.ground_search_m);
-        if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
+        if (!std::isfinite(base))
+            base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
         if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
         // In the blind circle around the sensor: the plane of the ground seen farther out.
         if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
         st.ground_found = std::isfinite(base);
         if (!st.ground_found) base = st.points.col(2).minCoeff();
         st.base_z = base;
-        st.diameter = estimateDiameter(st.points, st.normals, base, det.up, opt.diameter,
+        st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
                                        use_silhouette ? &silhouette : nullptr);
         if (st.diameter.centre.allFinite()) {
             st.breast = st.diameter.centre;

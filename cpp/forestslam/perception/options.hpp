@@ -90,6 +90,7 @@ struct DiameterOptions {
     double max_radius_m = 0.75;
     double inlier_threshold_m = 0.03;
     double min_arc_coverage = 0.1;
+    double map_min_arc_coverage = 0.25;  // accumulated maps see stems from many sides
     int cylinder_iterations = 50;
     int cylinder_max_points = 100;   // evenly thinned beyond this (speed)
     double cylinder_normal_weight = 0.1;

@@ -110,8 +110,10 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
     g.z.setConstant(rows, cols, kNaN);
     for (int k : ground_cells) {
         const int row = cell_rows[static_cast<size_t>(k)];
-        const auto c = static_cast<Eigen::Index>(std::floor((points(row, 0) - g.origin.x()) / cell));
-        const auto r = static_cast<Eigen::Index>(std::floor((points(row, 1) - g.origin.y()) / cell));
+        const auto c =
+            static_cast<Eigen::Index>(std::floor((points(row, 0) - g.origin.x()) / cell));
+        const auto r =
+            static_cast<Eigen::Index>(std::floor((points(row, 1) - g.origin.y()) / cell));
         if (r >= 0 && c >= 0 && r < rows && c < cols) g.z(r, c) = points(row, 2);
     }
     // Small islands of "ground" cells are the lowest returns of stems in the blind circle

@@ -263,7 +263,8 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
             std::iota(rows.begin(), rows.end(), 0);
             sec = points;
         }
-        if (opt.cylinder_max_points > 0 && static_cast<int>(rows.size()) > opt.cylinder_max_points) {
+        const int cap = opt.cylinder_max_points;
+        if (cap > 0 && static_cast<int>(rows.size()) > cap) {
             std::vector<int> thin;
             const double step = static_cast<double>(rows.size()) / opt.cylinder_max_points;
             for (int k = 0; k < opt.cylinder_max_points; ++k)

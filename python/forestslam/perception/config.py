@@ -87,6 +87,7 @@ class DiameterConfig:
     max_radius_m: float = 0.75
     inlier_threshold_m: float = 0.03
     min_arc_coverage: float = 0.1
+    map_min_arc_coverage: float = 0.25  # `map` clouds: stems seen from many sides
     cylinder_iterations: int = 50
     cylinder_max_points: int = 100
     cylinder_normal_weight: float = 0.1

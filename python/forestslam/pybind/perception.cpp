@@ -105,6 +105,7 @@ pc::DiameterOptions diameterOptions(const py::dict &d) {
     FS_GET(d, o, max_radius_m);
     FS_GET(d, o, inlier_threshold_m);
     FS_GET(d, o, min_arc_coverage);
+    FS_GET(d, o, map_min_arc_coverage);
     FS_GET(d, o, cylinder_iterations);
     FS_GET(d, o, cylinder_max_points);
     FS_GET(d, o, cylinder_normal_weight);
@@ -173,7 +174,8 @@ py::dict diameterDict(const pc::StemDiameter &s) {
 
 py::list clustersList(const pc::Clusters &c) {
     py::list out;
-    for (const auto &rows : c) out.append(py::array_t<int>(static_cast<py::ssize_t>(rows.size()), rows.data()));
+    for (const auto &rows : c)
+        out.append(py::array_t<int>(static_cast<py::ssize_t>(rows.size()), rows.data()));
     return out;
 }
 
@@ -301,7 +303,8 @@ void define_perception(py::module_ &m) {
             const pc::GroundSegmentation gs = pc::segmentGround(points, groundOptions(options));
             py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
             auto mm = mask.mutable_unchecked<1>();
-            for (size_t i = 0; i < gs.is_ground.size(); ++i) mm(static_cast<py::ssize_t>(i)) = gs.is_ground[i] != 0;
+            for (size_t i = 0; i < gs.is_ground.size(); ++i)
+                mm(static_cast<py::ssize_t>(i)) = gs.is_ground[i] != 0;
             py::dict d;
             d["is_ground"] = mask;
             d["grid_z"] = gs.grid.z;
@@ -317,7 +320,8 @@ void define_perception(py::module_ &m) {
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
            const py::dict &options) {
-            const pc::NormalFilterResult r = pc::normalFilter(points, toRows(candidates), theta_v, filterOptions(options), nullptr);
+            const pc::NormalFilterResult r = pc::normalFilter(
+                points, toRows(candidates), theta_v, filterOptions(options), nullptr);
             py::dict d;
             d["kept"] = r.kept;
             d["normals"] = r.normals;
@@ -334,7 +338,8 @@ void define_perception(py::module_ &m) {
             const pc::SensorGeometry g = sensorGeometry(sensor);
             const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
             const auto proj = pc::projectToRangeImage(points, rg, g);
-            return clustersList(pc::rangeImageClusters(points, proj, g, segmentationOptions(options), min_size));
+            const auto so = segmentationOptions(options);
+            return clustersList(pc::rangeImageClusters(points, proj, g, so, min_size));
         },
         py::arg("points"), py::arg("ring"), py::arg("sensor"), py::arg("options"),
         py::arg("min_size") = 2, "Divide-and-merge range-image clusters: list of row arrays.");
@@ -356,7 +361,8 @@ void define_perception(py::module_ &m) {
         "DBSCAN of points (N,3): list of row arrays (noise dropped).");
     m.def(
         "perception_cluster_shape",
-        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up, const py::dict &options) {
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up,
+           const py::dict &options) {
             std::vector<int> rows(static_cast<size_t>(points.rows()));
             for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
             const pc::ClusterShape s = pc::clusterShape(points, rows, up);
@@ -368,7 +374,8 @@ void define_perception(py::module_ &m) {
             d["length"] = s.length;
             d["width"] = s.width;
             d["axis_angle"] = s.axis_angle;
-            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), segmentationOptions(options));
+            const auto so = segmentationOptions(options);
+            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), so);
             return d;
         },
         py::arg("points"), py::arg("up"), py::arg("options"),
@@ -379,7 +386,8 @@ void define_perception(py::module_ &m) {
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
            const Eigen::Vector3d &up, const py::dict &options) {
             const Points3 n = normals ? *normals : Points3(0, 3);
-            return diameterDict(pc::estimateDiameter(points, n, base_z, up, diameterOptions(options)));
+            const auto dopt = diameterOptions(options);
+            return diameterDict(pc::estimateDiameter(points, n, base_z, up, dopt));
         },
         py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"),
         py::arg("options"),
