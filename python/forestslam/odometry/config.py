@@ -39,5 +39,7 @@ class OdometryConfig:
     prior_sigma_deg: float = 1.0
     max_correction_m: float = 1.5
     max_correction_deg: float = 15.0
+    max_speed_mps: float = 5.0  # the velocity prior is clamped to these
+    max_turn_rate_dps: float = 90.0
     fpfh_max_points: int = 6000  # FPFH baseline: whole scan, voxelised, at most this many
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)

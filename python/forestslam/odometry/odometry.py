@@ -186,7 +186,7 @@ class Odometry:
     def step(self, scan: Scan) -> OdometryStep:
         """Register one scan; returns its OdometryStep. Scans must come in time order."""
         timing: dict[str, float] = {}
-        t_start = time.perf_counter()
+        t_start, c_start = time.perf_counter(), time.process_time()
         stamp = float(scan.stamp)
         if self._stamp is not None and not stamp > self._stamp:
             raise InputError(
@@ -239,6 +239,7 @@ class Odometry:
         if t_mid and len(stems.xy):
             stems = transform_stems(stems, np.linalg.inv(T_mid_stamp))
         timing["total"] = (time.perf_counter() - t_start) * 1e3
+        timing["cpu_total"] = (time.process_time() - c_start) * 1e3  # process CPU, all threads
 
         cov3 = _world_left_to_body_planar(_planar_block(cov6), T_out)
         cov6_body = None if method in ("first", "prediction") else _world_left_to_body6(cov6, T_out)
@@ -431,7 +432,15 @@ class Odometry:
         if self._T is not None and self._t_ref is not None:
             dt = t_ref - self._t_ref
             if dt > 0:
-                self._twist = se3_log(np.linalg.inv(self._T) @ T) / dt
+                twist = se3_log(np.linalg.inv(self._T) @ T) / dt
+                # A platform cannot outrun these: a wrong registration must not make the
+                # velocity prior run away with the following scans.
+                v, w = np.linalg.norm(twist[:3]), np.linalg.norm(twist[3:])
+                if v > cfg.max_speed_mps:
+                    twist[:3] *= cfg.max_speed_mps / v
+                if w > math.radians(cfg.max_turn_rate_dps):
+                    twist[3:] *= math.radians(cfg.max_turn_rate_dps) / w
+                self._twist = twist
         self._T, self._stamp, self._t_ref = T, stamp, t_ref
         R = T[:3, :3]
         frame = _Frame(
