@@ -34,7 +34,7 @@ TEST(StemCentreLm, RecoversKnownSixDofPerturbation) {
     const Pose3 T_true = test::makePose(0.6, -0.4, 0.2, 0.02, -0.015, 0.3);
     const Frame f = makeFrame(scene, T_true);
     ASSERT_GE(f.vf.stems.rows(), 3);
-    const Pose3 delta = test::makePose(0.25, -0.2, 0.1, 0.02, 0.02, 0.05);
+    const Pose3 delta = test::makePose(0.2, -0.15, 0.08, 0.015, 0.01, 0.04);
     const Eigen::Matrix4d T_init = (delta * T_true).matrix();
     const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_init);
     EXPECT_TRUE(r.converged);

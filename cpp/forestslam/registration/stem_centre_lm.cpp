@@ -5,8 +5,10 @@
 #include <ceres/rotation.h>
 #include <pcl/kdtree/kdtree_flann.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <unordered_map>
 #include <vector>
 
@@ -83,6 +85,7 @@ struct PlaneCost {
 struct VirtualPair {
     Eigen::Vector3d centre, target;
     double radius;
+    double weight;  // virtual_weight shared by the pairs of one centre
 };
 struct PlanePair {
     Eigen::Vector3d source, origin, normal;
@@ -127,7 +130,7 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         const double r = radii[i];
         const double reach = r + gate;
         std::fill(best.begin(), best.end(), -1);
-        std::fill(best_err.begin(), best_err.end(), gate);
+        std::fill(best_err.begin(), best_err.end(), std::numeric_limits<double>::infinity());
         for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
             for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
                 for (auto iz = cellIndex(q.z() - cfg.virtual_window_m);
@@ -151,8 +154,13 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
                 }
             }
         }
+        const auto found = static_cast<int>(std::count_if(best.begin(), best.end(),
+                                                          [](int j) { return j >= 0; }));
         for (int j : best) {
-            if (j >= 0) vpairs.push_back({c, target.points.row(j).transpose(), r});
+            if (j >= 0) {
+                vpairs.push_back({c, target.points.row(j).transpose(), r,
+                                  cfg.virtual_weight / found});
+            }
         }
     }
     constexpr int kPlaneCandidates = 10;
@@ -232,7 +240,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
             problem.AddResidualBlock(
                 cost,
                 new ceres::ScaledLoss(new ceres::CauchyLoss(round_cfg.robust_scale_m),
-                                      config.virtual_weight, ceres::TAKE_OWNERSHIP),
+                                      v.weight, ceres::TAKE_OWNERSHIP),
                 x);
         }
         for (const auto &p : ppairs) {
@@ -291,7 +299,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         const double dn = std::max(d.norm(), 1e-9);
         const double r = dn - v.radius;
         vsum += r * r;
-        add(q, d / dn, r, config.virtual_weight);
+        add(q, d / dn, r, v.weight);
     }
     for (const auto &p : ppairs) {
         const Eigen::Vector3d q = R * p.source + t;

@@ -17,7 +17,7 @@ namespace forestslam {
 struct StemCentreLmConfig {
     int max_rounds = 15;                  // correspondence renewals
     int max_solver_iterations = 8;        // LM iterations per round
-    double virtual_gate_m = 0.30;         // |d - r| gate for virtual-feature pairs
+    double virtual_gate_m = 0.10;         // |d - r| gate for virtual-feature pairs
     int virtual_sectors = 12;             // at most one target point per sector around a centre
     double virtual_window_m = 0.15;       // ... taken within this height of the centre
     double virtual_max_gate_m = 0.5;      // cap of the coarse virtual gate (bounds the search)
@@ -29,7 +29,9 @@ struct StemCentreLmConfig {
     // above, shrinking by gate_decay per round down to 1x (tolerates a poorer initial guess).
     double coarse_gate_factor = 4.0;
     double gate_decay = 0.6;
-    double virtual_weight = 2.0;          // weight of a virtual residual relative to a real one
+    // Weight of one stem centre relative to one real feature, shared by the centre's pairs
+    // (a centre is one observation however many target points it pairs with).
+    double virtual_weight = 1.0;
     double converged_translation_m = 1e-4;  // stop when a round moves less than this ...
     double converged_rotation_rad = 1e-5;   // ... and rotates less than this
     int min_inliers = 12;                 // fewer pairs than this: not converged

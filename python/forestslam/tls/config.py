@@ -38,7 +38,7 @@ class MapConfig:
 class RegistrationConfig:
     ndt_voxel_m: float = 0.3
     ndt_resolution_m: float = 1.0
-    lm_virtual_gate_m: float = 0.3
+    lm_virtual_gate_m: float = 0.1
     lm_plane_gate_m: float = 0.25
     lm_robust_scale_m: float = 0.05
     lm_max_rounds: int = 15

@@ -166,6 +166,19 @@ def _coarse_initial_pose(
     return T
 
 
+def _stems_on_reference(feats, T: np.ndarray, ref_stems, config: TlsConfig) -> bool:
+    """Most frame stems, moved by T, lie on a reference stem of similar radius."""
+    ref_xyz, ref_r = ref_stems
+    if len(feats.stems) == 0 or len(ref_xyz) == 0:
+        return False
+    xy = feats.stems[:, :2] @ T[:2, :2].T + T[:2, 3]
+    d = np.linalg.norm(xy[:, None, :] - ref_xyz[None, :, :2], axis=2)
+    j = np.argmin(d, axis=1)
+    hit = (d[np.arange(len(xy)), j] < 0.1) & (np.abs(feats.stem_radii - ref_r[j]) < 0.05)
+    need = max(config.registration.coarse_min_stems, int(np.ceil(0.5 * len(xy))))
+    return int(hit.sum()) >= need
+
+
 def register_mls_to_tls(
     scans: Iterable[Scan],
     reference: np.ndarray,
@@ -237,18 +250,21 @@ def register_mls_to_tls(
         ms_lm = (time.process_time() - t0) * 1e3
         ok = lm["converged"] and not lm["degenerate"]
         T = lm["T_target_source"] if ok else T_init
-        if T_prev is None and not ok:
+        stems_agree = (
+            lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
+            and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
+        )
+        if T_prev is None and ok and initial_pose is None:
+            stems_agree = stems_agree and _stems_on_reference(feats, T, ref_stems, config)
+        # The first frame anchors everything: its stems must sit on the reference's stems.
+        if T_prev is None and not (ok and (stems_agree or initial_pose is not None)):
             if initial_pose is not None or seen >= config.registration.coarse_max_frames:
                 raise ProcessingError(
                     "the first MLS frame does not register onto the reference "
                     f"({lm['inliers']} feature pairs): mismatched data or a wrong initial pose"
                 )
             continue
-        accepted = (
-            ok
-            and lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
-            and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
-        )
+        accepted = ok and stems_agree
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
