@@ -47,13 +47,24 @@ def simulated(name: str) -> Path:
     return out
 
 
-def quat_pose(row: np.ndarray) -> np.ndarray:
-    return row
-
-
 def rot_err_deg(a: np.ndarray, b: np.ndarray) -> float:
     d = a[:3, :3].T @ b[:3, :3]
     return float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
+
+
+def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = (
+        np.cos(roll),
+        np.sin(roll),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(yaw),
+        np.sin(yaw),
+    )
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
 
 
 def match(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +247,7 @@ def run_real(out: Path) -> dict:
     rng = np.random.default_rng(11)
     target = _core.StemCentreTarget(_core.voxel_downsample(local, 0.02))
     errors = []
-    for k in range(6):
+    for _ in range(6):
         c = rng.uniform(-2.5, 2.5, 2)
         disc = local[np.linalg.norm(local[:, :2] - c, axis=1) < 6.0]
         yaw, roll, pitch = rng.uniform(-np.pi, np.pi), rng.normal(0, 0.02), rng.normal(0, 0.02)
