@@ -85,6 +85,7 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
     tree = cKDTree(stand.xy)
     need_r = stand.dbh / 2 + clearance
     k = min(6, len(stand))
+    n0 = len(xy)
     for _ in range(200):
         d, j = tree.query(xy, k=k)
         d, j = d.reshape(len(xy), k), j.reshape(len(xy), k)
@@ -102,7 +103,9 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
         # Over-push (gain 1.5) so the path escapes gaps narrower than the clearance instead of
         # settling between two stems where pushes and smoothing balance.
         push = (1.5 * np.clip(deficit, 0, None) / d)[:, :, None] * away
-        xy = _resample(_smooth(xy + push.sum(axis=1), closed, 0.25), closed)
+        xy = _resample(_smooth(xy + _capped(push.sum(axis=1)), closed, 0.25), closed)
+        if len(xy) > 3 * n0:  # diverging (stems too dense for this clearance): give up here
+            return xy
     # Relax: strong smoothing against plain pushes irons out the corners the over-push leaves
     # (a machine cannot turn on the spot) while keeping the clearance.
     for _ in range(150):
@@ -112,8 +115,18 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
         d, j = d.reshape(len(xy), k), j.reshape(len(xy), k)
         deficit = need_r[j] + 0.05 - d
         away = (xy[:, None, :] - stand.xy[j]) / np.maximum(d, 1e-6)[:, :, None]
-        xy = _resample(xy + (np.clip(deficit, 0, None)[:, :, None] * away).sum(axis=1), closed)
+        xy = _resample(
+            xy + _capped((np.clip(deficit, 0, None)[:, :, None] * away).sum(axis=1)), closed
+        )
+        if len(xy) > 3 * n0:
+            return xy
     return xy
+
+
+def _capped(step: np.ndarray, limit: float = 0.3) -> np.ndarray:
+    """Per-sample displacement limited to `limit` metres, so pushes cannot blow up."""
+    norm = np.linalg.norm(step, axis=1, keepdims=True)
+    return step * np.minimum(1.0, limit / np.maximum(norm, 1e-12))
 
 
 def _nominal(cfg: MotionConfig, centre: np.ndarray, heading: float, extent: np.ndarray):
