@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import stat
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -76,3 +79,11 @@ def test_empty_and_garbage_trajectories(tmp_path):
         read_kitti(tmp_path / "g.txt")
     with pytest.raises(InputError, match="g.txt"):
         read_tum(tmp_path / "g.txt")
+
+
+def test_atomic_write_gives_ordinary_permissions(tmp_path):
+    path = tmp_path / "shared.txt"
+    atomic_write_text(path, "x\n")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
