@@ -8,8 +8,8 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 BUILD_DIR := build/py
 SOURCES := $(shell find cpp python -type f \( -name '*.cpp' -o -name '*.hpp' -o -name '*.py' \
 	-o -name '*.yaml' -o -name 'CMakeLists.txt' -o -name '*.cmake' \) -not -path '*/__pycache__/*')
-SCENARIO ?= sample
-OUT ?= out/$(SCENARIO)
+SAMPLE := data/cache/sample
+OUT ?= out/sample
 
 .PHONY: install run test lint bench clean
 
@@ -37,8 +37,14 @@ $(VENV)/.installed: $(VENV)/.deps $(SOURCES) CMakeLists.txt pyproject.toml
 		-C cmake.define.FORESTSLAM_BUILD_TESTS=ON -C build.verbose=false .
 	@touch $@
 
-run: install
-	$(VENV)/bin/forestslam info data/$(SCENARIO)/scenario.yaml
+# The bundled default: data/sample.yaml simulated once (cached, git-ignored), then the main job
+# on it and the evaluation against its ground truth.
+$(SAMPLE)/sequence.bag: data/sample.yaml | $(VENV)/.installed
+	$(VENV)/bin/forestslam simulate --scenario data/sample.yaml --out $(SAMPLE)
+
+run: install $(SAMPLE)/sequence.bag
+	$(VENV)/bin/forestslam run $(SAMPLE)/sequence.bag --sensor vlp16 --mode slam --out $(OUT)
+	$(VENV)/bin/forestslam evaluate $(OUT) --truth $(SAMPLE)/truth
 
 test: install
 	$(VENV)/bin/ctest --test-dir $(BUILD_DIR)/cpp --output-on-failure -j2
