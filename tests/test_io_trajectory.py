@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from forestslam.errors import InputError
 from forestslam.io import read_kitti, read_tum, write_kitti, write_tum
-from forestslam.io.atomic import atomic_write, atomic_write_text
+from forestslam.io.atomic import atomic_write, atomic_write_text, remove_stale_temporaries
 
 
 @pytest.fixture
@@ -87,3 +87,10 @@ def test_atomic_write_gives_ordinary_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+
+
+def test_stale_temporaries_are_removed(tmp_path):
+    (tmp_path / ".trees.csv.abc123.tmp").write_text("half")
+    (tmp_path / "trees.csv").write_text("id\n")
+    assert remove_stale_temporaries(tmp_path) == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["trees.csv"]

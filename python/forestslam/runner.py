@@ -321,7 +321,7 @@ def run(
 
     from forestslam.config import config_to_dict, load_config
     from forestslam.io import read_scans
-    from forestslam.io.atomic import atomic_write_text
+    from forestslam.io.atomic import atomic_write_text, remove_stale_temporaries
     from forestslam.sensors import load_profile
 
     if mode not in MODES:
@@ -332,6 +332,8 @@ def run(
     profile = load_profile(sensor)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if remove_stale_temporaries(out):
+        log.info("%s: removed temporaries left by an earlier, killed run", out)
     stream = read_scans(input_path, topic, start=start)
     total = len(stream)
     remaining = max(0, total - start)

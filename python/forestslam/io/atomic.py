@@ -35,3 +35,14 @@ def atomic_write(path: str | Path, write: Callable[[IO], None], mode: str = "w")
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write(path, lambda f: f.write(text))
+
+
+def remove_stale_temporaries(folder: str | Path) -> int:
+    """Delete temporaries a killed writer left in `folder` (`.<name>.<random>.tmp`); returns how
+    many. Call it when a new run starts writing into a folder, never while one is writing."""
+    removed = 0
+    for tmp in Path(folder).glob(".*.tmp"):
+        if tmp.is_file():
+            tmp.unlink(missing_ok=True)
+            removed += 1
+    return removed
