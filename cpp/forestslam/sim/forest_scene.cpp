@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace forestslam::sim {
@@ -140,8 +141,12 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         double xmin, ymin, xmax, ymax, zmax, zmin;
     };
     std::vector<Box> boxes;
+    stem_cos_.resize(stems_.size());
+    stem_sin_.resize(stems_.size());
     for (size_t i = 0; i < stems_.size(); ++i) {
         const Stem &s = stems_[i];
+        stem_cos_[i] = std::cos(s.angle);
+        stem_sin_[i] = std::sin(s.angle);
         if (!(s.semi_a > 0 && s.semi_b > 0)) throw std::invalid_argument("stem semi-axes must be > 0");
         const double r = std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) +
                          s.bark_amp;
@@ -218,7 +223,19 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         int ix0, iy0, ix1, iy1, l0, l1;
         cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
         const double m = 1e-6;  // keep the rejection conservative under round-off
-        const Item item{b.code, {b.xmin - m, b.ymin - m, b.zmin - m}, {b.xmax + m, b.ymax + m, b.zmax + m}};
+        auto down = [](double v) {
+            float f = static_cast<float>(v);
+            if (static_cast<double>(f) > v) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+            return f;
+        };
+        auto up = [](double v) {
+            float f = static_cast<float>(v);
+            if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+            return f;
+        };
+        const Item item{b.code,
+                        {down(b.xmin - m), down(b.ymin - m), down(b.zmin - m)},
+                        {up(b.xmax + m), up(b.ymax + m), up(b.zmax + m)}};
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix)
                 for (int l = l0; l <= l1; ++l)
@@ -230,7 +247,8 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
     const uint32_t index = code & kIndexMask;
     switch (code & ~kIndexMask) {
         case kStemCode:
-            if (!intersectStem(stems_[index], ray, t_max, hit)) return false;
+            if (!intersectStem(stems_[index], stem_cos_[index], stem_sin_[index], ray, t_max, hit))
+                return false;
             hit.surface = kStem;
             break;
         case kCylinderCode:

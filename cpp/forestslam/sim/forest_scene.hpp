@@ -75,10 +75,13 @@ private:
     int nx_ = 0, ny_ = 0;
     // A primitive's code (type in the top bits, row below) and its 3D bounding box, so most
     // candidates of a cell are rejected without the exact test.
+    // Boxes in float, rounded outwards, so a cell's candidate list is half the memory; the
+    // exact test decides, so results are unchanged.
     struct Item {
         uint32_t code;
-        double lo[3], hi[3];
+        float lo[3], hi[3];
     };
+    std::vector<double> stem_cos_, stem_sin_;  // per-stem cos/sin of Stem::angle
     // Bins = XY cell x vertical layer, so rays below the crowns never look at foliage.
     static constexpr double kLayerM = 1.0;
     int layerOf(double z) const {

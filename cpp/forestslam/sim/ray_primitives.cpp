@@ -67,12 +67,17 @@ double Stem::barkNoise(double azimuth, double h) const {
 }
 
 bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
+    return intersectStem(stem, std::cos(stem.angle), std::sin(stem.angle), ray, t_max, hit);
+}
+
+bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const Ray &ray,
+                   double t_max, Hit &hit) {
     // Stem-local coordinates, linear in t: u, v normalised section coordinates, h height.
     const Eigen::Vector3d q = ray.origin - stem.base;
     const Eigen::Vector3d &d = ray.dir;
     const double qx = q.x() - stem.shear.x() * q.z(), qy = q.y() - stem.shear.y() * q.z();
     const double dx = d.x() - stem.shear.x() * d.z(), dy = d.y() - stem.shear.y() * d.z();
-    const double ca = std::cos(stem.angle), sa = std::sin(stem.angle);
+    const double ca = cos_angle, sa = sin_angle;
     const double u0 = (ca * qx + sa * qy) / stem.semi_a, du = (ca * dx + sa * dy) / stem.semi_a;
     const double v0 = (-sa * qx + ca * qy) / stem.semi_b, dv = (-sa * dx + ca * dy) / stem.semi_b;
     const double h0 = q.z(), dh = d.z();

@@ -83,6 +83,9 @@ uint64_t mixKey(uint64_t a, uint64_t b);
 
 // Each returns true and fills `hit` (t, cos_incidence) when the ray hits within (ray.t_min, t_max].
 bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit);
+// Same, with cos/sin of stem.angle precomputed by the caller (bit-identical result).
+bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const Ray &ray,
+                   double t_max, Hit &hit);
 bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &hit);
 bool intersectFoliage(const FoliageEllipsoid &ell, int32_t index, const Ray &ray, double t_max,
                       Hit &hit);
