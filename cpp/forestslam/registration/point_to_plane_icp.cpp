@@ -60,8 +60,9 @@ Eigen::Index PlaneTarget::size() const { return impl_->points.rows(); }
 
 int PlaneTarget::nearest(const Eigen::Vector3d &query, double &squared_distance) const {
     if (impl_->points.rows() == 0) return -1;
-    std::vector<int> idx(1);
-    std::vector<float> d2(1);
+    // Reused across calls (ICP queries every source point in every iteration).
+    thread_local pcl::Indices idx(1);
+    thread_local std::vector<float> d2(1);
     pcl::PointXYZ q;
     q.getVector3fMap() = query.cast<float>();
     if (impl_->tree.nearestKSearch(q, 1, idx, d2) < 1) return -1;
