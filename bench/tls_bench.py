@@ -129,7 +129,7 @@ def run_simulated(args, out: Path) -> dict:
     plane_target = _core.PlaneTarget(_core.voxel_downsample(ref, cfg.map.voxel_m))
     icp_cfg = _core.IcpConfig()
     T_prev, prev, T_rel = run.frames[0].T_tls_sensor, None, np.eye(4)
-    for s in stamps:
+    for s in [] if args.skip_baselines else stamps:
         pts, _ = _frame_points(by_stamp[s], cfg)
         if prev is None:
             T = T_prev
@@ -143,11 +143,9 @@ def run_simulated(args, out: Path) -> dict:
         )
         icp_poses.append(np.asarray(icp.T_target_source))
         prev, T_prev = pts, T
-    methods = {
-        "proposed": [f.T_tls_sensor for f in run.frames],
-        "ndt_only": ndt_poses,
-        "icp_only": icp_poses,
-    }
+    methods = {"proposed": [f.T_tls_sensor for f in run.frames]}
+    if not args.skip_baselines:
+        methods.update(ndt_only=ndt_poses, icp_only=icp_poses)
 
     ref_trees = plot_trees(ref, cfg.trees, cfg.features)
     truth_xy_tls = (truth_xy_world @ T_tls_world[:2, :2].T) + T_tls_world[:2, 3]
@@ -172,6 +170,7 @@ def run_simulated(args, out: Path) -> dict:
         results[name] = {
             "frames": len(poses),
             "trans_err_mean_m": float(np.mean(te)),
+            "trans_err_median_m": float(np.median(te)),
             "trans_err_max_m": float(np.max(te)),
             "rot_err_mean_deg": float(np.mean(re)),
             "stem_dev_mls_vs_tls_mean_m": float(np.mean(dev)) if len(dev) else None,
@@ -218,9 +217,15 @@ def run_simulated(args, out: Path) -> dict:
             "features_ms_mean": float(np.mean([f.ms_features for f in run.frames])),
             "lm_ms_mean": float(np.mean([f.ms_lm for f in run.frames])),
             "ndt_ms_mean": float(np.mean([f.ms_ndt for f in run.frames])),
+            "target_ms_mean": float(np.mean([f.ms_target for f in run.frames])),
+            "all_ms_mean": float(
+                np.mean([f.ms_features + f.ms_lm + f.ms_ndt + f.ms_target for f in run.frames])
+            ),
             "pipeline_wall_s": wall,
         },
         "accepted_frames": summary["accepted"],
+        "frames_registered": len(run.frames),
+        "ndt_fallback_frames": int(sum(f.fallback for f in run.frames)),
     }
     return report
 
@@ -312,6 +317,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "data" / "cache" / "runs" / "tls_bench")
     parser.add_argument("--skip-sim", action="store_true")
     parser.add_argument("--skip-real", action="store_true")
+    parser.add_argument(
+        "--skip-baselines", action="store_true", help="no NDT-only / ICP-only comparison"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -110,3 +110,48 @@ def test_coarse_stem_alignment_recovers_planar_pose():
     assert n_in >= 7
     assert abs(fx - x) < 0.05 and abs(fy - y) < 0.05 and abs(fyaw - yaw) < np.radians(0.5)
     assert coarse_stem_alignment(src[:1], src_r[:1], dst, r, RegistrationConfig()) is None
+
+
+def test_local_target_is_cropped_and_recropped_only_after_moving(world):
+    from forestslam.tls.pipeline import _GlobalMap
+
+    _, ref, _, _ = world
+    cfg = TlsConfig()
+    cfg.map.target_radius_m = 5.0
+    cfg.map.target_recrop_m = 2.0
+    gmap = _GlobalMap(ref, cfg)
+    t1, built = gmap.target_at(np.array([0.0, 0.0]))
+    assert built and 0 < len(t1) < len(gmap.points)
+    t2, built = gmap.target_at(np.array([1.5, 0.0]))
+    assert not built and t2 is t1
+    _, built = gmap.target_at(np.array([2.5, 0.0]))
+    assert built
+
+
+def test_large_correction_from_the_prediction_is_not_trusted():
+    from forestslam.tls.pipeline import _trusted
+
+    cfg = TlsConfig()
+    lm = {
+        "converged": True,
+        "degenerate": False,
+        "real_inliers": 50,
+        "real_rms_m": 0.02,
+        "T_target_source": pose(0.5, 0.0, 0.0),
+    }
+    assert _trusted(lm, pose(0.0, 0.0, 0.0), cfg)
+    lm["T_target_source"] = pose(3.0, 0.0, 0.0)
+    assert not _trusted(lm, pose(0.0, 0.0, 0.0), cfg)
+    assert not _trusted({**lm, "converged": False}, None, cfg)
+    assert not _trusted({**lm, "real_rms_m": 0.5}, None, cfg)
+
+
+def test_velocity_prediction_mode_recovers_poses(world):
+    _, ref, truth, frames = world
+    cfg = TlsConfig()
+    cfg.registration.initial_pose = "velocity"
+    out = register_mls_to_tls(frames, ref, cfg)
+    assert len(out.frames) == len(truth)
+    for rec, T in zip(out.frames, truth, strict=True):
+        assert np.linalg.norm(rec.T_tls_sensor[:3, 3] - T[:3, 3]) < 0.01
+        assert _rot_err_deg(rec.T_tls_sensor, T) < 0.1

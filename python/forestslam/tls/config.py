@@ -31,6 +31,13 @@ class MapConfig:
     frame_max_range_m: float = 25.0
     # The LM target (KD-tree) is rebuilt after this many accepted frames (cost bounded).
     rebuild_every_frames: int = 10
+    # LM target: a voxelized copy of the map cropped (in x-y) around the predicted pose, so
+    # its size does not grow with the reference; re-cropped when the platform has moved
+    # target_recrop_m from the crop centre or the map has changed. The radius should cover
+    # the frame's useful range (frame_max_range_m) plus the re-crop distance.
+    target_voxel_m: float = 0.05
+    target_radius_m: float = 30.0
+    target_recrop_m: float = 5.0
     max_points: int = 30_000_000
 
 
@@ -42,6 +49,21 @@ class RegistrationConfig:
     lm_plane_gate_m: float = 0.25
     lm_robust_scale_m: float = 0.05
     lm_max_rounds: int = 15
+    # Initial pose of each frame: "ndt" = 3D-NDT against the previous frame (velocity as its
+    # guess) chained onto that frame's pose (the paper); "velocity" = constant-velocity
+    # prediction, NDT only as a fallback when the LM from the prediction is not trusted.
+    initial_pose: str = "ndt"
+    lm_converged_translation_m: float = 5e-4  # a round moving less than this ends the LM ...
+    lm_converged_rotation_rad: float = 1e-4  # ... when it also rotates less than this
+    # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
+    # is not degenerate, its real-feature residual RMS is below good_real_rms_m and it moved
+    # the predicted pose (constant velocity) by at most max_correction_m / max_correction_deg.
+    # Otherwise NDT against the previous frame chained onto its pose gives a second initial
+    # pose (fallback); when that fails too the frame is rejected (not merged, velocity not
+    # updated) and keeps the NDT-chained (else predicted) pose.
+    good_real_rms_m: float = 0.12
+    max_correction_m: float = 1.5
+    max_correction_deg: float = 15.0
     # First-frame coarse alignment by stem positions (when no --initial-pose is given).
     coarse_distance_tolerance_m: float = 0.25
     coarse_inlier_m: float = 0.35

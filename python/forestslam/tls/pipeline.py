@@ -1,6 +1,10 @@
-"""MLS-to-TLS plot mapping (Shao et al. 2020): each MLS frame gets an initial pose from 3D-NDT
-against the previous frame chained onto that frame's final pose, then the stem-centre LM
-(virtual + DoG features) against the global map = TLS reference + accepted MLS frames.
+"""MLS-to-TLS plot mapping (Shao et al. 2020): each MLS frame gets an initial pose from a
+constant-velocity prediction off the last trusted pose, then the stem-centre LM (virtual + DoG
+features) against a local target: a voxelized copy of the global map (TLS reference + accepted
+MLS frames) cropped around the predicted pose. When the LM from the prediction is not trusted
+(not converged, degenerate, high residuals, or a correction too large for the motion model),
+3D-NDT against the last trusted frame chained onto its pose (the paper's Section 3.3) gives a
+second initial pose. Frames that still fail are rejected: not merged, not chained from.
 
 The first frame's pose in the TLS frame comes from `initial_pose` when given, else from a
 coarse stem alignment: stem positions of the frame (ring circle fits) are matched to those of
@@ -53,6 +57,8 @@ class FrameRecord:
     ms_features: float
     ms_lm: float
     ms_ndt: float
+    ms_target: float = 0.0  # local LM target (re-)build charged to this frame
+    fallback: bool = False  # the NDT initial pose was used
 
 
 @dataclass
@@ -98,14 +104,17 @@ def _frame_points(scan: Scan, config: TlsConfig) -> tuple[np.ndarray, np.ndarray
 
 
 class _GlobalMap:
-    """TLS reference + accepted frames, voxelized; the LM target is rebuilt in batches."""
+    """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
+    target: a coarser voxel copy cropped in x-y around the predicted pose."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
         self.config = config
         self.points = self.core.voxel_downsample(reference, config.map.voxel_m)
         self.pending: list[np.ndarray] = []
-        self.target = self.core.StemCentreTarget(self.points)
+        self.target = None
+        self.target_centre = np.zeros(2)
+        self.dirty = True
 
     def add(self, points_tls: np.ndarray) -> None:
         self.pending.append(points_tls)
@@ -123,7 +132,46 @@ class _GlobalMap:
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
-        self.target = self.core.StemCentreTarget(self.points)
+        self.dirty = True
+
+    def target_at(self, xy: np.ndarray):
+        """LM target around xy (2,), re-cropped only when needed. -> (target, rebuilt)."""
+        m = self.config.map
+        xy = np.asarray(xy, dtype=np.float64)
+        if (
+            self.target is not None
+            and not self.dirty
+            and np.linalg.norm(xy - self.target_centre) <= m.target_recrop_m
+        ):
+            return self.target, False
+        d2 = np.sum((self.points[:, :2] - xy) ** 2, axis=1)
+        crop = self.points[d2 <= m.target_radius_m**2]
+        if m.target_voxel_m > m.voxel_m:
+            crop = self.core.voxel_downsample(np.ascontiguousarray(crop), m.target_voxel_m)
+        self.target = self.core.StemCentreTarget(np.ascontiguousarray(crop))
+        self.target_centre = xy
+        self.dirty = False
+        return self.target, True
+
+
+def _correction(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) between two poses."""
+    d = np.linalg.inv(T_a) @ T_b
+    c = np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0)
+    return float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3])), float(np.degrees(np.arccos(c)))
+
+
+def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
+    reg = config.registration
+    if not lm["converged"] or lm["degenerate"]:
+        return False
+    if lm["real_inliers"] > 0 and lm["real_rms_m"] > reg.good_real_rms_m:
+        return False
+    if T_pred is not None:
+        dt, dr = _correction(T_pred, lm["T_target_source"])
+        if dt > reg.max_correction_m or dr > reg.max_correction_deg:
+            return False
+    return True
 
 
 def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
@@ -138,6 +186,8 @@ def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
         plane_gate_m=reg.lm_plane_gate_m,
         robust_scale_m=reg.lm_robust_scale_m,
         max_rounds=reg.lm_max_rounds,
+        converged_translation_m=reg.lm_converged_translation_m,
+        converged_rotation_rad=reg.lm_converged_rotation_rad,
     )
 
 
@@ -197,9 +247,13 @@ def register_mls_to_tls(
     ref_stems = None
     frames: list[FrameRecord] = []
     centres: list[np.ndarray] = []
-    prev_points = None
+    # Previous frame (pose and points, trusted or not), whether it was trusted, and the
+    # per-frame velocity from the last pair of consecutive trusted frames.
+    T_good = None  # set once the first frame is anchored
     T_prev = None
-    T_rel_prev = np.eye(4)
+    prev_points = None
+    prev_good = False
+    V = np.eye(4)
     seen = 0
     method = "given" if initial_pose is not None else "stems"
     for index, scan in enumerate(scans):
@@ -217,7 +271,8 @@ def register_mls_to_tls(
         ms_features = (time.process_time() - t0) * 1e3
 
         ms_ndt = 0.0
-        if T_prev is None:
+        T_pred = None
+        if T_good is None:
             if initial_pose is not None:
                 T_init = np.asarray(initial_pose, dtype=np.float64)
             else:
@@ -233,38 +288,71 @@ def register_mls_to_tls(
                         )
                     continue
         else:
+            T_pred = T_prev @ V
+            T_init = T_pred
+            if config.registration.initial_pose == "ndt":
+                t0 = time.process_time()
+                ndt = core.register_ndt(
+                    prev_points,
+                    points,
+                    np.ascontiguousarray(V),
+                    voxel_m=config.registration.ndt_voxel_m,
+                    resolution_m=config.registration.ndt_resolution_m,
+                )
+                ms_ndt = (time.process_time() - t0) * 1e3
+                if ndt["converged"]:
+                    T_pred = T_init = T_prev @ ndt["T_target_source"]
+
+        t0 = time.process_time()
+        target, _ = gmap.target_at(T_init[:2, 3])
+        ms_target = (time.process_time() - t0) * 1e3
+        t0 = time.process_time()
+        lm = _lm(core, target, feats, T_init, config)
+        ms_lm = (time.process_time() - t0) * 1e3
+        good = _trusted(lm, T_pred, config)
+        fallback = False
+        if not good and T_good is not None and config.registration.initial_pose != "ndt":
+            # Fallback: NDT against the previous frame, chained onto its pose.
             t0 = time.process_time()
             ndt = core.register_ndt(
                 prev_points,
                 points,
-                np.ascontiguousarray(T_rel_prev),
+                np.ascontiguousarray(V),
                 voxel_m=config.registration.ndt_voxel_m,
                 resolution_m=config.registration.ndt_resolution_m,
             )
             ms_ndt = (time.process_time() - t0) * 1e3
-            T_rel = ndt["T_target_source"] if ndt["converged"] else T_rel_prev
-            T_init = T_prev @ T_rel
-
-        t0 = time.process_time()
-        lm = _lm(core, gmap.target, feats, T_init, config)
-        ms_lm = (time.process_time() - t0) * 1e3
-        ok = lm["converged"] and not lm["degenerate"]
-        T = lm["T_target_source"] if ok else T_init
+            if ndt["converged"]:
+                T_ndt = T_prev @ ndt["T_target_source"]
+                T_init = T_ndt
+                t0 = time.process_time()
+                target, _ = gmap.target_at(T_ndt[:2, 3])
+                ms_target += (time.process_time() - t0) * 1e3
+                t0 = time.process_time()
+                lm2 = _lm(core, target, feats, T_ndt, config)
+                ms_lm += (time.process_time() - t0) * 1e3
+                if _trusted(lm2, T_ndt, config):
+                    lm, good, fallback = lm2, True, True
+        # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
+        # paper); else the initial pose. Only trusted frames join the map.
+        lm_ok = lm["converged"] and not lm["degenerate"]
+        use_lm = good or (config.registration.initial_pose == "ndt" and lm_ok)
+        T = lm["T_target_source"] if use_lm else T_init
         stems_agree = (
             lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
             and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
         )
-        if T_prev is None and ok and initial_pose is None:
+        if T_good is None and good and initial_pose is None:
             stems_agree = stems_agree and _stems_on_reference(feats, T, ref_stems, config)
         # The first frame anchors everything: its stems must sit on the reference's stems.
-        if T_prev is None and not (ok and (stems_agree or initial_pose is not None)):
+        if T_good is None and not (good and (stems_agree or initial_pose is not None)):
             if initial_pose is not None or seen >= config.registration.coarse_max_frames:
                 raise ProcessingError(
                     "the first MLS frame does not register onto the reference "
                     f"({lm['inliers']} feature pairs): mismatched data or a wrong initial pose"
                 )
             continue
-        accepted = ok and stems_agree
+        accepted = good and stems_agree
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
@@ -282,14 +370,16 @@ def register_mls_to_tls(
             ms_features=ms_features,
             ms_lm=ms_lm,
             ms_ndt=ms_ndt,
+            ms_target=ms_target,
+            fallback=fallback,
         )
         frames.append(record)
         if on_frame is not None:
             on_frame(record)
-        if T_prev is not None:
-            T_rel_prev = np.linalg.inv(T_prev) @ T
-        T_prev = T
-        prev_points = points
+        if (good and prev_good) or config.registration.initial_pose == "ndt":
+            V = np.linalg.inv(T_prev) @ T if T_prev is not None else V
+        T_good = T if good else T_good
+        T_prev, prev_points, prev_good = T, points, good
     if seen == 0:
         raise InputError("the MLS input holds no scans")
     if not frames:

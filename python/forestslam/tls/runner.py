@@ -127,6 +127,10 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         "coverage_tls": coverage["mean_tls"],
         "coverage_merged": coverage["mean_merged"],
         "ms_features_lm_mean": float(np.mean([f.ms_features + f.ms_lm for f in frames])),
+        "ms_all_mean": float(
+            np.mean([f.ms_features + f.ms_lm + f.ms_ndt + f.ms_target for f in frames])
+        ),
+        "ndt_fallback_frames": int(sum(f.fallback for f in frames)),
         "initial_pose": run.initial_method,
     }
 
