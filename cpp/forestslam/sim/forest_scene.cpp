@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <stdexcept>
 
 namespace forestslam::sim {
@@ -223,19 +222,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         int ix0, iy0, ix1, iy1, l0, l1;
         cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
         const double m = 1e-6;  // keep the rejection conservative under round-off
-        auto down = [](double v) {
-            float f = static_cast<float>(v);
-            if (static_cast<double>(f) > v) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
-            return f;
-        };
-        auto up = [](double v) {
-            float f = static_cast<float>(v);
-            if (static_cast<double>(f) < v) f = std::nextafter(f, std::numeric_limits<float>::infinity());
-            return f;
-        };
-        const Item item{b.code,
-                        {down(b.xmin - m), down(b.ymin - m), down(b.zmin - m)},
-                        {up(b.xmax + m), up(b.ymax + m), up(b.zmax + m)}};
+        const Item item{b.code, {b.xmin - m, b.ymin - m, b.zmin - m}, {b.xmax + m, b.ymax + m, b.zmax + m}};
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix)
                 for (int l = l0; l <= l1; ++l)
