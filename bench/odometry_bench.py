@@ -28,32 +28,13 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from sim_sequences import sensor_of, sequence  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "data" / "cache"
 SCENARIOS = ("vlp16-loop", "vlp16-rough", "hdl32-loop", "rsm1-robot")
 FPFH_ITERATIONS = 5000
 FPFH_POINTS = 4000
-
-
-def sequence(name: str, max_scans: int | None) -> Path:
-    from forestslam.sim import simulate
-
-    tag = name if max_scans is None else f"{name}-{max_scans}"
-    out = CACHE / "sim" / tag
-    if not (out / "sequence.bag").is_file() or not (out / "truth" / "trajectory.tum").is_file():
-        kw = {} if max_scans is None else {"max_scans": max_scans}
-        t = time.perf_counter()
-        simulate(name, out, **kw)
-        print(f"  simulated {name} in {time.perf_counter() - t:.0f} s -> {out}", flush=True)
-    return out
-
-
-def sensor_of(seq: Path) -> str:
-    import yaml
-
-    doc = yaml.safe_load((seq / "truth" / "scenario.yaml").read_text())
-    return doc["sensor"]["profile"]
 
 
 def evaluate(seq: Path, stamps: list, poses: list, wall: list, cpu: list) -> dict:
