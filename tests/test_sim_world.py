@@ -167,3 +167,15 @@ def test_tls_plot_and_mls_plot_share_one_world():
     assert (mls.path.xy[:, 0] > x0 - 1.5).all() and (mls.path.xy[:, 0] < x1 + 1.5).all()
     assert (mls.path.xy[:, 1] > y0 - 1.5).all() and (mls.path.xy[:, 1] < y1 + 1.5).all()
     assert np.ptp(mls.path.xy[:, 1]) > 15 and np.ptp(mls.path.xy[:, 0]) > 15
+
+
+def test_short_loops_keep_their_length_when_pushed_clear_of_stems():
+    # Smoothing a small loop used to shrink it to a point (a sequence standing still).
+    from forestslam.sim import load_scenario
+    from forestslam.sim.motion import _polyline_length, plan_path
+    from forestslam.sim.stand import load_stand
+
+    for length_m in (10.0, 14.0, 45.0):
+        cfg = load_scenario("sample", length_m=length_m)
+        path = plan_path(cfg.motion, load_stand(cfg.stand, seed=int(cfg.seed)))
+        assert _polyline_length(path.xy, path.closed) >= 0.8 * length_m

@@ -107,8 +107,11 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
         if len(xy) > 3 * n0:  # diverging (stems too dense for this clearance): give up here
             return xy
     # Relax: strong smoothing against plain pushes irons out the corners the over-push leaves
-    # (a machine cannot turn on the spot) while keeping the clearance.
+    # (a machine cannot turn on the spot) while keeping the clearance. Smoothing also shrinks a
+    # loop (curve-shortening), so stop before it loses more than a tenth of its length.
+    length0 = _polyline_length(xy, closed)
     for _ in range(150):
+        previous = xy
         for _ in range(3):
             xy = _smooth(xy, closed, 0.5)
         d, j = tree.query(xy, k=k)
@@ -120,7 +123,14 @@ def _push_clear(xy: np.ndarray, closed: bool, stand: Stand, clearance: float) ->
         )
         if len(xy) > 3 * n0:
             return xy
+        if _polyline_length(xy, closed) < 0.9 * length0:
+            return previous
     return xy
+
+
+def _polyline_length(xy: np.ndarray, closed: bool) -> float:
+    pts = np.vstack([xy, xy[:1]]) if closed and len(xy) > 1 else xy
+    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
 
 
 def _capped(step: np.ndarray, limit: float = 0.3) -> np.ndarray:
@@ -215,6 +225,11 @@ def plan_path(cfg: MotionConfig, stand: Stand) -> PlannedPath:
                 if c >= 0.9 * clearance:
                     return PlannedPath(xy, closed, c)
         assert best is not None
+        if _polyline_length(best.xy, best.closed) < 0.5 * cfg.length_m:
+            raise ProcessingError(
+                f"the {cfg.path} path shrank below half of length_m={cfg.length_m} m while "
+                "keeping clear of stems; choose another centre or a longer path"
+            )
         log.warning(
             "path keeps only %.2f m from the nearest stem (asked %.2f m)",
             best.min_clearance_m,
