@@ -206,6 +206,19 @@ class _BagSource:
         self.stats.warnings.append(line)
         log.warning(line)
 
+    def _resume(self, salvage, done: list[int]) -> Iterator[tuple[int, bytes]]:
+        """Messages of a salvage walk not yet yielded (`done`: their stamps, with repeats);
+        what neither the reader nor the walk recovered is counted as skipped."""
+        seen = collections.Counter(done)
+        got = len(done)
+        for time_ns, raw in self._salvaged(salvage):
+            if seen[time_ns] > 0:
+                seen[time_ns] -= 1
+                continue
+            got += 1
+            yield time_ns, raw
+        self.stats.skipped += max(len(self) - got, 0)
+
     def fields(self) -> dict[str, str]:
         for time_ns, raw in self._raw_messages():
             try:
@@ -278,16 +291,7 @@ class Ros1BagSource(_BagSource):
             except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
                 failure = exc
         # rosbags stops at a chunk it cannot read: walk the bag and resume after that chunk.
-        salvage = self._walk(f"damaged chunk ({failure})")
-        seen = collections.Counter(done)
-        got = len(done)
-        for time_ns, raw in self._salvaged(salvage):
-            if seen[time_ns] > 0:
-                seen[time_ns] -= 1
-                continue
-            got += 1
-            yield time_ns, raw
-        self.stats.skipped += max(len(self) - got, 0)
+        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
 
     def _deserialize(self, raw):
         return self._store.deserialize_ros1(raw, POINTCLOUD2)
@@ -371,16 +375,7 @@ class Ros2BagSource(_BagSource):
             self.stats.warnings.append(line)
             log.warning(line)
             return
-        salvage = self._walk(f"damaged chunk ({failure})")
-        seen = collections.Counter(done)
-        got = len(done)
-        for time_ns, raw in self._salvaged(salvage):
-            if seen[time_ns] > 0:
-                seen[time_ns] -= 1
-                continue
-            got += 1
-            yield time_ns, raw
-        self.stats.skipped += max(len(self) - got, 0)
+        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
 
     def _deserialize(self, raw):
         return self._store.deserialize_cdr(raw, POINTCLOUD2)
