@@ -106,6 +106,8 @@ class FakeOdometry:
 
 
 def install_fake(monkeypatch=None, delay_s=0.0):
+    import forestslam.config  # noqa: F401  (loads the real odometry config before the fake lands)
+
     module = types.ModuleType("forestslam.odometry")
     FakeOdometry.delay_s = delay_s
     module.Odometry = FakeOdometry

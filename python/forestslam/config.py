@@ -7,74 +7,46 @@ A YAML file holds any subset of the sections, e.g.::
     mapping:
       dbh_window_scans: 25
 
-Sections: perception, odometry, slam, mapping, localization, tls. Each comes from
-`forestslam.<package>.config`; a component whose package is not part of this build (or not
-yet) has no section, and a YAML file naming it is rejected with the list of valid sections.
+Missing sections and keys keep their defaults; an unknown section or key is rejected with the
+list of valid names (`forestslam.config_utils.from_dict`).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
-import logging
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from forestslam.config_utils import from_dict, load_yaml, to_dict
-
-log = logging.getLogger(__name__)
-
-# (section, module, class name). The order is the order of the sections in run.yaml.
-SECTIONS: tuple[tuple[str, str, str], ...] = (
-    ("perception", "forestslam.perception.config", "PerceptionConfig"),
-    ("odometry", "forestslam.odometry.config", "OdometryConfig"),
-    ("slam", "forestslam.slam.config", "SlamConfig"),
-    ("mapping", "forestslam.mapping.config", "MappingConfig"),
-    ("localization", "forestslam.localization.config", "LocalizationConfig"),
-    ("tls", "forestslam.tls.config", "TlsConfig"),
-)
+from forestslam.localization.config import LocalizationConfig
+from forestslam.mapping.config import MappingConfig
+from forestslam.odometry.config import OdometryConfig
+from forestslam.perception.config import PerceptionConfig
+from forestslam.slam.config import SlamConfig
+from forestslam.tls.config import TlsConfig
 
 
-def _section_class(module_name: str, class_name: str) -> type | None:
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name and module_name.startswith(exc.name):
-            return None  # the component is not in this build
-        raise
-    cls = getattr(module, class_name, None)
-    if cls is None or not dataclasses.is_dataclass(cls):
-        log.debug("%s has no dataclass %s; section left out", module_name, class_name)
-        return None
-    return cls
+@dataclass
+class ForestSlamConfig:
+    """Configuration of every forestslam component; field order is the order in run.yaml."""
+
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    slam: SlamConfig = field(default_factory=SlamConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    localization: LocalizationConfig = field(default_factory=LocalizationConfig)
+    tls: TlsConfig = field(default_factory=TlsConfig)
 
 
-def _build_root() -> type:
-    fields = []
-    for section, module_name, class_name in SECTIONS:
-        cls = _section_class(module_name, class_name)
-        if cls is not None:
-            fields.append((section, cls, dataclasses.field(default_factory=cls)))
-    root = dataclasses.make_dataclass("ForestSlamConfig", fields)
-    root.__module__ = __name__
-    sections = ", ".join(f[0] for f in fields)
-    root.__doc__ = f"Configuration of every forestslam component (sections: {sections})."
-    return root
-
-
-ForestSlamConfig = _build_root()
-
-
-def load_config(path: str | Path | None = None) -> Any:
-    """The root config from a YAML file (missing sections and keys keep their defaults)."""
+def load_config(path: str | Path | None = None) -> ForestSlamConfig:
+    """The root config from a YAML file, or the defaults when `path` is None."""
     if path is None:
         return ForestSlamConfig()
     return load_yaml(ForestSlamConfig, path)
 
 
-def config_from_dict(data: dict | None) -> Any:
+def config_from_dict(data: dict | None) -> ForestSlamConfig:
     return from_dict(ForestSlamConfig, data)
 
 
-def config_to_dict(config: Any) -> dict:
+def config_to_dict(config: ForestSlamConfig) -> dict:
     return to_dict(config)
