@@ -1,14 +1,23 @@
 """SLAM benchmark (issue 6): forestslam SLAM beside KISS-ICP on the simulator's loops.
 
-For each scenario (default vlp16-loop, vlp16-rough, hdl32-loop; cached under data/cache/sim/):
-runs `forestslam run --mode slam` and KISS-ICP (PyPI) on the same scans, evaluates both
-against the truth, and prints ATE, RPE, drift, tree recall / precision, DBH errors and speed,
-with the targets: SLAM ATE <= 0.25 m and <= 0.5 x KISS-ICP; recall, precision >= 0.90; DBH MAE
-<= 3 cm; >= 10 scans/s on one core (VLP-16). Then a memory run: the first VLP-16 sequence
-replayed (stamps shifted) for --rss-scans scans, RSS read from /proc/self/status after 500
-scans and at the end (target growth <= 200 MB).
+For each scenario (default vlp16-loop, vlp16-rough, hdl32-loop; cached under data/cache/sim/,
+simulated when missing) runs the main job `forestslam run --mode slam` and KISS-ICP (PyPI,
+through `run_kiss` of bench/odometry_bench.py: same scans, stamps and per-point times) and
+evaluates both against the truth: ATE RMSE after SE(3) alignment, RPE % over 10 m, final drift,
+tree recall / precision (Hungarian, 0.5 m gate, truth trees DBH >= 0.1 m within 15 m of the
+path), DBH MAE / RMSE / bias, and speed. Speed is CPU time (time.process_time) of the whole job
+(reading the bag, odometry with perception, SLAM, mapping, writing every output) with the
+process pinned to one core and one thread per library, so the figure is what one dedicated
+core gives, whatever else runs on the machine; wall-clock rate and load average are printed
+beside it. Then the memory run: the first scenario's sequence replayed (stamps shifted, so it
+keeps going round the same loop) through the pipeline for --rss-scans scans, RSS read from
+/proc/self/status after 500 scans and at the end. Targets: SLAM ATE <= 0.25 m and <= 0.5 x
+KISS-ICP's; recall, precision >= 0.90; DBH MAE <= 3 cm; >= 10 scans per CPU second on VLP-16;
+RSS growth <= 200 MB after the first 500 of 3,000 scans. A summary table ends the output; the
+exit status is 1 when a target is missed.
 
-    python bench/slam_bench.py [--scenarios a,b] [--max-scans N] [--rss-scans 3000] [--no-kiss]
+    python bench/slam_bench.py [--scenarios a,b] [--max-scans N] [--rss-scans 3000]
+        [--rss-only] [--no-kiss | --reuse-kiss] [--json out.json]
 """
 
 from __future__ import annotations
@@ -18,6 +27,7 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core, for the competitor too
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("TBB_NUM_THREADS", "1")
 
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -25,11 +35,13 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from odometry_bench import run_kiss  # noqa: E402  (the issue-5 bench's KISS-ICP runner)
 from sim_sequences import sensor_of, sequence  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = REPO / "data" / "cache"
 SCENARIOS = ("vlp16-loop", "vlp16-rough", "hdl32-loop")
+RSS_WARMUP_SCANS = 500
 
 
 def rss_mb() -> float:
@@ -39,55 +51,44 @@ def rss_mb() -> float:
     return float("nan")
 
 
-def run_kiss(seq: Path, sensor: str) -> dict:
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
-    from forestslam.evaluation import trajectory_errors
-    from forestslam.io import read_scans, read_tum
-    from forestslam.sensors import load_profile
-
-    profile = load_profile(sensor)
-    cfg = KISSConfig()
-    cfg.data.max_range = float(profile.range_max_m)
-    cfg.data.min_range = float(profile.range_min_m)
-    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
-    cfg.registration.max_num_threads = 1
-    kiss = KissICP(cfg)
-    stamps, poses = [], []
-    t0 = time.perf_counter()
-    for scan in read_scans(seq / "sequence.bag"):
-        times = scan.time if scan.time is not None else np.zeros(len(scan))
-        kiss.register_frame(scan.points, times.astype(np.float64))
-        stamps.append(scan.stamp)
-        poses.append(np.asarray(kiss.last_pose).copy())
-    wall = time.perf_counter() - t0
-    gs, gp = read_tum(seq / "truth" / "trajectory.tum")
-    m = trajectory_errors(np.asarray(stamps), np.stack(poses), gs, gp)
-    m["scans_per_s"] = len(stamps) / wall
-    return m
+def load() -> str:
+    return "/".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def run_ours(seq: Path, sensor: str, out: Path) -> tuple[dict, object]:
+def run_ours(seq: Path, sensor: str, out: Path) -> dict:
+    """The main job on a sequence; figures of the run, its evaluation and its CPU time."""
     from forestslam.evaluation.report import evaluate_run
     from forestslam.runner import run
 
+    c0, w0 = time.process_time(), time.perf_counter()
     summary = run(seq / "sequence.bag", sensor, out, mode="slam", progress=False)
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     metrics = evaluate_run(out, seq / "truth")
-    return metrics, summary
+    return {
+        "metrics": metrics,
+        "summary": summary.to_dict(),
+        "cpu_s": cpu,
+        "wall_s": wall,
+        "cpu_scans_per_s": summary.scans / cpu if cpu > 0 else 0.0,
+        "wall_scans_per_s": summary.scans / wall if wall > 0 else 0.0,
+    }
 
 
 def rss_run(seq: Path, sensor: str, n_scans: int) -> dict:
-    """Replay the sequence until n_scans scans went through the pipeline; RSS at 500 and end."""
+    """Replay the sequence until n_scans scans went through the pipeline (checkpoints written
+    as the main job does); RSS after the first RSS_WARMUP_SCANS scans and at the end."""
     from forestslam.config import load_config
     from forestslam.io import read_scans
     from forestslam.runner import Pipeline
     from forestslam.sensors import load_profile
 
     out = CACHE / "bench-slam" / "rss"
-    pipe = Pipeline(load_profile(sensor), load_config(None), "slam", out)
-    offset, n, rss500 = 0.0, 0, None
-    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = load_config(None)
+    every = max(1, int(cfg.mapping.checkpoint_every_scans))
+    pipe = Pipeline(load_profile(sensor), cfg, "slam", out)
+    offset, n, rss_warm = 0.0, 0, None
+    c0, w0 = time.process_time(), time.perf_counter()
     while n < n_scans:
         first = last = None
         for scan in read_scans(seq / "sequence.bag"):
@@ -96,119 +97,222 @@ def rss_run(seq: Path, sensor: str, n_scans: int) -> dict:
             scan.stamp += offset  # the replay continues in time
             pipe.process(scan)
             n += 1
-            if n == 500:
-                rss500 = rss_mb()
+            if n % every == 0:
+                pipe.write(final=False)
+            if n == RSS_WARMUP_SCANS:
+                rss_warm = rss_mb()
             if n >= n_scans:
                 break
+        if first is None:
+            break
         offset += last - first + 0.1
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    end = rss_mb()
     return {
         "scans": n,
-        "rss_500_mb": rss500,
-        "rss_end_mb": rss_mb(),
-        "growth_mb": rss_mb() - (rss500 or 0.0),
+        "rss_warm_mb": rss_warm,
+        "rss_end_mb": end,
+        "growth_mb": None if rss_warm is None else end - rss_warm,
         "trees": pipe.slam.n_landmarks,
-        "scans_per_s": n / (time.perf_counter() - t0),
+        "keyframes": pipe.slam.n_keyframes,
+        "cpu_scans_per_s": n / cpu if cpu > 0 else 0.0,
+        "wall_scans_per_s": n / wall if wall > 0 else 0.0,
     }
 
 
-def fmt(v, digits=3):
-    return "n/a" if v is None else f"{v:.{digits}f}"
+def kiss_key(seq: Path) -> dict:
+    """What a KISS-ICP result depends on: the sequence file, the kiss-icp version and the
+    helper's code."""
+    import hashlib
+    import inspect
+    from importlib.metadata import version
+
+    st = (seq / "sequence.bag").stat()
+    code = hashlib.sha1(inspect.getsource(run_kiss).encode()).hexdigest()
+    return {
+        "bag": str(seq / "sequence.bag"),
+        "size": st.st_size,
+        "mtime_ns": st.st_mtime_ns,
+        "kiss_icp": version("kiss-icp"),
+        "helper_sha1": code,
+    }
 
 
-def main() -> None:
+def kiss_result(seq: Path, sensor: str, reuse: bool) -> dict:
+    """KISS-ICP on the sequence; with `reuse`, the result an earlier run of this bench stored
+    for the very same sequence file, kiss-icp version and helper code (the competitor does not
+    change between runs; it is marked as reused in the output)."""
+    store = CACHE / "bench-slam" / "kiss" / f"{seq.name}.json"
+    key = kiss_key(seq)
+    if reuse and store.is_file():
+        doc = json.loads(store.read_text())
+        if doc.get("key") == key:
+            print(f"  KISS-ICP: reused the result of {doc['when']} (same bag, same version)")
+            return doc["result"] | {"reused_from": doc["when"]}
+    result = run_kiss(seq, sensor)
+    store.parent.mkdir(parents=True, exist_ok=True)
+    when = time.strftime("%Y-%m-%d %H:%M:%SZ", time.gmtime())
+    store.write_text(json.dumps(plain({"key": key, "when": when, "result": result}), indent=1))
+    return result
+
+
+def fmt(v, digits=3) -> str:
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "n/a"
+    return f"{v:.{digits}f}"
+
+
+def scenario(name: str, max_scans: int | None, with_kiss: bool, reuse_kiss: bool) -> dict:
+    print(f"== {name} (load {load()})", flush=True)
+    seq = sequence(name, max_scans)
+    sensor = sensor_of(seq)
+    ours = run_ours(seq, sensor, CACHE / "bench-slam" / name)
+    m, s = ours["metrics"], ours["summary"]
+    t, o, tr = m["trajectory"], m.get("odometry", {}), m.get("trees", {})
+    k = kiss_result(seq, sensor, reuse_kiss) if with_kiss else None
+    ratio = t["ate_rmse_m"] / max(k["ate_rmse_m"], 1e-9) if k else None
+    print(f"  {'':<18}{'SLAM':>10}{'odometry':>10}{'KISS-ICP':>10}")
+    for label, key, digits in (
+        ("ATE RMSE [m]", "ate_rmse_m", 3),
+        ("RPE 10 m [%]", "rpe_percent_10m", 2),
+        ("final drift [m]", "final_drift_m", 3),
+    ):
+        kv = fmt(k.get(key), digits) if k else "-"
+        print(f"  {label:<18}{fmt(t.get(key), digits):>10}{fmt(o.get(key), digits):>10}{kv:>10}")
+    kiss_rate = 1e3 / k["cpu_ms_per_scan"] if k and k["cpu_ms_per_scan"] > 0 else None
+    print(
+        f"  {'scans/CPU s':<18}{fmt(ours['cpu_scans_per_s'], 1):>10}{'':>10}"
+        f"{fmt(kiss_rate, 1) if k else '-':>10}"
+    )
+    dbh = {key: tr.get(key) for key in ("dbh_mae_m", "dbh_rmse_m", "dbh_bias_m")}
+    cm = {key: None if v is None else v * 100 for key, v in dbh.items()}
+    print(
+        f"  trees: recall {fmt(tr.get('recall'))} precision {fmt(tr.get('precision'))} "
+        f"(truth {tr.get('n_truth')}, est {tr.get('n_est')}, matched {tr.get('n_matched')}), "
+        f"pos err {fmt(tr.get('mean_position_error_m'))} m, DBH MAE {fmt(cm['dbh_mae_m'], 2)} "
+        f"cm, RMSE {fmt(cm['dbh_rmse_m'], 2)} cm, bias {fmt(cm['dbh_bias_m'], 2)} cm"
+    )
+    print(
+        f"  ATE ratio SLAM/KISS {fmt(ratio, 3)}; {s['scans']} scans, {s['keyframes']} keyframes, "
+        f"{s['loop_closures']} loop closures, {s['degraded_scans']} degraded, "
+        f"{s['failed_scans']} failed; CPU {ours['cpu_s']:.0f} s, wall {ours['wall_s']:.0f} s "
+        f"({fmt(ours['wall_scans_per_s'], 1)} scans/s wall)",
+        flush=True,
+    )
+    checks = {
+        "ATE<=0.25m": t["ate_rmse_m"] <= 0.25,
+        "recall>=0.9": (tr.get("recall") or 0.0) >= 0.9,
+        "precision>=0.9": (tr.get("precision") or 0.0) >= 0.9,
+        "DBH MAE<=3cm": dbh["dbh_mae_m"] is not None and dbh["dbh_mae_m"] <= 0.03,
+    }
+    if k:
+        checks["ATE<=0.5xKISS"] = ratio <= 0.5
+    if sensor == "vlp16":
+        checks[">=10 scans/CPU s"] = ours["cpu_scans_per_s"] >= 10.0
+    return {"sensor": sensor, "ours": ours, "kiss": k, "ratio": ratio, "checks": checks}
+
+
+def kiss_cell(k: dict | None) -> str:
+    if not k:
+        return "-"
+    return fmt(k["ate_rmse_m"]) + ("*" if "reused_from" in k else "")
+
+
+def summary_table(results: dict, memory: dict | None) -> bool:
+    head = (
+        f"{'scenario':<12}{'scans':>6}{'SLAM ATE':>9}{'KISS ATE':>9}{'ratio':>7}{'odo ATE':>8}"
+        f"{'RPE%':>6}{'recall':>7}{'prec':>6}{'DBH MAE':>8}{'scan/CPUs':>10}{'scan/s':>7}  failed"
+    )
+    print(
+        "\nSUMMARY (targets: SLAM ATE <= 0.25 m and <= 0.5 x KISS-ICP; recall, precision >= "
+        "0.90; DBH MAE <= 3 cm; VLP-16 >= 10 scans per CPU second; RSS growth <= 200 MB)"
+    )
+    print(head)
+    print("-" * len(head))
+    ok = True
+    for name, r in results.items():
+        o = r["ours"]
+        t = o["metrics"]["trajectory"]
+        od = o["metrics"].get("odometry", {})
+        tr = o["metrics"].get("trees", {})
+        k = r["kiss"]
+        failed = [c for c, v in r["checks"].items() if not v]
+        ok &= not failed
+        mae = tr.get("dbh_mae_m")
+        print(
+            f"{name:<12}{o['summary']['scans']:>6}{fmt(t['ate_rmse_m']):>9}"
+            f"{kiss_cell(k):>9}{fmt(r['ratio'], 2) if k else '-':>7}"
+            f"{fmt(od.get('ate_rmse_m')):>8}{fmt(t.get('rpe_percent_10m'), 2):>6}"
+            f"{fmt(tr.get('recall')):>7}{fmt(tr.get('precision'), 2):>6}"
+            f"{fmt(None if mae is None else mae * 100, 2) + 'cm':>8}"
+            f"{fmt(o['cpu_scans_per_s'], 1):>10}{fmt(o['wall_scans_per_s'], 1):>7}  "
+            f"{', '.join(failed) if failed else '-'}"
+        )
+    if memory:
+        g = memory["growth_mb"]
+        mem_ok = g is not None and g <= 200.0
+        ok &= mem_ok
+        print(
+            f"{'memory':<12}{memory['scans']:>6}  RSS after {RSS_WARMUP_SCANS} scans "
+            f"{fmt(memory['rss_warm_mb'], 0)} MB, end {fmt(memory['rss_end_mb'], 0)} MB, growth "
+            f"{fmt(g, 0)} MB; {fmt(memory['cpu_scans_per_s'], 1)} scans/CPU s; "
+            f"{memory['trees']} trees  {'-' if mem_ok else 'RSS growth<=200MB'}"
+        )
+    if any(r["kiss"] and "reused_from" in r["kiss"] for r in results.values()):
+        print(
+            "* KISS-ICP result reused from an earlier run on the identical sequence (--reuse-kiss)"
+        )
+    print(f"load average {load()}; {'all targets met' if ok else 'some targets missed'}")
+    return ok
+
+
+def plain(o):
+    if isinstance(o, dict):
+        return {str(k): plain(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [plain(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    return o
+
+
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--max-scans", type=int, default=None, help="shorten the sequences")
     ap.add_argument("--rss-scans", type=int, default=3000, help="0 skips the memory run")
+    ap.add_argument("--rss-only", action="store_true", help="only the memory run")
     ap.add_argument("--no-kiss", action="store_true")
+    ap.add_argument(
+        "--reuse-kiss",
+        action="store_true",
+        help="reuse a stored KISS-ICP result of the identical sequence (bag, kiss-icp version)",
+    )
+    ap.add_argument("--json", type=Path, default=CACHE / "bench-slam" / "results.json")
     args = ap.parse_args()
-    if hasattr(os, "sched_setaffinity"):
+    if hasattr(os, "sched_setaffinity"):  # one core: CPU time is then one core's time
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    names = [s.strip() for s in args.scenarios.split(",") if s.strip()]
+    t0 = time.perf_counter()
     results = {}
-    for name in args.scenarios.split(","):
-        print(f"== {name}", flush=True)
-        seq = sequence(name, args.max_scans)
-        sensor = sensor_of(seq)
-        m, s = run_ours(seq, sensor, CACHE / "bench-slam" / name)
-        k = None if args.no_kiss else run_kiss(seq, sensor)
-        t, o, tr = m["trajectory"], m.get("odometry", {}), m.get("trees", {})
-        ratio = t["ate_rmse_m"] / k["ate_rmse_m"] if k else None
-        rows = [
-            ("", "SLAM", "odometry", "KISS-ICP"),
-            (
-                "ATE RMSE [m]",
-                fmt(t["ate_rmse_m"]),
-                fmt(o.get("ate_rmse_m")),
-                fmt(k["ate_rmse_m"]) if k else "-",
-            ),
-            (
-                "RPE 10 m [%]",
-                fmt(t["rpe_percent_10m"], 2),
-                fmt(o.get("rpe_percent_10m"), 2),
-                fmt(k["rpe_percent_10m"], 2) if k else "-",
-            ),
-            (
-                "final drift [m]",
-                fmt(t["final_drift_m"]),
-                fmt(o.get("final_drift_m")),
-                fmt(k["final_drift_m"]) if k else "-",
-            ),
-            ("scans/s", fmt(s.scans_per_s, 1), "", fmt(k["scans_per_s"], 1) if k else "-"),
-        ]
-        for r in rows:
-            print(f"  {r[0]:<18}{r[1]:>10}{r[2]:>10}{r[3]:>10}")
-        print(
-            f"  trees: recall {fmt(tr.get('recall'))} precision {fmt(tr.get('precision'))} "
-            f"(truth {tr.get('n_truth')}, est {tr.get('n_est')}, matched {tr.get('n_matched')}), "
-            f"pos err {fmt(tr.get('mean_position_error_m'))} m, DBH MAE "
-            f"{fmt((tr.get('dbh_mae_m') or float('nan')) * 100, 2)} cm, RMSE "
-            f"{fmt((tr.get('dbh_rmse_m') or float('nan')) * 100, 2)} cm, bias "
-            f"{fmt((tr.get('dbh_bias_m') or float('nan')) * 100, 2)} cm"
-        )
-        checks = {
-            "ATE <= 0.25 m": t["ate_rmse_m"] <= 0.25,
-            "ATE <= 0.5 x KISS": ratio is not None and ratio <= 0.5,
-            "recall >= 0.90": (tr.get("recall") or 0) >= 0.9,
-            "precision >= 0.90": (tr.get("precision") or 0) >= 0.9,
-            "DBH MAE <= 3 cm": (tr.get("dbh_mae_m") or 1) <= 0.03,
-        }
-        if sensor == "vlp16":
-            checks[">= 10 scans/s"] = s.scans_per_s >= 10
-        print(
-            f"  ATE ratio SLAM/KISS: {fmt(ratio, 2)}; loop closures {s.loop_closures}, "
-            f"{s.scans} scans, {s.keyframes} keyframes, {s.degraded_scans} degraded"
-        )
-        print(
-            "  " + ", ".join(f"{k_}: {'PASS' if v else 'FAIL'}" for k_, v in checks.items()),
-            flush=True,
-        )
-        results[name] = {"slam": m, "kiss": k, "summary": s.to_dict(), "checks": checks}
-    if args.rss_scans:
-        first = args.scenarios.split(",")[0]
-        seq = sequence(first, args.max_scans)
-        r = rss_run(seq, sensor_of(seq), args.rss_scans)
-        ok = r["growth_mb"] <= 200
-        print(
-            f"== memory: {r['scans']} scans ({first} replayed), RSS after 500 "
-            f"{r['rss_500_mb']:.0f} MB, at end {r['rss_end_mb']:.0f} MB, growth "
-            f"{r['growth_mb']:.0f} MB ({'PASS' if ok else 'FAIL'} <= 200 MB), "
-            f"{r['scans_per_s']:.1f} scans/s"
-        )
-        results["memory"] = r
-
-    def plain(o):
-        if isinstance(o, dict):
-            return {k: plain(v) for k, v in o.items()}
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, np.generic):
-            return o.item()
-        return o
-
-    out = CACHE / "bench-slam" / "results.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(plain(results), indent=1, default=str))
-    print(f"results -> {out}")
+    if not args.rss_only:
+        for name in names:
+            results[name] = scenario(name, args.max_scans, not args.no_kiss, args.reuse_kiss)
+    memory = None
+    if args.rss_scans and names:
+        seq = sequence(names[0], args.max_scans)
+        print(f"== memory: {names[0]} replayed for {args.rss_scans} scans", flush=True)
+        memory = rss_run(seq, sensor_of(seq), args.rss_scans)
+    ok = summary_table(results, memory)
+    print(f"bench wall time {time.perf_counter() - t0:.0f} s")
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(
+        json.dumps(plain({"scenarios": results, "memory": memory}), indent=1, default=str)
+    )
+    print(f"results -> {args.json}")
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

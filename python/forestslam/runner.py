@@ -45,6 +45,8 @@ class RunSummary:
     icp_rejected: int = 0
     wall_s: float = 0.0
     scans_per_s: float = 0.0
+    cpu_s: float = 0.0  # CPU time of this process (all threads) over the run
+    cpu_scans_per_s: float = 0.0  # scans per CPU second: the rate one dedicated core gives
     status: str = "running"
     read_stats: dict = field(default_factory=dict)
 
@@ -62,6 +64,8 @@ class RunSummary:
             "icp_rejected": self.icp_rejected,
             "wall_s": round(self.wall_s, 3),
             "scans_per_s": round(self.scans_per_s, 2),
+            "cpu_s": round(self.cpu_s, 3),
+            "cpu_scans_per_s": round(self.cpu_scans_per_s, 2),
             "read_stats": self.read_stats,
         }
 
@@ -358,7 +362,7 @@ def run(
 
     write_meta()
     every = max(1, int(cfg.mapping.checkpoint_every_scans))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     scans = itertools.islice(stream, max_scans)  # read_scans skipped `start` undecoded
     bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
     try:
@@ -383,6 +387,8 @@ def run(
         summary.failed_scans = pipe.failed
         summary.degraded_scans = pipe.degraded
         summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+        summary.cpu_s = time.process_time() - c0
+        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
         summary.read_stats = stream.stats.to_dict()
         if pipe.n:
             table = pipe.write(final=True)

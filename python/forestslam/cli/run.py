@@ -40,7 +40,8 @@ def register(app: typer.Typer) -> None:
         )
         rs = s.read_stats
         print(
-            f"{s.scans} scans in {s.wall_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
+            f"{s.scans} scans in {s.wall_s:.1f} s ({s.scans_per_s:.1f} scans/s; "
+            f"{s.cpu_scans_per_s:.1f} per CPU second), "
             f"{s.trees} trees, {s.keyframes} keyframes, {s.degraded_scans} degraded, "
             f"{s.failed_scans} failed, {rs.get('skipped', 0)} corrupt messages skipped"
             + (f", {rs['lost_bytes']} bytes lost" if rs.get("lost_bytes") else "")
