@@ -95,6 +95,38 @@ TEST(RayPrimitives, BarkRoughnessStaysWithinItsAmplitudeAndAveragesOut) {
     EXPECT_NEAR(sum / n, 0.2, 2e-4);       // zero mean: DBH is the smooth diameter
 }
 
+TEST(RayPrimitives, BarkHitsLieOnTheModelledSurface) {
+    // Leaning, tapered, rough stem hit by rays at many azimuths and elevations: the hit point's
+    // distance from the axis equals r s(h) + bark_amp n(azimuth, h) (Stem::barkNoise).
+    Stem s = verticalStem(1.0, -2.0, 0.15);
+    s.taper = 0.02;
+    s.shear = {0.03, -0.02};
+    s.bark_amp = 0.005;
+    for (int k = 0; k < 4; ++k) s.phase[k] = 0.7 + 1.3 * k;
+    const StemCoeffs coeffs(s);
+    int hits = 0;
+    for (int i = 0; i < 400; ++i) {
+        const double az = 2 * M_PI * i / 400.0, el = -0.4 + 0.8 * (i % 17) / 16.0;
+        const double h_aim = 0.5 + 0.02 * i;
+        const Eigen::Vector3d centre(1.0 + 0.03 * h_aim, -2.0 - 0.02 * h_aim, h_aim);
+        const Eigen::Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
+                                  std::sin(el));
+        const Ray ray = makeRay(centre - 4.0 * dir + Eigen::Vector3d(0, 0.03 * (i % 5 - 2), 0), dir);
+        Hit a, b;
+        const bool ha = intersectStem(s, ray, kInf, a);
+        ASSERT_EQ(ha, intersectStem(s, coeffs, ray, kInf, b));
+        if (!ha) continue;
+        ASSERT_EQ(a.t, b.t);
+        ++hits;
+        const Eigen::Vector3d p = ray.origin + a.t * ray.dir;
+        const double dx = p.x() - (1.0 + 0.03 * p.z()), dy = p.y() - (-2.0 - 0.02 * p.z());
+        const double expected =
+            0.15 * s.radiusScale(p.z()) + 0.005 * s.barkNoise(std::atan2(dy, dx), p.z());
+        EXPECT_NEAR(std::hypot(dx, dy), expected, 1e-8) << "ray " << i;
+    }
+    EXPECT_GT(hits, 300);
+}
+
 TEST(RayPrimitives, CappedCylinder) {
     Cylinder c{{3, -2, 0.2}, {3, 2, 0.2}, 0.2, kLog};
     Hit hit;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace forestslam::sim {
@@ -9,10 +10,20 @@ namespace forestslam::sim {
 namespace {
 constexpr uint32_t kStemCode = 0u << 30, kCylinderCode = 1u << 30, kFoliageCode = 2u << 30;
 constexpr uint32_t kIndexMask = (1u << 30) - 1;
+
+// Nearest floats below / above v: float boxes that always contain the double ones.
+float floatDown(double v) {
+    const float f = static_cast<float>(v);
+    return static_cast<double>(f) > v ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+float floatUp(double v) {
+    const float f = static_cast<float>(v);
+    return static_cast<double>(f) < v ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
 }  // namespace
 
 Heightfield::Heightfield(double x0, double y0, double cell, const Eigen::MatrixXd &z)
-    : x0_(x0), y0_(y0), cell_(cell) {
+    : x0_(x0), y0_(y0), cell_(cell), inv_cell_(1.0 / cell) {
     if (!(cell > 0.0)) throw std::invalid_argument("heightfield cell must be > 0");
     if (z.rows() < 2 || z.cols() < 2) throw std::invalid_argument("heightfield needs >= 2x2 vertices");
     if (!z.allFinite()) throw std::invalid_argument("heightfield heights must be finite");
@@ -67,8 +78,8 @@ bool Heightfield::intersectCell(int ix, int iy, const Ray &ray, double t0, doubl
         return true;
     }
     const double xc = x0_ + ix * cell_, yc = y0_ + iy * cell_;
-    const double fx0 = (ray.origin.x() - xc) / cell_, fdx = ray.dir.x() / cell_;
-    const double fy0 = (ray.origin.y() - yc) / cell_, fdy = ray.dir.y() / cell_;
+    const double fx0 = (ray.origin.x() - xc) * inv_cell_, fdx = ray.dir.x() * inv_cell_;
+    const double fy0 = (ray.origin.y() - yc) * inv_cell_, fdy = ray.dir.y() * inv_cell_;
     const double tol = 1e-9;
     double best = kInf, gbx = 0, gby = 0;
     // Triangle A (fx >= fy): z = z00 + fx (z10 - z00) + fy (z11 - z10); B (fy > fx) likewise.
@@ -87,27 +98,31 @@ bool Heightfield::intersectCell(int ix, int iy, const Ray &ray, double t0, doubl
         gby = gy;
     }
     if (best == kInf) return false;
-    const Eigen::Vector3d n(-gbx / cell_, -gby / cell_, 1.0);
+    const Eigen::Vector3d n(-gbx * inv_cell_, -gby * inv_cell_, 1.0);
     hit.t = best;
     hit.cos_incidence = std::abs(ray.dir.dot(n)) / n.norm();
     return true;
 }
 
 bool Heightfield::intersect(const Ray &ray, double t_max, Hit &hit) const {
+    return intersect(ray, GridRay(ray), t_max, hit);
+}
+
+bool Heightfield::intersect(const Ray &ray, const GridRay &grid_ray, double t_max, Hit &hit) const {
     if (empty()) return false;
     const double oz = ray.origin.z(), dz = ray.dir.z();
     if (dz >= 0.0 && oz > z_max_) return false;
     bool found = false;
     Hit local;
     const double block = cell_ * kBlock;
-    traverseGrid(x0_, y0_, block, nbx_, nby_, ray, ray.t_min, t_max,
+    traverseGrid(x0_, y0_, block, inv_cell_ / kBlock, nbx_, nby_, grid_ray, ray.t_min, t_max,
                  [&](int bx, int by, double tb0, double tb1) {
                      const double za = oz + tb0 * dz, zb = oz + tb1 * dz;
                      const size_t b = static_cast<size_t>(by) * nbx_ + bx;
                      if (std::min(za, zb) > block_max_[b] + 1e-9) {
                          return !(dz >= 0.0 && za > z_max_);
                      }
-                     traverseGrid(x0_, y0_, cell_, nx_, ny_, ray, tb0, tb1,
+                     traverseGrid(x0_, y0_, cell_, inv_cell_, nx_, ny_, grid_ray, tb0, tb1,
                                   [&](int ix, int iy, double t0, double t1) {
                                       if (intersectCell(ix, iy, ray, t0, t1, local)) {
                                           found = true;
@@ -131,7 +146,8 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
       stems_(std::move(stems)),
       cylinders_(std::move(cylinders)),
       foliage_(std::move(foliage)),
-      cell_(cell_m) {
+      cell_(cell_m),
+      inv_cell_(1.0 / cell_m) {
     if (!(cell_m > 0.0)) throw std::invalid_argument("scene grid cell must be > 0");
     if (stems_.size() > kIndexMask || cylinders_.size() > kIndexMask || foliage_.size() > kIndexMask)
         throw std::invalid_argument("too many primitives");
@@ -140,12 +156,10 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         double xmin, ymin, xmax, ymax, zmax, zmin;
     };
     std::vector<Box> boxes;
-    stem_cos_.resize(stems_.size());
-    stem_sin_.resize(stems_.size());
+    stem_coeffs_.reserve(stems_.size());
     for (size_t i = 0; i < stems_.size(); ++i) {
         const Stem &s = stems_[i];
-        stem_cos_[i] = std::cos(s.angle);
-        stem_sin_[i] = std::sin(s.angle);
+        stem_coeffs_.emplace_back(s);
         if (!(s.semi_a > 0 && s.semi_b > 0)) throw std::invalid_argument("stem semi-axes must be > 0");
         const double r = std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) +
                          s.bark_amp;
@@ -195,7 +209,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
     std::vector<uint32_t> count(nbin + 1, 0);
-    cell_zmax_.assign(ncell, -kInf);
+    cell_zmax_.assign(ncell, -std::numeric_limits<float>::infinity());
     auto cell_range = [&](const Box &b, int &ix0, int &iy0, int &ix1, int &iy1, int &l0, int &l1) {
         ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
         ix1 = std::clamp(static_cast<int>(std::floor((b.xmax - x0_) / cell_)), 0, nx_ - 1);
@@ -211,22 +225,30 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
             for (int ix = ix0; ix <= ix1; ++ix) {
                 const size_t c = static_cast<size_t>(iy) * nx_ + ix;
                 for (int l = l0; l <= l1; ++l) ++count[c * nl_ + l + 1];
-                cell_zmax_[c] = std::max(cell_zmax_[c], b.zmax);
+                cell_zmax_[c] = std::max(cell_zmax_[c], floatUp(b.zmax - z0_));
             }
     }
     for (size_t c = 0; c < nbin; ++c) count[c + 1] += count[c];
     bin_start_ = count;
-    items_.resize(count[nbin]);
+    bin_items_.resize(count[nbin]);
     std::vector<uint32_t> fill(bin_start_.begin(), bin_start_.end() - 1);
-    for (const Box &b : boxes) {
+    prims_.resize(boxes.size());
+    for (size_t row = 0; row < boxes.size(); ++row) {
+        const Box &b = boxes[row];
         int ix0, iy0, ix1, iy1, l0, l1;
         cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
         const double m = 1e-6;  // keep the rejection conservative under round-off
-        const Item item{b.code, {b.xmin - m, b.ymin - m, b.zmin - m}, {b.xmax + m, b.ymax + m, b.zmax + m}};
+        prims_[row] = Prim{{floatDown(b.xmin - m - x0_), floatDown(b.ymin - m - y0_),
+                            floatDown(b.zmin - m - z0_)},
+                           {floatUp(b.xmax + m - x0_), floatUp(b.ymax + m - y0_),
+                            floatUp(b.zmax + m - z0_)},
+                           b.code,
+                           0};
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix)
                 for (int l = l0; l <= l1; ++l)
-                    items_[fill[(static_cast<size_t>(iy) * nx_ + ix) * nl_ + l]++] = item;
+                    bin_items_[fill[(static_cast<size_t>(iy) * nx_ + ix) * nl_ + l]++] =
+                        static_cast<uint32_t>(row);
     }
 }
 
@@ -234,7 +256,7 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
     const uint32_t index = code & kIndexMask;
     switch (code & ~kIndexMask) {
         case kStemCode:
-            if (!intersectStem(stems_[index], stem_cos_[index], stem_sin_[index], ray, t_max, hit))
+            if (!intersectStem(stems_[index], stem_coeffs_[index], ray, t_max, hit))
                 return false;
             hit.surface = kStem;
             break;
@@ -254,17 +276,24 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
 
 Hit ForestScene::cast(const Ray &ray) const {
     Hit best;
-    terrain_.intersect(ray, ray.t_max, best);
+    const GridRay grid_ray(ray);
+    terrain_.intersect(ray, grid_ray, ray.t_max, best);
     if (nx_ == 0) return best;
     const double oz = ray.origin.z(), dz = ray.dir.z();
     const double t_end = std::min(ray.t_max, best.t);
-    traverseGrid(x0_, y0_, cell_, nx_, ny_, ray, ray.t_min, t_end, [&](int ix, int iy, double t0, double t1) {
+    const Prim *prims = prims_.data();
+    const uint32_t *items = bin_items_.data();
+    // Rows already tested exactly: a primitive lies in several bins, and testing it again
+    // cannot change the result (the exact tests cover the whole ray, t_max only shrinks).
+    uint32_t tested[8];
+    unsigned n_tested = 0;
+    traverseGrid(x0_, y0_, cell_, inv_cell_, nx_, ny_, grid_ray, ray.t_min, t_end, [&](int ix, int iy, double t0, double t1) {
         if (t0 > best.t) return false;
         const size_t c = static_cast<size_t>(iy) * nx_ + ix;
         const double t_hi = std::min(t1, best.t);
         const double za = oz + t0 * dz, zb = oz + t_hi * dz;
         const double z_lo = std::min(za, zb), z_hi = std::max(za, zb);
-        if (z_lo > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
+        if (z_lo - z0_ > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
         // The bins of a cell are consecutive layers, so the layers the ray crosses here are
         // one contiguous run of items.
         const size_t first = c * nl_;
@@ -273,15 +302,23 @@ Hit ForestScene::cast(const Ray &ray) const {
         if (k0 == k1) return best.t > t1;
         const double xa = ray.origin.x() + t0 * ray.dir.x(), xb = ray.origin.x() + t_hi * ray.dir.x();
         const double ya = ray.origin.y() + t0 * ray.dir.y(), yb = ray.origin.y() + t_hi * ray.dir.y();
-        const double x_lo = std::min(xa, xb), x_hi = std::max(xa, xb);
-        const double y_lo = std::min(ya, yb), y_hi = std::max(ya, yb);
+        // Segment box relative to the grid origin, compared in double with the (exactly
+        // widened) float boxes.
+        const double rx_lo = std::min(xa, xb) - x0_, rx_hi = std::max(xa, xb) - x0_;
+        const double ry_lo = std::min(ya, yb) - y0_, ry_hi = std::max(ya, yb) - y0_;
+        const double rz_lo = z_lo - z0_, rz_hi = z_hi - z0_;
         for (uint32_t k = k0; k < k1; ++k) {
-            const Item &item = items_[k];
-            if (item.lo[2] > z_hi || item.hi[2] < z_lo || item.lo[0] > x_hi || item.hi[0] < x_lo ||
-                item.lo[1] > y_hi || item.hi[1] < y_lo)
+            const uint32_t row = items[k];
+            const Prim &p = prims[row];
+            if (p.lo[2] > rz_hi || p.hi[2] < rz_lo || p.lo[0] > rx_hi || p.hi[0] < rx_lo ||
+                p.lo[1] > ry_hi || p.hi[1] < ry_lo)
                 continue;
+            bool seen = false;
+            for (unsigned j = 0; j < std::min(n_tested, 8u); ++j) seen |= tested[j] == row;
+            if (seen) continue;
+            tested[n_tested++ & 7u] = row;
             Hit h;
-            if (testPrimitive(item.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
+            if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
                 best = h;
         }
         return best.t > t1;

@@ -13,6 +13,22 @@
 
 namespace forestslam::sim {
 
+// Visits the cells of a uniform 2D grid crossed by the ray's XY projection for t in [t0, t1], in
+// order; visit(ix, iy, t_enter, t_exit) returns false to stop.
+template <class Visit>
+void traverseGrid(double x0, double y0, double cell, int nx, int ny, const Ray &ray, double t0,
+                  double t1, Visit &&visit);
+
+// The XY part of a ray with its reciprocals (0 where the ray is parallel to that axis), computed
+// once per ray for all the grids it walks.
+struct GridRay {
+    explicit GridRay(const Ray &ray);
+    double ox, oy, dx, dy, inv_dx, inv_dy;
+};
+template <class Visit>
+void traverseGrid(double x0, double y0, double cell, double inv_cell, int nx, int ny,
+                  const GridRay &r, double t0, double t1, Visit &&visit);
+
 // Terrain heights on a regular vertex grid; each cell is split into two triangles along its
 // (0,0)-(1,1) diagonal, so heights are piecewise linear and rays hit it exactly.
 class Heightfield {
@@ -25,12 +41,13 @@ public:
     // Height of the triangulated surface at (x, y); NaN outside the grid.
     double heightAt(double x, double y) const;
     bool intersect(const Ray &ray, double t_max, Hit &hit) const;
+    bool intersect(const Ray &ray, const GridRay &grid_ray, double t_max, Hit &hit) const;
 
 private:
     double vertex(int ix, int iy) const { return z_[static_cast<size_t>(iy) * (nx_ + 1) + ix]; }
     bool intersectCell(int ix, int iy, const Ray &ray, double t0, double t1, Hit &hit) const;
 
-    double x0_ = 0, y0_ = 0, cell_ = 1;
+    double x0_ = 0, y0_ = 0, cell_ = 1, inv_cell_ = 1;
     int nx_ = 0, ny_ = 0;  // cells
     std::vector<double> z_;
     // Coarse blocks of kBlock x kBlock cells with their min/max height, to skip empty air fast.
@@ -71,16 +88,19 @@ private:
     std::vector<Stem> stems_;
     std::vector<Cylinder> cylinders_;
     std::vector<FoliageEllipsoid> foliage_;
-    double x0_ = 0, y0_ = 0, cell_ = 2.0;
+    double x0_ = 0, y0_ = 0, cell_ = 2.0, inv_cell_ = 0.5;
     int nx_ = 0, ny_ = 0;
-    // A primitive's code (type in the top bits, row below) and its 3D bounding box, so most
-    // candidates of a cell are rejected without the exact test (double boxes measured faster than
-    // outward-rounded float boxes: no conversions in the reject loop).
-    struct Item {
+    // One compact record per primitive: its code (type in the top bits, row below) and its 3D
+    // bounding box in float, relative to (x0_, y0_, z0_) and rounded outwards, so the rejection
+    // stays conservative. Bins hold 4-byte rows of prims_: the bin lists of a whole stand stay in
+    // cache, and a primitive's box is shared by all the bins it lies in.
+    struct Prim {
+        float lo[3], hi[3];
         uint32_t code;
-        double lo[3], hi[3];
+        uint32_t pad;
     };
-    std::vector<double> stem_cos_, stem_sin_;  // per-stem cos/sin of Stem::angle
+    std::vector<Prim> prims_;
+    std::vector<StemCoeffs> stem_coeffs_;  // per-stem constants of the exact test
     // Bins = XY cell x vertical layer, so rays below the crowns never look at foliage.
     static constexpr double kLayerM = 1.0;
     int layerOf(double z) const {
@@ -89,17 +109,11 @@ private:
     }
     double z0_ = 0, layer_m_ = 1.0, inv_layer_m_ = 1.0;
     int nl_ = 1;
-    std::vector<uint32_t> bin_start_;  // CSR: items of bin b in items_[start[b], start[b+1])
-    std::vector<Item> items_;
-    std::vector<double> cell_zmax_;
+    std::vector<uint32_t> bin_start_;  // CSR: bin b holds bin_items_[start[b], start[b+1])
+    std::vector<uint32_t> bin_items_;  // rows of prims_
+    std::vector<float> cell_zmax_;     // highest primitive top in each XY cell (rounded up)
     double z_max_ = -kInf;
 };
-
-// Visits the cells of a uniform 2D grid crossed by the ray's XY projection for t in [t0, t1], in
-// order; visit(ix, iy, t_enter, t_exit) returns false to stop.
-template <class Visit>
-void traverseGrid(double x0, double y0, double cell, int nx, int ny, const Ray &ray, double t0,
-                  double t1, Visit &&visit);
 
 }  // namespace forestslam::sim
 

@@ -10,9 +10,38 @@ namespace {
 // Bark texture: integer lobe counts keep it periodic in azimuth (zero mean over a section);
 // slow vertical phase drift makes furrows that wander along the stem.
 constexpr int kLobes[4] = {4, 9, 17, 31};
-constexpr double kVertical[4] = {0.8, 1.9, 3.7, 7.1};
+constexpr int kOctaves[4] = {1, 2, 4, 8};
+constexpr double kOmega = 0.9;  // rad/m
 constexpr double kWeights[4] = {1.0, 0.8, 0.6, 0.5};
 constexpr double kWeightSum = 2.9;
+
+struct Complex {
+    double re, im;
+};
+inline Complex mul(Complex a, Complex b) {
+    return {a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re};
+}
+
+// Bark noise n at (azimuth, h) with z = exp(i azimuth), and its partial derivatives: the same
+// sum as Stem::barkNoise, by products of unit complex numbers.
+inline void barkNoiseAt(const StemCoeffs &c, Complex z, double h, double &n, double &dn_daz,
+                        double &dn_dh) {
+    const Complex z2 = mul(z, z), z4 = mul(z2, z2), z8 = mul(z4, z4), z16 = mul(z8, z8);
+    const Complex z9 = mul(z8, z), z17 = mul(z16, z), z31 = mul(mul(z17, z8), mul(z4, z2));
+    const Complex w1{std::cos(kOmega * h), std::sin(kOmega * h)};
+    const Complex w2 = mul(w1, w1), w4 = mul(w2, w2), w8 = mul(w4, w4);
+    const Complex zs[4] = {z4, z9, z17, z31}, ws[4] = {w1, w2, w4, w8};
+    n = dn_daz = dn_dh = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        const Complex e = mul(mul(zs[k], ws[k]), Complex{c.phase_re[k], c.phase_im[k]});
+        n += kWeights[k] * e.im;
+        dn_daz += kWeights[k] * kLobes[k] * e.re;
+        dn_dh += kWeights[k] * kOctaves[k] * kOmega * e.re;
+    }
+    n *= 1.0 / kWeightSum;
+    dn_daz *= 1.0 / kWeightSum;
+    dn_dh *= 1.0 / kWeightSum;
+}
 
 uint64_t splitmix64(uint64_t x) {
     x += 0x9E3779B97F4A7C15ULL;
@@ -62,22 +91,31 @@ double hashUniform(uint64_t key, uint64_t salt) {
 
 double Stem::barkNoise(double azimuth, double h) const {
     double s = 0.0;
-    for (int k = 0; k < 4; ++k) s += kWeights[k] * std::sin(kLobes[k] * azimuth + kVertical[k] * h + phase[k]);
+    for (int k = 0; k < 4; ++k)
+        s += kWeights[k] * std::sin(kLobes[k] * azimuth + kOctaves[k] * kOmega * h + phase[k]);
     return s / kWeightSum;
 }
 
-bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
-    return intersectStem(stem, std::cos(stem.angle), std::sin(stem.angle), ray, t_max, hit);
+StemCoeffs::StemCoeffs(const Stem &stem)
+    : cos_angle(std::cos(stem.angle)), sin_angle(std::sin(stem.angle)) {
+    for (int k = 0; k < 4; ++k) {
+        phase_re[k] = std::cos(stem.phase[k]);
+        phase_im[k] = std::sin(stem.phase[k]);
+    }
 }
 
-bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const Ray &ray,
-                   double t_max, Hit &hit) {
+bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
+    return intersectStem(stem, StemCoeffs(stem), ray, t_max, hit);
+}
+
+bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, double t_max,
+                   Hit &hit) {
     // Stem-local coordinates, linear in t: u, v normalised section coordinates, h height.
     const Eigen::Vector3d q = ray.origin - stem.base;
     const Eigen::Vector3d &d = ray.dir;
     const double qx = q.x() - stem.shear.x() * q.z(), qy = q.y() - stem.shear.y() * q.z();
     const double dx = d.x() - stem.shear.x() * d.z(), dy = d.y() - stem.shear.y() * d.z();
-    const double ca = cos_angle, sa = sin_angle;
+    const double ca = coeffs.cos_angle, sa = coeffs.sin_angle;
     const double u0 = (ca * qx + sa * qy) / stem.semi_a, du = (ca * dx + sa * dy) / stem.semi_a;
     const double v0 = (-sa * qx + ca * qy) / stem.semi_b, dv = (-sa * dx + ca * dy) / stem.semi_b;
     const double h0 = q.z(), dh = d.z();
@@ -106,10 +144,19 @@ bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const R
     } else {
         const double t_out = entry(1.0 + eps);
         if (t_out == kInf) return false;
-        auto g = [&](double t) {
+        // g(t) = rho - (s(h) + eps n): > 0 outside the bark surface, < 0 inside; dg = dg/dt.
+        auto g = [&](double t, double &dg) {
             const double u = u0 + t * du, v = v0 + t * dv, h = h0 + t * dh;
-            return std::sqrt(u * u + v * v) -
-                   (stem.radiusScale(h) + eps * stem.barkNoise(std::atan2(v, u), h));
+            const double rho = std::sqrt(u * u + v * v);
+            if (!(rho > 0.0)) {
+                dg = 0.0;
+                return -1.0;
+            }
+            double n, dn_daz, dn_dh;
+            barkNoiseAt(coeffs, Complex{u / rho, v / rho}, h, n, dn_daz, dn_dh);
+            const double daz_dt = (u * dv - v * du) / (rho * rho);
+            dg = (u * du + v * dv) / rho + k * dh - eps * (dn_daz * daz_dt + dn_dh * dh);
+            return rho - (stem.radiusScale(h) + eps * n);
         };
         double t_in = entry(1.0 - eps);
         if (t_in == kInf) {
@@ -118,31 +165,28 @@ bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const R
             if (duv < 1e-18) return false;
             t_in = std::min(std::max(-(u0 * du + v0 * dv) / duv, t_out), t_max);
             const double h = h0 + t_in * dh;
-            if (h < stem.h_bottom || h > stem.height || g(t_in) > 0.0) return false;
+            double dg;
+            if (h < stem.h_bottom || h > stem.height || g(t_in, dg) > 0.0) return false;
         }
-        // Illinois regula falsi on the bracket g(lo) >= 0 >= g(hi): a few evaluations of the
-        // bark function instead of a dozen bisections.
-        double lo = t_out, hi = t_in, glo = g(lo), ghi = g(hi);
+        // Newton on the bracket g(lo) >= 0 >= g(hi) (the envelopes' entries), bisecting when a
+        // step leaves it; starts at the smooth section's entry, a bark amplitude from the root.
+        double lo = t_out, hi = t_in;
+        double t = entry(1.0);
+        if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
         t_hit = hi;
-        int side = 0;
-        for (int it = 0; it < 40 && hi - lo > 1e-9; ++it) {
-            double m = glo != ghi ? hi - ghi * (hi - lo) / (ghi - glo) : 0.5 * (lo + hi);
-            if (!(m > lo && m < hi)) m = 0.5 * (lo + hi);
-            const double gm = g(m);
-            t_hit = m;
-            if (std::abs(gm) < 1e-7) break;  // 1e-7 of the radius: sub-micrometre
-            if (gm > 0.0) {
-                lo = m;
-                glo = gm;
-                if (side == 1) ghi *= 0.5;
-                side = 1;
-            } else {
-                hi = m;
-                ghi = gm;
-                if (side == -1) glo *= 0.5;
-                side = -1;
+        for (int it = 0; it < 40; ++it) {
+            double dg;
+            const double gt = g(t, dg);
+            if (std::abs(gt) < 1e-9) {  // 1e-9 of the radius: sub-nanometre
+                t_hit = t;
+                break;
             }
+            (gt > 0.0 ? lo : hi) = t;
             t_hit = hi;
+            if (hi - lo < 1e-10) break;
+            double next = dg != 0.0 ? t - gt / dg : lo;
+            if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+            t = next;
         }
         const double h = h0 + t_hit * dh;
         if (h < stem.h_bottom || h > stem.height || t_hit > t_max || t_hit < t_lo) return false;

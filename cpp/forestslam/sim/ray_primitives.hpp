@@ -43,7 +43,10 @@ struct Hit {
 // Smooth section at h: ellipse with semi-axes semi_a * s(h), semi_b * s(h), s(h) = 1 - taper (h-1.3)
 // centred at base.xy + shear * h; the a axis at azimuth `angle`. The bark adds
 // bark_amp * n(azimuth, h), n a zero-mean (over azimuth) sum of sinusoids with |n| <= 1, so the
-// mean diameter of the section at 1.3 m is exactly semi_a + semi_b (the truth DBH).
+// mean diameter of the section at 1.3 m is exactly semi_a + semi_b (the truth DBH):
+// n = sum_k w_k sin(L_k azimuth + m_k omega h + phase_k) / sum w, L = 4 9 17 31 lobes,
+// m = 1 2 4 8, omega = 0.9 rad/m (integer lobes and octave-spaced vertical frequencies let the
+// ray caster evaluate it with complex products instead of five transcendental calls).
 struct Stem {
     Eigen::Vector3d base;    // axis point on the ground
     Eigen::Vector2d shear;   // horizontal axis offset per metre of height (tan of the lean)
@@ -58,6 +61,14 @@ struct Stem {
 
     double barkNoise(double azimuth, double h) const;  // in [-1, 1]
     double radiusScale(double h) const { return 1.0 - taper * (h - kBreastHeight); }
+};
+
+// Per-stem constants of the exact test, computed once per scene: cos/sin of the section angle
+// and exp(i phase_k) of the bark terms.
+struct StemCoeffs {
+    double cos_angle = 1.0, sin_angle = 0.0;
+    double phase_re[4] = {1, 1, 1, 1}, phase_im[4] = {0, 0, 0, 0};
+    explicit StemCoeffs(const Stem &stem);
 };
 
 // Finite capped cylinder (dead branches, fallen logs).
@@ -83,9 +94,9 @@ uint64_t mixKey(uint64_t a, uint64_t b);
 
 // Each returns true and fills `hit` (t, cos_incidence) when the ray hits within (ray.t_min, t_max].
 bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit);
-// Same, with cos/sin of stem.angle precomputed by the caller (bit-identical result).
-bool intersectStem(const Stem &stem, double cos_angle, double sin_angle, const Ray &ray,
-                   double t_max, Hit &hit);
+// Same, with the stem's constants precomputed by the caller (same result).
+bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, double t_max,
+                   Hit &hit);
 bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &hit);
 bool intersectFoliage(const FoliageEllipsoid &ell, int32_t index, const Ray &ray, double t_max,
                       Hit &hit);
