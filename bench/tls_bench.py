@@ -27,9 +27,10 @@ from scipy.spatial import cKDTree
 
 from forestslam import _core
 from forestslam.io import read_cloud, read_scans, read_tum
+from forestslam.odometry.deskew import deskew_points
 from forestslam.tls import TlsConfig, register_mls_to_tls
 from forestslam.tls.features import frame_features
-from forestslam.tls.pipeline import _frame_points
+from forestslam.tls.pipeline import _frame_points_times
 from forestslam.tls.runner import with_rings, write_products
 from forestslam.tls.trees import circumference_coverage, plot_trees
 
@@ -74,6 +75,15 @@ def match(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[np.ndarray, np.nda
     d, j = cKDTree(b).query(a)
     ok = d < gate
     return np.flatnonzero(ok), j[ok]
+
+
+def stamp_frame_points(scan, record, cfg: TlsConfig) -> np.ndarray:
+    """Usable points of a scan in the sensor frame at its stamp, deskewed with the velocity the
+    pipeline used for this frame (the same input for every method)."""
+    pts, _, times = _frame_points_times(scan, cfg)
+    if times is not None and np.any(record.deskew_twist):
+        pts = deskew_points(pts, times, record.deskew_twist)
+    return pts
 
 
 def ground_points(points: np.ndarray, cell: float = 0.5) -> np.ndarray:
@@ -125,12 +135,13 @@ def run_simulated(args, out: Path) -> dict:
     # Baselines on the same frames, from the same first pose.
     by_stamp = {s.stamp: s for s in scans}
     stamps = [f.stamp for f in run.frames]
+    clouds = {f.stamp: stamp_frame_points(by_stamp[f.stamp], f, cfg) for f in run.frames}
     ndt_poses, icp_poses = [], []
     plane_target = _core.PlaneTarget(_core.voxel_downsample(ref, cfg.map.voxel_m))
     icp_cfg = _core.IcpConfig()
     T_prev, prev, T_rel = run.frames[0].T_tls_sensor, None, np.eye(4)
     for s in [] if args.skip_baselines else stamps:
-        pts, _ = _frame_points(by_stamp[s], cfg)
+        pts = clouds[s]
         if prev is None:
             T = T_prev
         else:
@@ -157,7 +168,7 @@ def run_simulated(args, out: Path) -> dict:
             if s in truth:
                 te.append(np.linalg.norm(T[:3, 3] - truth[s][:3, 3]))
                 re.append(rot_err_deg(T, truth[s]))
-            pts, _ = _frame_points(by_stamp[s], cfg)
+            pts = clouds[s]
             mls_parts.append(pts @ T[:3, :3].T + T[:3, 3])
             g = ground_points(pts)
             gw = (g @ T[:3, :3].T + T[:3, 3]) @ T_world_tls[:3, :3].T + T_world_tls[:3, 3]
@@ -277,7 +288,7 @@ def run_real(out: Path) -> dict:
         d[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
         d[:3, 3] = [0.15, -0.1, 0.05]
         r = _core.register_stem_centre_lm(
-            target, feats.centres, feats.radii, feats.keypoints, np.ascontiguousarray(d @ T_true)
+            target, feats.centres, feats.radii, feats.real_points, np.ascontiguousarray(d @ T_true)
         )
         T = r["T_target_source"]
         errors.append(

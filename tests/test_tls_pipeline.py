@@ -120,11 +120,16 @@ def test_local_target_is_cropped_and_recropped_only_after_moving(world):
     cfg.map.target_radius_m = 5.0
     cfg.map.target_recrop_m = 2.0
     gmap = _GlobalMap(ref, cfg)
-    t1, built = gmap.target_at(np.array([0.0, 0.0]))
+    t1, built = gmap.target_at(np.array([0.0, 0.0]), (-1.5, 1.0))
     assert built and 0 < len(t1) < len(gmap.points)
-    t2, built = gmap.target_at(np.array([1.5, 0.0]))
+    # Cropped in height too: only the frame's band plus the margin.
+    band = gmap.coarse[:, 2] <= 1.0 + cfg.map.target_z_margin_m
+    assert len(t1) <= np.count_nonzero(band)
+    t2, built = gmap.target_at(np.array([1.5, 0.0]), (-1.4, 0.9))
     assert not built and t2 is t1
-    _, built = gmap.target_at(np.array([2.5, 0.0]))
+    _, built = gmap.target_at(np.array([1.5, 0.0]), (-1.4, 1.0 + cfg.map.target_z_margin_m + 0.1))
+    assert built
+    _, built = gmap.target_at(np.array([4.0, 0.0]), (-1.4, 0.9))
     assert built
 
 

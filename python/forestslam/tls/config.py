@@ -16,6 +16,11 @@ class FeatureConfig:
     nms_radius_m: float = 0.6
     min_diameter_m: float = 0.06
     max_diameter_m: float = 1.0
+    # Ground samples (real features, see features.ground_samples): lowest point per cell.
+    ground_max_points: int = 120
+    ground_cell_m: float = 1.0
+    ground_max_range_m: float = 15.0
+    ground_max_step_m: float = 0.3
 
 
 @dataclass
@@ -29,15 +34,18 @@ class MapConfig:
     accept_min_virtual_inliers: int = 24
     frame_min_range_m: float = 1.0  # the operator carrying the scanner is not mapped
     frame_max_range_m: float = 25.0
-    # The LM target (KD-tree) is rebuilt after this many accepted frames (cost bounded).
-    rebuild_every_frames: int = 10
-    # LM target: a voxelized copy of the map cropped (in x-y) around the predicted pose, so
-    # its size does not grow with the reference; re-cropped when the platform has moved
-    # target_recrop_m from the crop centre or the map has changed. The radius should cover
-    # the frame's useful range (frame_max_range_m) plus the re-crop distance.
+    # Accepted frames are merged into the map (and the LM target rebuilt) in batches of this
+    # many frames (cost bounded; a frame is registered against the map as of the last batch).
+    rebuild_every_frames: int = 30
+    # LM target: a voxelized copy of the map cropped around the predicted pose (x-y disc,
+    # height band of the frame plus target_z_margin_m), so its size does not grow with the
+    # reference; re-cropped when the platform has moved target_recrop_m from the crop
+    # centre, the frame leaves the height band, or the map has changed. The radius should
+    # cover the frame's useful range (frame_max_range_m) plus the re-crop distance.
     target_voxel_m: float = 0.05
     target_radius_m: float = 30.0
     target_recrop_m: float = 5.0
+    target_z_margin_m: float = 1.5
     max_points: int = 30_000_000
 
 
@@ -53,6 +61,9 @@ class RegistrationConfig:
     # guess) chained onto that frame's pose (the paper); "velocity" = constant-velocity
     # prediction, NDT only as a fallback when the LM from the prediction is not trusted.
     initial_pose: str = "ndt"
+    # Spinning scans with per-point time are deskewed (constant velocity from the last two
+    # frames) to the middle of their sweep and registered there.
+    deskew: bool = True
     lm_converged_translation_m: float = 5e-4  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: float = 1e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -22,13 +22,53 @@ def _core():
 @dataclass
 class FrameFeatures:
     """Features of one frame (its own frame): virtual centres (V,3) with radii (V,), stem
-    positions (S,3) with radii (S,), DoG keypoints (K,3)."""
+    positions (S,3) with radii (S,), DoG keypoints (K,3) and ground samples (G,3); keypoints
+    and ground samples are both real (point-to-plane) features, see real_points."""
 
     centres: np.ndarray
     radii: np.ndarray
     stems: np.ndarray
     stem_radii: np.ndarray
     keypoints: np.ndarray
+    ground: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def real_points(self) -> np.ndarray:
+        """(K+G,3) all real features: DoG keypoints then ground samples."""
+        return np.ascontiguousarray(np.concatenate([self.keypoints, self.ground]))
+
+
+def ground_samples(points: np.ndarray, config: FeatureConfig) -> np.ndarray:
+    """Evenly spread ground samples (G,3) of a frame: the lowest point of each ground_cell_m
+    x-y cell within ground_max_range_m, kept when it lies within ground_max_step_m of the
+    frame's local ground level (the median of the cell minima around it: drops cells whose
+    lowest return is a stem, a shrub or the canopy), at most ground_max_points of them.
+    DoG keypoints hardly ever fall on smooth ground, yet the ground alone fixes the height,
+    roll and pitch of a frame (stem centres only fix x, y and heading)."""
+    n_max = config.ground_max_points
+    if n_max <= 0 or len(points) == 0:
+        return np.zeros((0, 3))
+    cell = config.ground_cell_m
+    rng = np.hypot(points[:, 0], points[:, 1])
+    pts = points[(rng <= config.ground_max_range_m) & (rng >= 1.0)]
+    if len(pts) == 0:
+        return np.zeros((0, 3))
+    ij = np.floor(pts[:, :2] / cell).astype(np.int64)
+    order = np.lexsort((pts[:, 2], ij[:, 1], ij[:, 0]))
+    ij_s = ij[order]
+    first = np.r_[True, np.any(ij_s[1:] != ij_s[:-1], axis=1)]
+    low = pts[order][first]
+    if len(low) < 3:
+        return np.zeros((0, 3))
+    # Local ground level: median of the cell minima within 3 cells; a plane would be better on
+    # slopes, but the step gate is loose enough for forest terrain at this scale.
+    tree = cKDTree(low[:, :2])
+    nb = tree.query(low[:, :2], k=min(9, len(low)))[1]
+    level = np.median(low[nb, 2], axis=1)
+    low = low[np.abs(low[:, 2] - level) <= config.ground_max_step_m]
+    if len(low) > n_max:
+        low = low[np.linspace(0, len(low) - 1, n_max).astype(np.int64)]
+    return np.ascontiguousarray(low)
 
 
 def frame_features(
@@ -58,6 +98,7 @@ def frame_features(
         stems=np.asarray(vf["stems"]).reshape(-1, 3),
         stem_radii=np.asarray(vf["stem_radii"], dtype=np.float64),
         keypoints=np.asarray(kp).reshape(-1, 3),
+        ground=ground_samples(points, config),
     )
 
 

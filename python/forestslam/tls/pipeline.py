@@ -25,6 +25,7 @@ import numpy as np
 
 from forestslam.errors import InputError, ProcessingError
 from forestslam.io import Scan
+from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
     coarse_stem_alignment,
@@ -59,6 +60,11 @@ class FrameRecord:
     ms_ndt: float
     ms_target: float = 0.0  # local LM target (re-)build charged to this frame
     fallback: bool = False  # the NDT initial pose was used
+    # Registration frame: the sensor at t_mid_s after the stamp (mid-sweep); the scan was
+    # deskewed with deskew_twist (6,) per second (zeros: not deskewed), see odometry.deskew.
+    t_mid_s: float = 0.0
+    deskew_twist: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    T_tls_mid: np.ndarray = field(default_factory=lambda: np.eye(4))  # pose at t_mid_s
 
 
 @dataclass
@@ -92,6 +98,16 @@ def _check_reference(reference: np.ndarray) -> np.ndarray:
 
 
 def _frame_points(scan: Scan, config: TlsConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    """Usable points (N,3) of a scan (finite, within the frame's range limits) and their rings."""
+    pts, rings, _ = _frame_points_times(scan, config)
+    return pts, rings
+
+
+def _frame_points_times(
+    scan: Scan, config: TlsConfig
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Usable points (N,3), rings (N,) or None and per-point times (N,) or None (only when the
+    scan has finite times and deskewing is enabled)."""
     pts = np.asarray(scan.points, dtype=np.float64)
     rng = np.linalg.norm(pts, axis=1)
     ok = (
@@ -99,59 +115,87 @@ def _frame_points(scan: Scan, config: TlsConfig) -> tuple[np.ndarray, np.ndarray
         & (rng >= config.map.frame_min_range_m)
         & (rng <= config.map.frame_max_range_m)
     )
+    times = None
+    if config.registration.deskew and scan.time is not None and len(scan.time) == len(pts):
+        t = np.asarray(scan.time, dtype=np.float64)
+        ok &= np.isfinite(t)
+        times = t[ok]
     rings = None if scan.ring is None else np.asarray(scan.ring)[ok]
-    return np.ascontiguousarray(pts[ok]), rings
+    return np.ascontiguousarray(pts[ok]), rings, times
 
 
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
-    target: a coarser voxel copy cropped in x-y around the predicted pose."""
+    target: a coarser voxel copy of the map cropped around the predicted frame (x-y disc,
+    height band of the frame), rebuilt only when the frame leaves the crop or the map grew."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
         self.config = config
-        self.points = self.core.voxel_downsample(reference, config.map.voxel_m)
+        m = config.map
+        self.points = self.core.voxel_downsample(reference, m.voxel_m)
+        self.coarse = self._coarse(self.points)
         self.pending: list[np.ndarray] = []
         self.target = None
         self.target_centre = np.zeros(2)
+        self.target_z = (0.0, 0.0)
         self.dirty = True
 
+    def _coarse(self, points: np.ndarray) -> np.ndarray:
+        m = self.config.map
+        if m.target_voxel_m > m.voxel_m:
+            return self.core.voxel_downsample(np.ascontiguousarray(points), m.target_voxel_m)
+        return points
+
     def add(self, points_tls: np.ndarray) -> None:
-        self.pending.append(points_tls)
+        self.pending.append(self.core.voxel_downsample(points_tls, self.config.map.voxel_m))
         if len(self.pending) >= self.config.map.rebuild_every_frames:
             self.flush()
 
     def flush(self) -> None:
         if not self.pending:
             return
-        merged = np.concatenate([self.points, *self.pending])
+        new = np.concatenate(self.pending)
         self.pending.clear()
-        self.points = self.core.voxel_downsample(merged, self.config.map.voxel_m)
+        self.points = self.core.voxel_downsample(
+            np.concatenate([self.points, new]), self.config.map.voxel_m
+        )
         if len(self.points) > self.config.map.max_points:
             raise ProcessingError(
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
+        self.coarse = self._coarse(np.concatenate([self.coarse, self._coarse(new)]))
         self.dirty = True
 
-    def target_at(self, xy: np.ndarray):
-        """LM target around xy (2,), re-cropped only when needed. -> (target, rebuilt)."""
+    def target_at(self, xy: np.ndarray, z_range: tuple[float, float]):
+        """LM target around xy (2,) covering heights z_range (the frame's, in the TLS frame),
+        re-cropped only when needed. -> (target, rebuilt)."""
         m = self.config.map
         xy = np.asarray(xy, dtype=np.float64)
         if (
             self.target is not None
             and not self.dirty
             and np.linalg.norm(xy - self.target_centre) <= m.target_recrop_m
+            and self.target_z[0] <= z_range[0]
+            and z_range[1] <= self.target_z[1]
         ):
             return self.target, False
-        d2 = np.sum((self.points[:, :2] - xy) ** 2, axis=1)
-        crop = self.points[d2 <= m.target_radius_m**2]
-        if m.target_voxel_m > m.voxel_m:
-            crop = self.core.voxel_downsample(np.ascontiguousarray(crop), m.target_voxel_m)
-        self.target = self.core.StemCentreTarget(np.ascontiguousarray(crop))
+        zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
+        c = self.coarse
+        keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)
+        keep &= np.sum((c[:, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+        self.target = self.core.StemCentreTarget(np.ascontiguousarray(c[keep]))
         self.target_centre = xy
+        self.target_z = (zlo, zhi)
         self.dirty = False
         return self.target, True
+
+
+def _z_range(points: np.ndarray, T: np.ndarray) -> tuple[float, float]:
+    """Height range of the frame's points (N,3) moved by T (4,4)."""
+    z = points @ T[2, :3] + T[2, 3]
+    return float(z.min()), float(z.max())
 
 
 def _correction(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
@@ -180,7 +224,7 @@ def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
         target,
         feats.centres,
         feats.radii,
-        feats.keypoints,
+        feats.real_points,
         np.ascontiguousarray(T_init),
         virtual_gate_m=reg.lm_virtual_gate_m,
         plane_gate_m=reg.lm_plane_gate_m,
@@ -253,20 +297,31 @@ def register_mls_to_tls(
     T_prev = None
     prev_points = None
     prev_good = False
-    V = np.eye(4)
+    # Velocity: body-frame twist (6,) per second (translation, rotation vector) between the
+    # mid-sweep frames of the last two consecutive frames; t_prev the previous mid-sweep time.
+    twist = np.zeros(6)
+    t_prev = None
     seen = 0
     method = "given" if initial_pose is not None else "stems"
     for index, scan in enumerate(scans):
         if index % max(1, config.frame_step):
             continue
         seen += 1
-        points, rings = _frame_points(scan, config)
+        points, rings, times = _frame_points_times(scan, config)
         if len(points) < 100:
             log.warning(
                 "frame %d at %.3f has %d usable points: skipped", index, scan.stamp, len(points)
             )
             continue
+        # Spinning scans are deskewed to, and registered at, the middle of their sweep: a
+        # velocity error then distorts the frame symmetrically; the pose at the stamp is
+        # extrapolated from it afterwards.
+        t_mid = 0.0 if times is None else float(0.5 * (times.min() + times.max()))
+        t_ref = float(scan.stamp) + t_mid
+        dt = 0.0 if t_prev is None else max(t_ref - t_prev, 1e-6)
         t0 = time.process_time()
+        if times is not None and t_prev is not None and np.any(twist):
+            points = deskew_points(points, times - t_mid, twist)
         feats = frame_features(points, rings, config.features)
         ms_features = (time.process_time() - t0) * 1e3
 
@@ -288,6 +343,7 @@ def register_mls_to_tls(
                         )
                     continue
         else:
+            V = se3_exp(twist * dt)
             T_pred = T_prev @ V
             T_init = T_pred
             if config.registration.initial_pose == "ndt":
@@ -304,7 +360,7 @@ def register_mls_to_tls(
                     T_pred = T_init = T_prev @ ndt["T_target_source"]
 
         t0 = time.process_time()
-        target, _ = gmap.target_at(T_init[:2, 3])
+        target, _ = gmap.target_at(T_init[:2, 3], _z_range(points, T_init))
         ms_target = (time.process_time() - t0) * 1e3
         t0 = time.process_time()
         lm = _lm(core, target, feats, T_init, config)
@@ -326,7 +382,7 @@ def register_mls_to_tls(
                 T_ndt = T_prev @ ndt["T_target_source"]
                 T_init = T_ndt
                 t0 = time.process_time()
-                target, _ = gmap.target_at(T_ndt[:2, 3])
+                target, _ = gmap.target_at(T_ndt[:2, 3], _z_range(points, T_ndt))
                 ms_target += (time.process_time() - t0) * 1e3
                 t0 = time.process_time()
                 lm2 = _lm(core, target, feats, T_ndt, config)
@@ -357,9 +413,14 @@ def register_mls_to_tls(
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
             centres.append(feats.centres @ T[:3, :3].T + T[:3, 3])
+        twist_used = twist.copy()
+        # The velocity (NDT guess, prediction and deskew) only from two consecutive trusted
+        # poses: a bad pose would distort the next frames through the deskew.
+        if T_prev is not None and good and prev_good:
+            twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
         record = FrameRecord(
             stamp=float(scan.stamp),
-            T_tls_sensor=np.asarray(T),
+            T_tls_sensor=np.asarray(T @ se3_exp(-twist * t_mid)),
             accepted=bool(accepted),
             converged=bool(lm["converged"]),
             degenerate=bool(lm["degenerate"]),
@@ -372,14 +433,15 @@ def register_mls_to_tls(
             ms_ndt=ms_ndt,
             ms_target=ms_target,
             fallback=fallback,
+            t_mid_s=t_mid,
+            deskew_twist=twist_used if times is not None else np.zeros(6),
+            T_tls_mid=np.asarray(T),
         )
         frames.append(record)
         if on_frame is not None:
             on_frame(record)
-        if (good and prev_good) or config.registration.initial_pose == "ndt":
-            V = np.linalg.inv(T_prev) @ T if T_prev is not None else V
         T_good = T if good else T_good
-        T_prev, prev_points, prev_good = T, points, good
+        T_prev, prev_points, prev_good, t_prev = T, points, good, t_ref
     if seen == 0:
         raise InputError("the MLS input holds no scans")
     if not frames:
