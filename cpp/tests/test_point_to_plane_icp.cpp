@@ -93,3 +93,41 @@ TEST(PointToPlaneIcp, EmptyInputs) {
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.T_target_source.isIdentity());
 }
+
+TEST(PointToPlaneIcp, NearestMatchesBruteForceAndRespectsGate) {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> u(-5.0, 5.0);
+    Points3 pts(3000, 3);
+    for (Eigen::Index i = 0; i < pts.rows(); ++i) pts.row(i) << u(rng), u(rng), 0.2 * u(rng);
+    pts.row(17) = pts.row(16);  // duplicates are fine
+    const PlaneTarget target(pts, 10);
+    for (int q = 0; q < 500; ++q) {
+        const Eigen::Vector3d query(1.2 * u(rng), 1.2 * u(rng), 0.5 * u(rng));
+        Eigen::Index best = 0;
+        const double truth =
+            (pts.rowwise() - query.transpose()).rowwise().squaredNorm().minCoeff(&best);
+        double d2 = -1;
+        const int j = target.nearest(query, d2);
+        ASSERT_GE(j, 0);
+        EXPECT_NEAR(d2, truth, 1e-12);
+        EXPECT_NEAR((pts.row(j).transpose() - query).squaredNorm(), truth, 1e-12);
+        double g2 = -1;
+        const double gate = 0.3;
+        const int jg = target.nearest(query, gate, g2);
+        if (truth <= gate * gate) {
+            EXPECT_NEAR(g2, truth, 1e-12);
+            EXPECT_GE(jg, 0);
+        } else {
+            EXPECT_EQ(jg, -1);
+        }
+    }
+    double d2 = 0;
+    EXPECT_EQ(PlaneTarget(Points3(0, 3)).nearest(Eigen::Vector3d::Zero(), d2), -1);
+    // Points on a tilted plane get its normal.
+    Points3 plane(400, 3);
+    for (int i = 0; i < 400; ++i)
+        plane.row(i) << (i % 20) * 0.1, (i / 20) * 0.1, 0.5 * (i % 20) * 0.1;
+    const PlaneTarget pt(plane, 10);
+    const Eigen::Vector3d n = Eigen::Vector3d(-0.5, 0.0, 1.0).normalized();
+    EXPECT_NEAR(std::abs(pt.normals().row(210).dot(n)), 1.0, 1e-9);
+}

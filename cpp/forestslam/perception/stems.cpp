@@ -253,8 +253,16 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
             evaluate(band, opt, out.circle);
         }
     }
-    // SAC cylinder (with normals) on the lower stem section.
-    if (normals.rows() == points.rows() && points.rows() >= 8) {
+    // Single scans: the silhouette, preferred whenever its scan lines agree.
+    if (sensor != nullptr) {
+        const Points3 sec =
+            rowsBetween(points, mid - opt.band_max_half_m, mid + opt.band_max_half_m);
+        out.silhouette = silhouetteFit(sec, mid, *sensor, opt);
+    }
+    // SAC cylinder (with normals) on the lower stem section: the costliest estimate, so skipped
+    // when an accepted silhouette decides anyway (unless every estimate is asked for).
+    const bool cylinder_needed = opt.fit_all || !out.silhouette.valid;
+    if (cylinder_needed && normals.rows() == points.rows() && points.rows() >= 8) {
         std::vector<int> rows;
         Points3 sec = rowsBetween(points, base_z + opt.cylinder_section_low_m,
                                   base_z + opt.cylinder_section_high_m, &rows);
@@ -317,12 +325,7 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     // (measured on synthetic stems), while the band circle is the DBH definition itself.
     if (out.cylinder.valid && (!best || out.cylinder.score > 1.25 * best->score))
         best = &out.cylinder, out.method = 2;
-    if (sensor != nullptr) {
-        const Points3 sec =
-            rowsBetween(points, mid - opt.band_max_half_m, mid + opt.band_max_half_m);
-        out.silhouette = silhouetteFit(sec, mid, *sensor, opt);
-        if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
-    }
+    if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {
         out.dbh = 2.0 * best->radius;
         out.centre = best->centre;

@@ -67,7 +67,8 @@ struct StemDiameter {
 
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
 // With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
-// lines agree; otherwise the better of circle and cylinder by quality.
+// lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
+// circle and cylinder by quality.
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &options,

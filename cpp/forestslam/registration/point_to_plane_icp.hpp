@@ -1,6 +1,6 @@
 // Point-to-plane ICP over 6 DoF (Gauss-Newton, Huber weights) against a target with normals.
 // The target (KD-tree + normals from its own neighbourhoods) is built once and reused, so a
-// local map serves many scans.
+// local map serves many scans. The k-d tree is our own (exact, double precision, gated queries).
 #pragma once
 
 #include <memory>
@@ -23,6 +23,9 @@ class PlaneTarget {
     Eigen::Index size() const;
     // Index and squared distance of the nearest target point (-1 if the target is empty).
     int nearest(const Eigen::Vector3d &query, double &squared_distance) const;
+    // The same within max_distance_m only (-1 if none): faster, the search is pruned.
+    int nearest(const Eigen::Vector3d &query, double max_distance_m,
+                double &squared_distance) const;
 
   private:
     struct Impl;

@@ -97,6 +97,9 @@ class DiameterConfig:
     silhouette: bool = (
         True  # single scans: stem width seen from the sensor, preferred if consistent
     )
+    # The SAC cylinder is skipped when an accepted silhouette decides the DBH anyway (the
+    # costliest estimate); True fits (and reports) every estimate for every stem.
+    fit_all: bool = False
 
 
 @dataclass

@@ -9,6 +9,7 @@ DBH (SAC cylinder and robust circle fit, chosen by quality).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 
@@ -32,9 +33,27 @@ def _core():
     return _core
 
 
+# The last config / profile converted for the C++ chain with its dict: a per-scan caller passes
+# the same objects every time, and converting them costs about a millisecond per scan. Compared
+# by value (a deep copy is kept), so a config changed in place is converted again.
+_MEMO: dict[str, tuple[object, dict]] = {}
+
+
+def _memo(kind: str, obj: object, make) -> dict:
+    hit = _MEMO.get(kind)
+    if hit is not None and type(hit[0]) is type(obj) and hit[0] == obj:
+        return hit[1]
+    value = make(obj)
+    _MEMO[kind] = (copy.deepcopy(obj), value)
+    return value
+
+
 def sensor_geometry(sensor: str | SensorProfile) -> dict:
     """The sensor facts the C++ chain needs, as a dict of SensorGeometry fields."""
-    profile = load_profile(sensor)
+    return dict(_memo("sensor", load_profile(sensor), _sensor_geometry))
+
+
+def _sensor_geometry(profile: SensorProfile) -> dict:
     return {
         "has_range_image": bool(profile.has_range_image),
         "image_rows": int(profile.image_rows),
@@ -67,7 +86,7 @@ def _as_scan(scan: Scan | np.ndarray) -> Scan:
 
 
 def _options(profile: SensorProfile, config: PerceptionConfig, scan: Scan) -> dict:
-    options = to_dict(config)
+    options = dict(_memo("config", config, to_dict))  # top level copied: changed below
     threshold = profile.intensity_threshold
     use = config.intensity_filter and threshold is not None and scan.intensity is not None
     options["intensity_threshold"] = float(threshold) if use else None

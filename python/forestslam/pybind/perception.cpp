@@ -113,6 +113,7 @@ pc::DiameterOptions diameterOptions(const py::dict &d) {
     FS_GET(d, o, cylinder_section_high_m);
     FS_GET(d, o, max_lean_rad);
     FS_GET(d, o, silhouette);
+    FS_GET(d, o, fit_all);
     return o;
 }
 
