@@ -9,6 +9,7 @@
 
 #include "bindings.hpp"
 #include "forestslam/sim/forest_scene.hpp"
+#include "forestslam/sim/scan_synthesis.hpp"
 
 namespace py = pybind11;
 
@@ -93,6 +94,39 @@ void define_sim(py::module_ &m) {
             "-> (range (N,) NaN = no return, surface (N,) "
             "uint8 [0 none 1 ground 2 stem 3 branch 4 foliage 5 shrub 6 log], object (N,) int32 "
             "row in its table, cos_incidence (N,)).")
+        .def(
+            "synthesize",
+            [](const sim::ForestScene &scene, const Eigen::Ref<const Eigen::VectorXd> &knot_time,
+               const Eigen::Ref<const sim::PoseRows> &knot_pose,
+               const Eigen::Ref<const Eigen::VectorXd> &group_time,
+               const Eigen::Ref<const sim::IndexVector> &group,
+               const Eigen::Ref<const Points3> &local_dirs, double range_min, double range_max,
+               double range_noise, double dropout_rate, double intensity_scale,
+               double intensity_noise_rel, uint64_t cast_seed, uint64_t noise_seed) {
+                sim::ScanModel model;
+                model.range_min_m = range_min;
+                model.range_max_m = range_max;
+                model.range_noise_m = range_noise;
+                model.dropout_rate = dropout_rate;
+                model.intensity_scale = intensity_scale;
+                model.intensity_noise_rel = intensity_noise_rel;
+                sim::SynthesizedScan r;
+                {
+                    py::gil_scoped_release release;
+                    r = sim::synthesizeScan(scene, knot_time, knot_pose, group_time, group,
+                                            local_dirs, model, cast_seed, noise_seed);
+                }
+                return py::make_tuple(r.ray, r.points, r.intensity, r.surface, r.object);
+            },
+            py::arg("knot_time"), py::arg("knot_pose"), py::arg("group_time"), py::arg("group"),
+            py::arg("local_dirs"), py::arg("range_min"), py::arg("range_max"),
+            py::arg("range_noise"), py::arg("dropout_rate"), py::arg("intensity_scale"),
+            py::arg("intensity_noise_rel"), py::arg("cast_seed"), py::arg("noise_seed"),
+            "One scan: knot_time (M,) increasing with knot_pose (M,16) row-major T_world_sensor, "
+            "interpolated to group_time (G,); ray i fires local_dirs[i] (N,3, sensor frame) from "
+            "the pose of group[i] (N,) int64. -> (ray (K,) int64 rows kept, points (K,3) sensor "
+            "frame, intensity (K,) float32, surface (K,) uint8, object (K,) int32). Dropouts, "
+            "range noise and intensity noise are drawn from noise_seed, foliage from cast_seed.")
         .def(
             "height_at",
             [](const sim::ForestScene &scene, const Eigen::Ref<const Points2> &xy) {

@@ -16,7 +16,6 @@ import numpy as np
 
 from forestslam.io import Scan
 from forestslam.sensors import SensorProfile
-from forestslam.sim.forest import FOLIAGE, GROUND, SHRUB
 
 # Groups of rays share one sensor pose (the platform pose is evaluated per group).
 SOLID_STATE_GROUP = 31
@@ -32,12 +31,20 @@ class ScanPattern:
     period_s: float  # time between scans (0 for a single static station)
 
     @cached_property
-    def grouped(self) -> bool:
-        """True when the groups are equal runs of consecutive rays (fast path)."""
-        n, g = len(self.group), len(self.group_time)
-        if n % g:
-            return False
-        return bool((self.group == np.repeat(np.arange(g), n // g)).all())
+    def time64(self) -> np.ndarray:
+        return self.time.astype(np.float64)
+
+    @cached_property
+    def knot_groups(self) -> np.ndarray:
+        """Group rows at which poses are evaluated (about 1 ms apart over a sweep, first and
+        last included); synthesize_scan interpolates between them. The platform's motion is
+        smooth on that scale: sub-millimetre differences at 50 m."""
+        g = len(self.group_time)
+        step = max(1, g // 100)
+        rows = np.arange(0, g, step)
+        rows = rows if rows[-1] == g - 1 else np.append(rows, g - 1)
+        # Knot times must increase strictly.
+        return rows[np.concatenate([[True], np.diff(self.group_time[rows]) > 0])]
 
 
 def _dirs(elevation: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
@@ -85,24 +92,6 @@ def make_pattern(profile: SensorProfile) -> ScanPattern:
     raise ValueError(f"sensor kind {profile.kind!r} cannot be simulated")
 
 
-def intensity_model(
-    surface: np.ndarray,
-    cos_inc: np.ndarray,
-    profile: SensorProfile,
-    noise_rel: float,
-    rng: np.random.Generator,
-) -> np.ndarray:
-    """Foliage (and shrubs) return above the profile's intensity threshold most of the time
-    (about 95 %); bark, wood and ground stay well below it; brighter at normal incidence."""
-    thr = profile.intensity_threshold if profile.intensity_threshold is not None else 100.0
-    leafy = (surface == FOLIAGE) | (surface == SHRUB)
-    base = np.where(leafy, 1.55, np.where(surface == GROUND, 0.25, 0.35))
-    incidence = np.where(leafy, 1.0, 0.5 + 0.5 * cos_inc)
-    spread = np.where(leafy, 0.21, noise_rel)
-    value = thr * base * incidence * (1.0 + spread * rng.standard_normal(len(surface)))
-    return np.clip(value, 0.0, 255.0).astype(np.float32)
-
-
 def synthesize_scan(
     scene,
     pattern: ScanPattern,
@@ -113,35 +102,37 @@ def synthesize_scan(
     cast_seed: int,
     intensity_noise_rel: float,
     labels: bool = False,
+    pose_times: np.ndarray | None = None,
 ) -> Scan | tuple[Scan, np.ndarray, np.ndarray]:
-    """One scan: poses (G,4,4) T_world_sensor at pattern.group_time. With labels=True also the
+    """One scan: poses (G,4,4) T_world_sensor at pattern.group_time, or at pose_times (M,)
+    (increasing, seconds since the sweep start; interpolated to the group times, rotation by
+    slerp). rng seeds the dropouts and the range and intensity noise (drawn in C++, one hash per
+    ray). Intensity: foliage and shrubs above the profile's threshold about 95 % of the time,
+    bark, wood and ground well below it, brighter at normal incidence. With labels=True also the
     per-point surface class (N,) uint8 (see forest.SURFACES) and object row (N,) int32 (the tree
     id for stems)."""
-    rot = poses[:, :3, :3]
-    n_groups = len(poses)
-    if pattern.grouped:
-        # Groups are equal runs of consecutive rays: one origin per group, one batched product.
-        origins = np.ascontiguousarray(poses[:, :3, 3])
-        local = pattern.dirs.reshape(n_groups, -1, 3)
-        world = np.matmul(local, rot.transpose(0, 2, 1)).reshape(-1, 3)
-    else:
-        origins = np.ascontiguousarray(poses[pattern.group, :3, 3])
-        world = np.einsum("nij,nj->ni", rot[pattern.group], pattern.dirs)
-    rng_range, surface, obj, cos_inc = scene.cast(
-        origins, np.ascontiguousarray(world), profile.range_min_m, profile.range_max_m, cast_seed
+    knot_time = pattern.group_time if pose_times is None else np.asarray(pose_times, np.float64)
+    thr = profile.intensity_threshold if profile.intensity_threshold is not None else 100.0
+    idx, points, intensity, surface, obj = scene.synthesize(
+        np.ascontiguousarray(knot_time, dtype=np.float64),
+        np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 16)),
+        pattern.group_time,
+        pattern.group,
+        pattern.dirs,
+        profile.range_min_m,
+        profile.range_max_m,
+        profile.range_noise_m,
+        profile.dropout_rate,
+        float(thr),
+        float(intensity_noise_rel),
+        int(cast_seed),
+        int(rng.integers(0, 2**63)),
     )
-    keep = np.isfinite(rng_range)
-    if profile.dropout_rate > 0:
-        keep &= rng.random(len(keep)) >= profile.dropout_rate
-    idx = np.flatnonzero(keep)
-    r = rng_range[idx] + profile.range_noise_m * rng.standard_normal(len(idx))
-    points = pattern.dirs[idx] * r[:, None]
-    intensity = intensity_model(surface[idx], cos_inc[idx], profile, intensity_noise_rel, rng)
     scan = Scan(
         stamp=float(stamp),
         points=points,
         intensity=intensity,
         ring=pattern.ring[idx],
-        time=pattern.time[idx].astype(np.float64),
+        time=pattern.time64[idx],
     )
-    return (scan, surface[idx], obj[idx]) if labels else scan
+    return (scan, surface, obj) if labels else scan

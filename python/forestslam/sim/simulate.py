@@ -27,7 +27,8 @@ def scan_at(world: World, k: int, labels: bool = False):
     """Scan k of the run (deterministic: depends only on the scenario and k). labels=True also
     returns the per-point surface class and object row (see synthesize_scan)."""
     t0 = float(world.stamps[k])
-    poses = world.trajectory.poses(t0 + world.pattern.group_time)
+    knot_time = world.pattern.group_time[world.pattern.knot_groups]
+    poses = world.trajectory.poses(t0 + knot_time)
     rng = np.random.default_rng([int(world.config.seed), 501, k])
     stamp = world.config.motion.start_time_s + t0
     return synthesize_scan(
@@ -40,6 +41,7 @@ def scan_at(world: World, k: int, labels: bool = False):
         world.scan_seed(k),
         world.config.sensor.intensity_noise_rel,
         labels=labels,
+        pose_times=knot_time,
     )
 
 
