@@ -7,6 +7,7 @@ import pytest
 
 from forestslam.evaluation import trajectory_errors, tree_errors
 from forestslam.slam import LandmarkSlam, SlamConfig, associate
+from forestslam.slam.height import HeightGraph
 
 
 def square_path(side=20.0, step=0.1):
@@ -42,10 +43,23 @@ def forest(rng, n=60):
     return xy[keep][:n]
 
 
-def run(truth, trees, rng, odom_yaw_bias=0.0, obs_noise=0.0, clutter=0, cfg=None, view_m=12.0):
-    """Feed the simulated scans; odometry drifts by a yaw bias per step."""
+def run(
+    truth,
+    trees,
+    rng,
+    odom_yaw_bias=0.0,
+    obs_noise=0.0,
+    clutter=0,
+    cfg=None,
+    view_m=12.0,
+    heights=None,
+    z_drift_per_m=0.0,
+):
+    """Feed the simulated scans; odometry drifts by a yaw bias per step (and in z by
+    z_drift_per_m per metre; tree centre heights `heights` (M,) then observed with it)."""
     slam = LandmarkSlam(cfg or SlamConfig())
     odom = truth[0].copy()
+    z_err = 0.0
     for i, p in enumerate(truth):
         if i:
             prev = truth[i - 1]
@@ -55,6 +69,7 @@ def run(truth, trees, rng, odom_yaw_bias=0.0, obs_noise=0.0, clutter=0, cfg=None
             step[2] += odom_yaw_bias * np.linalg.norm(d) * 10
             c, s = math.cos(odom[2]), math.sin(odom[2])
             odom = odom + np.array([c * step[0] - s * step[1], s * step[0] + c * step[1], step[2]])
+            z_err += z_drift_per_m * np.linalg.norm(d)
         c, s = math.cos(p[2]), math.sin(p[2])
         rel = trees - p[:2]
         local = np.column_stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]])
@@ -62,8 +77,14 @@ def run(truth, trees, rng, odom_yaw_bias=0.0, obs_noise=0.0, clutter=0, cfg=None
         obs = local[vis] + rng.normal(scale=obs_noise, size=(int(vis.sum()), 2))
         if clutter:
             obs = np.vstack([obs, rng.uniform(-12, 12, size=(clutter, 2))])
+        z = None
+        if heights is not None:  # heights seen from a sensor whose odometry z is off by z_err
+            z = heights[vis] + z_err + rng.normal(scale=obs_noise, size=int(vis.sum()))
+            z = np.concatenate([z, np.full(len(obs) - len(z), 1.3)])
         cov = np.diag([0.01**2, 0.01**2, math.radians(0.2) ** 2])
-        slam.add_scan(i * 0.1, matrix(odom), cov, False, obs, None)
+        t_odom = matrix(odom)
+        t_odom[2, 3] = z_err
+        slam.add_scan(i * 0.1, t_odom, cov, False, obs, None, z)
     return slam
 
 
@@ -211,3 +232,50 @@ def test_root_config_yaml_sections(tmp_path):
     path.write_text("nonsense:\n  a: 1\n")
     with pytest.raises(InputError, match="nonsense"):
         load_config(path)
+
+
+def test_height_graph_known_answer():
+    # two trees at heights 1.0 and 2.0; the odometry z is off by 0, 0.1, 0.2 at three keyframes
+    g = HeightGraph(obs_sigma_m=0.001, step_sigma_m=10.0)  # observations dominate
+    for kf, off in enumerate([0.0, 0.1, 0.2]):
+        g.add_keyframe(1.0)
+        g.add_observation(kf, 0, 1.0 - off)
+        g.add_observation(kf, 1, 2.0 - off)
+    dz, h = g.solve(3)
+    np.testing.assert_allclose(dz, [0.0, 0.1, 0.2], atol=1e-5)
+    np.testing.assert_allclose(h[:2], [1.0, 2.0], atol=1e-5)
+    assert np.isnan(h[2])  # a tree never seen has no height
+    g.truncate(1)
+    dz, h = g.solve(2)
+    assert len(dz) == 1 and abs(h[1] - 2.0) < 1e-5
+    assert HeightGraph().solve(4)[1].shape == (4,)  # empty: NaN heights, no crash
+
+
+def test_height_correction_removes_odometry_z_drift():
+    rng = np.random.default_rng(3)
+    truth = square_path(side=20.0)
+    trees = forest(rng, 60)
+    heights = 1.3 + 0.3 * np.sin(trees[:, 0] / 7.0) + 0.2 * np.cos(trees[:, 1] / 5.0)
+    # 1 cm of z drift per metre: 0.8 m over the loop
+    slam = run(truth, trees, rng, obs_noise=0.03, heights=heights, z_drift_per_m=0.01)
+    stamps, poses = slam.trajectory()
+    _, odom = slam.odometry()
+    assert abs(odom[-1, 2, 3]) > 0.7
+    z = poses[:, 2, 3]
+    assert np.sqrt(np.mean(z**2)) < 0.05  # truth z is 0 throughout
+    assert abs(z[-1]) < 0.05
+    lm, _ = slam.landmarks()
+    h = slam.landmark_heights()
+    nearest = np.argmin(np.linalg.norm(lm[:, None] - trees[None], axis=2), axis=1)
+    assert np.isfinite(h).all()
+    assert np.median(np.abs(h - heights[nearest])) < 0.05
+    off = run(
+        truth,
+        trees,
+        rng,
+        obs_noise=0.03,
+        heights=heights,
+        z_drift_per_m=0.01,
+        cfg=SlamConfig(height_correction=False),
+    )
+    assert abs(off.trajectory()[1][-1, 2, 3]) > 0.7  # without it the drift stays

@@ -199,15 +199,17 @@ class Pipeline:
         k = 0 if stems is None else len(stems.xy)
         if k:
             centre = np.column_stack([stems.xy, stems.z])
-            level = level_points(T, centre)[:, :2]
+            level = level_points(T, centre)
+            z_odom = level[:, 2] + T[2, 3]  # centre heights in the odometry frame
+            level = level[:, :2]
             dbh = np.asarray(stems.dbh, dtype=np.float64)
         else:
-            centre, level, dbh = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0)
+            centre, level, dbh, z_odom = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0), None
         source = None
         if self.refiner is not None and stems is not None:
             source = self.refiner.source_points(stems)
             self.slam.refine_hook = self._refine_hook(T, source)
-        res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh)
+        res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh, z_odom)
         if res.keyframe is not None and source is not None:
             self.refiner.add_keyframe(source, res.T_map_sensor)
         if res.keyframe is not None and self.ground is not None:
@@ -250,7 +252,11 @@ class Pipeline:
     # ---------------------------------------------------------------- outputs
     def tree_table(self) -> dict:
         xy, nobs = self.slam.landmarks()
-        return self.trees.table(np.arange(len(xy)), xy, nobs)
+        table = self.trees.table(np.arange(len(xy)), xy, nobs)
+        # tree heights corrected for the odometry's z drift, where the SLAM has them
+        heights = self.slam.landmark_heights()[table["id"]]
+        table["z"] = np.where(np.isfinite(heights), heights, table["z"])
+        return table
 
     def write(self, final: bool) -> dict:
         from forestslam.io import write_trees_csv, write_trees_geojson, write_tum

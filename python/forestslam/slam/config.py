@@ -43,6 +43,13 @@ class SlamConfig:
     tentative_max_age_keyframes: int = 8
     # Scans between keyframes are aligned onto the tree map when this many stems match (0: off).
     scan_align_min_matches: int = 4
+    # Height correction: per-keyframe z offsets and tree centre heights in a linear 1D graph
+    # (the planar graph leaves z to the odometry, which drifts on rough ground). Sigmas: a tree
+    # centre's height observation; the z random walk between keyframes, plus per metre.
+    height_correction: bool = True
+    height_obs_sigma_m: float = 0.1  # perception centre heights: ~6 cm MAD on rough ground
+    height_step_sigma_m: float = 0.005
+    height_sigma_per_m: float = 0.01
     # iSAM2
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 1

@@ -8,6 +8,10 @@ covariances plus a floor) and robust BearingRangeFactor2D to trees. A stem becom
 Point2 variable) only after `tentative_min_observations` keyframes saw it at the same place, so
 clutter seen once never enters the graph. Re-observing an old tree adds a factor to its old
 variable: that closes the loop.
+
+Height: the planar graph leaves z to the odometry; with `height_correction` the trees' centre
+heights, re-observed at keyframes, correct the odometry's z drift in a separate linear 1D
+graph (`forestslam.slam.height`), applied to `trajectory()` and given by `landmark_heights()`.
 """
 
 from __future__ import annotations
@@ -19,9 +23,10 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from forestslam.errors import ProcessingError
+from forestslam.errors import InputError, ProcessingError
 from forestslam.slam.association import associate, dbh_compatible, rigid_2d
 from forestslam.slam.config import SlamConfig
+from forestslam.slam.height import HeightGraph
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +80,7 @@ class _Tentative:
     xy: np.ndarray  # running mean, map frame
     dbh: list = field(default_factory=list)
     obs: list = field(default_factory=list)  # (keyframe, bearing, range, sigma_b, sigma_r)
+    z: list = field(default_factory=list)  # (keyframe, centre z in the odometry frame)
     last_kf: int = 0
 
 
@@ -112,6 +118,12 @@ class LandmarkSlam:
         self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
         self.loop_closures = 0
         self.n_landmark_factors = 0
+        c = self.cfg
+        self.height = (
+            HeightGraph(c.height_obs_sigma_m, c.height_step_sigma_m, c.height_sigma_per_m)
+            if c.height_correction
+            else None
+        )
         # Optional scan-to-map refinement, called at keyframes with the predicted planar pose
         # (3,3); returns a refined planar pose (3,3) and its (3,3) x, y, yaw covariance in the
         # map frame, or None. Its result is added as a second between factor.
@@ -135,6 +147,13 @@ class LandmarkSlam:
         """Tree positions (L,2) in the map frame and observation counts (L,)."""
         return self._lm_xy.copy(), self._lm_nobs.copy()
 
+    def landmark_heights(self) -> np.ndarray:
+        """Height (L,) of every tree's breast-height centre in the map frame, corrected for the
+        odometry's z drift (NaN without height data or with `height_correction` off)."""
+        if self.height is None:
+            return np.full(self.n_landmarks, np.nan)
+        return self.height.solve(self.n_landmarks)[1]
+
     def landmark_sigma(self) -> np.ndarray:
         n = np.maximum(self._lm_nobs, 1)
         return np.maximum(
@@ -149,10 +168,12 @@ class LandmarkSlam:
         degraded: bool,
         stems_xy: np.ndarray,
         stems_dbh: np.ndarray | None = None,
+        stems_z: np.ndarray | None = None,
     ) -> ScanResult:
         """One scan: odometry pose T_odom (4,4) with its step covariance (3,3) (x, y, yaw; NaN
         or None = unknown), and the stem centres stems_xy (K,2) in the *levelled* sensor frame
-        (see `level_points`) with their DBH (K,) (NaN = unknown)."""
+        (see `level_points`) with their DBH (K,) (NaN = unknown) and their heights stems_z (K,)
+        in the odometry frame (None / NaN = unknown; used by the height correction)."""
         cfg = self.cfg
         T_odom = np.asarray(T_odom, dtype=np.float64)
         stems_xy = np.asarray(stems_xy, dtype=np.float64).reshape(-1, 2)
@@ -161,6 +182,13 @@ class LandmarkSlam:
             if stems_dbh is None
             else np.asarray(stems_dbh, dtype=np.float64).ravel()
         )
+        stems_z = (
+            np.full(len(stems_xy), np.nan)
+            if stems_z is None
+            else np.asarray(stems_z, dtype=np.float64).ravel()
+        )
+        if len(stems_z) != len(stems_xy) or len(stems_dbh) != len(stems_xy):
+            raise InputError("add_scan: stems_xy, stems_dbh and stems_z differ in length")
         ok = np.isfinite(stems_xy).all(axis=1)
         rng = np.linalg.norm(stems_xy, axis=1)
         ok &= (rng >= cfg.min_observation_range_m) & (rng <= cfg.max_observation_range_m)
@@ -174,11 +202,15 @@ class LandmarkSlam:
 
         if first or self._is_keyframe(stamp, o2):
             try:
-                kf = self._add_keyframe(o2, stems_xy[idx], stems_dbh[idx], ids, idx, first)
+                kf = self._add_keyframe(
+                    o2, stems_xy[idx], stems_dbh[idx], stems_z[idx], ids, idx, first
+                )
             except ProcessingError:  # forget this scan so the trajectory stays consistent
                 n_kf = self.n_keyframes
                 del self._stamps[-1], self._odom[-1]
                 del self._kf_scan[len(self._kf_est) :], self._kf_odom2[len(self._kf_est) :]
+                if self.height is not None:
+                    self.height.truncate(len(self._kf_est))
                 log.debug("keyframe %d dropped", n_kf)
                 raise
             self._scan_kf.append(kf)
@@ -227,6 +259,9 @@ class LandmarkSlam:
         lifts = np.tile(np.eye(4), (n, 1, 1))
         lifts[:, 0, 0], lifts[:, 0, 1], lifts[:, 1, 0], lifts[:, 1, 1] = cos, -sin, sin, cos
         lifts[:, :2, 3] = c[:, :2]
+        if self.height is not None:
+            dz = self.height.solve(self.n_landmarks)[0]
+            lifts[:, 2, 3] = np.interp(stamps, kf_t, dz)
         return stamps, np.einsum("nij,njk->nik", lifts, odom)
 
     def odometry(self) -> tuple[np.ndarray, np.ndarray]:
@@ -328,7 +363,7 @@ class LandmarkSlam:
         self.n_landmark_factors += 1
         return gtsam.BearingRangeFactor2D(X(kf), L(lm), gtsam.Rot2.fromAngle(bearing), rng, noise)
 
-    def _add_keyframe(self, o2, obs_s, obs_dbh, ids, idx, first: bool) -> int:
+    def _add_keyframe(self, o2, obs_s, obs_dbh, obs_z, ids, idx, first: bool) -> int:
         cfg = self.cfg
         kf = self.n_keyframes
         graph = gtsam.NonlinearFactorGraph()
@@ -374,10 +409,14 @@ class LandmarkSlam:
                     obs_dbh[i] if not np.isfinite(old) else old + (obs_dbh[i] - old) / n
                 )
         ids[idx[matched]] = res.matches[matched]
+        if self.height is not None:
+            self.height.add_keyframe(0.0 if first else self._dist_acc)
+            for i in np.nonzero(matched)[0]:
+                self.height.add_observation(kf, int(res.matches[i]), obs_z[i])
         if res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m:
             self.loop_closures += 1
         new_ids = self._update_tentatives(
-            kf, obs_map, obs_dbh, bearings, ranges, noise, ~matched, graph, values
+            kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, ~matched, graph, values
         )
         for i, lm in new_ids.items():
             ids[idx[i]] = lm
@@ -404,7 +443,7 @@ class LandmarkSlam:
         return kf
 
     def _update_tentatives(
-        self, kf, obs_map, obs_dbh, bearings, ranges, noise, unmatched, graph, values
+        self, kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, unmatched, graph, values
     ) -> dict[int, int]:
         """Match unmatched observations to tentative trees; promote those seen often enough."""
         cfg = self.cfg
@@ -455,6 +494,7 @@ class LandmarkSlam:
                 t.last_kf = kf
             t.obs.append(entry)
             t.dbh.append(float(obs_dbh[i]))
+            t.z.append((kf, float(obs_z[i])))
             if len(t.obs) >= cfg.tentative_min_observations:
                 lm = self.n_landmarks
                 values.insert(L(lm), gtsam.Point2(*t.xy))
@@ -467,6 +507,9 @@ class LandmarkSlam:
                     self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan
                 )
                 promoted[int(i)] = lm
+                if self.height is not None:
+                    for okf, z in t.z:
+                        self.height.add_observation(okf, lm, z)
                 t.obs = []  # mark for removal
         self._tentative = [t for t in self._tentative if t.obs]
         return promoted
