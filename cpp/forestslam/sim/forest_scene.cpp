@@ -112,6 +112,7 @@ bool Heightfield::intersect(const Ray &ray, const GridRay &grid_ray, double t_ma
     if (empty()) return false;
     const double oz = ray.origin.z(), dz = ray.dir.z();
     if (dz >= 0.0 && oz > z_max_) return false;
+    if (dz > 0.0) t_max = std::min(t_max, (z_max_ - oz) / dz + 1e-9);  // above all: no hit
     bool found = false;
     Hit local;
     const double block = cell_ * kBlock;
@@ -202,14 +203,14 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     z0_ = zmin;
     nx_ = std::max(1, static_cast<int>(std::ceil((xmax - xmin) / cell_)));
     ny_ = std::max(1, static_cast<int>(std::ceil((ymax - ymin) / cell_)));
-    nl_ = std::clamp(static_cast<int>(std::ceil((z_max_ - zmin) / kLayerM)), 1, 256);
+    nl_ = std::clamp(static_cast<int>(std::ceil((z_max_ - zmin) / kLayerM)), 1, kMaxLayers);
     layer_m_ = std::max((z_max_ - zmin) / nl_, 1e-3);
     inv_layer_m_ = 1.0 / layer_m_;
     if (static_cast<double>(nx_) * ny_ * nl_ > 1e8) throw std::invalid_argument("scene grid too large");
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
     std::vector<uint32_t> count(nbin + 1, 0);
-    cell_zmax_.assign(ncell, -std::numeric_limits<float>::infinity());
+    cell_layers_.assign(ncell, 0);
     auto cell_range = [&](const Box &b, int &ix0, int &iy0, int &ix1, int &iy1, int &l0, int &l1) {
         ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
         ix1 = std::clamp(static_cast<int>(std::floor((b.xmax - x0_) / cell_)), 0, nx_ - 1);
@@ -224,8 +225,10 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix) {
                 const size_t c = static_cast<size_t>(iy) * nx_ + ix;
-                for (int l = l0; l <= l1; ++l) ++count[c * nl_ + l + 1];
-                cell_zmax_[c] = std::max(cell_zmax_[c], floatUp(b.zmax - z0_));
+                for (int l = l0; l <= l1; ++l) {
+                    ++count[c * nl_ + l + 1];
+                    cell_layers_[c] |= uint64_t{1} << l;
+                }
             }
     }
     for (size_t c = 0; c < nbin; ++c) count[c + 1] += count[c];
@@ -280,7 +283,11 @@ Hit ForestScene::cast(const Ray &ray) const {
     terrain_.intersect(ray, grid_ray, ray.t_max, best);
     if (nx_ == 0) return best;
     const double oz = ray.origin.z(), dz = ray.dir.z();
-    const double t_end = std::min(ray.t_max, best.t);
+    double t_end = std::min(ray.t_max, best.t);
+    if (dz > 0.0) {  // a rising ray is done once above every primitive
+        if (oz > z_max_) return best;
+        t_end = std::min(t_end, (z_max_ - oz) / dz + 1e-9);
+    }
     const Prim *prims = prims_.data();
     const uint32_t *items = bin_items_.data();
     // Rows already tested exactly: a primitive lies in several bins, and testing it again
@@ -293,13 +300,14 @@ Hit ForestScene::cast(const Ray &ray) const {
         const double t_hi = std::min(t1, best.t);
         const double za = oz + t0 * dz, zb = oz + t_hi * dz;
         const double z_lo = std::min(za, zb), z_hi = std::max(za, zb);
-        if (z_lo - z0_ > cell_zmax_[c]) return !(dz >= 0.0 && z_lo > z_max_);
+        const int l0 = layerOf(z_lo), l1 = layerOf(z_hi);
+        const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
+        if (((cell_layers_[c] >> l0) & span) == 0) return best.t > t1;
         // The bins of a cell are consecutive layers, so the layers the ray crosses here are
         // one contiguous run of items.
         const size_t first = c * nl_;
-        const uint32_t k0 = bin_start_[first + layerOf(z_lo)];
-        const uint32_t k1 = bin_start_[first + layerOf(z_hi) + 1];
-        if (k0 == k1) return best.t > t1;
+        const uint32_t k0 = bin_start_[first + l0];
+        const uint32_t k1 = bin_start_[first + l1 + 1];
         const double xa = ray.origin.x() + t0 * ray.dir.x(), xb = ray.origin.x() + t_hi * ray.dir.x();
         const double ya = ray.origin.y() + t0 * ray.dir.y(), yb = ray.origin.y() + t_hi * ray.dir.y();
         // Segment box relative to the grid origin, compared in double with the (exactly

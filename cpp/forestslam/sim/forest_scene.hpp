@@ -101,8 +101,10 @@ private:
     };
     std::vector<Prim> prims_;
     std::vector<StemCoeffs> stem_coeffs_;  // per-stem constants of the exact test
-    // Bins = XY cell x vertical layer, so rays below the crowns never look at foliage.
+    // Bins = XY cell x vertical layer (1 m, coarser for stands over 64 m tall), so rays below the
+    // crowns never look at foliage.
     static constexpr double kLayerM = 1.0;
+    static constexpr int kMaxLayers = 64;
     int layerOf(double z) const {
         const double l = std::clamp((z - z0_) * inv_layer_m_, 0.0, nl_ - 1.0);
         return static_cast<int>(l);
@@ -111,7 +113,9 @@ private:
     int nl_ = 1;
     std::vector<uint32_t> bin_start_;  // CSR: bin b holds bin_items_[start[b], start[b+1])
     std::vector<uint32_t> bin_items_;  // rows of prims_
-    std::vector<float> cell_zmax_;     // highest primitive top in each XY cell (rounded up)
+    // Per XY cell, bit l set when layer l holds an item: empty bins are skipped without
+    // touching the bin lists.
+    std::vector<uint64_t> cell_layers_;
     double z_max_ = -kInf;
 };
 

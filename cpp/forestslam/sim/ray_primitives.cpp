@@ -249,6 +249,7 @@ bool intersectFoliage(const FoliageEllipsoid &ell, int32_t index, const Ray &ray
     if (disc <= 0.0 || a <= 0.0) return false;
     const double sq = std::sqrt(disc);
     const double t_enter = (-b - sq) / (2.0 * a), t_exit = (-b + sq) / (2.0 * a);
+    if (t_enter > t_max || t_exit < ray.t_min) return false;  // before drawing the free path
     // Free path from the geometric entry, so the outcome does not depend on clipping.
     const double free_path = -std::log(hashUniform(ray.key, static_cast<uint64_t>(index) * 7919ULL + ell.surface)) / ell.sigma;
     const double t = t_enter + free_path;
