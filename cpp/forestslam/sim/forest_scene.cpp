@@ -118,12 +118,17 @@ bool Heightfield::intersect(const Ray &ray, const GridRay &grid_ray, double t_ma
     const double block = cell_ * kBlock;
     traverseGrid(x0_, y0_, block, inv_cell_ / kBlock, nbx_, nby_, grid_ray, ray.t_min, t_max,
                  [&](int bx, int by, double tb0, double tb1) {
-                     const double za = oz + tb0 * dz, zb = oz + tb1 * dz;
-                     const size_t b = static_cast<size_t>(by) * nbx_ + bx;
-                     if (std::min(za, zb) > block_max_[b] + 1e-9) {
-                         return !(dz >= 0.0 && za > z_max_);
-                     }
-                     traverseGrid(x0_, y0_, cell_, inv_cell_, nx_, ny_, grid_ray, tb0, tb1,
+                     // Walk the cells only where the ray is below the block's highest vertex.
+                     const double top = block_max_[static_cast<size_t>(by) * nbx_ + bx] + 1e-9;
+                     double ta = tb0, tb = tb1;
+                     if (dz < 0.0)
+                         ta = std::max(ta, (top - oz) / dz);
+                     else if (dz > 0.0)
+                         tb = std::min(tb, (top - oz) / dz);
+                     else if (oz > top)
+                         return true;
+                     if (ta > tb) return true;
+                     traverseGrid(x0_, y0_, cell_, inv_cell_, nx_, ny_, grid_ray, ta, tb,
                                   [&](int ix, int iy, double t0, double t1) {
                                       if (intersectCell(ix, iy, ray, t0, t1, local)) {
                                           found = true;
