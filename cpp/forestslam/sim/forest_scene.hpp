@@ -67,7 +67,7 @@ struct CastResult {
 class ForestScene {
 public:
     ForestScene(Heightfield terrain, std::vector<Stem> stems, std::vector<Cylinder> cylinders,
-                std::vector<FoliageEllipsoid> foliage, double cell_m = 2.0);
+                std::vector<FoliageEllipsoid> foliage, double cell_m = 3.0);
 
     Hit cast(const Ray &ray) const;
     // One ray per row of dirs (N,3, unit); origins (G,3) with G dividing N: ray i starts at

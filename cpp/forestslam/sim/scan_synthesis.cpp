@@ -10,13 +10,15 @@ namespace forestslam::sim {
 
 namespace {
 
-// Standard normal from two hash uniforms (Box-Muller).
-double hashNormal(uint64_t key, uint64_t salt) {
+// Two independent standard normals from two hash uniforms (Box-Muller).
+void hashNormalPair(uint64_t key, uint64_t salt, double &a, double &b) {
     const double u1 = hashUniform(key, salt), u2 = hashUniform(key, salt + 1);
-    return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * M_PI * u2);
+    const double r = std::sqrt(-2.0 * std::log(u1)), phi = 2.0 * M_PI * u2;
+    a = r * std::cos(phi);
+    b = r * std::sin(phi);
 }
 
-constexpr uint64_t kDropoutSalt = 11, kRangeSalt = 13, kIntensitySalt = 17;
+constexpr uint64_t kDropoutSalt = 11, kNoiseSalt = 13;
 
 }  // namespace
 
@@ -117,11 +119,13 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
         const uint64_t key = mixKey(noise_seed, static_cast<uint64_t>(i));
         if (model.dropout_rate > 0.0 && hashUniform(key, kDropoutSalt) < model.dropout_rate)
             continue;
-        const double range = hit.t + model.range_noise_m * hashNormal(key, kRangeSalt);
+        double range_noise, intensity_noise;
+        hashNormalPair(key, kNoiseSalt, range_noise, intensity_noise);
+        const double range = hit.t + model.range_noise_m * range_noise;
         out.ray[kept] = i;
         out.points.row(kept) = (range / norm) * local.transpose();
         out.intensity[kept] =
-            returnIntensity(hit.surface, hit.cos_incidence, hashNormal(key, kIntensitySalt), model);
+            returnIntensity(hit.surface, hit.cos_incidence, intensity_noise, model);
         out.surface[kept] = hit.surface;
         out.object[kept] = hit.object;
         ++kept;

@@ -70,7 +70,7 @@ void define_sim(py::module_ &m) {
                                  "stems, cylinders and foliage volumes in a uniform XY grid.")
         .def(py::init(&makeScene), py::arg("x0"), py::arg("y0"), py::arg("cell"), py::arg("z"),
              py::arg("stems"), py::arg("cylinders"), py::arg("foliage"), py::arg("seed") = 0,
-             py::arg("grid_cell_m") = 2.0,
+             py::arg("grid_cell_m") = 3.0,
              "z (ny+1, nx+1) terrain vertex heights at x0 + ix*cell, y0 + iy*cell (empty: no "
              "ground). stems (K,12): x y z_base shear_x shear_y semi_a semi_b angle taper "
              "h_bottom height bark_amp (semi-axes at 1.3 m; radius scale 1 - taper (h - 1.3)). "
