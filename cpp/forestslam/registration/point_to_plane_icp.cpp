@@ -2,153 +2,14 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <vector>
 
+#include "forestslam/perception/kdtree.hpp"
+
 namespace forestslam {
-namespace {
-
-// Static 3-D k-d tree with leaf buckets over a subset of rows of a point matrix; exact nearest
-// and k-nearest queries bounded by a maximum distance (ICP gates its correspondences, so most of
-// the tree is pruned). Points are copied in tree order for cache-friendly leaves. Written for
-// this use instead of PCL's KdTreeFLANN, whose per-query overhead dominated the ICP.
-class KdTree3 {
-  public:
-    void build(const Points3 &points, std::vector<int> rows) {
-        ids_ = std::move(rows);
-        nodes_.clear();
-        pts_.clear();
-        if (ids_.empty()) return;
-        nodes_.reserve(2 * ids_.size() / kLeaf + 2);
-        buildNode(points, 0, static_cast<int>(ids_.size()));
-        pts_.resize(ids_.size());
-        for (size_t k = 0; k < ids_.size(); ++k)
-            pts_[k] = {points(ids_[k], 0), points(ids_[k], 1), points(ids_[k], 2)};
-    }
-
-    bool empty() const { return ids_.empty(); }
-
-    // Row of the nearest point within sqrt(max_d2) of q (-1 if none) and its squared distance.
-    int nearest(const Eigen::Vector3d &q, double max_d2, double &d2) const {
-        if (ids_.empty()) return -1;
-        const std::array<double, 3> qa{q.x(), q.y(), q.z()};
-        double best = max_d2;
-        int best_k = -1;
-        nearestIn(0, qa, best, best_k);
-        if (best_k < 0) return -1;
-        d2 = best;
-        return ids_[static_cast<size_t>(best_k)];
-    }
-
-    // Up to k nearest rows (ascending distance) within sqrt(max_d2); returns how many.
-    int knn(const Eigen::Vector3d &q, int k, double max_d2, std::vector<int> &rows,
-            std::vector<double> &d2) const {
-        rows.clear();
-        d2.clear();
-        if (ids_.empty() || k <= 0) return 0;
-        const std::array<double, 3> qa{q.x(), q.y(), q.z()};
-        Heap h{std::vector<std::pair<double, int>>(), static_cast<size_t>(k), max_d2};
-        h.items.reserve(static_cast<size_t>(k) + 1);
-        knnIn(0, qa, h);
-        for (const auto &[dd, kk] : h.items) {
-            rows.push_back(ids_[static_cast<size_t>(kk)]);
-            d2.push_back(dd);
-        }
-        return static_cast<int>(rows.size());
-    }
-
-  private:
-    static constexpr int kLeaf = 8;
-    struct Node {
-        double split = 0;
-        int axis = -1;  // -1: leaf over [begin, end)
-        int begin = 0, end = 0;
-        int left = -1, right = -1;
-    };
-    // Sorted (ascending) candidates; `bound` is the current k-th distance (or the gate).
-    struct Heap {
-        std::vector<std::pair<double, int>> items;
-        size_t k;
-        double bound;
-        void push(double dd, int idx) {
-            auto it = std::upper_bound(items.begin(), items.end(), std::make_pair(dd, idx));
-            items.insert(it, {dd, idx});
-            if (items.size() > k) items.pop_back();
-            if (items.size() == k) bound = std::min(bound, items.back().first);
-        }
-    };
-
-    int buildNode(const Points3 &points, int begin, int end) {
-        const int id = static_cast<int>(nodes_.size());
-        nodes_.emplace_back();
-        nodes_[static_cast<size_t>(id)].begin = begin;
-        nodes_[static_cast<size_t>(id)].end = end;
-        if (end - begin <= kLeaf) return id;
-        Eigen::Array3d lo = Eigen::Array3d::Constant(std::numeric_limits<double>::max());
-        Eigen::Array3d hi = -lo;
-        for (int k = begin; k < end; ++k) {
-            const Eigen::Array3d p = points.row(ids_[static_cast<size_t>(k)]).transpose().array();
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-        int axis = 0;
-        (hi - lo).maxCoeff(&axis);
-        const int mid = begin + (end - begin) / 2;
-        std::nth_element(ids_.begin() + begin, ids_.begin() + mid, ids_.begin() + end,
-                         [&](int a, int b) { return points(a, axis) < points(b, axis); });
-        const double split = points(ids_[static_cast<size_t>(mid)], axis);
-        const int left = buildNode(points, begin, mid);
-        const int right = buildNode(points, mid, end);
-        Node &n = nodes_[static_cast<size_t>(id)];
-        n.axis = axis;
-        n.split = split;
-        n.left = left;
-        n.right = right;
-        return id;
-    }
-
-    static double dist2(const std::array<double, 3> &a, const std::array<double, 3> &b) {
-        const double dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
-        return dx * dx + dy * dy + dz * dz;
-    }
-
-    void nearestIn(int id, const std::array<double, 3> &q, double &best, int &best_k) const {
-        const Node &n = nodes_[static_cast<size_t>(id)];
-        if (n.axis < 0) {
-            for (int k = n.begin; k < n.end; ++k) {
-                const double dd = dist2(pts_[static_cast<size_t>(k)], q);
-                if (dd <= best) best = dd, best_k = k;
-            }
-            return;
-        }
-        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
-        nearestIn(diff < 0 ? n.left : n.right, q, best, best_k);
-        if (diff * diff <= best) nearestIn(diff < 0 ? n.right : n.left, q, best, best_k);
-    }
-
-    void knnIn(int id, const std::array<double, 3> &q, Heap &h) const {
-        const Node &n = nodes_[static_cast<size_t>(id)];
-        if (n.axis < 0) {
-            for (int k = n.begin; k < n.end; ++k) {
-                const double dd = dist2(pts_[static_cast<size_t>(k)], q);
-                if (dd <= h.bound) h.push(dd, k);
-            }
-            return;
-        }
-        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
-        knnIn(diff < 0 ? n.left : n.right, q, h);
-        if (diff * diff <= h.bound) knnIn(diff < 0 ? n.right : n.left, q, h);
-    }
-
-    std::vector<int> ids_;
-    std::vector<std::array<double, 3>> pts_;
-    std::vector<Node> nodes_;
-};
-
-}  // namespace
 
 struct PlaneTarget::Impl {
     Points3 points;
@@ -167,19 +28,19 @@ PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_
     impl_->all.build(impl_->points, rows);
     if (m < 3) return;
     const int k = std::max(3, std::min<int>(normal_k, static_cast<int>(m)));
-    std::vector<int> idx;
-    std::vector<double> d2;
+    std::vector<std::pair<double, int>> nn;
+    nn.reserve(static_cast<size_t>(k) + 1);
     const double inf = std::numeric_limits<double>::infinity();
     for (Eigen::Index i = 0; i < m; ++i) {
-        const int found = impl_->all.knn(impl_->points.row(i).transpose(), k, inf, idx, d2);
+        const int found = impl_->all.knn(impl_->points.row(i).transpose(), k, inf, nn);
         if (found < 3) continue;
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (int j = 0; j < found; ++j) mean += impl_->points.row(idx[j]).transpose();
+        for (const auto &[d2, j] : nn) mean += impl_->points.row(j).transpose();
         mean /= found;
         Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-        for (int j = 0; j < found; ++j) {
-            const Eigen::Vector3d d = impl_->points.row(idx[j]).transpose() - mean;
-            cov += d * d.transpose();
+        for (const auto &[d2, j] : nn) {
+            const Eigen::Vector3d d = impl_->points.row(j).transpose() - mean;
+            cov.noalias() += d * d.transpose();
         }
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
         const Eigen::Vector3d ev = eig.eigenvalues();

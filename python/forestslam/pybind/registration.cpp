@@ -4,6 +4,7 @@
 #include <pybind11/stl.h>
 
 #include "bindings.hpp"
+#include "forestslam/registration/deskew.hpp"
 #include "forestslam/registration/fpfh_ransac.hpp"
 #include "forestslam/registration/point_to_plane_icp.hpp"
 #include "forestslam/registration/shape_registration.hpp"
@@ -25,6 +26,18 @@ std::vector<std::pair<int, int>> toPairs(const PairArray &a) {
 }  // namespace
 
 void define_registration(py::module_ &m) {
+    m.def(
+        "deskew_points",
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Ref<const Eigen::VectorXd> &times,
+           const Vector6d &twist_per_s) {
+            py::gil_scoped_release release;
+            return deskewPoints(points, times, twist_per_s);
+        },
+        py::arg("points"), py::arg("times"), py::arg("twist_per_s"),
+        "Constant-velocity motion compensation: points (N,3) float64 measured at times (N,) s\n"
+        "after the reference, moved into the sensor frame at the reference for the body twist\n"
+        "(6,) per second (translation, rotation vector): p0 = R(t w) p + t v. Rows with a\n"
+        "non-finite time are unchanged. Returns (N,3).");
     py::class_<RegistrationResult>(m, "RegistrationResult",
                                    "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
                                    "left perturbation (planar methods fill x,y,yaw = 0,1,5); "

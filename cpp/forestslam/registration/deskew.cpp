@@ -1,0 +1,30 @@
+#include "forestslam/registration/deskew.hpp"
+
+#include <cmath>
+
+namespace forestslam {
+
+Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
+                     const Eigen::Ref<const Eigen::VectorXd> &times, const Vector6d &twist_per_s) {
+    Points3 out = points;
+    if (times.size() != points.rows()) return out;
+    const Eigen::Vector3d v = twist_per_s.head<3>();
+    const Eigen::Vector3d w = twist_per_s.tail<3>();
+    const double speed = w.norm();
+    const Eigen::Vector3d k = speed > 1e-12 ? Eigen::Vector3d(w / speed) : Eigen::Vector3d::Zero();
+    for (Eigen::Index i = 0; i < points.rows(); ++i) {
+        const double t = times(i);
+        if (!std::isfinite(t)) continue;
+        const Eigen::Vector3d p = points.row(i).transpose();
+        Eigen::Vector3d q = p;
+        if (speed > 1e-12) {
+            const double theta = t * speed;
+            const double c = std::cos(theta), s = std::sin(theta);
+            q = p * c + k.cross(p) * s + k * (k.dot(p) * (1.0 - c));
+        }
+        out.row(i) = (q + t * v).transpose();
+    }
+    return out;
+}
+
+}  // namespace forestslam
