@@ -9,8 +9,9 @@ namespace forestslam {
 
 struct DogKeypointsConfig {
     double voxel_m = 0.08;            // downsampling before smoothing (bounds the cost)
-    int outlier_neighbours = 8;       // statistical outlier removal: k nearest neighbours
-    double outlier_std_ratio = 2.0;   // ... and mean-distance threshold in standard deviations
+    // Outlier removal: points with fewer neighbours than this within 3 sigma_small (after
+    // voxelisation) are never keypoints (isolated returns give the strongest responses).
+    int outlier_neighbours = 8;
     double sigma_small_m = 0.15;      // Gaussian scales of the two smoothed copies
     double sigma_large_m = 0.30;
     int min_neighbours = 6;           // points with fewer neighbours at the large scale: skipped

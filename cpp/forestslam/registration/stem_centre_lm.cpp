@@ -2,7 +2,6 @@
 
 #include <Eigen/Dense>
 #include <ceres/ceres.h>
-#include <ceres/rotation.h>
 #include <pcl/kdtree/kdtree_flann.h>
 
 #include <algorithm>
@@ -49,39 +48,6 @@ const Points3 &StemCentreTarget::points() const { return impl_->points; }
 
 namespace {
 
-// Parameters: [rx, ry, rz, tx, ty, tz], rotation vector of R_target_source and translation.
-struct VirtualCost {
-    VirtualCost(const Eigen::Vector3d &centre, const Eigen::Vector3d &target, double radius)
-        : c(centre), p(target), r(radius) {}
-    template <typename T>
-    bool operator()(const T *x, T *residual) const {
-        const T src[3] = {T(c.x()), T(c.y()), T(c.z())};
-        T q[3];
-        ceres::AngleAxisRotatePoint(x, src, q);
-        const T dx = q[0] + x[3] - T(p.x()), dy = q[1] + x[4] - T(p.y());
-        residual[0] = ceres::sqrt(dx * dx + dy * dy + T(1e-12)) - T(r);
-        return true;
-    }
-    Eigen::Vector3d c, p;
-    double r;
-};
-
-struct PlaneCost {
-    PlaneCost(const Eigen::Vector3d &source, const Eigen::Vector3d &origin,
-              const Eigen::Vector3d &normal)
-        : s(source), p0(origin), n(normal) {}
-    template <typename T>
-    bool operator()(const T *x, T *residual) const {
-        const T src[3] = {T(s.x()), T(s.y()), T(s.z())};
-        T q[3];
-        ceres::AngleAxisRotatePoint(x, src, q);
-        residual[0] = (q[0] + x[3] - T(p0.x())) * T(n.x()) +
-                      (q[1] + x[4] - T(p0.y())) * T(n.y()) + (q[2] + x[5] - T(p0.z())) * T(n.z());
-        return true;
-    }
-    Eigen::Vector3d s, p0, n;
-};
-
 struct VirtualPair {
     Eigen::Vector3d centre, target;
     double radius;
@@ -91,29 +57,146 @@ struct PlanePair {
     Eigen::Vector3d source, origin, normal;
 };
 
-Eigen::Matrix4d toMatrix(const double *x) {
-    Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
-    const Eigen::Vector3d w(x[0], x[1], x[2]);
-    const double angle = w.norm();
-    T.block<3, 3>(0, 0) = angle > 0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix()
-                                    : Eigen::Matrix3d::Identity();
-    T.block<3, 1>(0, 3) = Eigen::Vector3d(x[3], x[4], x[5]);
-    return T;
-}
-
-void fromMatrix(const Eigen::Matrix4d &T, double *x) {
-    const Eigen::AngleAxisd aa(Eigen::Matrix3d(T.block<3, 3>(0, 0)));
-    const Eigen::Vector3d w = aa.angle() * aa.axis();
-    for (int k = 0; k < 3; ++k) {
-        x[k] = w[k];
-        x[3 + k] = T(k, 3);
+// All pairs of one correspondence round in one residual block with analytic Jacobians. The
+// parameters are a left perturbation [dt (3), dw (3)] of the round's starting pose T0:
+// q = exp(dw) (R0 s + t0) + dt. Pair i has the raw residual r_i = d - r (virtual: d the
+// horizontal distance to the paired target point) or the point-to-plane distance (real) and
+// contributes w_i * rho(r_i) with rho the Cauchy loss of scale c: the block returns
+// f_i = sqrt(w_i) sign(r_i) sqrt(rho(r_i)), rho(r) = c^2 log(1 + r^2 / c^2), so that the sum of
+// squares is exactly the robust cost (one block instead of one per pair: the per-block
+// overhead dominated). Jacobian of q w.r.t. dw: -[q]x (exact at dw = 0, first order within
+// the round's small step).
+class PairsCost : public ceres::CostFunction {
+public:
+    PairsCost(const std::vector<VirtualPair> &v, const std::vector<PlanePair> &p,
+              const Eigen::Matrix4d &T0, double scale)
+        : v_(v), p_(p), c_(scale) {
+        R0_ = T0.block<3, 3>(0, 0);
+        t0_ = T0.block<3, 1>(0, 3);
+        set_num_residuals(static_cast<int>(v.size() + p.size()));
+        mutable_parameter_block_sizes()->push_back(6);
     }
-}
+
+    bool Evaluate(double const *const *parameters, double *residuals,
+                  double **jacobians) const override {
+        const double *d = parameters[0];
+        const Eigen::Vector3d dt(d[0], d[1], d[2]), dw(d[3], d[4], d[5]);
+        const double angle = dw.norm();
+        const Eigen::Matrix3d dR = angle > 0 ? Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix()
+                                             : Eigen::Matrix3d::Identity();
+        const Eigen::Matrix3d R = dR * R0_;
+        const Eigen::Vector3d t = dR * t0_ + dt;
+        double *J = (jacobians != nullptr) ? jacobians[0] : nullptr;
+        std::size_t i = 0;
+        for (const auto &v : v_) {
+            const Eigen::Vector3d q = R * v.centre + t;
+            const double dx = q.x() - v.target.x(), dy = q.y() - v.target.y();
+            const double dn = std::sqrt(dx * dx + dy * dy + 1e-12);
+            double f, df;
+            robust(dn - v.radius, f, df);
+            const double w = std::sqrt(v.weight);
+            residuals[i] = w * f;
+            if (J != nullptr) {
+                const Eigen::Vector3d u(dx / dn, dy / dn, 0.0);
+                writeRow(J + 6 * i, u, q, w * df);
+            }
+            ++i;
+        }
+        for (const auto &p : p_) {
+            const Eigen::Vector3d q = R * p.source + t;
+            double f, df;
+            robust(p.normal.dot(q - p.origin), f, df);
+            residuals[i] = f;
+            if (J != nullptr) writeRow(J + 6 * i, p.normal, q, df);
+            ++i;
+        }
+        return true;
+    }
+
+private:
+    // f = sign(r) sqrt(rho(r)) and df/dr = r / ((1 + r^2/c^2) f) (-> 1 at r = 0).
+    void robust(double r, double &f, double &df) const {
+        const double u = r / c_;
+        if (std::abs(u) < 1e-6) {
+            f = r;
+            df = 1.0;
+            return;
+        }
+        f = std::copysign(c_ * std::sqrt(std::log1p(u * u)), r);
+        df = r / ((1.0 + u * u) * f);
+    }
+
+    // d r / d [dt, dw] = [u, q x u] (u the residual direction), scaled by w.
+    static void writeRow(double *row, const Eigen::Vector3d &u, const Eigen::Vector3d &q,
+                         double w) {
+        const Eigen::Vector3d qu = q.cross(u);
+        for (int k = 0; k < 3; ++k) {
+            row[k] = w * u[k];
+            row[3 + k] = w * qu[k];
+        }
+    }
+
+    const std::vector<VirtualPair> &v_;
+    const std::vector<PlanePair> &p_;
+    double c_;
+    Eigen::Matrix3d R0_;
+    Eigen::Vector3d t0_;
+};
+
+// Target points that can pair with each virtual feature, gathered with a slack around where
+// the centre was: reused while the moved centre stays within the slack (exact, as a pair needs
+// |d - r| < gate <= virtual_max_gate_m and |dz| <= virtual_window_m), so the hash cells are
+// scanned about once per registration instead of once per round.
+struct VirtualCandidates {
+    static constexpr double kSlack = 0.3;
+    std::vector<Eigen::Vector3d> at;        // transformed centre when gathered
+    std::vector<std::vector<int>> members;  // target point indices
+    std::vector<char> valid;
+
+    void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double radius, const StemCentreLmConfig &cfg) {
+        if (at.size() <= i) {
+            at.resize(i + 1);
+            members.resize(i + 1);
+            valid.resize(i + 1, 0);
+        }
+        auto &out = members[i];
+        out.clear();
+        const double reach = radius + cfg.virtual_max_gate_m + kSlack;
+        const double window = cfg.virtual_window_m + kSlack;
+        for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
+            for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
+                for (auto iz = cellIndex(q.z() - window); iz <= cellIndex(q.z() + window); ++iz) {
+                    const auto it = target.cells.find(cellKey(ix, iy, iz));
+                    if (it == target.cells.end()) continue;
+                    for (int j : it->second) {
+                        const auto &p = target.points.row(j);
+                        if (std::abs(p(2) - q.z()) > window) continue;
+                        if (std::hypot(p(0) - q.x(), p(1) - q.y()) > reach) continue;
+                        out.push_back(j);
+                    }
+                }
+            }
+        }
+        at[i] = q;
+        valid[i] = 1;
+    }
+
+    const std::vector<int> &near(const StemCentreTarget::Impl &target, std::size_t i,
+                                 const Eigen::Vector3d &q, double radius,
+                                 const StemCentreLmConfig &cfg) {
+        if (i >= valid.size() || !valid[i] || std::abs(q.z() - at[i].z()) > kSlack ||
+            std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack) {
+            gather(target, i, q, radius, cfg);
+        }
+        return members[i];
+    }
+};
 
 void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
                const Eigen::VectorXd &radii, const Points3 &real, const Eigen::Matrix4d &T,
-               const StemCentreLmConfig &cfg, std::vector<VirtualPair> &vpairs,
-               std::vector<PlanePair> &ppairs) {
+               const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
+               std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
     vpairs.clear();
     ppairs.clear();
     const Eigen::Matrix3d R = T.block<3, 3>(0, 0);
@@ -128,30 +211,20 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         const Eigen::Vector3d c = centres.row(i).transpose();
         const Eigen::Vector3d q = R * c + t;
         const double r = radii[i];
-        const double reach = r + gate;
         std::fill(best.begin(), best.end(), -1);
         std::fill(best_err.begin(), best_err.end(), std::numeric_limits<double>::infinity());
-        for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
-            for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
-                for (auto iz = cellIndex(q.z() - cfg.virtual_window_m);
-                     iz <= cellIndex(q.z() + cfg.virtual_window_m); ++iz) {
-                    const auto it = target.cells.find(cellKey(ix, iy, iz));
-                    if (it == target.cells.end()) continue;
-                    for (int j : it->second) {
-                        const auto &p = target.points.row(j);
-                        if (std::abs(p(2) - q.z()) > cfg.virtual_window_m) continue;
-                        const double dx = p(0) - q.x(), dy = p(1) - q.y();
-                        const double err = std::abs(std::hypot(dx, dy) - r);
-                        if (err >= gate) continue;
-                        auto sector = static_cast<int>((std::atan2(dy, dx) + M_PI) /
-                                                       (2 * M_PI) * sectors);
-                        sector = std::min(std::max(sector, 0), sectors - 1);
-                        if (err < best_err[sector]) {
-                            best_err[sector] = err;
-                            best[sector] = j;
-                        }
-                    }
-                }
+        for (int j : candidates.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
+            const auto &p = target.points.row(j);
+            if (std::abs(p(2) - q.z()) > cfg.virtual_window_m) continue;
+            const double dx = p(0) - q.x(), dy = p(1) - q.y();
+            const double err = std::abs(std::sqrt(dx * dx + dy * dy) - r);
+            if (err >= gate) continue;
+            auto sector =
+                static_cast<int>((std::atan2(dy, dx) + M_PI) / (2 * M_PI) * sectors);
+            sector = std::min(std::max(sector, 0), sectors - 1);
+            if (err < best_err[sector]) {
+                best_err[sector] = err;
+                best[sector] = j;
             }
         }
         const auto found = static_cast<int>(std::count_if(best.begin(), best.end(),
@@ -216,12 +289,12 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     }
     const Points3 real = finiteRows(real_points);
 
-    double x[6];
-    fromMatrix(T_initial, x);
+    Eigen::Matrix4d T_cur = T_initial;
+    VirtualCandidates candidates;
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
     for (int round = 0; round < config.max_rounds; ++round) {
-        const Eigen::Matrix4d T_before = toMatrix(x);
+        const Eigen::Matrix4d T_before = T_cur;
         const double scale =
             std::max(1.0, config.coarse_gate_factor * std::pow(config.gate_decay, round));
         StemCentreLmConfig round_cfg = config;
@@ -229,25 +302,16 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         round_cfg.real_gate_m *= scale;
         round_cfg.plane_gate_m *= scale;
         round_cfg.robust_scale_m *= scale;
-        findPairs(target.impl(), centres, rad, real, T_before, round_cfg, vpairs, ppairs);
+        findPairs(target.impl(), centres, rad, real, T_before, round_cfg, candidates, vpairs,
+                  ppairs);
         result.iterations = round + 1;
         if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
 
-        ceres::Problem problem;
-        for (const auto &v : vpairs) {
-            auto *cost = new ceres::AutoDiffCostFunction<VirtualCost, 1, 6>(
-                new VirtualCost(v.centre, v.target, v.radius));
-            problem.AddResidualBlock(
-                cost,
-                new ceres::ScaledLoss(new ceres::CauchyLoss(round_cfg.robust_scale_m),
-                                      v.weight, ceres::TAKE_OWNERSHIP),
-                x);
-        }
-        for (const auto &p : ppairs) {
-            auto *cost = new ceres::AutoDiffCostFunction<PlaneCost, 1, 6>(
-                new PlaneCost(p.source, p.origin, p.normal));
-            problem.AddResidualBlock(cost, new ceres::CauchyLoss(round_cfg.robust_scale_m), x);
-        }
+        double delta[6] = {0, 0, 0, 0, 0, 0};
+        ceres::Problem::Options problem_options;
+        ceres::Problem problem(problem_options);
+        problem.AddResidualBlock(
+            new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m), nullptr, delta);
         ceres::Solver::Options options;
         options.minimizer_type = ceres::TRUST_REGION;
         options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
@@ -258,21 +322,29 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         ceres::Solver::Summary summary;
         ceres::Solve(options, &problem, &summary);
 
-        const Eigen::Matrix4d T_after = toMatrix(x);
-        const Eigen::Matrix4d delta = T_before.inverse() * T_after;
-        const double dt = delta.block<3, 1>(0, 3).norm();
-        const double dr = Eigen::AngleAxisd(Eigen::Matrix3d(delta.block<3, 3>(0, 0))).angle();
-        if (scale <= 1.0 && dt < config.converged_translation_m &&
-            dr < config.converged_rotation_rad) {
+        const Eigen::Vector3d dw(delta[3], delta[4], delta[5]);
+        const double angle = dw.norm();
+        Eigen::Matrix4d D = Eigen::Matrix4d::Identity();
+        if (angle > 0) D.block<3, 3>(0, 0) = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
+        D.block<3, 1>(0, 3) = Eigen::Vector3d(delta[0], delta[1], delta[2]);
+        T_cur = D * T_before;
+        // The step as seen from the sensor (independent of where the target origin lies).
+        const Eigen::Matrix4d step = T_before.inverse() * T_cur;
+        if (scale <= 1.0 && step.block<3, 1>(0, 3).norm() < config.converged_translation_m &&
+            angle < config.converged_rotation_rad) {
             result.converged = true;
             break;
         }
     }
-    const Eigen::Matrix4d T = toMatrix(x);
+    // Re-orthonormalise (the left updates accumulate rounding).
+    Eigen::Matrix4d T = T_cur;
+    T.block<3, 3>(0, 0) = Eigen::Quaterniond(Eigen::Matrix3d(T_cur.block<3, 3>(0, 0)))
+                              .normalized()
+                              .toRotationMatrix();
     result.T_target_source = T;
 
     // Statistics and covariance at the solution with renewed pairs.
-    findPairs(target.impl(), centres, rad, real, T, config, vpairs, ppairs);
+    findPairs(target.impl(), centres, rad, real, T, config, candidates, vpairs, ppairs);
     result.virtual_inliers = static_cast<int>(vpairs.size());
     result.real_inliers = static_cast<int>(ppairs.size());
     result.inliers = result.virtual_inliers + result.real_inliers;

@@ -4,8 +4,10 @@
 // target frame, whose z axis is taken as vertical: a levelled TLS / map frame; pairing all
 // around the centre rather than only the nearest point removes the mirror minimum outside a
 // fully scanned stem); real features (e.g. DoG keypoints) pair with the plane through their three nearest
-// non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM with a robust loss,
-// correspondences renewed between solves. Works frame-to-frame and frame-to-map.
+// non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM (all pairs of a
+// round in one residual block with analytic Jacobians, left perturbation of the pose) with a
+// robust Cauchy loss, correspondences renewed between solves. Works frame-to-frame and
+// frame-to-map.
 #pragma once
 
 #include <memory>
@@ -16,7 +18,7 @@ namespace forestslam {
 
 struct StemCentreLmConfig {
     int max_rounds = 15;                  // correspondence renewals
-    int max_solver_iterations = 8;        // LM iterations per round
+    int max_solver_iterations = 8;        // LM iterations per round (fixed pairs)
     double virtual_gate_m = 0.10;         // |d - r| gate for virtual-feature pairs
     int virtual_sectors = 12;             // at most one target point per sector around a centre
     double virtual_window_m = 0.15;       // ... taken within this height of the centre

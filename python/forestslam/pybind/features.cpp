@@ -50,7 +50,6 @@ void define_features(py::module_ &m) {
             using C = DogKeypointsConfig;
             applyKwargs(cfg, kwargs,
                         {{"voxel_m", &C::voxel_m},
-                         {"outlier_std_ratio", &C::outlier_std_ratio},
                          {"sigma_small_m", &C::sigma_small_m},
                          {"sigma_large_m", &C::sigma_large_m},
                          {"nms_radius_m", &C::nms_radius_m},
@@ -67,7 +66,7 @@ void define_features(py::module_ &m) {
         },
         py::arg("points"),
         "3D difference-of-Gaussians keypoints of points (N,3) -> (keypoints (K,3), response "
-        "(K,)). Options (keywords): voxel_m, outlier_neighbours, outlier_std_ratio, "
+        "(K,)). Options (keywords): voxel_m, outlier_neighbours, "
         "sigma_small_m, sigma_large_m, min_neighbours, nms_radius_m, bucket_m, max_keypoints.");
 
     m.def(

@@ -64,8 +64,8 @@ class RegistrationConfig:
     # Spinning scans with per-point time are deskewed (constant velocity from the last two
     # frames) to the middle of their sweep and registered there.
     deskew: bool = True
-    lm_converged_translation_m: float = 5e-4  # a round moving less than this ends the LM ...
-    lm_converged_rotation_rad: float = 1e-4  # ... when it also rotates less than this
+    lm_converged_translation_m: float = 1e-3  # a round moving less than this ends the LM ...
+    lm_converged_rotation_rad: float = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
     # is not degenerate, its real-feature residual RMS is below good_real_rms_m and it moved
     # the predicted pose (constant velocity) by at most max_correction_m / max_correction_deg.
