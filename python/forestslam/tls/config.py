@@ -21,6 +21,7 @@ class FeatureConfig:
     ground_cell_m: float = 1.0
     ground_max_range_m: float = 15.0
     ground_max_step_m: float = 0.3
+    ground_band_m: float = 0.1
 
 
 @dataclass

@@ -39,10 +39,11 @@ class FrameFeatures:
 
 
 def ground_samples(points: np.ndarray, config: FeatureConfig) -> np.ndarray:
-    """Evenly spread ground samples (G,3) of a frame: the lowest point of each ground_cell_m
-    x-y cell within ground_max_range_m, kept when it lies within ground_max_step_m of the
-    frame's local ground level (the median of the cell minima around it: drops cells whose
-    lowest return is a stem, a shrub or the canopy), at most ground_max_points of them.
+    """Evenly spread ground samples (G,3) of a frame: one low point per ground_cell_m x-y cell
+    (the median point of its lowest ground_band_m) within ground_max_range_m, kept when it lies
+    within ground_max_step_m of the frame's local ground level (the median of the cell samples
+    around it: drops cells whose lowest return is a stem, a shrub or the canopy), at most
+    ground_max_points of them.
     DoG keypoints hardly ever fall on smooth ground, yet the ground alone fixes the height,
     roll and pitch of a frame (stem centres only fix x, y and heading)."""
     n_max = config.ground_max_points
@@ -55,9 +56,14 @@ def ground_samples(points: np.ndarray, config: FeatureConfig) -> np.ndarray:
         return np.zeros((0, 3))
     ij = np.floor(pts[:, :2] / cell).astype(np.int64)
     order = np.lexsort((pts[:, 2], ij[:, 1], ij[:, 0]))
-    ij_s = ij[order]
-    first = np.r_[True, np.any(ij_s[1:] != ij_s[:-1], axis=1)]
-    low = pts[order][first]
+    ij_s, pts_s = ij[order], pts[order]
+    start = np.flatnonzero(np.r_[True, np.any(ij_s[1:] != ij_s[:-1], axis=1)])
+    # Not the lowest point itself (biased low by the range noise, which would lift the
+    # frame) but the median-height point of the cell's lowest ground_band_m.
+    zmin = np.repeat(pts_s[start, 2], np.diff(np.r_[start, len(pts_s)]))
+    in_band = (pts_s[:, 2] - zmin <= config.ground_band_m).astype(np.int64)
+    k = np.add.reduceat(in_band, start)
+    low = pts_s[start + (k - 1) // 2]
     if len(low) < 3:
         return np.zeros((0, 3))
     # Local ground level: median of the cell minima within 3 cells; a plane would be better on

@@ -59,7 +59,7 @@ class FrameRecord:
     ms_lm: float
     ms_ndt: float
     ms_target: float = 0.0  # local LM target (re-)build charged to this frame
-    fallback: bool = False  # the NDT initial pose was used
+    fallback: bool = False  # the second initial pose was used (NDT, or velocity in NDT mode)
     # Registration frame: the sensor at t_mid_s after the stamp (mid-sweep); the scan was
     # deskewed with deskew_twist (6,) per second (zeros: not deskewed), see odometry.deskew.
     t_mid_s: float = 0.0
@@ -294,6 +294,7 @@ def register_mls_to_tls(
     # Previous frame (pose and points, trusted or not), whether it was trusted, and the
     # per-frame velocity from the last pair of consecutive trusted frames.
     T_good = None  # set once the first frame is anchored
+    t_good = 0.0
     T_prev = None
     prev_points = None
     prev_good = False
@@ -389,6 +390,18 @@ def register_mls_to_tls(
                 ms_lm += (time.process_time() - t0) * 1e3
                 if _trusted(lm2, T_ndt, config):
                     lm, good, fallback = lm2, True, True
+        elif not good and T_good is not None:
+            # Fallback of the NDT mode (NDT can fail at sharp turns): the constant-velocity
+            # prediction from the last trusted pose.
+            T_vel = T_good @ se3_exp(twist * max(t_ref - t_good, 0.0))
+            t0 = time.process_time()
+            target, _ = gmap.target_at(T_vel[:2, 3], _z_range(points, T_vel))
+            ms_target += (time.process_time() - t0) * 1e3
+            t0 = time.process_time()
+            lm2 = _lm(core, target, feats, T_vel, config)
+            ms_lm += (time.process_time() - t0) * 1e3
+            if _trusted(lm2, T_vel, config):
+                lm, good, fallback = lm2, True, True
         # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
         # paper); else the initial pose. Only trusted frames join the map.
         lm_ok = lm["converged"] and not lm["degenerate"]
@@ -440,7 +453,8 @@ def register_mls_to_tls(
         frames.append(record)
         if on_frame is not None:
             on_frame(record)
-        T_good = T if good else T_good
+        if good:
+            T_good, t_good = T, t_ref
         T_prev, prev_points, prev_good, t_prev = T, points, good, t_ref
     if seen == 0:
         raise InputError("the MLS input holds no scans")

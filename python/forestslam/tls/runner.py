@@ -130,7 +130,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         "ms_all_mean": float(
             np.mean([f.ms_features + f.ms_lm + f.ms_ndt + f.ms_target for f in frames])
         ),
-        "ndt_fallback_frames": int(sum(f.fallback for f in frames)),
+        "fallback_frames": int(sum(f.fallback for f in frames)),
         "initial_pose": run.initial_method,
     }
 
