@@ -37,10 +37,11 @@ using PoseRows = Eigen::Matrix<double, Eigen::Dynamic, 16, Eigen::RowMajor>;
 using IndexVector = Eigen::Matrix<int64_t, Eigen::Dynamic, 1>;
 
 // knot_time (M,) increasing, knot_pose (M,16): row-major T_world_sensor at those times. Each group
-// time gets the pose interpolated between its two knots (translation linearly, rotation by slerp;
-// exactly the knot's pose at a knot time; clamped outside). Ray i (local_dirs row i, unit, sensor
-// frame) is fired from the pose of group_time[group[i]]. The cast uses keys (cast_seed, i) as
-// ForestScene::castRays does; dropouts and noise use noise_seed.
+// time gets the pose interpolated between its two knots (translation linearly, rotation by
+// normalised quaternion interpolation, which equals slerp at the midpoint and for the small steps
+// between knots; exactly the knot's pose at a knot time; clamped outside). Ray i (local_dirs
+// row i, unit, sensor frame) is fired from the pose of group_time[group[i]]. The cast uses keys
+// (cast_seed, i) as ForestScene::castRays does; dropouts and noise use noise_seed.
 SynthesizedScan synthesizeScan(const ForestScene &scene,
                                const Eigen::Ref<const Eigen::VectorXd> &knot_time,
                                const Eigen::Ref<const PoseRows> &knot_pose,

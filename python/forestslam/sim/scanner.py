@@ -106,11 +106,11 @@ def synthesize_scan(
 ) -> Scan | tuple[Scan, np.ndarray, np.ndarray]:
     """One scan: poses (G,4,4) T_world_sensor at pattern.group_time, or at pose_times (M,)
     (increasing, seconds since the sweep start; interpolated to the group times, rotation by
-    slerp). rng seeds the dropouts and the range and intensity noise (drawn in C++, one hash per
-    ray). Intensity: foliage and shrubs above the profile's threshold about 95 % of the time,
-    bark, wood and ground well below it, brighter at normal incidence. With labels=True also the
-    per-point surface class (N,) uint8 (see forest.SURFACES) and object row (N,) int32 (the tree
-    id for stems)."""
+    normalised quaternion interpolation). rng seeds the dropouts and the range and intensity
+    noise (drawn in C++, one hash per ray). Intensity: foliage and shrubs above the profile's
+    threshold about 95 % of the time, bark, wood and ground well below it, brighter at normal
+    incidence. With labels=True also the per-point surface class (N,) uint8 (see
+    forest.SURFACES) and object row (N,) int32 (the tree id for stems)."""
     knot_time = pattern.group_time if pose_times is None else np.asarray(pose_times, np.float64)
     thr = profile.intensity_threshold if profile.intensity_threshold is not None else 100.0
     idx, points, intensity, surface, obj = scene.synthesize(
