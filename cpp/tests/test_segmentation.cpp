@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <set>
+#include <tuple>
 
 #include "forestslam/perception/segmentation.hpp"
 #include "perception_scene.hpp"
@@ -102,4 +103,33 @@ TEST(Segmentation, EuclideanClustersForMaps) {
     p << 0, 0, 0, 0.1, 0, 0, 0.2, 0, 0, 3, 3, 3, 3.1, 3, 3, 3.2, 3, 3;
     EXPECT_EQ(euclideanClusters(p, 0.15, 2).size(), 2u);
     EXPECT_TRUE(euclideanClusters(Points3(0, 3), 0.15, 2).empty());
+}
+
+TEST(Segmentation, ThinnedNearStemStaysWholeWithTheMetricColumnGap) {
+    // A stem 2 m away thinned to one point per 5 cm (as the normal filter leaves it): about 7
+    // empty columns between its points. Bridged by max_gap_m it is one cluster per block; with
+    // only max_pixel_gap it falls apart into vertical strips.
+    const auto s = stemsOnly({{2.0, 0.0, 0.5}});
+    std::vector<int> rows;
+    std::set<std::tuple<long, long, long>> voxels;
+    for (Eigen::Index i = 0; i < s.points.rows(); ++i) {
+        const auto key = std::make_tuple(std::lround(std::floor(s.points(i, 0) / 0.05)),
+                                         std::lround(std::floor(s.points(i, 1) / 0.05)),
+                                         std::lround(std::floor(s.points(i, 2) / 0.05)));
+        if (voxels.insert(key).second) rows.push_back(static_cast<int>(i));
+    }
+    const Points3 thin = selectRows(s.points, rows);
+    Eigen::VectorXi ring(static_cast<Eigen::Index>(rows.size()));
+    for (size_t k = 0; k < rows.size(); ++k)
+        ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
+    const auto g = test::vlp16Geometry();
+    const auto proj = projectToRangeImage(thin, ring, g);
+    SegmentationOptions o;
+    o.block_cols = 512;  // one block: no merge votes involved
+    const Clusters bridged = rangeImageClusters(thin, proj, g, o, 3);
+    o.max_gap_m = 0.0;
+    const Clusters strips = rangeImageClusters(thin, proj, g, o, 3);
+    ASSERT_GT(thin.rows(), 30);
+    EXPECT_EQ(bridged.size(), 1u);
+    EXPECT_GT(strips.size(), 3u);
 }

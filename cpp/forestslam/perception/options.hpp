@@ -61,6 +61,8 @@ struct SegmentationOptions {
     double beta_min_rad = 0.1745;   // Bogoslavskyi angle criterion between neighbours (10 deg)
     double max_neighbour_gap_m = 0.5;  // and an absolute distance cap
     int max_pixel_gap = 2;          // empty pixels bridged between neighbours
+    double max_gap_m = 0.1;         // near the sensor: empty columns bridged up to this arc
+                                    // (the normal filter's voxel thinning leaves such gaps)
     int min_votes = 2;              // edge votes to merge two local clusters
     // 3D coarse clustering for map / tls clouds.
     double euclidean_tolerance_m = 0.2;

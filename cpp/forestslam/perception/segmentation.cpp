@@ -117,7 +117,17 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
         return beta > opt.beta_min_rad && dist < opt.max_neighbour_gap_m + 1.5 * alpha * d2;
     };
     const int gap = std::max(0, opt.max_pixel_gap);
+    // Near the sensor the voxel thinning before this step leaves several empty columns between
+    // the points of one surface: bridge up to max_gap_m of arc horizontally there (a stem at 2 m
+    // otherwise falls apart into vertical strips, and strips of neighbouring stems then merge).
+    const double col_rad = s.horizontal_fov_rad / C;
     const int B = std::max(1, opt.block_cols);
+    auto colGap = [&](int pixel) {
+        const double d = range[static_cast<size_t>(pix[static_cast<size_t>(pixel)])];
+        if (!(opt.max_gap_m > 0) || !(d > 0) || !(col_rad > 0)) return gap;
+        const double cols = opt.max_gap_m / (d * col_rad);
+        return std::max(gap, static_cast<int>(std::min<double>(cols, B)));
+    };
     const int blocks = (C + B - 1) / B;
     std::vector<int> label(pix.size(), -1);
     int next_label = 0;
@@ -136,8 +146,10 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
                     queue.pop_front();
                     const int cr = cur / C, cc = cur % C;
                     const int dirs[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+                    const int hgap = colGap(cur);
                     for (const auto &d : dirs) {
-                        for (int step = 1; step <= gap + 1; ++step) {
+                        const int max_step = (d[1] != 0 ? hgap : gap) + 1;
+                        for (int step = 1; step <= max_step; ++step) {
                             const int nr = cr + d[0] * step, nc = cc + d[1] * step;
                             if (nr < 0 || nr >= R || nc < c0 || nc >= c1) break;
                             const size_t q = static_cast<size_t>(nr) * C + nc;

@@ -54,6 +54,9 @@ class SegmentationConfig:
     beta_min_rad: float = 0.1745
     max_neighbour_gap_m: float = 0.5
     max_pixel_gap: int = 2
+    # Near the sensor the voxel thinning leaves several empty columns across one surface: bridge
+    # up to this much arc horizontally (0 = only max_pixel_gap).
+    max_gap_m: float = 0.1
     min_votes: int = 2
     euclidean_tolerance_m: float = 0.2  # coarse 3D clustering of map / tls clouds
     dbscan_k: float = 1.25

@@ -77,6 +77,7 @@ pc::SegmentationOptions segmentationOptions(const py::dict &d) {
     FS_GET(d, o, beta_min_rad);
     FS_GET(d, o, max_neighbour_gap_m);
     FS_GET(d, o, max_pixel_gap);
+    FS_GET(d, o, max_gap_m);
     FS_GET(d, o, min_votes);
     FS_GET(d, o, euclidean_tolerance_m);
     FS_GET(d, o, dbscan_k);
