@@ -47,7 +47,8 @@ class OdometryStep:
     the step from the previous scan. covariance6: (6,6) body-frame (tx,ty,tz,rx,ry,rz) when the
     final registration was 6-DoF, else None. degraded: the pose rests on the velocity prior
     (too few stems, failed or rejected registration). stems: the scan's detected stems (sensor
-    frame, deskewed). timing: per-stage wall-clock ms. method: what produced the pose.
+    frame, deskewed). timing: per-stage wall-clock ms; cpu_ms: the same stages in process CPU
+    ms (the one-core cost whatever the machine's load). method: what produced the pose.
     matched_stems: stem pairs used.
     """
 
@@ -60,6 +61,7 @@ class OdometryStep:
     covariance6: np.ndarray | None = None
     method: str = ""
     matched_stems: int = 0
+    cpu_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -123,6 +125,10 @@ def transform_stems(stems, T: np.ndarray):
     )
 
 
+def _now() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
 def _yaw(T: np.ndarray) -> float:
     return math.atan2(T[1, 0], T[0, 0])
 
@@ -180,12 +186,14 @@ class Odometry:
         self._target_cloud = np.zeros((0, 3))
         self._target_stems = (np.zeros((0, 3)), np.zeros((0, 3, 3)))
         self._lm_target: Any = None
+        self._cpu: dict[str, float] = {}  # per-stage CPU ms of the current step
         self.n = 0
 
     # ------------------------------------------------------------------ public
     def step(self, scan: Scan) -> OdometryStep:
         """Register one scan; returns its OdometryStep. Scans must come in time order."""
         timing: dict[str, float] = {}
+        self._cpu = {}
         t_start, c_start = time.perf_counter(), time.process_time()
         stamp = float(scan.stamp)
         if self._stamp is not None and not stamp > self._stamp:
@@ -200,13 +208,13 @@ class Odometry:
         dt = 0.0 if self._t_ref is None else t_ref - self._t_ref
         T_pred = np.eye(4) if self._T is None else self._T @ se3_exp(self._twist * dt)
 
-        tic = time.perf_counter()
+        tic = _now()
         points = self._deskewed(scan, t_mid)
-        timing["deskew"] = (time.perf_counter() - tic) * 1e3
+        self._lap(timing, "deskew", tic)
 
-        tic = time.perf_counter()
+        tic = _now()
         stems = self._detect(scan, points)
-        timing["perception"] = (time.perf_counter() - tic) * 1e3
+        self._lap(timing, "perception", tic)
 
         cloud = self._stem_ground_cloud(stems)
         full = None
@@ -222,9 +230,9 @@ class Odometry:
                 T_pred, cloud, full, points, stems, stem_pos, stem_cov, timing
             )
 
-        tic = time.perf_counter()
+        tic = _now()
         self._update(stamp, t_ref, T, cloud if full is None else full, stem_pos, stem_cov)
-        timing["map"] = (time.perf_counter() - tic) * 1e3
+        self._lap(timing, "map", tic)
 
         # From the mid-sweep frame to the frame at the stamp (T_mid_stamp maps stamp-frame points
         # into the mid-sweep frame); stems move along so that they sit in the output pose's frame.
@@ -240,6 +248,7 @@ class Odometry:
             stems = transform_stems(stems, np.linalg.inv(T_mid_stamp))
         timing["total"] = (time.perf_counter() - t_start) * 1e3
         timing["cpu_total"] = (time.process_time() - c_start) * 1e3  # process CPU, all threads
+        self._cpu["total"] = timing["cpu_total"]
 
         cov3 = _world_left_to_body_planar(_planar_block(cov6), T_out)
         cov6_body = None if method in ("first", "prediction") else _world_left_to_body6(cov6, T_out)
@@ -254,9 +263,14 @@ class Odometry:
             covariance6=cov6_body,
             method=method,
             matched_stems=matched,
+            cpu_ms=dict(self._cpu),
         )
 
     # --------------------------------------------------------------- stages
+    def _lap(self, timing: dict[str, float], name: str, tic: tuple[float, float]) -> None:
+        timing[name] = (time.perf_counter() - tic[0]) * 1e3
+        self._cpu[name] = (time.process_time() - tic[1]) * 1e3
+
     def _deskews(self, scan: Scan) -> bool:
         return bool(
             self.cfg.deskew
@@ -325,15 +339,15 @@ class Odometry:
         use_prior = False
         result = None
         if method == "fpfh":
-            tic = time.perf_counter()
+            tic = _now()
             if self._target_cloud is not None and len(full) and len(self._target_cloud):
                 result = reg.register_fpfh(full, self._target_cloud, T_pred, rcfg.fpfh, rcfg.icp)
-            timing["fpfh"] = (time.perf_counter() - tic) * 1e3
+            self._lap(timing, "fpfh", tic)
             return self._accept(result, T_pred, False, "fpfh", 0)
         if method == "stem_centre_lm":
             return self._register_lm(T_pred, points, stems, timing)
         if method == "trees":
-            tic = time.perf_counter()
+            tic = _now()
             target_pos, target_cov = self._target_stems
             P, L = _levelled_planar(T_pred)
             # Stems levelled by the predicted roll/pitch, so that their XY compare with the map.
@@ -343,16 +357,16 @@ class Odometry:
                 if len(stem_pos) and len(target_pos)
                 else np.zeros((0, 2), dtype=np.int64)
             )
-            timing["match"] = (time.perf_counter() - tic) * 1e3
+            self._lap(timing, "match", tic)
             matched = len(pairs)
             if matched >= cfg.min_stems:
-                tic = time.perf_counter()
+                tic = _now()
                 Rl = L[:3, :3]
                 cov_level = Rl @ stem_cov @ Rl.T
                 shape = reg.register_shapes(
                     src_level, cov_level, target_pos, target_cov, pairs, P, rcfg.shape
                 )
-                timing["shape"] = (time.perf_counter() - tic) * 1e3
+                self._lap(timing, "shape", tic)
                 if shape.inliers >= cfg.min_stems:
                     S = np.asarray(shape.T_target_source)
                     T_init = S @ L
@@ -362,7 +376,7 @@ class Odometry:
                     use_prior = True
             else:
                 use_prior = True
-        tic = time.perf_counter()
+        tic = _now()
         if self._target is not None and len(cloud):
             info = None
             if use_prior:
@@ -371,14 +385,14 @@ class Odometry:
             result = reg.icp_point_to_plane(
                 self._target, cloud, T_init, rcfg.icp, info, T_pred if use_prior else None
             )
-        timing["icp"] = (time.perf_counter() - tic) * 1e3
+        self._lap(timing, "icp", tic)
         name = method if not use_prior else "icp_prior"
         degraded = use_prior and method == "trees"
         return self._accept(result, T_pred, degraded, name, matched)
 
     def _register_lm(self, T_pred, points, stems, timing):
         """Stem-centre LM: stem centres (with radius) and thinned points as features."""
-        tic = time.perf_counter()
+        tic = _now()
         result = None
         if self._lm_target is not None:
             ok = np.isfinite(stems.dbh)
@@ -396,7 +410,7 @@ class Odometry:
                 T_pred,
             )
             result = SimpleNamespace(**out)
-        timing["stem_centre_lm"] = (time.perf_counter() - tic) * 1e3
+        self._lap(timing, "stem_centre_lm", tic)
         return self._accept(result, T_pred, False, "stem_centre_lm", 0)
 
     def _accept(self, result, T_pred, degraded, name, matched):
