@@ -177,6 +177,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     }
     for (size_t i = 0; i < cylinders_.size(); ++i) {
         const Cylinder &c = cylinders_[i];
+        cylinder_coeffs_.emplace_back(c);
         const Eigen::Vector3d lo = c.p0.cwiseMin(c.p1).array() - c.radius;
         const Eigen::Vector3d hi = c.p0.cwiseMax(c.p1).array() + c.radius;
         boxes.push_back(
@@ -184,6 +185,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     }
     for (size_t i = 0; i < foliage_.size(); ++i) {
         const FoliageEllipsoid &f = foliage_[i];
+        foliage_coeffs_.emplace_back(f);
         if (!(f.radii.minCoeff() > 0 && f.sigma > 0))
             throw std::invalid_argument("foliage radii and sigma must be > 0");
         const Eigen::Vector3d lo = f.centre - f.radii, hi = f.centre + f.radii;
@@ -269,11 +271,13 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
             hit.surface = kStem;
             break;
         case kCylinderCode:
-            if (!intersectCylinder(cylinders_[index], ray, t_max, hit)) return false;
+            if (!intersectCylinder(cylinders_[index], cylinder_coeffs_[index], ray, t_max, hit))
+                return false;
             hit.surface = cylinders_[index].surface;
             break;
         default:
-            if (!intersectFoliage(foliage_[index], static_cast<int32_t>(index), ray, t_max, hit))
+            if (!intersectFoliage(foliage_[index], foliage_coeffs_[index],
+                                  static_cast<int32_t>(index), ray, t_max, hit))
                 return false;
             hit.surface = foliage_[index].surface;
             break;

@@ -100,7 +100,9 @@ private:
         uint32_t pad;
     };
     std::vector<Prim> prims_;
-    std::vector<StemCoeffs> stem_coeffs_;  // per-stem constants of the exact test
+    std::vector<StemCoeffs> stem_coeffs_;  // per-primitive constants of the exact tests
+    std::vector<CylinderCoeffs> cylinder_coeffs_;
+    std::vector<FoliageCoeffs> foliage_coeffs_;
     // Bins = XY cell x vertical layer (1 m, coarser for stands over 64 m tall), so rays below the
     // crowns never look at foliage.
     static constexpr double kLayerM = 1.0;

@@ -97,7 +97,10 @@ double Stem::barkNoise(double azimuth, double h) const {
 }
 
 StemCoeffs::StemCoeffs(const Stem &stem)
-    : cos_angle(std::cos(stem.angle)), sin_angle(std::sin(stem.angle)) {
+    : cos_angle(std::cos(stem.angle)),
+      sin_angle(std::sin(stem.angle)),
+      inv_semi_a(1.0 / stem.semi_a),
+      inv_semi_b(1.0 / stem.semi_b) {
     for (int k = 0; k < 4; ++k) {
         phase_re[k] = std::cos(stem.phase[k]);
         phase_im[k] = std::sin(stem.phase[k]);
@@ -116,8 +119,9 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
     const double qx = q.x() - stem.shear.x() * q.z(), qy = q.y() - stem.shear.y() * q.z();
     const double dx = d.x() - stem.shear.x() * d.z(), dy = d.y() - stem.shear.y() * d.z();
     const double ca = coeffs.cos_angle, sa = coeffs.sin_angle;
-    const double u0 = (ca * qx + sa * qy) / stem.semi_a, du = (ca * dx + sa * dy) / stem.semi_a;
-    const double v0 = (-sa * qx + ca * qy) / stem.semi_b, dv = (-sa * dx + ca * dy) / stem.semi_b;
+    const double ia = coeffs.inv_semi_a, ib = coeffs.inv_semi_b;
+    const double u0 = (ca * qx + sa * qy) * ia, du = (ca * dx + sa * dy) * ia;
+    const double v0 = (-sa * qx + ca * qy) * ib, dv = (-sa * dx + ca * dy) * ib;
     const double h0 = q.z(), dh = d.z();
     const double k = stem.taper;
     const double t_lo = ray.t_min;
@@ -201,11 +205,23 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
     return true;
 }
 
-bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &hit) {
+CylinderCoeffs::CylinderCoeffs(const Cylinder &cyl) {
     const Eigen::Vector3d axis_full = cyl.p1 - cyl.p0;
-    const double len = axis_full.norm();
+    length = axis_full.norm();
+    axis = length > 0.0 ? Eigen::Vector3d(axis_full / length) : Eigen::Vector3d::Zero();
+}
+
+FoliageCoeffs::FoliageCoeffs(const FoliageEllipsoid &ell) : inv_radii(ell.radii.cwiseInverse()) {}
+
+bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &hit) {
+    return intersectCylinder(cyl, CylinderCoeffs(cyl), ray, t_max, hit);
+}
+
+bool intersectCylinder(const Cylinder &cyl, const CylinderCoeffs &coeffs, const Ray &ray,
+                       double t_max, Hit &hit) {
+    const double len = coeffs.length;
     if (len <= 0.0) return false;
-    const Eigen::Vector3d a = axis_full / len;
+    const Eigen::Vector3d &a = coeffs.axis;
     const Eigen::Vector3d w = ray.origin - cyl.p0;
     const Eigen::Vector3d &d = ray.dir;
     const double da = d.dot(a), wa = w.dot(a);
@@ -242,13 +258,19 @@ bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &h
 
 bool intersectFoliage(const FoliageEllipsoid &ell, int32_t index, const Ray &ray, double t_max,
                       Hit &hit) {
-    const Eigen::Vector3d q = (ray.origin - ell.centre).cwiseQuotient(ell.radii);
-    const Eigen::Vector3d e = ray.dir.cwiseQuotient(ell.radii);
+    return intersectFoliage(ell, FoliageCoeffs(ell), index, ray, t_max, hit);
+}
+
+bool intersectFoliage(const FoliageEllipsoid &ell, const FoliageCoeffs &coeffs, int32_t index,
+                      const Ray &ray, double t_max, Hit &hit) {
+    const Eigen::Vector3d q = (ray.origin - ell.centre).cwiseProduct(coeffs.inv_radii);
+    const Eigen::Vector3d e = ray.dir.cwiseProduct(coeffs.inv_radii);
     const double a = e.squaredNorm(), b = 2.0 * q.dot(e), c = q.squaredNorm() - 1.0;
     const double disc = b * b - 4.0 * a * c;
     if (disc <= 0.0 || a <= 0.0) return false;
     const double sq = std::sqrt(disc);
-    const double t_enter = (-b - sq) / (2.0 * a), t_exit = (-b + sq) / (2.0 * a);
+    const double inv_2a = 0.5 / a;
+    const double t_enter = (-b - sq) * inv_2a, t_exit = (-b + sq) * inv_2a;
     if (t_enter > t_max || t_exit < ray.t_min) return false;  // before drawing the free path
     // Free path from the geometric entry, so the outcome does not depend on clipping.
     const double free_path = -std::log(hashUniform(ray.key, static_cast<uint64_t>(index) * 7919ULL + ell.surface)) / ell.sigma;

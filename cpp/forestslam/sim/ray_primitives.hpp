@@ -63,10 +63,12 @@ struct Stem {
     double radiusScale(double h) const { return 1.0 - taper * (h - kBreastHeight); }
 };
 
-// Per-stem constants of the exact test, computed once per scene: cos/sin of the section angle
-// and exp(i phase_k) of the bark terms.
+// Per-primitive constants of the exact tests, computed once per scene (no divisions, square
+// roots or trigonometry per ray for them). Stems: cos/sin of the section angle, inverse
+// semi-axes, exp(i phase_k) of the bark terms.
 struct StemCoeffs {
     double cos_angle = 1.0, sin_angle = 0.0;
+    double inv_semi_a = 1.0, inv_semi_b = 1.0;
     double phase_re[4] = {1, 1, 1, 1}, phase_im[4] = {0, 0, 0, 0};
     explicit StemCoeffs(const Stem &stem);
 };
@@ -88,6 +90,17 @@ struct FoliageEllipsoid {
     uint8_t surface = kFoliage;
 };
 
+struct CylinderCoeffs {
+    Eigen::Vector3d axis = Eigen::Vector3d::Zero();  // unit, p0 -> p1
+    double length = 0.0;
+    explicit CylinderCoeffs(const Cylinder &cyl);
+};
+
+struct FoliageCoeffs {
+    Eigen::Vector3d inv_radii;
+    explicit FoliageCoeffs(const FoliageEllipsoid &ell);
+};
+
 // Uniform (0,1) from a 64-bit key and a salt (splitmix64).
 double hashUniform(uint64_t key, uint64_t salt);
 uint64_t mixKey(uint64_t a, uint64_t b);
@@ -98,7 +111,11 @@ bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit);
 bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, double t_max,
                    Hit &hit);
 bool intersectCylinder(const Cylinder &cyl, const Ray &ray, double t_max, Hit &hit);
+bool intersectCylinder(const Cylinder &cyl, const CylinderCoeffs &coeffs, const Ray &ray,
+                       double t_max, Hit &hit);
 bool intersectFoliage(const FoliageEllipsoid &ell, int32_t index, const Ray &ray, double t_max,
                       Hit &hit);
+bool intersectFoliage(const FoliageEllipsoid &ell, const FoliageCoeffs &coeffs, int32_t index,
+                      const Ray &ray, double t_max, Hit &hit);
 
 }  // namespace forestslam::sim
