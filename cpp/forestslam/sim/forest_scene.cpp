@@ -297,49 +297,102 @@ Hit ForestScene::cast(const Ray &ray) const {
         if (oz > z_max_) return best;
         t_end = std::min(t_end, (z_max_ - oz) / dz + 1e-9);
     }
+    // Clip to the grid's XY slab, then walk its cells in ray order (2D DDA, written out here so
+    // that an empty cell costs a few operations: its layer mask against the ray's layers).
+    const double ox = ray.origin.x(), oy = ray.origin.y();
+    const double dx = ray.dir.x(), dy = ray.dir.y();
+    double t = ray.t_min, t1 = t_end;
+    const double xmax = x0_ + nx_ * cell_, ymax = y0_ + ny_ * cell_;
+    if (grid_ray.inv_dx == 0.0) {
+        if (ox < x0_ || ox > xmax) return best;
+    } else {
+        const double ta = (x0_ - ox) * grid_ray.inv_dx, tb = (xmax - ox) * grid_ray.inv_dx;
+        t = std::max(t, std::min(ta, tb));
+        t1 = std::min(t1, std::max(ta, tb));
+    }
+    if (grid_ray.inv_dy == 0.0) {
+        if (oy < y0_ || oy > ymax) return best;
+    } else {
+        const double ta = (y0_ - oy) * grid_ray.inv_dy, tb = (ymax - oy) * grid_ray.inv_dy;
+        t = std::max(t, std::min(ta, tb));
+        t1 = std::min(t1, std::max(ta, tb));
+    }
+    if (!(t <= t1)) return best;
+    int ix = std::clamp(static_cast<int>(std::floor((ox + t * dx - x0_) * inv_cell_)), 0, nx_ - 1);
+    int iy = std::clamp(static_cast<int>(std::floor((oy + t * dy - y0_) * inv_cell_)), 0, ny_ - 1);
+    const int sx = dx > 0 ? 1 : -1, sy = dy > 0 ? 1 : -1;
+    double tnx = kInf, tny = kInf, tdx = kInf, tdy = kInf;
+    if (grid_ray.inv_dx != 0.0) {
+        tnx = ((dx > 0 ? x0_ + (ix + 1) * cell_ : x0_ + ix * cell_) - ox) * grid_ray.inv_dx;
+        tdx = cell_ * std::abs(grid_ray.inv_dx);
+    }
+    if (grid_ray.inv_dy != 0.0) {
+        tny = ((dy > 0 ? y0_ + (iy + 1) * cell_ : y0_ + iy * cell_) - oy) * grid_ray.inv_dy;
+        tdy = cell_ * std::abs(grid_ray.inv_dy);
+    }
+    // Layer coordinate along the ray, widened by a hair so round-off never drops a layer.
+    const double lz0 = (oz - z0_) * inv_layer_m_, ldz = dz * inv_layer_m_, lmax = nl_ - 1.0;
+    const uint64_t *layers = cell_layers_.data();
     const Prim *prims = prims_.data();
     const uint32_t *items = bin_items_.data();
     // Rows already tested exactly: a primitive lies in several bins, and testing it again
     // cannot change the result (the exact tests cover the whole ray, t_max only shrinks).
     uint32_t tested[8];
     unsigned n_tested = 0;
-    traverseGrid(x0_, y0_, cell_, inv_cell_, nx_, ny_, grid_ray, ray.t_min, t_end, [&](int ix, int iy, double t0, double t1) {
-        if (t0 > best.t) return false;
+    double t_stop = std::min(t1, best.t);  // the walk ends at the grid exit or the best hit
+    while (true) {
+        const double tn = std::min(tnx, tny);
+        const double t_hi = std::max(t, std::min(tn, t_stop));
+        double la = lz0 + t * ldz, lb = lz0 + t_hi * ldz;
+        if (la > lb) std::swap(la, lb);
+        const int l0 = static_cast<int>(std::clamp(la - 1e-9, 0.0, lmax));
+        const int l1 = static_cast<int>(std::clamp(lb + 1e-9, 0.0, lmax));
         const size_t c = static_cast<size_t>(iy) * nx_ + ix;
-        const double t_hi = std::min(t1, best.t);
-        const double za = oz + t0 * dz, zb = oz + t_hi * dz;
-        const double z_lo = std::min(za, zb), z_hi = std::max(za, zb);
-        const int l0 = layerOf(z_lo), l1 = layerOf(z_hi);
         const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
-        if (((cell_layers_[c] >> l0) & span) == 0) return best.t > t1;
-        // The bins of a cell are consecutive layers, so the layers the ray crosses here are
-        // one contiguous run of items.
-        const size_t first = c * nl_;
-        const uint32_t k0 = bin_start_[first + l0];
-        const uint32_t k1 = bin_start_[first + l1 + 1];
-        const double xa = ray.origin.x() + t0 * ray.dir.x(), xb = ray.origin.x() + t_hi * ray.dir.x();
-        const double ya = ray.origin.y() + t0 * ray.dir.y(), yb = ray.origin.y() + t_hi * ray.dir.y();
-        // Segment box relative to the grid origin, compared in double with the (exactly
-        // widened) float boxes.
-        const double rx_lo = std::min(xa, xb) - x0_, rx_hi = std::max(xa, xb) - x0_;
-        const double ry_lo = std::min(ya, yb) - y0_, ry_hi = std::max(ya, yb) - y0_;
-        const double rz_lo = z_lo - z0_, rz_hi = z_hi - z0_;
-        for (uint32_t k = k0; k < k1; ++k) {
-            const uint32_t row = items[k];
-            const Prim &p = prims[row];
-            if (p.lo[2] > rz_hi || p.hi[2] < rz_lo || p.lo[0] > rx_hi || p.hi[0] < rx_lo ||
-                p.lo[1] > ry_hi || p.hi[1] < ry_lo)
-                continue;
-            bool seen = false;
-            for (unsigned j = 0; j < std::min(n_tested, 8u); ++j) seen |= tested[j] == row;
-            if (seen) continue;
-            tested[n_tested++ & 7u] = row;
-            Hit h;
-            if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
-                best = h;
+        if ((layers[c] >> l0) & span) {
+            // The bins of a cell are consecutive layers, so the layers the ray crosses here
+            // are one contiguous run of items.
+            const size_t first = c * nl_;
+            const uint32_t k0 = bin_start_[first + l0];
+            const uint32_t k1 = bin_start_[first + l1 + 1];
+            // Segment box relative to the grid origin, compared in double with the (exactly
+            // widened) float boxes.
+            const double xa = ox + t * dx, xb = ox + t_hi * dx;
+            const double ya = oy + t * dy, yb = oy + t_hi * dy;
+            const double za = oz + t * dz, zb = oz + t_hi * dz;
+            const double rx_lo = std::min(xa, xb) - x0_, rx_hi = std::max(xa, xb) - x0_;
+            const double ry_lo = std::min(ya, yb) - y0_, ry_hi = std::max(ya, yb) - y0_;
+            const double rz_lo = std::min(za, zb) - z0_, rz_hi = std::max(za, zb) - z0_;
+            for (uint32_t k = k0; k < k1; ++k) {
+                const uint32_t row = items[k];
+                const Prim &p = prims[row];
+                if (p.lo[0] > rx_hi || p.hi[0] < rx_lo || p.lo[1] > ry_hi || p.hi[1] < ry_lo ||
+                    p.lo[2] > rz_hi || p.hi[2] < rz_lo)
+                    continue;
+                bool seen = false;
+                for (unsigned j = 0; j < std::min(n_tested, 8u); ++j) seen |= tested[j] == row;
+                if (seen) continue;
+                tested[n_tested++ & 7u] = row;
+                Hit h;
+                if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
+                    best = h;
+            }
+            t_stop = std::min(t1, best.t);
         }
-        return best.t > t1;
-    });
+        if (t_stop <= tn) break;  // the best hit lies in this cell, or the walk is done
+        const bool step_x = tnx < tny;
+        if (step_x) {
+            ix += sx;
+            t = tnx;
+            tnx += tdx;
+            if (ix < 0 || ix >= nx_) break;
+        } else {
+            iy += sy;
+            t = tny;
+            tny += tdy;
+            if (iy < 0 || iy >= ny_) break;
+        }
+    }
     return best;
 }
 
