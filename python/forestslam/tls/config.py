@@ -81,6 +81,9 @@ class RegistrationConfig:
     coarse_inlier_m: float = 0.35
     coarse_min_stems: int = 3
     coarse_max_frames: int = 20  # frames tried for the coarse alignment before giving up
+    # After this many consecutive untrusted frames the tracking counts as lost and each
+    # frame is placed afresh by the coarse stem alignment (then LM, stems on the reference).
+    relocalize_after_frames: int = 3
 
 
 @dataclass

@@ -294,6 +294,7 @@ def register_mls_to_tls(
     # Previous frame (pose and points, trusted or not), whether it was trusted, and the
     # per-frame velocity from the last pair of consecutive trusted frames.
     T_good = None  # set once the first frame is anchored
+    lost = 0  # consecutive untrusted frames
     t_good = 0.0
     T_prev = None
     prev_points = None
@@ -402,6 +403,23 @@ def register_mls_to_tls(
             ms_lm += (time.process_time() - t0) * 1e3
             if _trusted(lm2, T_vel, config):
                 lm, good, fallback = lm2, True, True
+        if not good and T_good is not None and lost >= config.registration.relocalize_after_frames:
+            # Tracking lost: place the frame afresh by its stems on the reference's stems.
+            if ref_stems is None:
+                ref_stems = reference_stems(ref, config.features)
+            T_c = _coarse_initial_pose(feats, points, ref, ref_stems, config)
+            if T_c is not None:
+                t0 = time.process_time()
+                target, _ = gmap.target_at(T_c[:2, 3], _z_range(points, T_c))
+                ms_target += (time.process_time() - t0) * 1e3
+                t0 = time.process_time()
+                lm2 = _lm(core, target, feats, T_c, config)
+                ms_lm += (time.process_time() - t0) * 1e3
+                if _trusted(lm2, None, config) and _stems_on_reference(
+                    feats, lm2["T_target_source"], ref_stems, config
+                ):
+                    lm, good, fallback = lm2, True, True
+                    log.info("frame %d at %.3f: relocalized on the reference stems", index, t_ref)
         # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
         # paper); else the initial pose. Only trusted frames join the map.
         lm_ok = lm["converged"] and not lm["degenerate"]
@@ -421,7 +439,12 @@ def register_mls_to_tls(
                     f"({lm['inliers']} feature pairs): mismatched data or a wrong initial pose"
                 )
             continue
-        accepted = good and stems_agree
+        # Only frames whose stems sit on the reference's stems join the map: a frame that
+        # registered onto earlier wrongly placed frames must not spread the error.
+        if ref_stems is None:
+            ref_stems = reference_stems(ref, config.features)
+        accepted = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
+        lost = 0 if good else lost + 1
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
