@@ -111,7 +111,8 @@ TEST(RayPrimitives, BarkHitsLieOnTheModelledSurface) {
         const Eigen::Vector3d centre(1.0 + 0.03 * h_aim, -2.0 - 0.02 * h_aim, h_aim);
         const Eigen::Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
                                   std::sin(el));
-        const Ray ray = makeRay(centre - 4.0 * dir + Eigen::Vector3d(0, 0.03 * (i % 5 - 2), 0), dir);
+        const Eigen::Vector3d offset(0, 0.03 * (i % 5 - 2), 0);
+        const Ray ray = makeRay(centre - 4.0 * dir + offset, dir);
         Hit a, b;
         const bool ha = intersectStem(s, ray, kInf, a);
         ASSERT_EQ(ha, intersectStem(s, coeffs, ray, kInf, b));

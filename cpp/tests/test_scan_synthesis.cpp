@@ -46,8 +46,8 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
     const Eigen::VectorXd t0 = Eigen::VectorXd::Zero(1);
     ScanModel model;
     model.intensity_noise_rel = 0.0;
-    const SynthesizedScan s = synthesizeScan(scene, t0, poseRow(Eigen::Matrix3d::Identity(), {0, 0, 1.5}),
-                                             t0, group, dirs, model, 1, 2);
+    const PoseRows pose = poseRow(Eigen::Matrix3d::Identity(), {0, 0, 1.5});
+    const SynthesizedScan s = synthesizeScan(scene, t0, pose, t0, group, dirs, model, 1, 2);
     ASSERT_EQ(s.ray.size(), 360);
     const double range = 1.5 / std::sin(20.0 * M_PI / 180.0);
     for (Eigen::Index k = 0; k < s.ray.size(); ++k) {
@@ -55,8 +55,9 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
         EXPECT_NEAR(s.points.row(k).norm(), range, 1e-9);
         EXPECT_NEAR(s.points(k, 2), -1.5, 1e-9);
         EXPECT_EQ(s.surface[k], kGround);
-        // Ground at 20 deg incidence from the vertical... cos = sin(20 deg) against the normal.
-        const float expected = static_cast<float>(100.0 * 0.25 * (0.5 + 0.5 * std::sin(20.0 * M_PI / 180.0)));
+        // Ground model: 100 * 0.25 * (0.5 + 0.5 cos), cos against the vertical = sin(20 deg).
+        const double cos_inc = std::sin(20.0 * M_PI / 180.0);
+        const float expected = static_cast<float>(100.0 * 0.25 * (0.5 + 0.5 * cos_inc));
         EXPECT_NEAR(s.intensity[k], expected, 1e-4);
     }
 }
