@@ -81,8 +81,9 @@ class RegistrationConfig:
     coarse_inlier_m: float = 0.35
     coarse_min_stems: int = 3
     coarse_max_frames: int = 20  # frames tried for the coarse alignment before giving up
-    # After this many consecutive untrusted frames the tracking counts as lost and each
-    # frame is placed afresh by the coarse stem alignment (then LM, stems on the reference).
+    # After this many consecutive frames that did not join the map the tracking counts as
+    # lost and each frame is also placed afresh by the coarse stem alignment (then LM; kept
+    # when trusted with its stems on the reference's stems).
     relocalize_after_frames: int = 3
 
 

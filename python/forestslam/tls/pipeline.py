@@ -294,7 +294,7 @@ def register_mls_to_tls(
     # Previous frame (pose and points, trusted or not), whether it was trusted, and the
     # per-frame velocity from the last pair of consecutive trusted frames.
     T_good = None  # set once the first frame is anchored
-    lost = 0  # consecutive untrusted frames
+    lost = 0  # consecutive frames that did not join the map
     t_good = 0.0
     T_prev = None
     prev_points = None
@@ -403,8 +403,10 @@ def register_mls_to_tls(
             ms_lm += (time.process_time() - t0) * 1e3
             if _trusted(lm2, T_vel, config):
                 lm, good, fallback = lm2, True, True
-        if not good and T_good is not None and lost >= config.registration.relocalize_after_frames:
-            # Tracking lost: place the frame afresh by its stems on the reference's stems.
+        if T_good is not None and lost >= config.registration.relocalize_after_frames:
+            # Tracking lost (the last frames did not join the map: untrusted, or trusted but
+            # their stems off the reference's): place the frame afresh by its stems on the
+            # reference's stems; kept when trusted and its stems sit on the reference's.
             if ref_stems is None:
                 ref_stems = reference_stems(ref, config.features)
             T_c = _coarse_initial_pose(feats, points, ref, ref_stems, config)
@@ -444,7 +446,7 @@ def register_mls_to_tls(
         if ref_stems is None:
             ref_stems = reference_stems(ref, config.features)
         accepted = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
-        lost = 0 if good else lost + 1
+        lost = 0 if accepted else lost + 1
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
