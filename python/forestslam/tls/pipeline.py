@@ -325,9 +325,33 @@ def register_mls_to_tls(
         if times is not None and t_prev is not None and np.any(twist):
             points = deskew_points(points, times - t_mid, twist)
         feats = frame_features(points, rings, config.features)
-        ms_features = (time.process_time() - t0) * 1e3
+        ms = {"features": (time.process_time() - t0) * 1e3, "ndt": 0.0, "target": 0.0, "lm": 0.0}
 
-        ms_ndt = 0.0
+        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms) -> dict:
+            """LM of this frame from T_start against the map target cropped around it."""
+            t0 = time.process_time()
+            target, _ = gmap.target_at(T_start[:2, 3], _z_range(points, T_start))
+            t1 = time.process_time()
+            result = _lm(core, target, feats, T_start, config)
+            ms["target"] += (t1 - t0) * 1e3
+            ms["lm"] += (time.process_time() - t1) * 1e3
+            return result
+
+        def ndt_from_previous(
+            V: np.ndarray, points=points, ms=ms, prev_points=prev_points, T_prev=T_prev
+        ) -> np.ndarray | None:
+            """T_world_sensor by NDT against the previous frame chained onto its pose, or None."""
+            t0 = time.process_time()
+            ndt = core.register_ndt(
+                prev_points,
+                points,
+                np.ascontiguousarray(V),
+                voxel_m=config.registration.ndt_voxel_m,
+                resolution_m=config.registration.ndt_resolution_m,
+            )
+            ms["ndt"] = (time.process_time() - t0) * 1e3
+            return T_prev @ ndt["T_target_source"] if ndt["converged"] else None
+
         T_pred = None
         if T_good is None:
             if initial_pose is not None:
@@ -349,58 +373,26 @@ def register_mls_to_tls(
             T_pred = T_prev @ V
             T_init = T_pred
             if config.registration.initial_pose == "ndt":
-                t0 = time.process_time()
-                ndt = core.register_ndt(
-                    prev_points,
-                    points,
-                    np.ascontiguousarray(V),
-                    voxel_m=config.registration.ndt_voxel_m,
-                    resolution_m=config.registration.ndt_resolution_m,
-                )
-                ms_ndt = (time.process_time() - t0) * 1e3
-                if ndt["converged"]:
-                    T_pred = T_init = T_prev @ ndt["T_target_source"]
+                T_ndt = ndt_from_previous(V)
+                if T_ndt is not None:
+                    T_pred = T_init = T_ndt
 
-        t0 = time.process_time()
-        target, _ = gmap.target_at(T_init[:2, 3], _z_range(points, T_init))
-        ms_target = (time.process_time() - t0) * 1e3
-        t0 = time.process_time()
-        lm = _lm(core, target, feats, T_init, config)
-        ms_lm = (time.process_time() - t0) * 1e3
+        lm = lm_at(T_init)
         good = _trusted(lm, T_pred, config)
         fallback = False
         if not good and T_good is not None and config.registration.initial_pose != "ndt":
             # Fallback: NDT against the previous frame, chained onto its pose.
-            t0 = time.process_time()
-            ndt = core.register_ndt(
-                prev_points,
-                points,
-                np.ascontiguousarray(V),
-                voxel_m=config.registration.ndt_voxel_m,
-                resolution_m=config.registration.ndt_resolution_m,
-            )
-            ms_ndt = (time.process_time() - t0) * 1e3
-            if ndt["converged"]:
-                T_ndt = T_prev @ ndt["T_target_source"]
+            T_ndt = ndt_from_previous(V)
+            if T_ndt is not None:
                 T_init = T_ndt
-                t0 = time.process_time()
-                target, _ = gmap.target_at(T_ndt[:2, 3], _z_range(points, T_ndt))
-                ms_target += (time.process_time() - t0) * 1e3
-                t0 = time.process_time()
-                lm2 = _lm(core, target, feats, T_ndt, config)
-                ms_lm += (time.process_time() - t0) * 1e3
+                lm2 = lm_at(T_ndt)
                 if _trusted(lm2, T_ndt, config):
                     lm, good, fallback = lm2, True, True
         elif not good and T_good is not None:
             # Fallback of the NDT mode (NDT can fail at sharp turns): the constant-velocity
             # prediction from the last trusted pose.
             T_vel = T_good @ se3_exp(twist * max(t_ref - t_good, 0.0))
-            t0 = time.process_time()
-            target, _ = gmap.target_at(T_vel[:2, 3], _z_range(points, T_vel))
-            ms_target += (time.process_time() - t0) * 1e3
-            t0 = time.process_time()
-            lm2 = _lm(core, target, feats, T_vel, config)
-            ms_lm += (time.process_time() - t0) * 1e3
+            lm2 = lm_at(T_vel)
             if _trusted(lm2, T_vel, config):
                 lm, good, fallback = lm2, True, True
         if T_good is not None and lost >= config.registration.relocalize_after_frames:
@@ -411,12 +403,7 @@ def register_mls_to_tls(
                 ref_stems = reference_stems(ref, config.features)
             T_c = _coarse_initial_pose(feats, points, ref, ref_stems, config)
             if T_c is not None:
-                t0 = time.process_time()
-                target, _ = gmap.target_at(T_c[:2, 3], _z_range(points, T_c))
-                ms_target += (time.process_time() - t0) * 1e3
-                t0 = time.process_time()
-                lm2 = _lm(core, target, feats, T_c, config)
-                ms_lm += (time.process_time() - t0) * 1e3
+                lm2 = lm_at(T_c)
                 if _trusted(lm2, None, config) and _stems_on_reference(
                     feats, lm2["T_target_source"], ref_stems, config
                 ):
@@ -466,10 +453,10 @@ def register_mls_to_tls(
             virtual_rms_m=float(lm["virtual_rms_m"]),
             real_inliers=int(lm["real_inliers"]),
             real_rms_m=float(lm["real_rms_m"]),
-            ms_features=ms_features,
-            ms_lm=ms_lm,
-            ms_ndt=ms_ndt,
-            ms_target=ms_target,
+            ms_features=ms["features"],
+            ms_lm=ms["lm"],
+            ms_ndt=ms["ndt"],
+            ms_target=ms["target"],
             fallback=fallback,
             t_mid_s=t_mid,
             deskew_twist=twist_used if times is not None else np.zeros(6),
