@@ -11,7 +11,7 @@ SOURCES := $(shell find cpp python -type f \( -name '*.cpp' -o -name '*.hpp' -o 
 SAMPLE := data/cache/sample
 OUT ?= out/sample
 
-.PHONY: install run test lint bench clean
+.PHONY: install run test lint format bench clean
 
 install: $(VENV)/.installed
 
@@ -51,9 +51,17 @@ test: install
 	$(VPY) -m pytest -q
 	$(VENV)/bin/ruff check python tests bench
 
+CPP_FILES = $(shell git ls-files 'cpp/*.cpp' 'cpp/*.hpp' 'python/forestslam/pybind/*.cpp' \
+	'python/forestslam/pybind/*.hpp')
+
 lint: install
 	$(VENV)/bin/ruff check python tests bench
 	$(VENV)/bin/ruff format --check python tests bench
+	$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
+
+format: install
+	$(VENV)/bin/ruff format python tests bench
+	$(VENV)/bin/clang-format -i $(CPP_FILES)
 
 clean:
 	rm -rf build $(VENV) out

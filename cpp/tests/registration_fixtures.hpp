@@ -26,7 +26,9 @@ inline std::vector<Stem> randomStems(int count, double half_extent, unsigned see
     return stems;
 }
 
-inline double groundZ(double x, double y) { return -1.5 + 0.05 * x - 0.03 * y + 0.1 * std::sin(0.3 * x); }
+inline double groundZ(double x, double y) {
+    return -1.5 + 0.05 * x - 0.03 * y + 0.1 * std::sin(0.3 * x);
+}
 
 // Full-circumference stem points between ground+0.2 and ground+4 m, plus a ground grid.
 inline Points3 sceneCloud(const std::vector<Stem> &stems, double half_extent, unsigned seed,
@@ -39,11 +41,13 @@ inline Points3 sceneCloud(const std::vector<Stem> &stems, double half_extent, un
         for (double z = 0.2; z < 4.0; z += 0.1)
             for (int a = 0; a < 24; ++a) {
                 const double t = 2.0 * M_PI * a / 24.0;
-                pts.emplace_back(s.x + s.radius * std::cos(t), s.y + s.radius * std::sin(t), z0 + z);
+                pts.emplace_back(s.x + s.radius * std::cos(t), s.y + s.radius * std::sin(t),
+                                 z0 + z);
             }
     }
     for (double x = -half_extent; x <= half_extent; x += 0.5)
-        for (double y = -half_extent; y <= half_extent; y += 0.5) pts.emplace_back(x, y, groundZ(x, y));
+        for (double y = -half_extent; y <= half_extent; y += 0.5)
+            pts.emplace_back(x, y, groundZ(x, y));
     Points3 out(pts.size(), 3);
     for (size_t i = 0; i < pts.size(); ++i)
         out.row(i) = (pts[i] + (noise_m > 0 ? Eigen::Vector3d(noise(rng), noise(rng), noise(rng))

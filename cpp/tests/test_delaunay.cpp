@@ -23,7 +23,8 @@ Eigen::Vector2d pt(const Points2 &xy, int i) { return xy.row(i).transpose(); }
 double hullArea(const Points2 &xy) {
     std::vector<Eigen::Vector2d> p;
     for (Eigen::Index i = 0; i < xy.rows(); ++i) p.push_back(pt(xy, int(i)));
-    std::sort(p.begin(), p.end(), [](auto &a, auto &b) { return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y()); });
+    std::sort(p.begin(), p.end(),
+              [](auto &a, auto &b) { return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y()); });
     std::vector<Eigen::Vector2d> h(2 * p.size());
     size_t k = 0;
     for (size_t i = 0; i < p.size(); ++i) {
@@ -57,7 +58,8 @@ void checkDelaunay(const Points2 &xy, const forestslam::Triangulation &tri) {
             // The neighbour shares exactly the edge opposite v[k].
             const auto &w = tri.triangles[nb];
             const int e0 = v[(k + 1) % 3], e1 = v[(k + 2) % 3];
-            EXPECT_TRUE(std::count(w.begin(), w.end(), e0) == 1 && std::count(w.begin(), w.end(), e1) == 1);
+            EXPECT_TRUE(std::count(w.begin(), w.end(), e0) == 1 &&
+                        std::count(w.begin(), w.end(), e1) == 1);
         }
         // Circle test with a relative tolerance: no input point strictly inside.
         const double scale = std::pow((b - a).norm() * (c - b).norm() * (a - c).norm(), 4.0 / 3.0);
@@ -71,7 +73,8 @@ void checkDelaunay(const Points2 &xy, const forestslam::Triangulation &tri) {
 
 double totalArea(const Points2 &xy, const forestslam::Triangulation &tri) {
     double area = 0;
-    for (const auto &v : tri.triangles) area += 0.5 * forestslam::orient2d(pt(xy, v[0]), pt(xy, v[1]), pt(xy, v[2]));
+    for (const auto &v : tri.triangles)
+        area += 0.5 * forestslam::orient2d(pt(xy, v[0]), pt(xy, v[1]), pt(xy, v[2]));
     return area;
 }
 
@@ -86,7 +89,8 @@ TEST(Delaunay, RandomPointsEmptyCircumcircleAndConvexHull) {
         EXPECT_NEAR(totalArea(xy, tri), hullArea(xy), 1e-6 * hullArea(xy));
         // Euler: T = 2n - 2 - h.
         int hull_edges = 0;
-        for (const auto &n : tri.neighbours) hull_edges += int(n[0] < 0) + int(n[1] < 0) + int(n[2] < 0);
+        for (const auto &n : tri.neighbours)
+            hull_edges += int(n[0] < 0) + int(n[1] < 0) + int(n[2] < 0);
         EXPECT_EQ(int(tri.size()), 2 * 400 - 2 - hull_edges);
     }
 }

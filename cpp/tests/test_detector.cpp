@@ -30,8 +30,8 @@ TEST(Detector, FindsEveryVisibleStemWithItsDiameter) {
     }
     EXPECT_GT(det.ground.rows(), 100);
     EXPECT_GT(det.up.z(), 0.99);
-    for (const char *stage : {"intensity", "ground", "normals", "clustering", "classification",
-                              "diameter", "total"})
+    for (const char *stage :
+         {"intensity", "ground", "normals", "clustering", "classification", "diameter", "total"})
         EXPECT_EQ(det.timing_ms.count(stage), 1u) << stage;
 }
 

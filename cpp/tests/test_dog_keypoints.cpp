@@ -1,9 +1,8 @@
-#include "forestslam/features/dog_keypoints.hpp"
-
 #include <gtest/gtest.h>
 
 #include <random>
 
+#include "forestslam/features/dog_keypoints.hpp"
 #include "tls_scene.hpp"
 
 using namespace forestslam;

@@ -19,7 +19,8 @@ TEST(FeatureIndex, KnnMatchesBruteForce) {
         for (int d = 0; d < 8; ++d) query[d] = g(rng);
         tree.knn(query, 5, 1e9, idx, dist);
         std::vector<std::pair<double, int>> all;
-        for (Eigen::Index i = 0; i < pts.rows(); ++i) all.push_back({(pts.row(i).transpose() - query).norm(), int(i)});
+        for (Eigen::Index i = 0; i < pts.rows(); ++i)
+            all.push_back({(pts.row(i).transpose() - query).norm(), int(i)});
         std::sort(all.begin(), all.end());
         ASSERT_EQ(idx.size(), 5u);
         for (int k = 0; k < 5; ++k) {

@@ -9,10 +9,12 @@ using namespace forestslam;
 using namespace forestslam::sim;
 
 namespace {
-Eigen::MatrixXd planeGrid(int n, double cell, double x0, double y0, double gx, double gy, double c) {
+Eigen::MatrixXd planeGrid(int n, double cell, double x0, double y0, double gx, double gy,
+                          double c) {
     Eigen::MatrixXd z(n + 1, n + 1);
     for (int iy = 0; iy <= n; ++iy)
-        for (int ix = 0; ix <= n; ++ix) z(iy, ix) = c + gx * (x0 + ix * cell) + gy * (y0 + iy * cell);
+        for (int ix = 0; ix <= n; ++ix)
+            z(iy, ix) = c + gx * (x0 + ix * cell) + gy * (y0 + iy * cell);
     return z;
 }
 Ray makeRay(Eigen::Vector3d o, Eigen::Vector3d d) {
@@ -29,7 +31,8 @@ TEST(ForestScene, FlatGroundAtPredictedRanges) {
     for (double elev_deg : {-15.0, -7.0, -3.0, -1.0}) {
         for (double az : {0.0, 0.7, 2.0, 4.1}) {
             const double e = elev_deg * M_PI / 180;
-            const Ray r = makeRay({0.13, -0.27, 1.0}, {std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)});
+            const Ray r = makeRay({0.13, -0.27, 1.0}, {std::cos(e) * std::cos(az),
+                                                       std::cos(e) * std::sin(az), std::sin(e)});
             const Hit hit = scene.cast(r);
             ASSERT_TRUE(hit.valid());
             EXPECT_EQ(hit.surface, kGround);
@@ -97,7 +100,8 @@ TEST(ForestScene, GridMatchesBruteForce) {
         st.height = h(rng);
         st.bark_amp = 0.003;
         stems.push_back(st);
-        cyl.push_back({st.base + Eigen::Vector3d(0, 0, 2), st.base + Eigen::Vector3d(1.0, 0.3, 2.2), 0.02, kBranch});
+        cyl.push_back({st.base + Eigen::Vector3d(0, 0, 2), st.base + Eigen::Vector3d(1.0, 0.3, 2.2),
+                       0.02, kBranch});
         fol.push_back({st.base + Eigen::Vector3d(0, 0, st.height), {2, 2, 3}, 0.8, kFoliage});
     }
     Heightfield hf(-40, -40, 0.5, planeGrid(160, 0.5, -40, -40, 0.02, 0.01, 0));

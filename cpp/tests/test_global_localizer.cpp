@@ -119,7 +119,8 @@ TEST(GlobalLocalizer, RejectsAPlaceThatIsNotInTheMap) {
     const forestslam::TreeMap tree_map(map);
     const Points2 elsewhere = stand(900, 200, 77);
     for (int q = 0; q < 10; ++q) {
-        const Points2 local = observe(elsewhere, {50.0 + 10 * q, 100, 0.3 * q}, 20.0, 0.03, 0.1, 2, q);
+        const Points2 local =
+            observe(elsewhere, {50.0 + 10 * q, 100, 0.3 * q}, 20.0, 0.03, 0.1, 2, q);
         EXPECT_TRUE(tree_map.localize(local).rejected) << "query " << q;
     }
 }

@@ -47,8 +47,7 @@ TEST(Lzf, RejectsCorruptStreams) {
     const Bytes before_start = {0, 'a', (1 << 5) | 0, 5};  // distance 6 with 1 byte written
     EXPECT_THROW(lzfDecompress(before_start.data(), before_start.size(), 4), std::runtime_error);
     const Bytes short_literal = {5, 'a', 'b'};
-    EXPECT_THROW(lzfDecompress(short_literal.data(), short_literal.size(), 6),
-                 std::runtime_error);
+    EXPECT_THROW(lzfDecompress(short_literal.data(), short_literal.size(), 6), std::runtime_error);
     const Bytes ok = {2, 'a', 'b', 'c'};
     EXPECT_THROW(lzfDecompress(ok.data(), ok.size(), 5), std::runtime_error);  // wrong size
     EXPECT_THROW(lzfDecompress(ok.data(), ok.size(), 2), std::runtime_error);  // overrun

@@ -48,9 +48,8 @@ TEST(LzfPcl, OursDecodesWithPcl) {
     const Bytes packed = forestslam::lzfCompress(data.data(), data.size());
     EXPECT_LT(packed.size(), data.size());  // the constant z and ring columns compress
     Bytes out(data.size());
-    const unsigned size =
-        pcl::lzfDecompress(packed.data(), static_cast<unsigned>(packed.size()), out.data(),
-                           static_cast<unsigned>(out.size()));
+    const unsigned size = pcl::lzfDecompress(packed.data(), static_cast<unsigned>(packed.size()),
+                                             out.data(), static_cast<unsigned>(out.size()));
     ASSERT_EQ(size, data.size());
     EXPECT_EQ(out, data);
 }

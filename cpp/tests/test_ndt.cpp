@@ -1,7 +1,6 @@
-#include "forestslam/registration/ndt.hpp"
-
 #include <gtest/gtest.h>
 
+#include "forestslam/registration/ndt.hpp"
 #include "tls_scene.hpp"
 
 using namespace forestslam;

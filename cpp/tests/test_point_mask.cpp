@@ -37,8 +37,7 @@ TEST(PointMask, PackedVelodyneLayoutDropsNanInfAndOrigin) {
         put(buf, i * 22 + 4, ys[i], false);
         put(buf, i * 22 + 8, zs[i], false);
     }
-    EXPECT_EQ(realPointIndices(buf.data(), buf.size(), l),
-              (std::vector<std::int64_t>{0, 4, 5}));
+    EXPECT_EQ(realPointIndices(buf.data(), buf.size(), l), (std::vector<std::int64_t>{0, 4, 5}));
 }
 
 TEST(PointMask, OrganizedBigEndianFloat64WithRowPadding) {

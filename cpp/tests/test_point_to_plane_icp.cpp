@@ -29,7 +29,8 @@ void expectPoseNear(const Pose3 &a, const Pose3 &b, double meters, double degree
 
 TEST(PointToPlaneIcp, JacobianMatchesNumeric) {
     const Pose3 T = knownPose();
-    const Eigen::Vector3d p(2.0, -1.0, 0.7), q(2.5, -1.2, 0.6), n = Eigen::Vector3d(0.3, 0.5, 0.8).normalized();
+    const Eigen::Vector3d p(2.0, -1.0, 0.7), q(2.5, -1.2, 0.6),
+        n = Eigen::Vector3d(0.3, 0.5, 0.8).normalized();
     Eigen::Matrix<double, 1, 6> J;
     pointToPlaneResidual(T, p, q, n, &J);
     const double h = 1e-6;
@@ -75,7 +76,8 @@ TEST(PointToPlaneIcp, FlatGroundOnlyIsDegenerateAndPriorHoldsIt) {
     for (size_t i = 0; i < pts.size(); ++i) ground.row(i) = pts[i].transpose();
     const Pose3 prior = Pose3(Eigen::Translation3d(0.4, 0.1, 0.0));
     Matrix6d info = Matrix6d::Identity() * 100.0;
-    const RegistrationResult r = icpPointToPlane(PlaneTarget(ground), ground, prior, {}, info, prior);
+    const RegistrationResult r =
+        icpPointToPlane(PlaneTarget(ground), ground, prior, {}, info, prior);
     EXPECT_TRUE(r.degenerate);
     // x, y, yaw unobserved by a plane: the prior keeps them.
     expectPoseNear(Pose3(r.T_target_source), prior, 1e-3, 0.01);

@@ -61,9 +61,12 @@ TEST(Preprocess, AdaptiveNormalFilterKeepsStemsAndDropsGround) {
     for (size_t k = 0; k < res.kept.size(); ++k) {
         const auto p = scan.points.row(res.kept[k]);
         EXPECT_LT(std::abs(res.normals(static_cast<Eigen::Index>(k), 2)), 0.5 + 1e-6);
-        if (p.z() < -1.75) ground++;
-        else if (std::hypot(p.x() - 4, p.y()) < 0.3) near++;
-        else if (std::hypot(p.x(), p.y() - 16) < 0.4) far++;
+        if (p.z() < -1.75)
+            ground++;
+        else if (std::hypot(p.x() - 4, p.y()) < 0.3)
+            near++;
+        else if (std::hypot(p.x(), p.y() - 16) < 0.4)
+            far++;
     }
     EXPECT_EQ(ground, 0);
     EXPECT_GT(near, 30);

@@ -83,7 +83,8 @@ TEST(RayPrimitives, BarkRoughnessStaysWithinItsAmplitudeAndAveragesOut) {
         const double az = 2 * M_PI * i / n;
         const Eigen::Vector3d dir(std::cos(az), std::sin(az), 0.0);
         Hit hit;
-        ASSERT_TRUE(intersectStem(s, makeRay(Eigen::Vector3d(0, 0, 1.3) - 5.0 * dir, dir), kInf, hit));
+        ASSERT_TRUE(
+            intersectStem(s, makeRay(Eigen::Vector3d(0, 0, 1.3) - 5.0 * dir, dir), kInf, hit));
         const double radius = 5.0 - hit.t;
         sum += radius;
         lo = std::min(lo, radius);
@@ -91,8 +92,8 @@ TEST(RayPrimitives, BarkRoughnessStaysWithinItsAmplitudeAndAveragesOut) {
     }
     EXPECT_GE(lo, 0.2 - 0.004 - 1e-6);
     EXPECT_LE(hi, 0.2 + 0.004 + 1e-6);
-    EXPECT_GT(hi - lo, 0.003);             // it is rough
-    EXPECT_NEAR(sum / n, 0.2, 2e-4);       // zero mean: DBH is the smooth diameter
+    EXPECT_GT(hi - lo, 0.003);        // it is rough
+    EXPECT_NEAR(sum / n, 0.2, 2e-4);  // zero mean: DBH is the smooth diameter
 }
 
 TEST(RayPrimitives, BarkHitsLieOnTheModelledSurface) {

@@ -73,8 +73,8 @@ TEST(ScanSynthesis, GroupsGetInterpolatedPoses) {
     const ForestScene scene(Heightfield(), {stem}, {}, {});
     PoseRows knots(2, 16);
     knots.row(0) = poseRow(Eigen::Matrix3d::Identity(), {0, 0, 1.3});
-    knots.row(1) = poseRow(
-        Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix(), {2, 0, 1.3});
+    knots.row(1) = poseRow(Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitZ()).toRotationMatrix(),
+                           {2, 0, 1.3});
     Eigen::VectorXd knot_time(2), group_time(3);
     knot_time << 0.0, 1.0;
     group_time << 0.0, 0.5, 1.0;

@@ -62,9 +62,12 @@ TEST(Segmentation, DivideAndMergeSeparatesStemsAndJoinsAcrossBlocks) {
         const int k = clusterOf(c, static_cast<int>(i));
         if (k < 0) continue;
         const double x = s.points(i, 0), y = s.points(i, 1);
-        if (std::hypot(x - 4, y) < 0.3) near.insert(k);
-        else if (std::hypot(x - 9, y - 0.35) < 0.3) far.insert(k);
-        else if (std::hypot(x + 3, y + 3) < 0.4) wide.insert(k);
+        if (std::hypot(x - 4, y) < 0.3)
+            near.insert(k);
+        else if (std::hypot(x - 9, y - 0.35) < 0.3)
+            far.insert(k);
+        else if (std::hypot(x + 3, y + 3) < 0.4)
+            wide.insert(k);
     }
     ASSERT_EQ(near.size(), 1u);
     ASSERT_EQ(far.size(), 1u);
@@ -120,8 +123,7 @@ TEST(Segmentation, ThinnedNearStemStaysWholeWithTheMetricColumnGap) {
     }
     const Points3 thin = selectRows(s.points, rows);
     Eigen::VectorXi ring(static_cast<Eigen::Index>(rows.size()));
-    for (size_t k = 0; k < rows.size(); ++k)
-        ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
+    for (size_t k = 0; k < rows.size(); ++k) ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
     const auto g = test::vlp16Geometry();
     const auto proj = projectToRangeImage(thin, ring, g);
     SegmentationOptions o;

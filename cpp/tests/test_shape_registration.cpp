@@ -1,6 +1,5 @@
-#include <gtest/gtest.h>
-
 #include <ceres/numeric_diff_first_order_function.h>
+#include <gtest/gtest.h>
 
 #include <random>
 
@@ -53,7 +52,8 @@ struct NumericCost {
     const Scene *s;
     std::vector<std::pair<int, int>> pairs;
     bool operator()(const double *x, double *cost) const {
-        *cost = shapeCost(x, s->src_means, s->src_covs, s->tgt_means, s->tgt_covs, pairs, 0.05, nullptr);
+        *cost = shapeCost(x, s->src_means, s->src_covs, s->tgt_means, s->tgt_covs, pairs, 0.05,
+                          nullptr);
         return true;
     }
 };
@@ -66,14 +66,18 @@ TEST(ShapeRegistration, AutodiffGradientMatchesNumeric) {
     const auto pairs = identityPairs(8);
     ceres::NumericDiffFirstOrderFunction<NumericCost, ceres::CENTRAL, 3> numeric(
         new NumericCost{&s, pairs});
-    for (const Eigen::Vector3d x : {Eigen::Vector3d(0.6, -0.3, 0.12), Eigen::Vector3d(0.75, -0.45, 0.17),
-                                    Eigen::Vector3d(0.5, -0.2, 0.1)}) {
+    for (const Eigen::Vector3d x :
+         {Eigen::Vector3d(0.6, -0.3, 0.12), Eigen::Vector3d(0.75, -0.45, 0.17),
+          Eigen::Vector3d(0.5, -0.2, 0.1)}) {
         double grad[3], ngrad[3], cost, ncost;
-        cost = shapeCost(x.data(), s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, 0.05, grad);
+        cost = shapeCost(x.data(), s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, 0.05,
+                         grad);
         numeric.Evaluate(x.data(), &ncost, ngrad);
         EXPECT_NEAR(cost, ncost, 1e-12);
-        for (int k = 0; k < 3; ++k) EXPECT_NEAR(grad[k], ngrad[k], 1e-6 * (1.0 + std::abs(ngrad[k])));
-        EXPECT_GT(std::abs(grad[0]) + std::abs(grad[1]) + std::abs(grad[2]), 1e-3);  // not at the optimum
+        for (int k = 0; k < 3; ++k)
+            EXPECT_NEAR(grad[k], ngrad[k], 1e-6 * (1.0 + std::abs(ngrad[k])));
+        EXPECT_GT(std::abs(grad[0]) + std::abs(grad[1]) + std::abs(grad[2]),
+                  1e-3);  // not at the optimum
     }
 }
 
@@ -83,7 +87,8 @@ TEST(ShapeRegistration, RecoversKnownPlanarPose) {
     const Pose3 init = planarToPose(0.6, -0.3, 0.05);
     const auto pairs = matchTrees(s.src_means, s.tgt_means, init, 1.0);
     ASSERT_GE(pairs.size(), 10u);
-    const RegistrationResult r = registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, init);
+    const RegistrationResult r =
+        registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, init);
     const Eigen::Vector3d est = poseToPlanar(Pose3(r.T_target_source));
     EXPECT_NEAR(est.x(), 0.8, 0.01);
     EXPECT_NEAR(est.y(), -0.5, 0.01);

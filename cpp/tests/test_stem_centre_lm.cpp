@@ -1,9 +1,8 @@
-#include "forestslam/registration/stem_centre_lm.hpp"
-
 #include <gtest/gtest.h>
 
 #include "forestslam/features/dog_keypoints.hpp"
 #include "forestslam/features/virtual_features.hpp"
+#include "forestslam/registration/stem_centre_lm.hpp"
 #include "tls_scene.hpp"
 
 using namespace forestslam;
@@ -69,8 +68,8 @@ TEST(StemCentreLm, TooFewFeaturesIsDegenerateAndKeepsInitialGuess) {
     const auto scene = test::defaultScene();
     const StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
     const Eigen::Matrix4d T_init = test::makePose(1.0, 2.0, 0.0, 0.0, 0.0, 0.1).matrix();
-    const auto r = registerStemCentreLm(target, Points3(0, 3), Eigen::VectorXd(0), Points3(0, 3),
-                                        T_init);
+    const auto r =
+        registerStemCentreLm(target, Points3(0, 3), Eigen::VectorXd(0), Points3(0, 3), T_init);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);
     EXPECT_TRUE(r.T_target_source.isApprox(T_init));

@@ -100,8 +100,8 @@ TEST(Stems, DiameterFromCircleAndCylinderOnAPartialNoisyStem) {
     EXPECT_LT(worst, 0.04);     // and never off by 4 cm
     // Noise-free: exact.
     const Points3 exact = cylinderArc(8, 3, 0.2, 0.2, 3.0, 0.1, 0.0, nullptr);
-    EXPECT_NEAR(estimateDiameter(exact, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}).dbh,
-                0.4, 1e-3);
+    EXPECT_NEAR(estimateDiameter(exact, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}).dbh, 0.4,
+                1e-3);
 }
 
 TEST(Stems, ImpossibleDiametersAreRejected) {

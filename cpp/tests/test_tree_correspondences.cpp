@@ -45,9 +45,12 @@ TEST(TreeCorrespondences, GateAndMutualExclusion) {
     ASSERT_EQ(pairs.size(), 1u);
     EXPECT_EQ(pairs[0].first, 0);
     // Gate
-    EXPECT_TRUE(forestslam::matchTrees(source, target, forestslam::planarToPose(5, 0, 0), 1.0).empty());
+    EXPECT_TRUE(
+        forestslam::matchTrees(source, target, forestslam::planarToPose(5, 0, 0), 1.0).empty());
     // Ratio test drops the ambiguous pair (0.1 vs 0.1 away).
-    EXPECT_TRUE(forestslam::matchTrees(source, target, forestslam::planarToPose(-0.05, 0, 0), 1.0, 0.8).empty());
+    EXPECT_TRUE(
+        forestslam::matchTrees(source, target, forestslam::planarToPose(-0.05, 0, 0), 1.0, 0.8)
+            .empty());
 }
 
 TEST(TreeCorrespondences, EmptyAndNonFinite) {

@@ -9,7 +9,7 @@ using forestslam::Points2;
 
 TEST(TriangleStar, DescriptorOfKnownTriangle) {
     const auto d = forestslam::triangleDescriptor({0, 0}, {3, 0}, {0, 4});
-    EXPECT_DOUBLE_EQ(d[0], 6.0);         // area
+    EXPECT_DOUBLE_EQ(d[0], 6.0);          // area
     EXPECT_DOUBLE_EQ(d[1], 12.0 * 12.0);  // squared perimeter
 }
 
@@ -29,10 +29,12 @@ TEST(TriangleStar, HexagonStarHasCentreAndThreeNeighbours) {
     EXPECT_LE(e01, e20);
     for (int k = 3; k < 6; ++k) EXPECT_GE(s.vertices[k], 3);
     // Feature entries are the descriptors of the triangles they name.
-    const auto d0 = forestslam::triangleDescriptor(xy.row(0).transpose(), xy.row(1).transpose(), xy.row(2).transpose());
+    const auto d0 = forestslam::triangleDescriptor(xy.row(0).transpose(), xy.row(1).transpose(),
+                                                   xy.row(2).transpose());
     EXPECT_NEAR(s.feature[0], d0[0], 1e-12);
     EXPECT_NEAR(s.feature[1], d0[1], 1e-12);
-    const auto dn = forestslam::triangleDescriptor(xy.row(s.vertices[0]).transpose(), xy.row(s.vertices[1]).transpose(),
+    const auto dn = forestslam::triangleDescriptor(xy.row(s.vertices[0]).transpose(),
+                                                   xy.row(s.vertices[1]).transpose(),
                                                    xy.row(s.vertices[3]).transpose());
     EXPECT_NEAR(s.feature[2], dn[0], 1e-12);
     EXPECT_NEAR(s.feature[3], dn[1], 1e-12);
@@ -51,7 +53,8 @@ TEST(TriangleStar, FeaturesInvariantToRotationTranslationAndOrder) {
     for (int i = 0; i < n; ++i) perm[i] = i;
     std::shuffle(perm.begin(), perm.end(), rng);
     Points2 moved(n, 2);
-    for (int i = 0; i < n; ++i) moved.row(i) = (R * xy.row(perm[i]).transpose() + Eigen::Vector2d(-40, 17)).transpose();
+    for (int i = 0; i < n; ++i)
+        moved.row(i) = (R * xy.row(perm[i]).transpose() + Eigen::Vector2d(-40, 17)).transpose();
 
     const auto a = forestslam::buildStars(forestslam::delaunayTriangulation(xy), xy);
     const auto b = forestslam::buildStars(forestslam::delaunayTriangulation(moved), moved);

@@ -21,7 +21,8 @@ TEST(TrunkExtraction, FindsVerticalStemsAboveGround) {
                 pts.emplace_back(c.x() + 0.15 * std::cos(a), c.y() + 0.15 * std::sin(a), z);
             }
     // A crown: dense foliage well above the search band (vertical structure, but no stem).
-    for (int k = 0; k < 4000; ++k) pts.emplace_back(22 + 2 * u(rng), 22 + 2 * u(rng), 5 + 3 * u(rng));
+    for (int k = 0; k < 4000; ++k)
+        pts.emplace_back(22 + 2 * u(rng), 22 + 2 * u(rng), 5 + 3 * u(rng));
     // Low shrub clutter: no structure 1 m above it.
     for (int k = 0; k < 300; ++k) pts.emplace_back(20 + u(rng), 25 + u(rng), 0.5 * u(rng));
     forestslam::Points3 cloud(pts.size(), 3);

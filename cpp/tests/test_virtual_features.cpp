@@ -1,7 +1,6 @@
-#include "forestslam/features/virtual_features.hpp"
-
 #include <gtest/gtest.h>
 
+#include "forestslam/features/virtual_features.hpp"
 #include "tls_scene.hpp"
 
 using namespace forestslam;

@@ -1,17 +1,17 @@
-#include "forestslam/features/voxel_grid.hpp"
-
 #include <gtest/gtest.h>
 
 #include <limits>
+
+#include "forestslam/features/voxel_grid.hpp"
 
 using forestslam::Points3;
 using forestslam::voxelDownsample;
 
 TEST(VoxelGrid, CentroidPerVoxelAndNaNDropped) {
     Points3 p(5, 3);
-    p << 0.01, 0.01, 0.01,  //
-        0.03, 0.03, 0.03,   //
-        0.51, 0.0, 0.0,     //
+    p << 0.01, 0.01, 0.01,                                   //
+        0.03, 0.03, 0.03,                                    //
+        0.51, 0.0, 0.0,                                      //
         std::numeric_limits<double>::quiet_NaN(), 0.0, 0.0,  //
         -0.01, 0.0, 0.0;
     std::vector<int> rep;

@@ -21,7 +21,7 @@ struct Boulder {
 struct Scene {
     std::vector<Stem> stems;
     std::vector<Boulder> boulders;
-    double ground_z = -1.6;   // ground: z = ground_z + slope_x * x + slope_y * y
+    double ground_z = -1.6;  // ground: z = ground_z + slope_x * x + slope_y * y
     double slope_x = 0.03, slope_y = -0.02;
     double stem_top_z = 8.0;
 
@@ -32,10 +32,13 @@ inline Scene defaultScene(bool with_stems = true) {
     Scene s;
     if (with_stems) {
         s.stems = {{4.0, 1.0, 0.15}, {-3.0, 4.0, 0.22}, {-5.0, -4.0, 0.12}, {6.0, -5.0, 0.18},
-                   {1.0, 7.0, 0.25},  {-8.0, 1.5, 0.2}, {9.0, 4.0, 0.16}};
+                   {1.0, 7.0, 0.25}, {-8.0, 1.5, 0.2},  {9.0, 4.0, 0.16}};
     }
-    s.boulders = {{2.5, -3.0, -1.4, 0.6}, {-6.0, -1.0, -1.3, 0.8}, {3.0, 5.0, -1.5, 0.5},
-                  {-2.0, -7.0, -1.6, 0.9}, {7.0, 0.0, -1.5, 0.7}};
+    s.boulders = {{2.5, -3.0, -1.4, 0.6},
+                  {-6.0, -1.0, -1.3, 0.8},
+                  {3.0, 5.0, -1.5, 0.5},
+                  {-2.0, -7.0, -1.6, 0.9},
+                  {7.0, 0.0, -1.5, 0.7}};
     return s;
 }
 

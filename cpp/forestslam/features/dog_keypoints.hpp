@@ -8,15 +8,15 @@
 namespace forestslam {
 
 struct DogKeypointsConfig {
-    double voxel_m = 0.08;            // downsampling before smoothing (bounds the cost)
+    double voxel_m = 0.08;  // downsampling before smoothing (bounds the cost)
     // Outlier removal: points with fewer neighbours than this within 3 sigma_small (after
     // voxelisation) are never keypoints (isolated returns give the strongest responses).
     int outlier_neighbours = 8;
-    double sigma_small_m = 0.15;      // Gaussian scales of the two smoothed copies
+    double sigma_small_m = 0.15;  // Gaussian scales of the two smoothed copies
     double sigma_large_m = 0.30;
-    int min_neighbours = 6;           // points with fewer neighbours at the large scale: skipped
-    double nms_radius_m = 0.6;        // non-maximum suppression of the response
-    double bucket_m = 3.0;            // horizontal buckets that spread keypoints evenly
+    int min_neighbours = 6;     // points with fewer neighbours at the large scale: skipped
+    double nms_radius_m = 0.6;  // non-maximum suppression of the response
+    double bucket_m = 3.0;      // horizontal buckets that spread keypoints evenly
     int max_keypoints = 200;
 };
 

@@ -26,8 +26,7 @@ std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
 // Circle fit of one cluster (rows of points); appends a candidate when it looks like a stem.
 // sensor_side: in ring mode the centre must lie behind the surface seen from the origin.
 void fitCluster(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows, int level,
-                bool sensor_side, const VirtualFeaturesConfig &cfg,
-                std::vector<Candidate> &out) {
+                bool sensor_side, const VirtualFeaturesConfig &cfg, std::vector<Candidate> &out) {
     if (static_cast<int>(rows.size()) < cfg.min_cluster_points) return;
     // Very dense clusters (TLS close to the station) are thinned: the fit needs no more.
     constexpr std::size_t kMaxFitPoints = 400;
@@ -55,8 +54,8 @@ void fitCluster(const Eigen::Ref<const Points3> &points, const std::vector<int> 
         return;
     }
     if (sensor_side && fit.centre.norm() <= range) return;
-    out.push_back({Eigen::Vector3d(fit.centre.x(), fit.centre.y(), z), fit.radius, level,
-                   fit.rms_m});
+    out.push_back(
+        {Eigen::Vector3d(fit.centre.x(), fit.centre.y(), z), fit.radius, level, fit.rms_m});
 }
 
 bool stemWidth(double width, const VirtualFeaturesConfig &cfg) {

@@ -12,7 +12,7 @@
 namespace forestslam {
 
 struct VirtualFeaturesConfig {
-    double min_diameter_m = 0.06;      // expected stem diameters
+    double min_diameter_m = 0.06;  // expected stem diameters
     double max_diameter_m = 1.0;
     // Ring mode: adjacent points (in azimuth order) belong to one run while their distance is
     // below gap_m + gap_range_ratio * range.
@@ -23,11 +23,11 @@ struct VirtualFeaturesConfig {
     double layer_step_m = 0.25;
     double layer_thickness_m = 0.06;
     double cell_m = 0.04;
-    double min_z_m = -1e9;              // layers only between these heights (frame z)
+    double min_z_m = -1e9;  // layers only between these heights (frame z)
     double max_z_m = 1e9;
     int min_cluster_points = 5;
-    double fit_inlier_m = 0.015;        // circle-fit inlier threshold
-    double min_inlier_ratio = 0.7;      // share of cluster points that must be inliers
+    double fit_inlier_m = 0.015;    // circle-fit inlier threshold
+    double min_inlier_ratio = 0.7;  // share of cluster points that must be inliers
     double max_fit_rms_m = 0.015;
     // Vertical continuity: centres of different rings / layers link when horizontally closer
     // than max_centre_shift_m, vertically closer than max_vertical_gap_m and their radii differ
@@ -43,12 +43,12 @@ struct VirtualFeaturesConfig {
 };
 
 struct VirtualFeatures {
-    Points3 centres;          // (V,3) circle centre (x, y) at the cluster's mean z
-    Eigen::VectorXd radii;    // (V,)
-    Eigen::VectorXi stem_ids; // (V,) 0..S-1, centres of one stem share an id
-    Eigen::VectorXi levels;   // (V,) ring number or layer index
-    Eigen::VectorXd rms;      // (V,) circle-fit RMS residual (m)
-    Points3 stems;            // (S,3) per stem: mean centre
+    Points3 centres;             // (V,3) circle centre (x, y) at the cluster's mean z
+    Eigen::VectorXd radii;       // (V,)
+    Eigen::VectorXi stem_ids;    // (V,) 0..S-1, centres of one stem share an id
+    Eigen::VectorXi levels;      // (V,) ring number or layer index
+    Eigen::VectorXd rms;         // (V,) circle-fit RMS residual (m)
+    Points3 stems;               // (S,3) per stem: mean centre
     Eigen::VectorXd stem_radii;  // (S,) median radius
 };
 

@@ -8,9 +8,9 @@
 namespace forestslam {
 
 namespace {
-constexpr std::size_t kMaxLiteral = 32;           // control byte 0..31 = run of 1..32 literals
-constexpr std::size_t kMaxOffset = 1u << 13;      // 13-bit back-reference distance
-constexpr std::size_t kMaxMatch = 7 + 255 + 2;    // length code 7 plus an extra byte, plus 2
+constexpr std::size_t kMaxLiteral = 32;         // control byte 0..31 = run of 1..32 literals
+constexpr std::size_t kMaxOffset = 1u << 13;    // 13-bit back-reference distance
+constexpr std::size_t kMaxMatch = 7 + 255 + 2;  // length code 7 plus an extra byte, plus 2
 constexpr unsigned kHashBits = 14;
 
 [[noreturn]] void corrupt(const char *what, std::size_t at) {

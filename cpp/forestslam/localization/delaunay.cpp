@@ -50,7 +50,7 @@ uint64_t hilbertIndex(uint32_t x, uint32_t y) {
 }
 
 class Builder {
-public:
+  public:
     explicit Builder(std::vector<P> pts) : p_(std::move(pts)) {}
 
     // Triangulate p_[0..n) (normalized to about [-0.5, 0.5]^2); returns the skipped duplicates.
@@ -77,7 +77,7 @@ public:
 
     std::vector<std::array<int, 3>> V_, N_;
 
-private:
+  private:
     std::vector<P> p_;
     std::vector<std::pair<int, int>> stack_;
     uint32_t rng_ = 12345;
@@ -227,8 +227,10 @@ Triangulation delaunayTriangulation(const Eigen::Ref<const Points2> &xy,
     for (int k = 0; k < n; ++k) {
         const int i = finite[k];
         pts[k] = {(xy(i, 0) - cx) / scale, (xy(i, 1) - cy) / scale};
-        const auto gx = static_cast<uint32_t>(std::clamp((pts[k].x + 0.5) * 65535.0L, 0.0L, 65535.0L));
-        const auto gy = static_cast<uint32_t>(std::clamp((pts[k].y + 0.5) * 65535.0L, 0.0L, 65535.0L));
+        const auto gx =
+            static_cast<uint32_t>(std::clamp((pts[k].x + 0.5) * 65535.0L, 0.0L, 65535.0L));
+        const auto gy =
+            static_cast<uint32_t>(std::clamp((pts[k].y + 0.5) * 65535.0L, 0.0L, 65535.0L));
         keys[k] = {hilbertIndex(gx, gy), k};
     }
     std::sort(keys.begin(), keys.end());

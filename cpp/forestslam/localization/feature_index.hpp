@@ -11,7 +11,7 @@
 namespace forestslam {
 
 class KdTree {
-public:
+  public:
     using Matrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
     KdTree() = default;
@@ -25,7 +25,7 @@ public:
     Eigen::Index size() const { return points_.rows(); }
     Eigen::Index dims() const { return points_.cols(); }
 
-private:
+  private:
     struct Node {
         int lo, hi;        // range in order_
         int dim = -1;      // -1: leaf
@@ -43,17 +43,16 @@ private:
 
 // Uniform grid over 2D points for "nearest point within a gate" queries in O(1).
 class PointGrid {
-public:
+  public:
     PointGrid() = default;
     PointGrid(const Eigen::Ref<const Points2> &xy, double cell_m);
 
     // Index of the nearest point within gate_m of (x, y), or -1; squared distance in *d2.
     int nearest(double x, double y, double gate_m, double *d2 = nullptr) const;
 
-private:
+  private:
     static uint64_t key(int64_t ix, int64_t iy) {
-        return (static_cast<uint64_t>(static_cast<uint32_t>(ix)) << 32) |
-               static_cast<uint32_t>(iy);
+        return (static_cast<uint64_t>(static_cast<uint32_t>(ix)) << 32) | static_cast<uint32_t>(iy);
     }
     Points2 xy_;
     double cell_ = 1.0;

@@ -17,7 +17,6 @@ double wrapAngle(double a) {
     return a - kPi;
 }
 
-
 Eigen::Vector2d apply(const Eigen::Vector3d &pose, const Eigen::Vector2d &p) {
     const double c = std::cos(pose[2]), s = std::sin(pose[2]);
     return {c * p.x() - s * p.y() + pose[0], s * p.x() + c * p.y() + pose[1]};
@@ -62,8 +61,7 @@ int consensus(const Points2 &local, const Eigen::Vector3d &pose, const PointGrid
 // Vertex correspondence check of two stars: the nine edges agree in length and every triangle
 // of the star has the same orientation on both sides (the side test).
 bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
-                const Eigen::Ref<const Points2> &map, const Star &ms,
-                double tol) {
+                const Eigen::Ref<const Points2> &map, const Star &ms, double tol) {
     auto L = [&](int k) { return Eigen::Vector2d(local.row(ls.vertices[k]).transpose()); };
     auto M = [&](int k) { return Eigen::Vector2d(map.row(ms.vertices[k]).transpose()); };
     static const int edges[9][2] = {{0, 1}, {1, 2}, {2, 0}, {0, 3}, {1, 3},
@@ -88,7 +86,8 @@ struct Hypotheses {
 
     int best = 0;  // highest consensus so far
 
-    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate) {
+    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid,
+             double gate) {
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
@@ -111,14 +110,15 @@ bool fitConsistent(const std::vector<Eigen::Vector2d> &a, const std::vector<Eige
 
 // Starting edges worth trying for a local triangle: the shortest, and any edge that noise could
 // make the shortest.
-std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, int t,
-                                const GlobalLocalizerConfig &cfg) {
+std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const Points2> &xy,
+                                int t, const GlobalLocalizerConfig &cfg) {
     const int r0 = shortestEdge(tri, xy, t);
     const double shortest = edgeLength(tri, xy, t, r0);
     std::vector<int> out = {r0};
     for (int dr = 1; dr < 3; ++dr) {
         const int r = (r0 + dr) % 3;
-        if (edgeLength(tri, xy, t, r) <= shortest * (1 + cfg.rotation_ambiguity) + cfg.edge_tolerance_m)
+        if (edgeLength(tri, xy, t, r) <=
+            shortest * (1 + cfg.rotation_ambiguity) + cfg.edge_tolerance_m)
             out.push_back(r);
     }
     return out;
@@ -156,7 +156,8 @@ Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
     }
     const double yaw = std::atan2(sxy, sxx);
     const double c = std::cos(yaw), s = std::sin(yaw);
-    const Eigen::Vector2d t = mc - Eigen::Vector2d(c * lc.x() - s * lc.y(), s * lc.x() + c * lc.y());
+    const Eigen::Vector2d t =
+        mc - Eigen::Vector2d(c * lc.x() - s * lc.y(), s * lc.x() + c * lc.y());
     return {t.x(), t.y(), yaw};
 }
 
@@ -169,7 +170,8 @@ TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance
     index_ = KdTree(std::move(feats));
     triplets_ = neighbourTriangles(xy_, tri_.used_points, kMapTriangleNeighbours, kMaxTriangleEdge);
     KdTree::Matrix sides(triplets_.size(), 3);
-    for (size_t t = 0; t < triplets_.size(); ++t) sides.row(t) = triangleSides(xy_, triplets_[t]).transpose();
+    for (size_t t = 0; t < triplets_.size(); ++t)
+        sides.row(t) = triangleSides(xy_, triplets_[t]).transpose();
     triangle_index_ = KdTree(std::move(sides));
     grid_ = PointGrid(xy_, 1.0);
 }
@@ -333,8 +335,8 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
             b.push_back(xy_.row(j).transpose());
         }
         const Eigen::Vector3d next = fitRigid2D(a, b);
-        const bool converged = (next - pose).head<2>().norm() < 1e-9 &&
-                               std::abs(wrapAngle(next[2] - pose[2])) < 1e-11;
+        const bool converged =
+            (next - pose).head<2>().norm() < 1e-9 && std::abs(wrapAngle(next[2] - pose[2])) < 1e-11;
         pose = next;
         if (converged) break;
     }

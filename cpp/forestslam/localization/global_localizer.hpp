@@ -15,25 +15,25 @@
 namespace forestslam {
 
 struct GlobalLocalizerConfig {
-    int candidates_per_star = 8;           // k nearest map stars per query star
-    double max_feature_distance_m = 1.5;   // in the embedded (sqrt) feature space
-    double rotation_ambiguity = 0.15;      // also try starting edges this much longer than the shortest
-    double edge_tolerance_m = 0.35;        // |local - map| for the nine star edges
-    double inlier_gate_m = 0.5;            // local trunk within this of a map trunk: consensus
-    int min_inliers = 6;                   // fewer: rejected
-    double min_inlier_fraction = 0.25;     // of the local trunks
-    double ambiguity_ratio = 0.8;          // rejected when second-best >= ratio * best
-    double distinct_translation_m = 1.0;   // hypotheses further apart than this are distinct
-    double distinct_yaw_rad = 0.0873;      // 5 deg
+    int candidates_per_star = 8;          // k nearest map stars per query star
+    double max_feature_distance_m = 1.5;  // in the embedded (sqrt) feature space
+    double rotation_ambiguity = 0.15;  // also try starting edges this much longer than the shortest
+    double edge_tolerance_m = 0.35;    // |local - map| for the nine star edges
+    double inlier_gate_m = 0.5;        // local trunk within this of a map trunk: consensus
+    int min_inliers = 6;               // fewer: rejected
+    double min_inlier_fraction = 0.25;    // of the local trunks
+    double ambiguity_ratio = 0.8;         // rejected when second-best >= ratio * best
+    double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
+    double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
-    double min_sigma_m = 0.02;             // floor of the residual sigma in the covariance
-    double duplicate_tolerance_m = 0.01;   // local trunks closer than this are one trunk
-    bool skip_hull_stars = false;          // drop query stars with a vertex on the local hull
-    bool triangle_fallback = true;         // single-triangle matching when no star hypothesis wins
-    int candidates_per_triangle = 16;      // k nearest map triangles per local triangle (fallback)
-    int triangle_neighbours = 5;           // local triangles: each trunk with 2 of its k nearest
-    int max_query_trunks = 100;            // hypotheses scored on this many trunks nearest the origin
-    int max_fallback_trunks = 40;          // fallback triangles from this many nearest trunks
+    double min_sigma_m = 0.02;            // floor of the residual sigma in the covariance
+    double duplicate_tolerance_m = 0.01;  // local trunks closer than this are one trunk
+    bool skip_hull_stars = false;         // drop query stars with a vertex on the local hull
+    bool triangle_fallback = true;        // single-triangle matching when no star hypothesis wins
+    int candidates_per_triangle = 16;     // k nearest map triangles per local triangle (fallback)
+    int triangle_neighbours = 5;          // local triangles: each trunk with 2 of its k nearest
+    int max_query_trunks = 100;    // hypotheses scored on this many trunks nearest the origin
+    int max_fallback_trunks = 40;  // fallback triangles from this many nearest trunks
 };
 
 struct Hypothesis {
@@ -48,10 +48,10 @@ struct GlobalLocalization {
     double x = 0, y = 0, yaw = 0;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity() * 1e6;  // x, y, yaw
     int inliers = 0;
-    int second_inliers = 0;   // consensus of the best distinct alternative
-    int hypotheses = 0;       // verified distinct-by-hash hypotheses
+    int second_inliers = 0;  // consensus of the best distinct alternative
+    int hypotheses = 0;      // verified distinct-by-hash hypotheses
     int query_stars = 0;
-    int local_trunks = 0;     // usable (finite, de-duplicated) local trunks
+    int local_trunks = 0;  // usable (finite, de-duplicated) local trunks
     double rms_m = 0;
     std::vector<std::pair<int, int>> matches;  // (local row, map row) inlier pairs
     Eigen::Matrix3d transform() const;         // homogeneous 2D T_map_local
@@ -62,7 +62,7 @@ Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
                            const std::vector<Eigen::Vector2d> &map);
 
 class TreeMap {
-public:
+  public:
     TreeMap() = default;
     // Triangulates xy (M,2), builds the star features and their index.
     explicit TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m = 0.01);
@@ -74,7 +74,7 @@ public:
     const Triangulation &triangulation() const { return tri_; }
     const StarSet &stars() const { return stars_; }
 
-private:
+  private:
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                               const Points2 &local, const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
@@ -82,7 +82,7 @@ private:
     Points2 xy_;
     Triangulation tri_;
     StarSet stars_;
-    KdTree index_;           // embedded star features
+    KdTree index_;                              // embedded star features
     std::vector<std::array<int, 3>> triplets_;  // nearest-neighbour triangles (fallback)
     KdTree triangle_index_;                     // their side lengths, ccw from the shortest
     PointGrid grid_;

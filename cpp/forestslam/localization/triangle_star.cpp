@@ -39,10 +39,10 @@ int shortestEdge(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, 
     return best;
 }
 
-bool makeStar(const Triangulation &tri, const Eigen::Ref<const Points2> &/*xy*/,
-              const Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>>
-                  &descriptors,
-              int t, int rotation, Star &star) {
+bool makeStar(
+    const Triangulation &tri, const Eigen::Ref<const Points2> & /*xy*/,
+    const Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>> &descriptors,
+    int t, int rotation, Star &star) {
     if (!tri.interior(t)) return false;
     const auto &v = tri.triangles[t];
     star.centre = t;
@@ -66,10 +66,10 @@ StarSet buildStars(const Triangulation &tri, const Eigen::Ref<const Points2> &xy
     set.descriptors.resize(tri.size(), 2);
     for (size_t t = 0; t < tri.size(); ++t) {
         const auto &v = tri.triangles[t];
-        set.descriptors.row(t) = triangleDescriptor(xy.row(v[0]).transpose(),
-                                                    xy.row(v[1]).transpose(),
-                                                    xy.row(v[2]).transpose())
-                                     .transpose();
+        set.descriptors.row(t) =
+            triangleDescriptor(xy.row(v[0]).transpose(), xy.row(v[1]).transpose(),
+                               xy.row(v[2]).transpose())
+                .transpose();
     }
     Star star;
     for (size_t t = 0; t < tri.size(); ++t) {
@@ -92,7 +92,8 @@ bool canonicalTriangle(const Eigen::Ref<const Points2> &xy, std::array<int, 3> &
     const Eigen::Vector2d a = xy.row(tri[0]).transpose(), b = xy.row(tri[1]).transpose(),
                           c = xy.row(tri[2]).transpose();
     const double o = orient2d(a, b, c);
-    const double scale = std::max({(b - a).squaredNorm(), (c - b).squaredNorm(), (a - c).squaredNorm()});
+    const double scale =
+        std::max({(b - a).squaredNorm(), (c - b).squaredNorm(), (a - c).squaredNorm()});
     if (!(std::abs(o) > 1e-6 * scale)) return false;
     if (o < 0) std::swap(tri[1], tri[2]);
     const Eigen::Vector3d s = triangleSides(xy, tri);
@@ -139,8 +140,6 @@ std::vector<std::array<int, 3>> neighbourTriangles(const Eigen::Ref<const Points
     return out;
 }
 
-StarFeature embedFeature(const StarFeature &feature) {
-    return feature.cwiseMax(0.0).cwiseSqrt();
-}
+StarFeature embedFeature(const StarFeature &feature) { return feature.cwiseMax(0.0).cwiseSqrt(); }
 
 }  // namespace forestslam

@@ -41,10 +41,10 @@ int shortestEdge(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, 
 double edgeLength(const Triangulation &tri, const Eigen::Ref<const Points2> &xy, int t, int k);
 
 // The star of interior triangle t starting at edge `rotation` (0..2); false if t is peripheral.
-bool makeStar(const Triangulation &tri, const Eigen::Ref<const Points2> &xy,
-              const Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>>
-                  &descriptors,
-              int t, int rotation, Star &star);
+bool makeStar(
+    const Triangulation &tri, const Eigen::Ref<const Points2> &xy,
+    const Eigen::Ref<const Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>> &descriptors,
+    int t, int rotation, Star &star);
 
 StarSet buildStars(const Triangulation &tri, const Eigen::Ref<const Points2> &xy);
 

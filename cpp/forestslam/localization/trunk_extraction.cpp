@@ -83,7 +83,8 @@ Trunks extractTrunks(const Eigen::Ref<const Points3> &cloud_in, const TrunkExtra
     std::vector<Eigen::Vector2d> centres;
     for (const auto &cluster : clusters) {
         Eigen::Vector2d sum = Eigen::Vector2d::Zero();
-        double zmin = std::numeric_limits<double>::max(), zmax = std::numeric_limits<double>::lowest();
+        double zmin = std::numeric_limits<double>::max(),
+               zmax = std::numeric_limits<double>::lowest();
         for (int i : cluster.indices) {
             const auto &p = (*kept)[i];
             sum += Eigen::Vector2d(p.x, p.y);

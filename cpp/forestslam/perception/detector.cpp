@@ -128,8 +128,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
         coarse = rangeImageClusters(filtered, proj, sensor, so, std::max(2, so.min_points / 2));
     } else {
-        coarse = euclideanClusters(filtered, so.euclidean_tolerance_m,
-                                   std::max(2, so.min_points / 2));
+        coarse =
+            euclideanClusters(filtered, so.euclidean_tolerance_m, std::max(2, so.min_points / 2));
     }
     det.coarse_clusters = static_cast<int>(coarse.size());
     clock.lap(det, "clustering");
@@ -159,8 +159,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     DiameterOptions dopt = opt.diameter;
     if (!scan_centred)
         dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
-    const bool use_silhouette = opt.diameter.silhouette && scan_centred &&
-                                sensor.has_range_image && !silhouette.vertical_angles_rad.empty();
+    const bool use_silhouette = opt.diameter.silhouette && scan_centred && sensor.has_range_image &&
+                                !silhouette.vertical_angles_rad.empty();
     for (const auto &rows : stems) {
         Stem st;
         st.points = selectRows(filtered, rows);

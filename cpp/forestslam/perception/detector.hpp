@@ -16,7 +16,7 @@ namespace forestslam::perception {
 
 struct Detection {
     std::vector<Stem> stems;
-    Points3 ground;          // ground points, one per ground voxel
+    Points3 ground;                                 // ground points, one per ground voxel
     Eigen::Vector3d up = Eigen::Vector3d::UnitZ();  // ground normal used for the stem axes
     int input_points = 0, finite_points = 0, after_intensity = 0, ground_points = 0;
     int filtered_points = 0, coarse_clusters = 0, refined_clusters = 0;

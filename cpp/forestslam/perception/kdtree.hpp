@@ -153,5 +153,4 @@ class KdTree3 {
     std::vector<Node> nodes_;
 };
 
-
 }  // namespace forestslam

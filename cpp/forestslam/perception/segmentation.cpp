@@ -36,9 +36,9 @@ pcl::PointCloud<pcl::PointXYZ>::Ptr subsetCloud(const Eigen::Ref<const Points3> 
     cloud->resize(rows.size());
     for (size_t k = 0; k < rows.size(); ++k) {
         const int i = rows[k];
-        (*cloud)[k] = pcl::PointXYZ(static_cast<float>(points(i, 0)),
-                                    static_cast<float>(points(i, 1)),
-                                    static_cast<float>(points(i, 2)));
+        (*cloud)[k] =
+            pcl::PointXYZ(static_cast<float>(points(i, 0)), static_cast<float>(points(i, 1)),
+                          static_cast<float>(points(i, 2)));
     }
     return cloud;
 }

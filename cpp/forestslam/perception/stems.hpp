@@ -19,11 +19,11 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 struct ClusterShape {
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();  // principal axis, pointing up
+    Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();     // principal axis, pointing up
     Eigen::Vector3d singular = Eigen::Vector3d::Zero();  // s0 >= s1 >= s2 (sqrt of eigenvalues)
-    double length = 0;       // extent along the axis
-    double width = 0;        // extent along the second axis
-    double axis_angle = 0;   // angle between axis and `up`
+    double length = 0;                                   // extent along the axis
+    double width = 0;                                    // extent along the second axis
+    double axis_angle = 0;                               // angle between axis and `up`
 };
 ClusterShape clusterShape(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows,
                           const Eigen::Vector3d &up);
@@ -79,8 +79,8 @@ struct Stem {
     Points3 points;
     Points3 normals;
     ClusterShape shape;
-    double base_z = kNaN;        // local ground height under the stem
-    bool ground_found = false;   // false: base_z is the stem's lowest point
+    double base_z = kNaN;       // local ground height under the stem
+    bool ground_found = false;  // false: base_z is the stem's lowest point
     Eigen::Vector3d breast = Eigen::Vector3d::Constant(kNaN);  // centre at 1.3 m
     StemDiameter diameter;
 };

@@ -23,8 +23,9 @@ Points3 prepare(const Eigen::Ref<const Points3> &points, const NdtConfig &config
 
 }  // namespace
 
-NdtResult registerNdt(const Eigen::Ref<const Points3> &target, const Eigen::Ref<const Points3> &source,
-                      const Eigen::Matrix4d &T_initial, const NdtConfig &config) {
+NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
+                      const Eigen::Ref<const Points3> &source, const Eigen::Matrix4d &T_initial,
+                      const NdtConfig &config) {
     NdtResult result;
     result.T_target_source = T_initial;
     if (!T_initial.allFinite()) return result;

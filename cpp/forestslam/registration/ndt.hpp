@@ -7,13 +7,13 @@
 namespace forestslam {
 
 struct NdtConfig {
-    double voxel_m = 0.3;            // both clouds are voxel-downsampled first
-    double resolution_m = 1.0;       // NDT cell size
-    double step_size_m = 0.1;        // More-Thuente line search maximum step
-    double epsilon = 1e-3;           // transformation change that ends the iteration
+    double voxel_m = 0.3;       // both clouds are voxel-downsampled first
+    double resolution_m = 1.0;  // NDT cell size
+    double step_size_m = 0.1;   // More-Thuente line search maximum step
+    double epsilon = 1e-3;      // transformation change that ends the iteration
     int max_iterations = 35;
-    double max_range_m = 40.0;       // points farther from the frame origin are ignored
-    int min_points = 50;             // fewer points after filtering: not converged
+    double max_range_m = 40.0;  // points farther from the frame origin are ignored
+    int min_points = 50;        // fewer points after filtering: not converged
 };
 
 struct NdtResult {
@@ -25,7 +25,8 @@ struct NdtResult {
 
 // Align source (N,3) onto target (M,3) starting from T_initial (T_target_source). On too few
 // points or non-convergence T_target_source is the initial guess and converged is false.
-NdtResult registerNdt(const Eigen::Ref<const Points3> &target, const Eigen::Ref<const Points3> &source,
+NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
+                      const Eigen::Ref<const Points3> &source,
                       const Eigen::Matrix4d &T_initial = Eigen::Matrix4d::Identity(),
                       const NdtConfig &config = {});
 

@@ -102,10 +102,12 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     const Points3 &tn = target.normals();
     Pose3 T = T_init;
     double max_d = std::max(config.max_correspondence_m, config.final_correspondence_m);
-    const double shrink = config.max_iterations > 1
-                              ? std::pow(config.final_correspondence_m / max_d,
-                                         1.0 / std::max(1, std::min(config.shrink_iterations, config.max_iterations / 2)))
-                              : 1.0;
+    const double shrink =
+        config.max_iterations > 1
+            ? std::pow(
+                  config.final_correspondence_m / max_d,
+                  1.0 / std::max(1, std::min(config.shrink_iterations, config.max_iterations / 2)))
+            : 1.0;
     Matrix6d H = Matrix6d::Zero();
     int used = 0;
     double sse = 0.0;
@@ -123,7 +125,8 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
             double d2 = 0.0;
             const int j = target.nearest(T * p, max_d, d2);
             if (j < 0 || d2 > max_d2 || std::isnan(tn(j, 0))) continue;
-            const double r = pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
+            const double r =
+                pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
             const double a = std::abs(r);
             const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
             H.noalias() += w * J.transpose() * J;
@@ -147,7 +150,8 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
         T = expSE3(delta) * T;
         max_d = std::max(config.final_correspondence_m, max_d * shrink);
         if (delta.head<3>().norm() < config.translation_tolerance_m &&
-            delta.tail<3>().norm() < config.rotation_tolerance_rad && max_d <= config.final_correspondence_m + 1e-9) {
+            delta.tail<3>().norm() < config.rotation_tolerance_rad &&
+            max_d <= config.final_correspondence_m + 1e-9) {
             converged = true;
             ++it;
             break;

@@ -34,10 +34,10 @@ class PlaneTarget {
 
 struct IcpConfig {
     int max_iterations = 30;
-    double max_correspondence_m = 1.0;   // first iterations
+    double max_correspondence_m = 1.0;    // first iterations
     double final_correspondence_m = 0.3;  // shrinks geometrically towards this
     int shrink_iterations = 5;            // ... reaching it after this many iterations
-    double huber_m = 0.05;               // robust kernel width on point-to-plane residuals
+    double huber_m = 0.05;                // robust kernel width on point-to-plane residuals
     double translation_tolerance_m = 1e-4;
     double rotation_tolerance_rad = 1e-5;
     int min_correspondences = 20;

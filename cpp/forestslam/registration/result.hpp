@@ -21,9 +21,9 @@ struct RegistrationResult {
     Matrix6d covariance = Matrix6d::Identity();
     bool converged = false;
     bool degenerate = true;
-    int inliers = 0;        // matched pairs / ICP correspondences used at the end
+    int inliers = 0;  // matched pairs / ICP correspondences used at the end
     int iterations = 0;
-    double rmse = 0.0;      // residual RMS of the inliers at the end (metres)
+    double rmse = 0.0;  // residual RMS of the inliers at the end (metres)
 };
 
 // Large variance for unobserved directions of planar results.

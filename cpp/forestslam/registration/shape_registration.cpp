@@ -12,8 +12,8 @@ struct Gaussian2 {
     Eigen::Matrix2d cov;
 };
 
-Gaussian2 marginal(const Eigen::Ref<const Points3> &means, const Eigen::Ref<const Covariances> &covs,
-                   int i) {
+Gaussian2 marginal(const Eigen::Ref<const Points3> &means,
+                   const Eigen::Ref<const Covariances> &covs, int i) {
     Gaussian2 g;
     g.mean = means.row(i).head<2>().transpose();
     g.cov << covs(i, 0), covs(i, 1), covs(i, 3), covs(i, 4);
@@ -47,10 +47,12 @@ struct ShapeCostFunctor {
     }
 };
 
-ShapeCostFunctor makeFunctor(const Eigen::Ref<const Points3> &sm, const Eigen::Ref<const Covariances> &sc,
-                             const Eigen::Ref<const Points3> &tm, const Eigen::Ref<const Covariances> &tc,
-                             const std::vector<std::pair<int, int>> &pairs, const std::vector<int> &use,
-                             double min_sigma_m) {
+ShapeCostFunctor makeFunctor(const Eigen::Ref<const Points3> &sm,
+                             const Eigen::Ref<const Covariances> &sc,
+                             const Eigen::Ref<const Points3> &tm,
+                             const Eigen::Ref<const Covariances> &tc,
+                             const std::vector<std::pair<int, int>> &pairs,
+                             const std::vector<int> &use, double min_sigma_m) {
     ShapeCostFunctor f;
     const Eigen::Matrix2d floor = Eigen::Matrix2d::Identity() * (0.5 * min_sigma_m * min_sigma_m);
     for (int k : use) {
@@ -77,8 +79,8 @@ double shapeCost(const double pose[3], const Eigen::Ref<const Points3> &source_m
                  double gradient[3]) {
     std::vector<int> use(pairs.size());
     for (size_t k = 0; k < pairs.size(); ++k) use[k] = static_cast<int>(k);
-    ceres::AutoDiffFirstOrderFunction<ShapeCostFunctor, 3> fn(new ShapeCostFunctor(
-        makeFunctor(source_means, source_covs, target_means, target_covs, pairs, use, min_sigma_m)));
+    ceres::AutoDiffFirstOrderFunction<ShapeCostFunctor, 3> fn(new ShapeCostFunctor(makeFunctor(
+        source_means, source_covs, target_means, target_covs, pairs, use, min_sigma_m)));
     double cost = 0.0;
     fn.Evaluate(pose, &cost, gradient);
     return cost;
@@ -99,8 +101,8 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
         inliers.clear();
         sse = 0.0;
         for (int k = 0; k < n; ++k) {
-            const Eigen::Vector2d r = R * xy(source, pairs[k].first) + pose.head<2>() -
-                                      xy(target, pairs[k].second);
+            const Eigen::Vector2d r =
+                R * xy(source, pairs[k].first) + pose.head<2>() - xy(target, pairs[k].second);
             const double e = r.squaredNorm();
             if (e <= thr2) {
                 inliers.push_back(k);
@@ -122,8 +124,10 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
             ++tried;
             const double yaw = std::atan2(t.y(), t.x()) - std::atan2(s.y(), s.x());
             const Eigen::Rotation2Dd R(yaw);
-            const Eigen::Vector2d mid_s = 0.5 * (xy(source, pairs[a].first) + xy(source, pairs[b].first));
-            const Eigen::Vector2d mid_t = 0.5 * (xy(target, pairs[a].second) + xy(target, pairs[b].second));
+            const Eigen::Vector2d mid_s =
+                0.5 * (xy(source, pairs[a].first) + xy(source, pairs[b].first));
+            const Eigen::Vector2d mid_t =
+                0.5 * (xy(target, pairs[a].second) + xy(target, pairs[b].second));
             const Eigen::Vector3d pose(mid_t.x() - (R * mid_s).x(), mid_t.y() - (R * mid_s).y(),
                                        std::atan2(std::sin(yaw), std::cos(yaw)));
             score(pose, cand, sse);
@@ -165,11 +169,11 @@ RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
     if (inliers.empty()) return result;
 
     Eigen::Vector3d x = poseToPlanar(T0);
-    auto *functor = new ShapeCostFunctor(makeFunctor(source_means, source_covs, target_means,
-                                                     target_covs, pairs, inliers,
-                                                     config.min_sigma_m));
+    auto *functor = new ShapeCostFunctor(makeFunctor(
+        source_means, source_covs, target_means, target_covs, pairs, inliers, config.min_sigma_m));
     const ShapeCostFunctor model = *functor;  // kept for the covariance below
-    ceres::GradientProblem problem(new ceres::AutoDiffFirstOrderFunction<ShapeCostFunctor, 3>(functor));
+    ceres::GradientProblem problem(
+        new ceres::AutoDiffFirstOrderFunction<ShapeCostFunctor, 3>(functor));
     ceres::GradientProblemSolver::Options options;
     options.max_num_iterations = config.max_iterations;
     options.logging_type = ceres::SILENT;

@@ -17,7 +17,7 @@ namespace forestslam {
 using Covariances = Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor>;
 
 struct ShapeRegistrationConfig {
-    double min_sigma_m = 0.05;         // added (squared) to each Sigma_i diagonal: noise floor
+    double min_sigma_m = 0.05;           // added (squared) to each Sigma_i diagonal: noise floor
     double consensus_tolerance_m = 0.3;  // pair-distance agreement for a 2-pair hypothesis
     double inlier_threshold_m = 0.5;     // residual of a pair under a hypothesis to count as inlier
     int max_consensus_pairs = 2000;      // cap on hypotheses tried (all pairs of matches if fewer)
@@ -34,14 +34,14 @@ double shapeCost(const double pose[3], const Eigen::Ref<const Points3> &source_m
                  double gradient[3]);
 
 // pairs (i source, j target) from matchTrees. Result T_target_source is planar; covariance holds
-// the linearised (Gauss-Newton) x, y, yaw covariance in indices 0, 1, 5; inliers = consistent pairs.
+// the linearised (Gauss-Newton) x, y, yaw covariance in indices 0, 1, 5; inliers = consistent
+// pairs.
 RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
                                   const Eigen::Ref<const Covariances> &source_covs,
                                   const Eigen::Ref<const Points3> &target_means,
                                   const Eigen::Ref<const Covariances> &target_covs,
                                   const std::vector<std::pair<int, int>> &pairs,
-                                  const Pose3 &T_init,
-                                  const ShapeRegistrationConfig &config = {});
+                                  const Pose3 &T_init, const ShapeRegistrationConfig &config = {});
 
 // Consensus over pairs of matches: the planar pose with most pairs within inlier_threshold_m
 // (the initial pose is one hypothesis). Returns (pose, inlier pair indices).

@@ -1,9 +1,9 @@
 #include "forestslam/registration/stem_centre_lm.hpp"
 
-#include <Eigen/Dense>
 #include <ceres/ceres.h>
 #include <pcl/kdtree/kdtree_flann.h>
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -67,7 +67,7 @@ struct PlanePair {
 // overhead dominated). Jacobian of q w.r.t. dw: -[q]x (exact at dw = 0, first order within
 // the round's small step).
 class PairsCost : public ceres::CostFunction {
-public:
+  public:
     PairsCost(const std::vector<VirtualPair> &v, const std::vector<PlanePair> &p,
               const Eigen::Matrix4d &T0, double scale)
         : v_(v), p_(p), c_(scale) {
@@ -82,8 +82,9 @@ public:
         const double *d = parameters[0];
         const Eigen::Vector3d dt(d[0], d[1], d[2]), dw(d[3], d[4], d[5]);
         const double angle = dw.norm();
-        const Eigen::Matrix3d dR = angle > 0 ? Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix()
-                                             : Eigen::Matrix3d::Identity();
+        const Eigen::Matrix3d dR = angle > 0
+                                       ? Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix()
+                                       : Eigen::Matrix3d::Identity();
         const Eigen::Matrix3d R = dR * R0_;
         const Eigen::Vector3d t = dR * t0_ + dt;
         double *J = (jacobians != nullptr) ? jacobians[0] : nullptr;
@@ -113,7 +114,7 @@ public:
         return true;
     }
 
-private:
+  private:
     // f = sign(r) sqrt(rho(r)) and df/dr = r / ((1 + r^2/c^2) f) (-> 1 at r = 0).
     void robust(double r, double &f, double &df) const {
         const double u = r / c_;
@@ -219,20 +220,19 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
             const double dx = p(0) - q.x(), dy = p(1) - q.y();
             const double err = std::abs(std::sqrt(dx * dx + dy * dy) - r);
             if (err >= gate) continue;
-            auto sector =
-                static_cast<int>((std::atan2(dy, dx) + M_PI) / (2 * M_PI) * sectors);
+            auto sector = static_cast<int>((std::atan2(dy, dx) + M_PI) / (2 * M_PI) * sectors);
             sector = std::min(std::max(sector, 0), sectors - 1);
             if (err < best_err[sector]) {
                 best_err[sector] = err;
                 best[sector] = j;
             }
         }
-        const auto found = static_cast<int>(std::count_if(best.begin(), best.end(),
-                                                          [](int j) { return j >= 0; }));
+        const auto found =
+            static_cast<int>(std::count_if(best.begin(), best.end(), [](int j) { return j >= 0; }));
         for (int j : best) {
             if (j >= 0) {
-                vpairs.push_back({c, target.points.row(j).transpose(), r,
-                                  cfg.virtual_weight / found});
+                vpairs.push_back(
+                    {c, target.points.row(j).transpose(), r, cfg.virtual_weight / found});
             }
         }
     }
@@ -250,8 +250,8 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         for (std::size_t k = 2; k < idx.size(); ++k) {
             const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
             const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
-            const double longest = std::max({(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(),
-                                             (p2 - p1).squaredNorm()});
+            const double longest = std::max(
+                {(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
             if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
             const Eigen::Vector3d n = cross.normalized();
             if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n});
@@ -310,8 +310,8 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         double delta[6] = {0, 0, 0, 0, 0, 0};
         ceres::Problem::Options problem_options;
         ceres::Problem problem(problem_options);
-        problem.AddResidualBlock(
-            new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m), nullptr, delta);
+        problem.AddResidualBlock(new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m),
+                                 nullptr, delta);
         ceres::Solver::Options options;
         options.minimizer_type = ceres::TRUST_REGION;
         options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
@@ -325,7 +325,8 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         const Eigen::Vector3d dw(delta[3], delta[4], delta[5]);
         const double angle = dw.norm();
         Eigen::Matrix4d D = Eigen::Matrix4d::Identity();
-        if (angle > 0) D.block<3, 3>(0, 0) = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
+        if (angle > 0)
+            D.block<3, 3>(0, 0) = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
         D.block<3, 1>(0, 3) = Eigen::Vector3d(delta[0], delta[1], delta[2]);
         T_cur = D * T_before;
         // The step as seen from the sensor (independent of where the target origin lies).

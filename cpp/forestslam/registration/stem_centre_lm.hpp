@@ -3,8 +3,8 @@
 // the same height, one per angular sector (residual d - r, d the horizontal distance in the
 // target frame, whose z axis is taken as vertical: a levelled TLS / map frame; pairing all
 // around the centre rather than only the nearest point removes the mirror minimum outside a
-// fully scanned stem); real features (e.g. DoG keypoints) pair with the plane through their three nearest
-// non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM (all pairs of a
+// fully scanned stem); real features (e.g. DoG keypoints) pair with the plane through their three
+// nearest non-collinear target points (point-to-plane residual). 6 DoF, Ceres LM (all pairs of a
 // round in one residual block with analytic Jacobians, left perturbation of the pose) with a
 // robust Cauchy loss, correspondences renewed between solves. Works frame-to-frame and
 // frame-to-map.
@@ -17,16 +17,16 @@
 namespace forestslam {
 
 struct StemCentreLmConfig {
-    int max_rounds = 15;                  // correspondence renewals
-    int max_solver_iterations = 8;        // LM iterations per round (fixed pairs)
-    double virtual_gate_m = 0.10;         // |d - r| gate for virtual-feature pairs
-    int virtual_sectors = 12;             // at most one target point per sector around a centre
-    double virtual_window_m = 0.15;       // ... taken within this height of the centre
-    double virtual_max_gate_m = 0.5;      // cap of the coarse virtual gate (bounds the search)
-    double real_gate_m = 0.50;            // max distance keypoint -> nearest target point
-    double plane_gate_m = 0.25;           // max |point-to-plane| distance of a kept pair
-    double min_triangle_ratio = 0.2;      // non-collinearity: 2*area / longest_edge^2
-    double robust_scale_m = 0.05;         // Cauchy loss scale
+    int max_rounds = 15;              // correspondence renewals
+    int max_solver_iterations = 8;    // LM iterations per round (fixed pairs)
+    double virtual_gate_m = 0.10;     // |d - r| gate for virtual-feature pairs
+    int virtual_sectors = 12;         // at most one target point per sector around a centre
+    double virtual_window_m = 0.15;   // ... taken within this height of the centre
+    double virtual_max_gate_m = 0.5;  // cap of the coarse virtual gate (bounds the search)
+    double real_gate_m = 0.50;        // max distance keypoint -> nearest target point
+    double plane_gate_m = 0.25;       // max |point-to-plane| distance of a kept pair
+    double min_triangle_ratio = 0.2;  // non-collinearity: 2*area / longest_edge^2
+    double robust_scale_m = 0.05;     // Cauchy loss scale
     // Coarse to fine: the first round's gates and loss scale are coarse_gate_factor times the
     // above, shrinking by gate_decay per round down to 1x (tolerates a poorer initial guess).
     double coarse_gate_factor = 4.0;
@@ -36,8 +36,8 @@ struct StemCentreLmConfig {
     double virtual_weight = 1.0;
     double converged_translation_m = 1e-4;  // stop when a round moves less than this ...
     double converged_rotation_rad = 1e-5;   // ... and rotates less than this
-    int min_inliers = 12;                 // fewer pairs than this: not converged
-    double degenerate_eigen_ratio = 1e-3;  // min/max eigenvalue of the normalised information
+    int min_inliers = 12;                   // fewer pairs than this: not converged
+    double degenerate_eigen_ratio = 1e-3;   // min/max eigenvalue of the normalised information
 };
 
 // RegistrationResult (T_target_source, 6x6 covariance over the left perturbation
@@ -53,7 +53,7 @@ struct StemCentreLmResult : RegistrationResult {
 
 // Target surface: a KD-tree over a map or frame cloud, built once and reused for many frames.
 class StemCentreTarget {
-public:
+  public:
     explicit StemCentreTarget(const Eigen::Ref<const Points3> &points);
     ~StemCentreTarget();
     StemCentreTarget(const StemCentreTarget &) = delete;
@@ -65,7 +65,7 @@ public:
     struct Impl;
     const Impl &impl() const { return *impl_; }
 
-private:
+  private:
     std::unique_ptr<Impl> impl_;
 };
 

@@ -14,18 +14,21 @@ constexpr uint32_t kIndexMask = (1u << 30) - 1;
 // Nearest floats below / above v: float boxes that always contain the double ones.
 float floatDown(double v) {
     const float f = static_cast<float>(v);
-    return static_cast<double>(f) > v ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+    return static_cast<double>(f) > v ? std::nextafter(f, -std::numeric_limits<float>::infinity())
+                                      : f;
 }
 float floatUp(double v) {
     const float f = static_cast<float>(v);
-    return static_cast<double>(f) < v ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+    return static_cast<double>(f) < v ? std::nextafter(f, std::numeric_limits<float>::infinity())
+                                      : f;
 }
 }  // namespace
 
 Heightfield::Heightfield(double x0, double y0, double cell, const Eigen::MatrixXd &z)
     : x0_(x0), y0_(y0), cell_(cell), inv_cell_(1.0 / cell) {
     if (!(cell > 0.0)) throw std::invalid_argument("heightfield cell must be > 0");
-    if (z.rows() < 2 || z.cols() < 2) throw std::invalid_argument("heightfield needs >= 2x2 vertices");
+    if (z.rows() < 2 || z.cols() < 2)
+        throw std::invalid_argument("heightfield needs >= 2x2 vertices");
     if (!z.allFinite()) throw std::invalid_argument("heightfield heights must be finite");
     ny_ = static_cast<int>(z.rows()) - 1;
     nx_ = static_cast<int>(z.cols()) - 1;
@@ -41,7 +44,8 @@ Heightfield::Heightfield(double x0, double y0, double cell, const Eigen::MatrixX
             const double v = vertex(ix, iy);
             z_max_ = std::max(z_max_, v);
             // A vertex belongs to every block whose cells touch it.
-            for (int by = std::max(0, (iy - 1) / kBlock); by <= std::min(nby_ - 1, iy / kBlock); ++by)
+            for (int by = std::max(0, (iy - 1) / kBlock); by <= std::min(nby_ - 1, iy / kBlock);
+                 ++by)
                 for (int bx = std::max(0, (ix - 1) / kBlock); bx <= std::min(nbx_ - 1, ix / kBlock);
                      ++bx) {
                     const size_t b = static_cast<size_t>(by) * nbx_ + bx;
@@ -56,7 +60,8 @@ double Heightfield::heightAt(double x, double y) const {
     if (empty()) return std::nan("");
     const double gx = (x - x0_) / cell_, gy = (y - y0_) / cell_;
     if (!(gx >= 0.0 && gy >= 0.0 && gx <= nx_ && gy <= ny_)) return std::nan("");
-    const int ix = std::min(static_cast<int>(gx), nx_ - 1), iy = std::min(static_cast<int>(gy), ny_ - 1);
+    const int ix = std::min(static_cast<int>(gx), nx_ - 1),
+              iy = std::min(static_cast<int>(gy), ny_ - 1);
     const double fx = gx - ix, fy = gy - iy;
     const double z00 = vertex(ix, iy), z10 = vertex(ix + 1, iy), z01 = vertex(ix, iy + 1),
                  z11 = vertex(ix + 1, iy + 1);
@@ -64,7 +69,8 @@ double Heightfield::heightAt(double x, double y) const {
     return z00 + fy * (z01 - z00) + fx * (z11 - z01);
 }
 
-bool Heightfield::intersectCell(int ix, int iy, const Ray &ray, double t0, double t1, Hit &hit) const {
+bool Heightfield::intersectCell(int ix, int iy, const Ray &ray, double t0, double t1,
+                                Hit &hit) const {
     const double z00 = vertex(ix, iy), z10 = vertex(ix + 1, iy), z01 = vertex(ix, iy + 1),
                  z11 = vertex(ix + 1, iy + 1);
     const double oz = ray.origin.z(), dz = ray.dir.z();
@@ -155,7 +161,8 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
       cell_(cell_m),
       inv_cell_(1.0 / cell_m) {
     if (!(cell_m > 0.0)) throw std::invalid_argument("scene grid cell must be > 0");
-    if (stems_.size() > kIndexMask || cylinders_.size() > kIndexMask || foliage_.size() > kIndexMask)
+    if (stems_.size() > kIndexMask || cylinders_.size() > kIndexMask ||
+        foliage_.size() > kIndexMask)
         throw std::invalid_argument("too many primitives");
     struct Box {
         uint32_t code;
@@ -166,22 +173,25 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     for (size_t i = 0; i < stems_.size(); ++i) {
         const Stem &s = stems_[i];
         stem_coeffs_.emplace_back(s);
-        if (!(s.semi_a > 0 && s.semi_b > 0)) throw std::invalid_argument("stem semi-axes must be > 0");
-        const double r = std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) +
-                         s.bark_amp;
-        const double xa = s.base.x() + s.shear.x() * s.h_bottom, xb = s.base.x() + s.shear.x() * s.height;
-        const double ya = s.base.y() + s.shear.y() * s.h_bottom, yb = s.base.y() + s.shear.y() * s.height;
-        boxes.push_back({kStemCode | static_cast<uint32_t>(i), std::min(xa, xb) - r, std::min(ya, yb) - r,
-                         std::max(xa, xb) + r, std::max(ya, yb) + r, s.base.z() + s.height,
-                         s.base.z() + s.h_bottom});
+        if (!(s.semi_a > 0 && s.semi_b > 0))
+            throw std::invalid_argument("stem semi-axes must be > 0");
+        const double r =
+            std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) + s.bark_amp;
+        const double xa = s.base.x() + s.shear.x() * s.h_bottom,
+                     xb = s.base.x() + s.shear.x() * s.height;
+        const double ya = s.base.y() + s.shear.y() * s.h_bottom,
+                     yb = s.base.y() + s.shear.y() * s.height;
+        boxes.push_back({kStemCode | static_cast<uint32_t>(i), std::min(xa, xb) - r,
+                         std::min(ya, yb) - r, std::max(xa, xb) + r, std::max(ya, yb) + r,
+                         s.base.z() + s.height, s.base.z() + s.h_bottom});
     }
     for (size_t i = 0; i < cylinders_.size(); ++i) {
         const Cylinder &c = cylinders_[i];
         cylinder_coeffs_.emplace_back(c);
         const Eigen::Vector3d lo = c.p0.cwiseMin(c.p1).array() - c.radius;
         const Eigen::Vector3d hi = c.p0.cwiseMax(c.p1).array() + c.radius;
-        boxes.push_back(
-            {kCylinderCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(), hi.z(), lo.z()});
+        boxes.push_back({kCylinderCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(),
+                         hi.z(), lo.z()});
     }
     for (size_t i = 0; i < foliage_.size(); ++i) {
         const FoliageEllipsoid &f = foliage_[i];
@@ -189,8 +199,8 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         if (!(f.radii.minCoeff() > 0 && f.sigma > 0))
             throw std::invalid_argument("foliage radii and sigma must be > 0");
         const Eigen::Vector3d lo = f.centre - f.radii, hi = f.centre + f.radii;
-        boxes.push_back(
-            {kFoliageCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(), hi.z(), lo.z()});
+        boxes.push_back({kFoliageCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(),
+                         hi.z(), lo.z()});
     }
     if (boxes.empty()) return;
     double xmin = kInf, ymin = kInf, xmax = -kInf, ymax = -kInf, zmin = kInf;
@@ -213,7 +223,8 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     nl_ = std::clamp(static_cast<int>(std::ceil((z_max_ - zmin) / kLayerM)), 1, kMaxLayers);
     layer_m_ = std::max((z_max_ - zmin) / nl_, 1e-3);
     inv_layer_m_ = 1.0 / layer_m_;
-    if (static_cast<double>(nx_) * ny_ * nl_ > 1e8) throw std::invalid_argument("scene grid too large");
+    if (static_cast<double>(nx_) * ny_ * nl_ > 1e8)
+        throw std::invalid_argument("scene grid too large");
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
     std::vector<uint32_t> count(nbin + 1, 0);
@@ -248,12 +259,11 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         int ix0, iy0, ix1, iy1, l0, l1;
         cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
         const double m = 1e-6;  // keep the rejection conservative under round-off
-        prims_[row] = Prim{{floatDown(b.xmin - m - x0_), floatDown(b.ymin - m - y0_),
-                            floatDown(b.zmin - m - z0_)},
-                           {floatUp(b.xmax + m - x0_), floatUp(b.ymax + m - y0_),
-                            floatUp(b.zmax + m - z0_)},
-                           b.code,
-                           0};
+        prims_[row] = Prim{
+            {floatDown(b.xmin - m - x0_), floatDown(b.ymin - m - y0_), floatDown(b.zmin - m - z0_)},
+            {floatUp(b.xmax + m - x0_), floatUp(b.ymax + m - y0_), floatUp(b.zmax + m - z0_)},
+            b.code,
+            0};
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix)
                 for (int l = l0; l <= l1; ++l)
@@ -266,8 +276,7 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
     const uint32_t index = code & kIndexMask;
     switch (code & ~kIndexMask) {
         case kStemCode:
-            if (!intersectStem(stems_[index], stem_coeffs_[index], ray, t_max, hit))
-                return false;
+            if (!intersectStem(stems_[index], stem_coeffs_[index], ray, t_max, hit)) return false;
             hit.surface = kStem;
             break;
         case kCylinderCode:

@@ -32,9 +32,10 @@ void traverseGrid(double x0, double y0, double cell, double inv_cell, int nx, in
 // Terrain heights on a regular vertex grid; each cell is split into two triangles along its
 // (0,0)-(1,1) diagonal, so heights are piecewise linear and rays hit it exactly.
 class Heightfield {
-public:
+  public:
     Heightfield() = default;
-    // z: (ny+1, nx+1) vertex heights, row iy at y = y0 + iy * cell, column ix at x = x0 + ix * cell.
+    // z: (ny+1, nx+1) vertex heights, row iy at y = y0 + iy * cell, column ix at x = x0 + ix *
+    // cell.
     Heightfield(double x0, double y0, double cell, const Eigen::MatrixXd &z);
 
     bool empty() const { return nx_ == 0; }
@@ -43,7 +44,7 @@ public:
     bool intersect(const Ray &ray, double t_max, Hit &hit) const;
     bool intersect(const Ray &ray, const GridRay &grid_ray, double t_max, Hit &hit) const;
 
-private:
+  private:
     double vertex(int ix, int iy) const { return z_[static_cast<size_t>(iy) * (nx_ + 1) + ix]; }
     bool intersectCell(int ix, int iy, const Ray &ray, double t0, double t1, Hit &hit) const;
 
@@ -65,14 +66,15 @@ struct CastResult {
 };
 
 class ForestScene {
-public:
+  public:
     ForestScene(Heightfield terrain, std::vector<Stem> stems, std::vector<Cylinder> cylinders,
                 std::vector<FoliageEllipsoid> foliage, double cell_m = 3.0);
 
     Hit cast(const Ray &ray) const;
     // One ray per row of dirs (N,3, unit); origins (G,3) with G dividing N: ray i starts at
     // origin i / (N/G) (G = 1: one shared origin, G = N: one each). Returns are kept in
-    // [range_min, range_max]. seed makes foliage penetration reproducible: ray i uses key (seed, i).
+    // [range_min, range_max]. seed makes foliage penetration reproducible: ray i uses key (seed,
+    // i).
     CastResult castRays(const Eigen::Ref<const Points3> &origins,
                         const Eigen::Ref<const Points3> &dirs, double range_min, double range_max,
                         uint64_t seed) const;
@@ -80,7 +82,7 @@ public:
     const Heightfield &terrain() const { return terrain_; }
     const std::vector<Stem> &stems() const { return stems_; }
 
-private:
+  private:
     void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
     bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
 

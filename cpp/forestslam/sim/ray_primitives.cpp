@@ -82,7 +82,9 @@ double enteringRoot(double a, double b, double c, double t_lo, double t_hi, Ok &
 
 }  // namespace
 
-uint64_t mixKey(uint64_t a, uint64_t b) { return splitmix64(a ^ splitmix64(b + 0x632BE59BD9B4E019ULL)); }
+uint64_t mixKey(uint64_t a, uint64_t b) {
+    return splitmix64(a ^ splitmix64(b + 0x632BE59BD9B4E019ULL));
+}
 
 double hashUniform(uint64_t key, uint64_t salt) {
     const uint64_t h = mixKey(key, salt);
@@ -233,8 +235,8 @@ bool intersectCylinder(const Cylinder &cyl, const CylinderCoeffs &coeffs, const 
         const double s = wa + t * da;
         return s >= 0.0 && s <= len;
     };
-    const double t_side =
-        enteringRoot(dp.squaredNorm(), 2.0 * wp.dot(dp), wp.squaredNorm() - r2, ray.t_min, t_max, ok_side);
+    const double t_side = enteringRoot(dp.squaredNorm(), 2.0 * wp.dot(dp), wp.squaredNorm() - r2,
+                                       ray.t_min, t_max, ok_side);
     if (t_side < best) {
         best = t_side;
         normal = wp + t_side * dp;
@@ -273,7 +275,9 @@ bool intersectFoliage(const FoliageEllipsoid &ell, const FoliageCoeffs &coeffs, 
     const double t_enter = (-b - sq) * inv_2a, t_exit = (-b + sq) * inv_2a;
     if (t_enter > t_max || t_exit < ray.t_min) return false;  // before drawing the free path
     // Free path from the geometric entry, so the outcome does not depend on clipping.
-    const double free_path = -std::log(hashUniform(ray.key, static_cast<uint64_t>(index) * 7919ULL + ell.surface)) / ell.sigma;
+    const double free_path =
+        -std::log(hashUniform(ray.key, static_cast<uint64_t>(index) * 7919ULL + ell.surface)) /
+        ell.sigma;
     const double t = t_enter + free_path;
     if (t >= t_exit || t < ray.t_min || t > t_max) return false;
     hit.t = t;

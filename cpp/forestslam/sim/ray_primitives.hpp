@@ -1,5 +1,6 @@
 // Analytic primitives of the simulated forest and their exact ray intersections.
-// All lengths in metres, world frame, z up. A ray is origin + t * dir with |dir| = 1, so t is range.
+// All lengths in metres, world frame, z up. A ray is origin + t * dir with |dir| = 1, so t is
+// range.
 #pragma once
 
 #include <Eigen/Core>
@@ -40,23 +41,23 @@ struct Hit {
 
 // A tree stem: a leaning (sheared: horizontal sections stay horizontal ellipses), tapered,
 // elliptical cone with bark roughness. Height h is measured above `base` along z.
-// Smooth section at h: ellipse with semi-axes semi_a * s(h), semi_b * s(h), s(h) = 1 - taper (h-1.3)
-// centred at base.xy + shear * h; the a axis at azimuth `angle`. The bark adds
-// bark_amp * n(azimuth, h), n a zero-mean (over azimuth) sum of sinusoids with |n| <= 1, so the
-// mean diameter of the section at 1.3 m is exactly semi_a + semi_b (the truth DBH):
-// n = sum_k w_k sin(L_k azimuth + m_k omega h + phase_k) / sum w, L = 4 9 17 31 lobes,
-// m = 1 2 4 8, omega = 0.9 rad/m (integer lobes and octave-spaced vertical frequencies let the
-// ray caster evaluate it with complex products instead of five transcendental calls).
+// Smooth section at h: ellipse with semi-axes semi_a * s(h), semi_b * s(h), s(h) = 1 - taper
+// (h-1.3) centred at base.xy + shear * h; the a axis at azimuth `angle`. The bark adds bark_amp *
+// n(azimuth, h), n a zero-mean (over azimuth) sum of sinusoids with |n| <= 1, so the mean diameter
+// of the section at 1.3 m is exactly semi_a + semi_b (the truth DBH): n = sum_k w_k sin(L_k azimuth
+// + m_k omega h + phase_k) / sum w, L = 4 9 17 31 lobes, m = 1 2 4 8, omega = 0.9 rad/m (integer
+// lobes and octave-spaced vertical frequencies let the ray caster evaluate it with complex products
+// instead of five transcendental calls).
 struct Stem {
-    Eigen::Vector3d base;    // axis point on the ground
-    Eigen::Vector2d shear;   // horizontal axis offset per metre of height (tan of the lean)
-    double semi_a = 0.1;     // semi-axes at breast height, m
+    Eigen::Vector3d base;   // axis point on the ground
+    Eigen::Vector2d shear;  // horizontal axis offset per metre of height (tan of the lean)
+    double semi_a = 0.1;    // semi-axes at breast height, m
     double semi_b = 0.1;
-    double angle = 0.0;      // azimuth of the a axis, rad
-    double taper = 0.0;      // relative radius loss per metre of height, 1/m
-    double h_bottom = -0.3;  // stem starts this far below the base (buried), m
-    double height = 10.0;    // top of the stem above the base, m
-    double bark_amp = 0.0;   // bark roughness amplitude, m
+    double angle = 0.0;              // azimuth of the a axis, rad
+    double taper = 0.0;              // relative radius loss per metre of height, 1/m
+    double h_bottom = -0.3;          // stem starts this far below the base (buried), m
+    double height = 10.0;            // top of the stem above the base, m
+    double bark_amp = 0.0;           // bark roughness amplitude, m
     double phase[4] = {0, 0, 0, 0};  // bark noise phases (deterministic by seed)
 
     double barkNoise(double azimuth, double h) const;  // in [-1, 1]

@@ -15,8 +15,8 @@ namespace forestslam::sim {
 struct ScanModel {
     double range_min_m = 0.0;
     double range_max_m = 100.0;
-    double range_noise_m = 0.0;   // standard deviation of the range, m
-    double dropout_rate = 0.0;    // probability that a return is lost
+    double range_noise_m = 0.0;         // standard deviation of the range, m
+    double dropout_rate = 0.0;          // probability that a return is lost
     double intensity_scale = 100.0;     // the profile's intensity threshold (100 without one)
     double intensity_noise_rel = 0.12;  // relative noise of wood and ground intensity
 };
@@ -27,7 +27,7 @@ float returnIntensity(uint8_t surface, double cos_incidence, double noise, const
 
 struct SynthesizedScan {
     Eigen::Matrix<int64_t, Eigen::Dynamic, 1> ray;  // pattern row of each return, increasing
-    Points3 points;                                  // sensor frame at the ray's own time
+    Points3 points;                                 // sensor frame at the ray's own time
     Eigen::VectorXf intensity;
     Eigen::Matrix<uint8_t, Eigen::Dynamic, 1> surface;
     Eigen::Matrix<int32_t, Eigen::Dynamic, 1> object;

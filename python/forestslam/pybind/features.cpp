@@ -75,26 +75,26 @@ void define_features(py::module_ &m) {
            const py::kwargs &kwargs) {
             VirtualFeaturesConfig cfg;
             using C = VirtualFeaturesConfig;
-            applyKwargs(cfg, kwargs,
-                        {{"min_diameter_m", &C::min_diameter_m},
-                         {"max_diameter_m", &C::max_diameter_m},
-                         {"gap_m", &C::gap_m},
-                         {"gap_range_ratio", &C::gap_range_ratio},
-                         {"layer_step_m", &C::layer_step_m},
-                         {"layer_thickness_m", &C::layer_thickness_m},
-                         {"cell_m", &C::cell_m},
-                         {"min_z_m", &C::min_z_m},
-                         {"max_z_m", &C::max_z_m},
-                         {"fit_inlier_m", &C::fit_inlier_m},
-                         {"min_inlier_ratio", &C::min_inlier_ratio},
-                         {"max_fit_rms_m", &C::max_fit_rms_m},
-                         {"max_centre_shift_m", &C::max_centre_shift_m},
-                         {"max_vertical_gap_m", &C::max_vertical_gap_m},
-                         {"radius_tolerance_m", &C::radius_tolerance_m},
-                         {"max_taper", &C::max_taper},
-                         {"min_vertical_span_m", &C::min_vertical_span_m}},
-                        {{"min_cluster_points", &C::min_cluster_points},
-                         {"min_levels", &C::min_levels}});
+            applyKwargs(
+                cfg, kwargs,
+                {{"min_diameter_m", &C::min_diameter_m},
+                 {"max_diameter_m", &C::max_diameter_m},
+                 {"gap_m", &C::gap_m},
+                 {"gap_range_ratio", &C::gap_range_ratio},
+                 {"layer_step_m", &C::layer_step_m},
+                 {"layer_thickness_m", &C::layer_thickness_m},
+                 {"cell_m", &C::cell_m},
+                 {"min_z_m", &C::min_z_m},
+                 {"max_z_m", &C::max_z_m},
+                 {"fit_inlier_m", &C::fit_inlier_m},
+                 {"min_inlier_ratio", &C::min_inlier_ratio},
+                 {"max_fit_rms_m", &C::max_fit_rms_m},
+                 {"max_centre_shift_m", &C::max_centre_shift_m},
+                 {"max_vertical_gap_m", &C::max_vertical_gap_m},
+                 {"radius_tolerance_m", &C::radius_tolerance_m},
+                 {"max_taper", &C::max_taper},
+                 {"min_vertical_span_m", &C::min_vertical_span_m}},
+                {{"min_cluster_points", &C::min_cluster_points}, {"min_levels", &C::min_levels}});
             if (rings && static_cast<Eigen::Index>(rings->size()) != points.rows()) {
                 throw py::value_error("rings must have one entry per point");
             }

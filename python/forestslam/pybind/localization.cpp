@@ -116,14 +116,13 @@ void define_localization(py::module_ &m) {
              py::arg("duplicate_tolerance_m") = 0.01,
              "Triangulate map trunks xy (M,2) float64 and index their triangle stars.")
         .def("localize", &TreeMap::localize, py::arg("local_xy"),
-             py::arg("config") = GlobalLocalizerConfig(),
-             py::call_guard<py::gil_scoped_release>(),
+             py::arg("config") = GlobalLocalizerConfig(), py::call_guard<py::gil_scoped_release>(),
              "Pose of the local frame in the map from local trunks (K,2) -> GlobalLocalization.")
         .def_property_readonly("points", &TreeMap::points, "(M,2) map trunks")
         .def_property_readonly("triangles",
                                [](const TreeMap &t) { return toRows(t.triangulation().triangles); })
-        .def_property_readonly("neighbours",
-                               [](const TreeMap &t) { return toRows(t.triangulation().neighbours); })
+        .def_property_readonly(
+            "neighbours", [](const TreeMap &t) { return toRows(t.triangulation().neighbours); })
         .def_property_readonly("stars", [](const TreeMap &t) { return starsToDict(t.stars()); });
 
     py::class_<TrunkExtractionConfig>(m, "TrunkExtractionConfig")
@@ -148,7 +147,8 @@ void define_localization(py::module_ &m) {
                 py::gil_scoped_release release;  // numpy results are built with the GIL held
                 t = extractTrunks(cloud, config);
             }
-            Eigen::VectorXi sizes = Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
+            Eigen::VectorXi sizes =
+                Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
             return py::make_tuple(t.xy, sizes);
         },
         py::arg("cloud"), py::arg("config") = TrunkExtractionConfig(),

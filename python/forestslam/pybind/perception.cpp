@@ -322,8 +322,8 @@ void define_perception(py::module_ &m) {
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
            const py::dict &options) {
-            const pc::NormalFilterResult r = pc::normalFilter(
-                points, toRows(candidates), theta_v, filterOptions(options), nullptr);
+            const pc::NormalFilterResult r = pc::normalFilter(points, toRows(candidates), theta_v,
+                                                              filterOptions(options), nullptr);
             py::dict d;
             d["kept"] = r.kept;
             d["normals"] = r.normals;
@@ -391,8 +391,7 @@ void define_perception(py::module_ &m) {
             const auto dopt = diameterOptions(options);
             return diameterDict(pc::estimateDiameter(points, n, base_z, up, dopt));
         },
-        py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"),
-        py::arg("options"),
+        py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"), py::arg("options"),
         "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: dict with\n"
         "circle / cylinder fits (valid, radius, centre, axis, inliers, rms_m, arc_coverage,\n"
         "score), method, dbh (NaN if none accepted), centre (3,), band_points.");

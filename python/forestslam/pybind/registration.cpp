@@ -38,10 +38,11 @@ void define_registration(py::module_ &m) {
         "after the reference, moved into the sensor frame at the reference for the body twist\n"
         "(6,) per second (translation, rotation vector): p0 = R(t w) p + t v. Rows with a\n"
         "non-finite time are unchanged. Returns (N,3).");
-    py::class_<RegistrationResult>(m, "RegistrationResult",
-                                   "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
-                                   "left perturbation (planar methods fill x,y,yaw = 0,1,5); "
-                                   "converged, degenerate, inliers, iterations, rmse (m).")
+    py::class_<RegistrationResult>(
+        m, "RegistrationResult",
+        "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
+        "left perturbation (planar methods fill x,y,yaw = 0,1,5); "
+        "converged, degenerate, inliers, iterations, rmse (m).")
         .def(py::init<>())
         .def_readwrite("T_target_source", &RegistrationResult::T_target_source)
         .def_readwrite("covariance", &RegistrationResult::covariance)
@@ -53,7 +54,8 @@ void define_registration(py::module_ &m) {
         .def("__repr__", [](const RegistrationResult &r) {
             return "RegistrationResult(converged=" + std::to_string(r.converged) +
                    ", degenerate=" + std::to_string(r.degenerate) +
-                   ", inliers=" + std::to_string(r.inliers) + ", rmse=" + std::to_string(r.rmse) + ")";
+                   ", inliers=" + std::to_string(r.inliers) + ", rmse=" + std::to_string(r.rmse) +
+                   ")";
         });
 
     py::class_<ShapeRegistrationConfig>(m, "ShapeRegistrationConfig")
@@ -126,16 +128,19 @@ void define_registration(py::module_ &m) {
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
            const PairArray &pairs, const Eigen::Matrix4d &T_init,
            const ShapeRegistrationConfig &config) {
-            auto [T, inliers] = consensusPairs(source, target, toPairs(pairs), Pose3(T_init), config);
+            auto [T, inliers] =
+                consensusPairs(source, target, toPairs(pairs), Pose3(T_init), config);
             return py::make_tuple(Eigen::Matrix4d(T.matrix()), inliers);
         },
         py::arg("source"), py::arg("target"), py::arg("pairs"), py::arg("T_init"),
         py::arg("config") = ShapeRegistrationConfig(),
-        "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair indices).");
+        "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair "
+        "indices).");
 
-    py::class_<PlaneTarget>(m, "PlaneTarget",
-                            "ICP target: points (M,3) with a KD-tree and PCA normals (M,3; NaN rows "
-                            "where the neighbourhood is not planar).")
+    py::class_<PlaneTarget>(
+        m, "PlaneTarget",
+        "ICP target: points (M,3) with a KD-tree and PCA normals (M,3; NaN rows "
+        "where the neighbourhood is not planar).")
         .def(py::init([](const Eigen::Ref<const Points3> &points, int normal_k) {
                  py::gil_scoped_release release;
                  return std::make_unique<PlaneTarget>(points, normal_k);
@@ -148,8 +153,8 @@ void define_registration(py::module_ &m) {
     m.def(
         "icp_point_to_plane",
         [](const PlaneTarget &target, const Eigen::Ref<const Points3> &source,
-           const Eigen::Matrix4d &T_init, const IcpConfig &config, const Matrix6d &prior_information,
-           const Eigen::Matrix4d &T_prior) {
+           const Eigen::Matrix4d &T_init, const IcpConfig &config,
+           const Matrix6d &prior_information, const Eigen::Matrix4d &T_prior) {
             py::gil_scoped_release release;
             return icpPointToPlane(target, source, Pose3(T_init), config, prior_information,
                                    Pose3(T_prior));

@@ -47,7 +47,8 @@ sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::Matri
         st.height = r(10);
         st.bark_amp = r(11);
         for (int k = 0; k < 4; ++k)
-            st.phase[k] = 2.0 * M_PI * sim::hashUniform(sim::mixKey(seed, i), static_cast<uint64_t>(k));
+            st.phase[k] =
+                2.0 * M_PI * sim::hashUniform(sim::mixKey(seed, i), static_cast<uint64_t>(k));
     }
     std::vector<sim::Cylinder> c(cylinders.rows());
     for (Eigen::Index i = 0; i < cylinders.rows(); ++i) {
@@ -59,7 +60,8 @@ sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::Matri
         const auto r = foliage.row(i);
         f[i] = {{r(0), r(1), r(2)}, {r(3), r(4), r(5)}, r(6), static_cast<uint8_t>(r(7))};
     }
-    return sim::ForestScene(std::move(terrain), std::move(s), std::move(c), std::move(f), grid_cell_m);
+    return sim::ForestScene(std::move(terrain), std::move(s), std::move(c), std::move(f),
+                            grid_cell_m);
 }
 
 }  // namespace
@@ -136,7 +138,8 @@ void define_sim(py::module_ &m) {
                 return z;
             },
             py::arg("xy"), "Terrain height at xy (N,2) -> (N,), NaN outside the heightfield.");
-    m.attr("SIM_SURFACES") = py::make_tuple("none", "ground", "stem", "branch", "foliage", "shrub", "log");
+    m.attr("SIM_SURFACES") =
+        py::make_tuple("none", "ground", "stem", "branch", "foliage", "shrub", "log");
 }
 
 }  // namespace forestslam::python

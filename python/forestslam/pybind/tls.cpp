@@ -58,8 +58,7 @@ void define_tls(py::module_ &m) {
                     setField(cfg, key, v, "gate_decay", &C::gate_decay) ||
                     setField(cfg, key, v, "virtual_weight", &C::virtual_weight) ||
                     setField(cfg, key, v, "min_inliers", &C::min_inliers) ||
-                    setField(cfg, key, v, "converged_translation_m",
-                             &C::converged_translation_m) ||
+                    setField(cfg, key, v, "converged_translation_m", &C::converged_translation_m) ||
                     setField(cfg, key, v, "converged_rotation_rad", &C::converged_rotation_rad) ||
                     setField(cfg, key, v, "degenerate_eigen_ratio", &C::degenerate_eigen_ratio);
                 if (!ok) throw py::value_error("unknown option '" + key + "'");
