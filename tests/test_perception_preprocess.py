@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 
+from forestslam.errors import InputError
 from forestslam.perception import (
     PerceptionConfig,
     filter_normals,
+    ground_surface,
     intensity_filter,
     segment_ground,
 )
@@ -65,3 +67,27 @@ def test_adaptive_filter_keeps_far_stems_that_fixed_radius_loses(scan):
     assert on_tree(kept_fixed, far) < on_tree(kept, far) / 4
     for tree in TREES[:3]:
         assert on_tree(kept, tree) > 10
+
+
+def test_ground_surface_follows_the_slope(scan):
+    surface = ground_surface(scan.points)
+    centres = surface.cell_centres()
+    near = np.hypot(centres[:, 0], centres[:, 1]) < 20
+    assert near.sum() > 200
+    err = centres[near, 2] - (-1.8 + 0.05 * centres[near, 0])
+    # The lowest return of a 0.5 m cell on a 5 % slope: within 2 cm + range noise of the plane.
+    assert np.median(np.abs(err)) < 0.03
+    np.testing.assert_allclose(surface.height_at(centres[:, :2]), centres[:, 2])
+
+
+def test_ground_surface_of_a_map_cloud_far_from_the_origin(scan):
+    # A map cloud in UTM-like coordinates: same surface, shifted, no sensor range limit.
+    offset = np.array([470_000.0, 3_810_000.0, 2_000.0])
+    local = ground_surface(scan.points, single_scan=False)
+    utm = ground_surface(scan.points + offset, single_scan=False)
+    xy = local.cell_centres()[:, :2]
+    np.testing.assert_allclose(
+        utm.height_at(xy + offset[:2]) - offset[2], local.height_at(xy), atol=1e-6
+    )
+    with pytest.raises(InputError):
+        ground_surface(np.full((5, 3), np.nan))

@@ -10,8 +10,10 @@ DBH (SAC cylinder and robust circle fit, chosen by quality).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -181,6 +183,62 @@ def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     out = _core().perception_segment_ground(points, to_dict(config.ground))
     return np.asarray(out["is_ground"], dtype=bool)
+
+
+@dataclass(frozen=True)
+class GroundSurface:
+    """The ground filter's height grid: `z` (rows = y cells, cols = x cells) in metres, NaN where
+    unknown; cell (0, 0) spans [origin, origin + cell) in x and y."""
+
+    z: np.ndarray
+    origin: np.ndarray
+    cell: float
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray:
+        """Ground height (K,) under points xy (K,2); NaN outside the grid or in unknown cells."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        idx = np.floor((xy - self.origin) / self.cell).astype(np.int64)
+        rows, cols = self.z.shape
+        inside = (idx[:, 0] >= 0) & (idx[:, 1] >= 0) & (idx[:, 0] < cols) & (idx[:, 1] < rows)
+        out = np.full(len(xy), np.nan)
+        out[inside] = self.z[idx[inside, 1], idx[inside, 0]]
+        return out
+
+    def cell_centres(self) -> np.ndarray:
+        """(K,3) centre xy and height of every known cell."""
+        r, c = np.nonzero(np.isfinite(self.z))
+        return np.c_[
+            self.origin[0] + (c + 0.5) * self.cell,
+            self.origin[1] + (r + 0.5) * self.cell,
+            self.z[r, c],
+        ]
+
+
+def ground_surface(
+    points: np.ndarray, config: PerceptionConfig | None = None, single_scan: bool = True
+) -> GroundSurface:
+    """Ground height grid of points (N,3) from the progressive morphological filter (the DTM the
+    filter builds, holes of a few cells filled). A single scan keeps the XY range limit
+    config.ground.max_range_m around its origin; a map or TLS cloud (`single_scan=False`) has
+    none and may lie far from the origin (UTM)."""
+    config = config or PerceptionConfig()
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    finite = points[np.isfinite(points).all(axis=1)]
+    if len(finite) == 0:
+        raise InputError("ground_surface: no finite points")
+    ground = config.ground
+    shift = np.zeros(3)
+    if not single_scan:
+        # Centred so the grid indices stay small; no range limit around a sensor.
+        shift = np.r_[np.floor(finite[:, :2].mean(axis=0)), 0.0]
+        extent = float(np.abs(finite[:, :2] - shift[:2]).max()) + 1.0
+        ground = dataclasses.replace(ground, max_range_m=max(ground.max_range_m, extent))
+    out = _core().perception_segment_ground(np.ascontiguousarray(finite - shift), to_dict(ground))
+    return GroundSurface(
+        z=np.asarray(out["grid_z"], dtype=np.float64),
+        origin=np.asarray(out["grid_origin"], dtype=np.float64) + shift[:2],
+        cell=float(out["grid_cell"]),
+    )
 
 
 def filter_normals(
