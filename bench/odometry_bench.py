@@ -4,7 +4,8 @@ For each scenario (default vlp16-loop, vlp16-rough, hdl32-loop, rsm1-robot; sequ
 under data/cache/sim/, shared with the SLAM bench) runs on the same scans and stamps:
   trees   forestslam Odometry, method "trees" (perception + stems + shape-to-shape + ICP),
   fpfh    forestslam Odometry, method "fpfh", scan to scan (FPFH + RANSAC + ICP at 0.25 m),
-  kiss    KISS-ICP (PyPI) through its Python API, frame by frame with per-point times,
+  kiss    KISS-ICP (PyPI) through its Python API, frame by frame with per-point times, in its
+          default configuration (bench/kiss_baseline.py, shared with the SLAM bench),
 and prints ATE RMSE after SE(3) alignment, relative translation error % over 10 m, final drift,
 ms per scan (wall and CPU of this process; one thread; per stage: wall, CPU, and perception's
 own stages in CPU), and the ratios against the targets:
@@ -29,6 +30,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from kiss_baseline import run_kiss  # noqa: E402  (KISS-ICP defaults; shared with slam_bench)
 from sim_sequences import sensor_of, sequence  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -89,34 +91,6 @@ def run_forestslam(seq: Path, sensor: str, method: str) -> dict:
     m["stages_cpu_ms"] = {k: float(np.sum(v)) / n for k, v in cpu_stages.items()}
     m["perception_cpu_ms"] = {k: float(np.sum(v)) / n for k, v in perception.items()}
     return m
-
-
-def run_kiss(seq: Path, sensor: str) -> dict:
-    from kiss_icp.config import KISSConfig
-    from kiss_icp.kiss_icp import KissICP
-
-    from forestslam.io import read_scans
-    from forestslam.sensors import load_profile
-
-    profile = load_profile(sensor)
-    cfg = KISSConfig()
-    cfg.data.max_range = float(profile.range_max_m)
-    cfg.data.min_range = float(profile.range_min_m)
-    cfg.data.deskew = profile.kind == "spinning"
-    cfg.mapping.voxel_size = cfg.data.max_range / 100.0
-    cfg.registration.max_num_threads = 1
-    kiss = KissICP(cfg)
-    stamps, poses, wall, cpu = [], [], [], []
-    for scan in read_scans(seq / "sequence.bag"):
-        times = scan.time if scan.time is not None else np.zeros(len(scan))
-        # KISS-ICP normalises the per-point times itself (min..max -> 0..1)
-        w0, c0 = time.perf_counter(), time.process_time()
-        kiss.register_frame(scan.points, times.astype(np.float64))
-        wall.append((time.perf_counter() - w0) * 1e3)
-        cpu.append((time.process_time() - c0) * 1e3)
-        stamps.append(scan.stamp)
-        poses.append(np.asarray(kiss.last_pose).copy())
-    return evaluate(seq, stamps, poses, wall, cpu)
 
 
 def fmt(v, digits=3) -> str:
