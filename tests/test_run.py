@@ -249,3 +249,45 @@ def test_run_bad_inputs(tmp_path, monkeypatch):
         run(scans, "vlp16", tmp_path / "o", mode="fly")
     with pytest.raises(InputError):
         run(scans, "vlp16", tmp_path / "o", start=100, progress=False)  # nothing left
+
+
+def test_corrupt_message_mid_bag_is_skipped_and_counted_in_the_report(tmp_path, monkeypatch):
+    """`forestslam run` on a ROS1 bag with one truncated message: the run completes without
+    it, run.yaml counts it, the CLI's last line reports it."""
+    from rosbags.rosbag1 import Writer
+    from typer.testing import CliRunner
+
+    from forestslam.cli.main import app
+    from forestslam.io import Scan
+    from forestslam.io.bags import POINTCLOUD2, _message, _typestore
+
+    install_fake(monkeypatch)
+    n, bad = 40, 17
+    store = _typestore(True)
+    bag = tmp_path / "corrupt.bag"
+    with Writer(bag) as writer:
+        conn = writer.add_connection("/velodyne_points", POINTCLOUD2, typestore=store)
+        for k in range(n):
+            m = 50
+            scan = Scan(
+                k / RATE,
+                np.full((m, 3), float(k)),
+                np.zeros(m, np.float32),
+                np.zeros(m, np.uint16),
+                np.linspace(0.0, 0.09, m),
+            )
+            ns, msg = _message(store, True, scan, k, "velodyne")
+            raw = bytes(store.serialize_ros1(msg, POINTCLOUD2))
+            writer.write(conn, ns, raw[:200] if k == bad else raw)  # cut inside the points
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        app, ["run", str(bag), "--sensor", "vlp16", "--out", str(out), "--no-progress"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "1 corrupt messages skipped" in res.output
+    meta = yaml.safe_load((out / "run.yaml").read_text())
+    assert meta["summary"]["status"] == "complete"
+    assert meta["summary"]["scans"] == n - 1
+    assert meta["summary"]["read_stats"]["skipped"] == 1
+    stamps, _ = read_tum(out / "odometry.tum")
+    assert len(stamps) == n - 1 and not np.any(np.isclose(stamps, bad / RATE))
