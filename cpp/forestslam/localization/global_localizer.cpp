@@ -4,6 +4,8 @@
 #include <cmath>
 #include <unordered_set>
 
+#include "forestslam/common/voxel_key.hpp"
+
 namespace forestslam {
 namespace {
 
@@ -91,8 +93,7 @@ struct Hypotheses {
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
-        const uint64_t h = (uint64_t(qx) * 73856093ULL) ^ (uint64_t(qy) * 19349663ULL) ^
-                           (uint64_t(qa) * 83492791ULL);
+        const uint64_t h = cellKey3(qx, qy, qa);
         if (!seen.insert(h).second) return;
         list.push_back({pose, consensus(local, pose, grid, gate)});
         best = std::max(best, list.back().score);

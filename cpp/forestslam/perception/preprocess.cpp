@@ -9,16 +9,13 @@
 #include <limits>
 #include <unordered_map>
 
+#include "forestslam/common/voxel_key.hpp"
 #include "forestslam/perception/kdtree.hpp"
 
 namespace forestslam::perception {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-inline std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
-    return (ix << 32) ^ (iy & 0xffffffffLL);
-}
 
 inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
     return std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2));
@@ -85,12 +82,12 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
             for (int row : low)
                 if (row >= 0) cell_rows.push_back(row);
         } else {
-            std::unordered_map<std::int64_t, int> lowest;
+            std::unordered_map<std::uint64_t, int> lowest;
             lowest.reserve(usable.size() / 4 + 16);
             for (int i : usable) {
                 const auto cx = static_cast<std::int64_t>(std::floor(points(i, 0) / cell));
                 const auto cy = static_cast<std::int64_t>(std::floor(points(i, 1) / cell));
-                const auto key = cellKey(cx, cy);
+                const auto key = cellKey2(cx, cy);
                 auto [it, inserted] = lowest.emplace(key, i);
                 if (!inserted && points(i, 2) < points(it->second, 2)) it->second = i;
             }
@@ -204,33 +201,21 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
 
 Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
                    double voxel_m) {
-    std::unordered_map<std::int64_t, int> keep;
-    std::vector<int> order;
+    std::unordered_map<std::uint64_t, int> keep;
+    std::vector<std::uint64_t> order;  // keys in first-seen order: deterministic output
     const double v = voxel_m > 0 ? voxel_m : 1e-6;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         if (!is_ground[static_cast<size_t>(i)]) continue;
-        const auto ix = static_cast<std::int64_t>(std::floor(points(i, 0) / v));
-        const auto iy = static_cast<std::int64_t>(std::floor(points(i, 1) / v));
-        const auto iz = static_cast<std::int64_t>(std::floor(points(i, 2) / v));
-        const std::int64_t key = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791);
+        const std::uint64_t key = voxelKey(points(i, 0), points(i, 1), points(i, 2), v);
         auto [it, inserted] = keep.emplace(key, static_cast<int>(i));
         if (inserted)
-            order.push_back(static_cast<int>(i));
+            order.push_back(key);
         else if (points(i, 2) < points(it->second, 2))
             it->second = static_cast<int>(i);
     }
-    Points3 out(static_cast<Eigen::Index>(keep.size()), 3);
+    Points3 out(static_cast<Eigen::Index>(order.size()), 3);
     Eigen::Index k = 0;
-    for (int first : order) {
-        const auto ix = static_cast<std::int64_t>(std::floor(points(first, 0) / v));
-        const auto iy = static_cast<std::int64_t>(std::floor(points(first, 1) / v));
-        const auto iz = static_cast<std::int64_t>(std::floor(points(first, 2) / v));
-        const std::int64_t key = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791);
-        auto it = keep.find(key);
-        if (it == keep.end() || it->second < 0) continue;
-        out.row(k++) = points.row(it->second);
-        it->second = -1;
-    }
+    for (const std::uint64_t key : order) out.row(k++) = points.row(keep.at(key));
     out.conservativeResize(k, 3);
     return out;
 }
@@ -242,7 +227,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
     rows.reserve(candidates.size());
-    std::unordered_map<std::int64_t, char> voxels;
+    std::unordered_map<std::uint64_t, char> voxels;
     const double v = opt.voxel_m;
     for (int i : candidates) {
         if (!finiteRow(points, i)) continue;
@@ -251,10 +236,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
             if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
         }
         if (v > 0) {
-            const auto ix = static_cast<std::int64_t>(std::floor(points(i, 0) / v));
-            const auto iy = static_cast<std::int64_t>(std::floor(points(i, 1) / v));
-            const auto iz = static_cast<std::int64_t>(std::floor(points(i, 2) / v));
-            if (!voxels.emplace((ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791), 1).second)
+            if (!voxels.emplace(voxelKey(points(i, 0), points(i, 1), points(i, 2), v), 1).second)
                 continue;
         }
         rows.push_back(i);
