@@ -10,7 +10,7 @@
 #include <unordered_map>
 
 #include "forestslam/common/voxel_key.hpp"
-#include "forestslam/perception/kdtree.hpp"
+#include "forestslam/common/kdtree.hpp"
 
 namespace forestslam::perception {
 namespace {

@@ -7,7 +7,7 @@
 #include <numeric>
 #include <vector>
 
-#include "forestslam/perception/kdtree.hpp"
+#include "forestslam/common/kdtree.hpp"
 
 namespace forestslam {
 

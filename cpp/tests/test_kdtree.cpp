@@ -1,0 +1,81 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+#include <vector>
+
+#include "forestslam/common/kdtree.hpp"
+
+namespace fs = forestslam;
+
+namespace {
+fs::Points3 randomCloud(int n, std::mt19937 &rng) {
+    std::uniform_real_distribution<double> u(-10.0, 10.0);
+    fs::Points3 p(n, 3);
+    for (int i = 0; i < n; ++i) p.row(i) << u(rng), u(rng), 0.2 * u(rng);
+    return p;
+}
+
+// Squared distances from q to the given rows, ascending.
+std::vector<std::pair<double, int>> bruteForce(const fs::Points3 &p, const std::vector<int> &rows,
+                                               const Eigen::Vector3d &q) {
+    std::vector<std::pair<double, int>> d;
+    for (int r : rows) d.emplace_back((p.row(r).transpose() - q).squaredNorm(), r);
+    std::sort(d.begin(), d.end());
+    return d;
+}
+}  // namespace
+
+TEST(KdTree3, NearestAndKnnMatchBruteForceOnASubsetOfRows) {
+    std::mt19937 rng(7);
+    const fs::Points3 p = randomCloud(3000, rng);
+    std::vector<int> rows;
+    for (int i = 0; i < 3000; i += 3) rows.push_back(i);  // the tree sees every third row only
+    fs::KdTree3 tree;
+    tree.build(p, rows);
+    ASSERT_FALSE(tree.empty());
+    std::uniform_real_distribution<double> u(-11.0, 11.0);
+    std::vector<std::pair<double, int>> out;
+    for (int t = 0; t < 200; ++t) {
+        const Eigen::Vector3d q(u(rng), u(rng), 0.2 * u(rng));
+        const auto truth = bruteForce(p, rows, q);
+        double d2 = -1;
+        EXPECT_EQ(tree.nearest(q, 1e9, d2), truth[0].second);
+        EXPECT_DOUBLE_EQ(d2, truth[0].first);
+        ASSERT_EQ(tree.knn(q, 8, 1e9, out), 8);
+        std::sort(out.begin(), out.end());
+        for (int k = 0; k < 8; ++k) EXPECT_EQ(out[k].second, truth[k].second);
+    }
+}
+
+TEST(KdTree3, MaximumDistanceBoundsTheAnswer) {
+    std::mt19937 rng(11);
+    const fs::Points3 p = randomCloud(500, rng);
+    std::vector<int> rows(500);
+    for (int i = 0; i < 500; ++i) rows[i] = i;
+    fs::KdTree3 tree;
+    tree.build(p, rows);
+    const Eigen::Vector3d far(100.0, 100.0, 0.0);
+    double d2 = 0;
+    EXPECT_EQ(tree.nearest(far, 1.0, d2), -1);
+    std::vector<std::pair<double, int>> out;
+    EXPECT_EQ(tree.knn(far, 5, 1.0, out), 0);
+    // Within a radius: exactly the points brute force finds, even when fewer than k.
+    const Eigen::Vector3d q = p.row(17).transpose();
+    const auto truth = bruteForce(p, rows, q);
+    const double r2 = 4.0;  // about ten points
+    const auto inside =
+        std::count_if(truth.begin(), truth.end(), [&](const auto &d) { return d.first <= r2; });
+    ASSERT_GT(inside, 3);
+    EXPECT_EQ(tree.knn(q, 400, r2, out), static_cast<int>(inside));
+}
+
+TEST(KdTree3, EmptyTreeAnswersNothing) {
+    fs::KdTree3 tree;
+    tree.build(fs::Points3(0, 3), {});
+    EXPECT_TRUE(tree.empty());
+    double d2 = 0;
+    EXPECT_EQ(tree.nearest(Eigen::Vector3d::Zero(), 1.0, d2), -1);
+    std::vector<std::pair<double, int>> out;
+    EXPECT_EQ(tree.knn(Eigen::Vector3d::Zero(), 3, 1.0, out), 0);
+}
