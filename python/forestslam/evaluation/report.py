@@ -102,6 +102,9 @@ def evaluate_run(
         )
         metrics["trees"] = _plain(trees)
         metrics["trees"].update(gate_m=gate_m, min_dbh_m=min_dbh_m, max_dist_m=max_dist_m)
+    ground = _ground_metrics(run_dir, truth_dir, traj["alignment"])
+    if ground:
+        metrics["ground"] = ground
     atomic_write_text(run_dir / "metrics.json", json.dumps(metrics, indent=1))
     if plot:
         from forestslam.evaluation.plot import plot_errors
@@ -117,6 +120,28 @@ def evaluate_run(
             truth if trees is not None else None,
         )
     return metrics
+
+
+def _ground_metrics(run_dir: Path, truth_dir: Path, alignment: np.ndarray) -> dict:
+    """DTM cells and ground-map points (map3d runs) against the simulator's terrain."""
+    from forestslam.evaluation.ground import dtm_cells, height_errors, load_truth_terrain
+
+    files = {"dtm": run_dir / "dtm.npz", "ground_points": run_dir / "ground.ply"}
+    if not any(f.is_file() for f in files.values()):
+        return {}
+    terrain = load_truth_terrain(truth_dir)
+    if terrain is None:
+        return {}
+    out = {}
+    if files["dtm"].is_file():
+        out["dtm"] = height_errors(dtm_cells(files["dtm"]), alignment, terrain)
+    if files["ground_points"].is_file():
+        from forestslam.io import read_cloud
+
+        out["ground_points"] = height_errors(
+            read_cloud(files["ground_points"]).points, alignment, terrain
+        )
+    return out
 
 
 def format_table(metrics: dict) -> str:
@@ -157,6 +182,23 @@ def format_table(metrics: dict) -> str:
         rows.append(("DBH MAE", f(tr["dbh_mae_m"], " cm", 100, 2), ""))
         rows.append(("DBH RMSE", f(tr["dbh_rmse_m"], " cm", 100, 2), ""))
         rows.append(("DBH bias", f(tr["dbh_bias_m"], " cm", 100, 2), ""))
+    for name, g in metrics.get("ground", {}).items():
+        label = "DTM" if name == "dtm" else "ground points"
+        unit = "cells" if name == "dtm" else "points"
+        rows.append(
+            (
+                f"{label} vs terrain: |dz| median / p90",
+                f"{f(g['median_abs_m'], ' m')} / {f(g['p90_abs_m'], ' m')}",
+                f"{g['n']} {unit}",
+            )
+        )
+        rows.append(
+            (
+                f"{label} vs terrain: bias / RMSE",
+                f"{f(g['bias_m'], ' m')} / {f(g['rmse_m'], ' m')}",
+                "",
+            )
+        )
     w0 = max(len(r[0]) for r in rows)
     w1 = max(len(r[1]) for r in rows)
     return "\n".join(f"{a:<{w0}}  {b:>{w1}}  {c}".rstrip() for a, b, c in rows)
