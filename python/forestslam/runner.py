@@ -308,7 +308,8 @@ class Pipeline:
         kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
         ground = self.ground.build(kf_poses)
         write_cloud(self.out_dir / "ground.ply", ground)
-        dtm = dtm_grid(ground, self.cfg.mapping.dtm_cell_m, self.cfg.mapping.dtm_min_points)
+        m = self.cfg.mapping
+        dtm = dtm_grid(ground, m.dtm_cell_m, m.dtm_min_points, m.dtm_window_m, m.dtm_max_raise_m)
         write_dtm(self.out_dir, dtm)
         plot_dtm(self.out_dir / "dtm.png", dtm)
 

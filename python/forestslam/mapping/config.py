@@ -27,6 +27,10 @@ class MappingConfig:
     ground_voxel_m: float = 0.2
     dtm_cell_m: float = 0.5
     dtm_min_points: int = 2
+    # DTM cells more than dtm_max_raise_m above the grey opening over dtm_window_m (objects
+    # narrower than the window: shrubs, logs) are removed; dtm_window_m <= 0 keeps every cell.
+    dtm_window_m: float = 5.0
+    dtm_max_raise_m: float = 0.3
     # map3d: scan-to-map point-to-plane ICP refinement of keyframes on stem + ground points.
     refine_with_icp: bool = True
     icp_local_map_keyframes: int = 10

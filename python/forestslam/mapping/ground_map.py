@@ -52,8 +52,16 @@ class GroundMap:
         return voxel_downsample(np.concatenate(parts), self.voxel_m)
 
 
-def dtm_grid(points: np.ndarray, cell_m: float = 0.5, min_points: int = 2) -> dict:
-    """Mean-height grid of points (N,3): dict(z (ny,nx) with NaN holes, x0, y0, cell_m)."""
+def dtm_grid(
+    points: np.ndarray,
+    cell_m: float = 0.5,
+    min_points: int = 2,
+    window_m: float = 5.0,
+    max_raise_m: float = 0.3,
+) -> dict:
+    """Mean-height grid of points (N,3): dict(z (ny,nx) with NaN holes, x0, y0, cell_m); cells
+    raised above their surroundings are then removed (`remove_raised_cells`, off with
+    window_m <= 0)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return {"z": np.full((0, 0), np.nan), "x0": 0.0, "y0": 0.0, "cell_m": cell_m}
@@ -65,12 +73,70 @@ def dtm_grid(points: np.ndarray, cell_m: float = 0.5, min_points: int = 2) -> di
     sums = np.bincount(flat, weights=points[:, 2], minlength=nx * ny)
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.where(counts >= min_points, sums / counts, np.nan).reshape(ny, nx)
+    z = remove_raised_cells(z, cell_m, window_m, max_raise_m)
     return {
         "z": z,
         "x0": float(lo[0] + cell_m / 2),
         "y0": float(lo[1] + cell_m / 2),
         "cell_m": cell_m,
     }
+
+
+def remove_raised_cells(
+    z: np.ndarray, cell_m: float, window_m: float = 5.0, max_raise_m: float = 0.3
+) -> np.ndarray:
+    """z (ny,nx) with NaN for cells more than max_raise_m above the local ground plane: shrubs,
+    logs and stem feet that the per-scan ground filter let through.
+
+    The plane of every cell is a Gaussian-weighted least-squares fit (sigma window_m / 2) to the
+    known cells around it, fitted twice: the second fit leaves out the cells the first found
+    raised, so an object does not lift its own reference. Slopes and map edges or holes are
+    handled alike (a fitted plane extrapolates; a morphological opening would cut an uphill edge);
+    a smooth hill's curvature shifts the plane by about f'' sigma^2 / 2 (centimetres)."""
+    z = np.asarray(z, dtype=np.float64)
+    if window_m <= 0 or z.size == 0 or not np.isfinite(z).any():
+        return z
+    known = np.isfinite(z)
+    use = known.copy()
+    for _ in range(2):
+        plane = _local_plane(np.where(use, z, 0.0), use, window_m / 2.0 / cell_m)
+        use = known & ~(z - plane > max_raise_m)
+    out = z.copy()
+    out[known & (z - plane > max_raise_m)] = np.nan
+    return out
+
+
+def _local_plane(z: np.ndarray, w: np.ndarray, sigma_cells: float) -> np.ndarray:
+    """Height at every cell of the plane fitted to z where w (weights 0/1), Gaussian window of
+    sigma_cells; NaN where the window holds too little to fit a plane."""
+    from scipy.ndimage import correlate1d
+
+    r = int(np.ceil(3 * sigma_cells))
+    u = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (u / sigma_cells) ** 2)
+    kernels = {0: g, 1: u * g, 2: u * u * g}
+
+    def moment(f, px, py):  # sum over the window of w f (dx)^px (dy)^py, per cell
+        return correlate1d(
+            correlate1d(f, kernels[px], axis=1, mode="constant"),
+            kernels[py],
+            axis=0,
+            mode="constant",
+        )
+
+    wf, wz = w.astype(np.float64), z * w
+    s1, sx, sy = moment(wf, 0, 0), moment(wf, 1, 0), moment(wf, 0, 1)
+    sxx, sxy, syy = moment(wf, 2, 0), moment(wf, 1, 1), moment(wf, 0, 2)
+    sz, sxz, syz = moment(wz, 0, 0), moment(wz, 1, 0), moment(wz, 0, 1)
+    a = np.stack(
+        [np.stack([s1, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)],
+        -2,
+    )
+    b = np.stack([sz, sxz, syz], -1)
+    ok = np.linalg.det(a) > 1e-6 * np.maximum(s1, 1e-12) ** 3
+    plane = np.full(z.shape, np.nan)
+    plane[ok] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0, 0]
+    return plane
 
 
 def write_dtm(out_dir: Path, dtm: dict) -> None:
