@@ -129,6 +129,34 @@ TEST(RayPrimitives, BarkHitsLieOnTheModelledSurface) {
     EXPECT_GT(hits, 300);
 }
 
+TEST(RayPrimitives, BarkHitDoesNotDependOnTheCallersRangeLimit) {
+    // The ray caster passes its best hit so far as t_max, which depends on the order in which
+    // primitives are tested (grid cell size, bins): a stem's hit inside t_max must be the same
+    // double whatever t_max is. Rays grazing a rough stem, with t_max just past the hit (short of
+    // the inner bark envelope), at the hit and unlimited.
+    Stem s = verticalStem(0.0, 0.0, 0.12);
+    s.taper = 0.01;
+    s.bark_amp = 0.006;
+    for (int k = 0; k < 4; ++k) s.phase[k] = 0.3 + 0.9 * k;
+    const StemCoeffs coeffs(s);
+    int hits = 0;
+    for (int i = 0; i < 2000; ++i) {
+        const double offset = 0.126 * (i % 200) / 199.0;  // up to the outer bark envelope
+        const double h = 0.4 + 0.01 * i;
+        const Ray ray = makeRay({-5.0, offset, h}, {1.0, 0.0, 0.0});
+        Hit free_hit;
+        if (!intersectStem(s, coeffs, ray, kInf, free_hit)) continue;
+        ++hits;
+        for (const double t_max : {free_hit.t + 1e-4, free_hit.t + 1e-6, free_hit.t}) {
+            Hit hit;
+            ASSERT_TRUE(intersectStem(s, coeffs, ray, t_max, hit)) << "ray " << i;
+            ASSERT_EQ(hit.t, free_hit.t) << "ray " << i << " t_max " << t_max;
+            ASSERT_EQ(hit.cos_incidence, free_hit.cos_incidence);
+        }
+    }
+    EXPECT_GT(hits, 1500);
+}
+
 TEST(RayPrimitives, CappedCylinder) {
     Cylinder c{{3, -2, 0.2}, {3, 2, 0.2}, 0.2, kLog};
     Hit hit;

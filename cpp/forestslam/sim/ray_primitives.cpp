@@ -132,24 +132,29 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
     const double aq = du * du + dv * dv - k * k * dh * dh;
     const double bq_uv = 2.0 * (u0 * du + v0 * dv);
     const double cq_uv = u0 * u0 + v0 * v0;
-    // Entry into the envelope whose section scale is c - k (h - 1.3).
-    auto entry = [&](double c) {
+    // Entry into the envelope whose section scale is c - k (h - 1.3), up to t_hi.
+    auto entry = [&](double c, double t_hi) {
         const double C0 = c + k * kBreastHeight - k * h0, K = k * dh;
         auto ok = [&](double t) {
             const double h = h0 + t * dh;
             return h >= stem.h_bottom && h <= stem.height && C0 - K * t > 0.0;
         };
-        return enteringRoot(aq, bq_uv + 2.0 * C0 * K, cq_uv - C0 * C0, t_lo, t_max, ok);
+        return enteringRoot(aq, bq_uv + 2.0 * C0 * K, cq_uv - C0 * C0, t_lo, t_hi, ok);
     };
     const double r_mean = 0.5 * (stem.semi_a + stem.semi_b);
     const double eps = stem.bark_amp / r_mean;
     double t_hit;
     if (eps <= 0.0) {
-        t_hit = entry(1.0);
+        t_hit = entry(1.0, t_max);
         if (t_hit == kInf) return false;
     } else {
-        const double t_out = entry(1.0 + eps);
+        const double t_out = entry(1.0 + eps, t_max);
         if (t_out == kInf) return false;
+        // Past the outer envelope's entry the root is solved over the ray's whole range, not up
+        // to t_max: the hit is then the same whatever the caller's current best (casts do not
+        // depend on the order in which primitives are tested), and compared with t_max at the
+        // end.
+        const double t_far = std::max(ray.t_max, t_max);
         // g(t) = rho - (s(h) + eps n): > 0 outside the bark surface, < 0 inside; dg = dg/dt.
         auto g = [&](double t, double &dg) {
             const double u = u0 + t * du, v = v0 + t * dv, h = h0 + t * dh;
@@ -164,12 +169,12 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
             dg = (u * du + v * dv) / rho + k * dh - eps * (dn_daz * daz_dt + dn_dh * dh);
             return rho - (stem.radiusScale(h) + eps * n);
         };
-        double t_in = entry(1.0 - eps);
+        double t_in = entry(1.0 - eps, t_far);
         if (t_in == kInf) {
             // Grazing ray: bracket at its closest approach to the axis, if that is inside.
             const double duv = du * du + dv * dv;
             if (duv < 1e-18) return false;
-            t_in = std::min(std::max(-(u0 * du + v0 * dv) / duv, t_out), t_max);
+            t_in = std::min(std::max(-(u0 * du + v0 * dv) / duv, t_out), t_far);
             const double h = h0 + t_in * dh;
             double dg;
             if (h < stem.h_bottom || h > stem.height || g(t_in, dg) > 0.0) return false;
@@ -177,7 +182,7 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
         // Newton on the bracket g(lo) >= 0 >= g(hi) (the envelopes' entries), bisecting when a
         // step leaves it; starts at the smooth section's entry, a bark amplitude from the root.
         double lo = t_out, hi = t_in;
-        double t = entry(1.0);
+        double t = entry(1.0, t_far);
         if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
         t_hit = hi;
         for (int it = 0; it < 40; ++it) {
