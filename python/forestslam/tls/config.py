@@ -14,9 +14,6 @@ class FeatureConfig:
     sigma_small_m: float = 0.15
     sigma_large_m: float = 0.30
     nms_radius_m: float = 0.6
-    # At most this many stem centres (virtual features) per frame, spread over the stems and
-    # levels: their pairing dominates the LM cost, which must not grow with the stand density.
-    max_virtual_features: int = 200
     min_diameter_m: float = 0.06
     max_diameter_m: float = 1.0
     # Ground samples (real features, see features.ground_samples): lowest point per cell.

@@ -98,17 +98,9 @@ def frame_features(
         nms_radius_m=config.nms_radius_m,
         max_keypoints=config.max_keypoints,
     )
-    centres = np.asarray(vf["centres"]).reshape(-1, 3)
-    radii = np.asarray(vf["radii"], dtype=np.float64)
-    n_max = max(0, config.max_virtual_features)
-    if len(centres) > n_max:
-        # Evenly over stems, then levels: order by (stem, level) and take every k-th.
-        order = np.lexsort((np.asarray(vf["levels"]), np.asarray(vf["stem_ids"])))
-        pick = order[np.linspace(0, len(order) - 1, n_max).astype(np.int64)] if n_max else []
-        centres, radii = centres[pick].reshape(-1, 3), radii[pick]
     return FrameFeatures(
-        centres=np.ascontiguousarray(centres),
-        radii=np.ascontiguousarray(radii),
+        centres=np.asarray(vf["centres"]).reshape(-1, 3),
+        radii=np.asarray(vf["radii"], dtype=np.float64),
         stems=np.asarray(vf["stems"]).reshape(-1, 3),
         stem_radii=np.asarray(vf["stem_radii"], dtype=np.float64),
         keypoints=np.asarray(kp).reshape(-1, 3),
