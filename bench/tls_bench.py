@@ -3,8 +3,7 @@
 Simulated (forestslam.sim scenarios tls-plot + mls-plot, cached under data/cache/sim/):
 proposed (NDT initial pose + stem-centre LM frame-to-map) vs NDT only (frame-to-frame chain)
 vs point-to-plane ICP only (frame-to-map, same NDT initial poses, the registration engineer's
-icp_point_to_plane), on the same frames and the same deskewed points (the proposed method's
-per-frame deskew): trajectory error vs truth, stem position deviation of
+icp_point_to_plane), on the same frames: trajectory error vs truth, stem position deviation of
 the MLS-only map vs stems of the TLS reference and of the merged map vs truth, vertical error
 of ground points vs the true terrain, DBH RMSE, stem coverage at breast height (TLS alone vs
 merged), and CPU ms per frame for features + LM (one core).
@@ -186,8 +185,6 @@ def run_simulated(args, out: Path) -> dict:
             "trans_err_mean_m": float(np.mean(te)),
             "trans_err_median_m": float(np.median(te)),
             "trans_err_max_m": float(np.max(te)),
-            # Frames a method kept on track: within 10 cm and 1 deg of the truth.
-            "frames_tracked": int(np.sum((np.array(te) < 0.10) & (np.array(re) < 1.0))),
             "rot_err_mean_deg": float(np.mean(re)),
             "stem_dev_mls_vs_tls_mean_m": float(np.mean(dev)) if len(dev) else None,
             "stems_matched": int(len(dev)),
@@ -344,49 +341,6 @@ def run_real(out: Path) -> dict:
     }
 
 
-def print_table(sim: dict) -> None:
-    """The side-by-side comparison and the acceptance figures in a few readable lines."""
-    print(
-        f"{'method':10s} {'frames':>6s} {'tracked':>7s} {'te mean':>8s} {'te med':>7s} "
-        f"{'te max':>7s} {'re mean':>7s} {'stem dev':>8s} {'stems':>5s} {'ground |dz|':>11s} "
-        f"{'bias':>6s}"
-    )
-    for name, m in sim["methods"].items():
-        dev = m["stem_dev_mls_vs_tls_mean_m"]
-        print(
-            f"{name:10s} {m['frames']:6d} {m['frames_tracked']:7d} "
-            f"{m['trans_err_mean_m'] * 100:7.1f}c {m['trans_err_median_m'] * 100:6.1f}c "
-            f"{m['trans_err_max_m'] * 100:6.0f}c {m['rot_err_mean_deg']:6.2f}d "
-            f"{'-' if dev is None else f'{dev * 100:.2f}c':>8s} {m['stems_matched']:5d} "
-            f"{m['ground_vertical_err_mean_abs_m'] * 100:10.2f}c "
-            f"{m['ground_vertical_err_bias_m'] * 100:5.2f}c"
-        )
-    mm, tls, cov, sp = sim["merged_map"], sim["tls_alone"], sim["coverage"], sim["speed"]
-    print(
-        f"merged map: stems {mm['stems_matched_truth']}/{mm['stems_detected']} matched, "
-        f"position error mean {mm['stem_position_err_mean_m'] * 100:.2f} cm, DBH RMSE "
-        f"{mm['dbh_rmse_m'] * 100:.2f} cm, ground |dz| mean "
-        f"{mm['ground_vertical_err_mean_abs_m'] * 100:.2f} cm (MLS part "
-        f"{mm['mls_only_ground_vertical_err_mean_abs_m'] * 100:.2f} cm, RMS "
-        f"{mm['mls_only_ground_vertical_err_rms_m'] * 100:.2f} cm)"
-    )
-    print(
-        f"TLS alone: stems {tls['stems_matched_truth']}, position error mean "
-        f"{tls['stem_position_err_mean_m'] * 100:.2f} cm, DBH RMSE {tls['dbh_rmse_m'] * 100:.2f} cm"
-    )
-    print(
-        f"coverage at breast height: TLS alone {cov['tls_alone_mean']:.3f}, merged "
-        f"{cov['merged_mean']:.3f}; accepted frames {sim['accepted_frames']}/"
-        f"{sim['frames_registered']}"
-    )
-    print(
-        f"CPU ms per frame: features {sp['features_ms_mean']:.1f} + LM {sp['lm_ms_mean']:.1f} = "
-        f"{sp['features_lm_ms_mean']:.1f} (p95 {sp['features_lm_ms_p95']:.1f}); NDT "
-        f"{sp['ndt_ms_mean']:.1f}, target {sp['target_ms_mean']:.1f}, all {sp['all_ms_mean']:.1f}; "
-        f"load {sp['load_average_1_5_15']}"
-    )
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100000, help="first N MLS frames")
@@ -407,7 +361,6 @@ def main() -> None:
     if not args.skip_sim:
         report["simulated"] = run_simulated(args, args.out)
         print(json.dumps(report["simulated"], indent=1))
-        print_table(report["simulated"])
     (args.out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}/report.json")
 

@@ -428,7 +428,6 @@ def register_mls_to_tls(
             if _trusted(lm2, T_vel, config):
                 lm, good, fallback, T_check = lm2, True, True, T_vel
         sweep = np.zeros(6)
-        relocalized = False
         if config.registration.sweep_twist and times is not None and not lm["degenerate"]:
             refined = _sweep_refine(lm, feats, points, times, t_mid, lm_at, config)
             if refined is not None and _trusted(refined[0], T_check, config):
@@ -450,7 +449,7 @@ def register_mls_to_tls(
                 if _trusted(lm2, None, config) and _stems_on_reference(
                     feats, lm2["T_target_source"], ref_stems, config
                 ):
-                    lm, good, fallback, relocalized = lm2, True, True, True
+                    lm, good, fallback = lm2, True, True
                     log.info("frame %d at %.3f: relocalized on the reference stems", index, t_ref)
         # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
         # paper); else the initial pose. Only trusted frames join the map.
@@ -475,12 +474,8 @@ def register_mls_to_tls(
         # registered onto earlier wrongly placed frames must not spread the error.
         if ref_stems is None:
             ref_stems = reference_stems(ref, config.features)
-        # A relocalized frame restarts the tracking but does not join the map itself: only the
-        # frames tracked from it that agree with the reference (a coarse placement of a frame
-        # distorted by its motion can be off by decimetres and still look trusted).
-        on_reference = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
-        accepted = on_reference and not relocalized
-        lost = 0 if on_reference else lost + 1
+        accepted = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
+        lost = 0 if accepted else lost + 1
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
