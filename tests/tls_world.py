@@ -58,20 +58,3 @@ def mls_frame(trees: np.ndarray, T_tls_sensor: np.ndarray, stamp: float, seed: i
     frame_trees = np.column_stack([local, trees[:, 2]])
     scan = synthetic_scan("vlp16", frame_trees, sensor_height_m=MLS_HEIGHT_M, seed=seed)
     return Scan(stamp, scan.points, scan.intensity, scan.ring, scan.time)
-
-
-def skewed(scan: Scan, twist: np.ndarray, sweep_s: float = 0.1) -> Scan:
-    """The scan as a spinning sensor moving with the body twist (6,) per second (translation,
-    rotation vector) from its stamp would measure it: each point in the sensor frame at its
-    own time (azimuth sweep of sweep_s from the stamp, firing groups of 1 ms), with times."""
-    from forestslam.odometry.deskew import se3_exp
-
-    p = scan.points
-    t = (np.arctan2(p[:, 1], p[:, 0]) + np.pi) / (2 * np.pi) * sweep_s
-    t = np.round(t / 1e-3) * 1e-3
-    out = np.empty_like(p)
-    for tk in np.unique(t):
-        m = t == tk
-        T_inv = np.linalg.inv(se3_exp(twist * tk))
-        out[m] = p[m] @ T_inv[:3, :3].T + T_inv[:3, 3]
-    return Scan(scan.stamp, out, scan.intensity, scan.ring, t)

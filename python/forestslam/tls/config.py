@@ -65,11 +65,6 @@ class RegistrationConfig:
     # Spinning scans with per-point time are deskewed (constant velocity from the last two
     # frames) to the middle of their sweep and registered there.
     deskew: bool = True
-    # The motion during each sweep is estimated from the frame itself (its two half-sweeps
-    # registered separately, see tls.sweep) and the frame re-registered deskewed with it; kept
-    # when that fits the map at least as well. Needs per-point times (spinning scans).
-    sweep_twist: bool = True
-    sweep_lm_rounds: int = 5  # correspondence rounds of the half-sweep and refined LMs
     lm_converged_translation_m: float = 1e-3  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: float = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
@@ -90,11 +85,6 @@ class RegistrationConfig:
     # lost and each frame is also placed afresh by the coarse stem alignment (then LM; kept
     # when trusted with its stems on the reference's stems).
     relocalize_after_frames: int = 3
-    # The velocity (deskew, NDT guess, prediction) is only used while it is fresh: measured
-    # between two consecutive trusted frames at most this long ago. A stale velocity (e.g. the
-    # turn rate at the moment tracking was lost) would keep distorting every later frame by
-    # its deskew and send the prediction around in circles, so tracking could never recover.
-    max_velocity_age_s: float = 0.5
 
 
 @dataclass

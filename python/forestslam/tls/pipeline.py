@@ -218,14 +218,8 @@ def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
     return True
 
 
-def _lm(core, target, feats, T_init, config: TlsConfig, **options) -> dict:
+def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
     reg = config.registration
-    options = {
-        "max_rounds": reg.lm_max_rounds,
-        "converged_translation_m": reg.lm_converged_translation_m,
-        "converged_rotation_rad": reg.lm_converged_rotation_rad,
-        **options,
-    }
     return core.register_stem_centre_lm(
         target,
         feats.centres,
@@ -235,32 +229,10 @@ def _lm(core, target, feats, T_init, config: TlsConfig, **options) -> dict:
         virtual_gate_m=reg.lm_virtual_gate_m,
         plane_gate_m=reg.lm_plane_gate_m,
         robust_scale_m=reg.lm_robust_scale_m,
-        **options,
+        max_rounds=reg.lm_max_rounds,
+        converged_translation_m=reg.lm_converged_translation_m,
+        converged_rotation_rad=reg.lm_converged_rotation_rad,
     )
-
-
-def _sweep_refine(lm: dict, feats, points, times, t_mid: float, lm_at, config: TlsConfig):
-    """The frame re-registered after deskewing its features with the motion during its sweep
-    (estimated from its two half-sweeps, see tls.sweep) -> (LM result, deskewed features,
-    twist (6,)) or None when the in-sweep motion cannot be estimated."""
-    from forestslam.tls.features import FrameFeatures
-    from forestslam.tls.sweep import deskew_features, estimate_sweep_twist, sweep_feature_times
-
-    rounds = config.registration.sweep_lm_rounds
-    st = sweep_feature_times(feats, points, times, t_mid)
-    T0 = np.asarray(lm["T_target_source"])
-
-    def half_lm(T_start, centres, radii, real):
-        k = min(len(real), len(feats.keypoints))
-        half = FrameFeatures(centres, radii, feats.stems, feats.stem_radii, real[:k], real[k:])
-        return lm_at(T_start, feats=half, max_rounds=rounds, coarse_gate_factor=1.0)
-
-    twist = estimate_sweep_twist(half_lm, feats, st, T0)
-    if twist is None or not np.all(np.isfinite(twist)):
-        return None
-    moved = deskew_features(feats, st, twist)
-    result = lm_at(T0, feats=moved, max_rounds=rounds, coarse_gate_factor=1.0)
-    return result, moved, twist
 
 
 def _coarse_initial_pose(
@@ -330,7 +302,6 @@ def register_mls_to_tls(
     # Velocity: body-frame twist (6,) per second (translation, rotation vector) between the
     # mid-sweep frames of the last two consecutive frames; t_prev the previous mid-sweep time.
     twist = np.zeros(6)
-    t_twist = None  # mid-sweep time of the frame that gave the twist
     t_prev = None
     seen = 0
     method = "given" if initial_pose is not None else "stems"
@@ -350,20 +321,18 @@ def register_mls_to_tls(
         t_mid = 0.0 if times is None else float(0.5 * (times.min() + times.max()))
         t_ref = float(scan.stamp) + t_mid
         dt = 0.0 if t_prev is None else max(t_ref - t_prev, 1e-6)
-        if t_twist is None or t_ref - t_twist > config.registration.max_velocity_age_s:
-            twist = np.zeros(6)  # stale: no deskew, no extrapolation over a long gap
         t0 = time.process_time()
         if times is not None and t_prev is not None and np.any(twist):
             points = deskew_points(points, times - t_mid, twist)
         feats = frame_features(points, rings, config.features)
         ms = {"features": (time.process_time() - t0) * 1e3, "ndt": 0.0, "target": 0.0, "lm": 0.0}
 
-        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms, **options) -> dict:
+        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms) -> dict:
             """LM of this frame from T_start against the map target cropped around it."""
             t0 = time.process_time()
             target, _ = gmap.target_at(T_start[:2, 3], _z_range(points, T_start))
             t1 = time.process_time()
-            result = _lm(core, target, feats, T_start, config, **options)
+            result = _lm(core, target, feats, T_start, config)
             ms["target"] += (t1 - t0) * 1e3
             ms["lm"] += (time.process_time() - t1) * 1e3
             return result
@@ -410,7 +379,6 @@ def register_mls_to_tls(
 
         lm = lm_at(T_init)
         good = _trusted(lm, T_pred, config)
-        T_check = T_pred  # the prediction the LM's correction is checked against
         fallback = False
         if not good and T_good is not None and config.registration.initial_pose != "ndt":
             # Fallback: NDT against the previous frame, chained onto its pose.
@@ -419,24 +387,14 @@ def register_mls_to_tls(
                 T_init = T_ndt
                 lm2 = lm_at(T_ndt)
                 if _trusted(lm2, T_ndt, config):
-                    lm, good, fallback, T_check = lm2, True, True, T_ndt
+                    lm, good, fallback = lm2, True, True
         elif not good and T_good is not None:
             # Fallback of the NDT mode (NDT can fail at sharp turns): the constant-velocity
-            # prediction from the last trusted pose (no extrapolation once the velocity is stale).
+            # prediction from the last trusted pose.
             T_vel = T_good @ se3_exp(twist * max(t_ref - t_good, 0.0))
             lm2 = lm_at(T_vel)
             if _trusted(lm2, T_vel, config):
-                lm, good, fallback, T_check = lm2, True, True, T_vel
-        sweep = np.zeros(6)
-        if config.registration.sweep_twist and times is not None and not lm["degenerate"]:
-            refined = _sweep_refine(lm, feats, points, times, t_mid, lm_at, config)
-            if refined is not None and _trusted(refined[0], T_check, config):
-                lm_s, feats_s, sweep = refined
-                if not good or lm_s["real_rms_m"] <= lm["real_rms_m"]:
-                    lm, good, feats = lm_s, True, feats_s
-                    points = deskew_points(points, times - t_mid, sweep)
-                else:
-                    sweep = np.zeros(6)
+                lm, good, fallback = lm2, True, True
         if T_good is not None and lost >= config.registration.relocalize_after_frames:
             # Tracking lost (the last frames did not join the map: untrusted, or trusted but
             # their stems off the reference's): place the frame afresh by its stems on the
@@ -480,15 +438,14 @@ def register_mls_to_tls(
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
             centres.append(feats.centres @ T[:3, :3].T + T[:3, 3])
-        twist_used = twist + sweep  # the frame's total deskew (prior, then in-sweep residual)
+        twist_used = twist.copy()
         # The velocity (NDT guess, prediction and deskew) only from two consecutive trusted
         # poses: a bad pose would distort the next frames through the deskew.
         if T_prev is not None and good and prev_good:
             twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
-            t_twist = t_ref
         record = FrameRecord(
             stamp=float(scan.stamp),
-            T_tls_sensor=np.asarray(T @ se3_exp(-(twist_used if np.any(sweep) else twist) * t_mid)),
+            T_tls_sensor=np.asarray(T @ se3_exp(-twist * t_mid)),
             accepted=bool(accepted),
             converged=bool(lm["converged"]),
             degenerate=bool(lm["degenerate"]),
