@@ -50,6 +50,7 @@ test: install
 	$(VENV)/bin/ctest --test-dir $(BUILD_DIR)/cpp --output-on-failure -j2
 	$(VPY) -m pytest -q
 	$(VENV)/bin/ruff check python tests bench
+	$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
 
 CPP_FILES = $(shell git ls-files 'cpp/*.cpp' 'cpp/*.hpp' 'python/forestslam/pybind/*.cpp' \
 	'python/forestslam/pybind/*.hpp')

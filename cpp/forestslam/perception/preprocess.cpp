@@ -9,8 +9,8 @@
 #include <limits>
 #include <unordered_map>
 
-#include "forestslam/common/voxel_key.hpp"
 #include "forestslam/common/kdtree.hpp"
+#include "forestslam/common/voxel_key.hpp"
 
 namespace forestslam::perception {
 namespace {
