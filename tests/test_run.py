@@ -234,6 +234,9 @@ def test_killed_run_leaves_valid_outputs(tmp_path):
     assert len(read_tum(out / "odometry.tum")[0]) == len(stamps)
     meta = yaml.safe_load((out / "run.yaml").read_text())
     assert meta["summary"]["status"] == "running"
+    # Counts as of the last checkpoint (run.yaml follows the trajectory, so it may lag one).
+    assert 20 <= meta["summary"]["scans"] <= len(stamps) and meta["summary"]["scans"] % 20 == 0
+    assert meta["summary"]["read_stats"]
     # A kill inside a write may leave a hidden `.name.XXXX.tmp`; the next run removes it.
 
 

@@ -372,6 +372,17 @@ def run(
     t0, c0 = time.perf_counter(), time.process_time()
     scans = itertools.islice(stream, max_scans)  # read_scans skipped `start` undecoded
     bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
+
+    def update_summary() -> None:
+        summary.wall_s = time.perf_counter() - t0
+        summary.scans = pipe.n
+        summary.failed_scans = pipe.failed
+        summary.degraded_scans = pipe.degraded
+        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+        summary.cpu_s = time.process_time() - c0
+        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
+        summary.read_stats = stream.stats.to_dict()
+
     try:
         for scan in scans:
             pipe.process(scan)
@@ -380,6 +391,8 @@ def run(
                 bar.set_postfix(trees=pipe.slam.n_landmarks, refresh=False)
             if pipe.n and pipe.n % every == 0:
                 pipe.write(final=False)
+                update_summary()  # a killed run's run.yaml then has counts up to here
+                write_meta()
         summary.status = "complete"
     except KeyboardInterrupt:
         summary.status = "interrupted"
@@ -389,14 +402,7 @@ def run(
         raise
     finally:
         bar.close()
-        summary.wall_s = time.perf_counter() - t0
-        summary.scans = pipe.n
-        summary.failed_scans = pipe.failed
-        summary.degraded_scans = pipe.degraded
-        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
-        summary.cpu_s = time.process_time() - c0
-        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
-        summary.read_stats = stream.stats.to_dict()
+        update_summary()
         if pipe.n:
             table = pipe.write(final=True)
             summary.trees = len(table.get("id", []))
