@@ -174,6 +174,17 @@ def fmt(v, digits=3) -> str:
     return f"{v:.{digits}f}"
 
 
+def print_trajectory_columns(ours: dict, other: dict, other_label: str) -> None:
+    """ATE, RPE and final drift of our SLAM beside another trajectory's."""
+    print(f"  {'':<18}{'SLAM':>10}{other_label:>10}")
+    for label, key, digits in (
+        ("ATE RMSE [m]", "ate_rmse_m", 3),
+        ("RPE 10 m [%]", "rpe_percent_10m", 2),
+        ("final drift [m]", "final_drift_m", 3),
+    ):
+        print(f"  {label:<18}{fmt(ours.get(key), digits):>10}{fmt(other.get(key), digits):>10}")
+
+
 def scenario(name: str, seq: Path) -> dict:
     """forestslam's main job on one scenario: its figures printed and its checks."""
     print(f"== {name} (load {load()})", flush=True)
@@ -181,13 +192,7 @@ def scenario(name: str, seq: Path) -> dict:
     ours = run_ours(seq, sensor, CACHE / "bench-slam" / name)
     m, s = ours["metrics"], ours["summary"]
     t, o, tr = m["trajectory"], m.get("odometry", {}), m.get("trees", {})
-    print(f"  {'':<18}{'SLAM':>10}{'odometry':>10}")
-    for label, key, digits in (
-        ("ATE RMSE [m]", "ate_rmse_m", 3),
-        ("RPE 10 m [%]", "rpe_percent_10m", 2),
-        ("final drift [m]", "final_drift_m", 3),
-    ):
-        print(f"  {label:<18}{fmt(t.get(key), digits):>10}{fmt(o.get(key), digits):>10}")
+    print_trajectory_columns(t, o, "odometry")
     dbh = {key: tr.get(key) for key in ("dbh_mae_m", "dbh_rmse_m", "dbh_bias_m")}
     cm = {key: None if v is None else v * 100 for key, v in dbh.items()}
     print(
@@ -224,13 +229,7 @@ def add_kiss(name: str, seq: Path, r: dict, mode: str) -> None:
     t = r["ours"]["metrics"]["trajectory"]
     r["kiss"], r["ratio"] = k, t["ate_rmse_m"] / max(k["ate_rmse_m"], 1e-9)
     r["checks"]["ATE<=0.5xKISS"] = r["ratio"] <= 0.5
-    print(f"  {'':<18}{'SLAM':>10}{'KISS-ICP':>10}")
-    for label, key, digits in (
-        ("ATE RMSE [m]", "ate_rmse_m", 3),
-        ("RPE 10 m [%]", "rpe_percent_10m", 2),
-        ("final drift [m]", "final_drift_m", 3),
-    ):
-        print(f"  {label:<18}{fmt(t.get(key), digits):>10}{fmt(k.get(key), digits):>10}")
+    print_trajectory_columns(t, k, "KISS-ICP")
     kiss_rate = 1e3 / k["cpu_ms_per_scan"] if k["cpu_ms_per_scan"] > 0 else None
     print(f"  {'scans/CPU s':<18}{fmt(r['ours']['cpu_scans_per_s'], 1):>10}{fmt(kiss_rate, 2):>10}")
     print(
