@@ -50,7 +50,8 @@ test: install
 	$(VENV)/bin/ctest --test-dir $(BUILD_DIR)/cpp --output-on-failure -j2
 	$(VPY) -m pytest -q
 	$(VENV)/bin/ruff check python tests bench
-	$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
+	@echo "clang-format --dry-run -Werror on $(words $(CPP_FILES)) C++ files"
+	@$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
 
 CPP_FILES = $(shell git ls-files 'cpp/*.cpp' 'cpp/*.hpp' 'python/forestslam/pybind/*.cpp' \
 	'python/forestslam/pybind/*.hpp')
@@ -58,7 +59,8 @@ CPP_FILES = $(shell git ls-files 'cpp/*.cpp' 'cpp/*.hpp' 'python/forestslam/pybi
 lint: install
 	$(VENV)/bin/ruff check python tests bench
 	$(VENV)/bin/ruff format --check python tests bench
-	$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
+	@echo "clang-format --dry-run -Werror on $(words $(CPP_FILES)) C++ files"
+	@$(VENV)/bin/clang-format --dry-run -Werror $(CPP_FILES)
 
 format: install
 	$(VENV)/bin/ruff format python tests bench
