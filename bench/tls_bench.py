@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from forestslam import _core
+from forestslam.evaluation.ground import load_truth_terrain, vertical_errors
 from forestslam.io import read_cloud, read_scans, read_tum
 from forestslam.odometry.deskew import deskew_points
 from forestslam.tls import TlsConfig, register_mls_to_tls
@@ -95,16 +96,11 @@ def ground_errors(points_world: np.ndarray, terrain) -> np.ndarray:
     within GROUND_WINDOW_M of the true terrain count as ground returns (the simulated scene has
     no objects that low besides the ground, and registration errors are far below the window),
     their error is z minus the true terrain height."""
-    if len(points_world) == 0:
-        return np.zeros(0)
-    e = points_world[:, 2] - terrain.height_at(points_world[:, :2])
+    e = vertical_errors(points_world, terrain)
     return e[np.abs(e) < GROUND_WINDOW_M]
 
 
 def run_simulated(args, out: Path) -> dict:
-    from forestslam.sim.scenarios import load_scenario
-    from forestslam.sim.world import build_world
-
     tls_dir, mls_dir = simulated("tls-plot"), simulated("mls-plot")
     ref = read_cloud(tls_dir / "reference.laz").points
     _, station = read_tum(tls_dir / "truth" / "trajectory.tum")
@@ -113,7 +109,11 @@ def run_simulated(args, out: Path) -> dict:
     gt_stamps, gt_poses = read_tum(mls_dir / "truth" / "trajectory.tum")
     trees_csv = np.genfromtxt(mls_dir / "truth" / "trees.csv", delimiter=",", names=True)
     truth_xy_world = np.column_stack([trees_csv["x"], trees_csv["y"]])
-    terrain = build_world(load_scenario("mls-plot")).terrain
+    # The terrain of the cached sequence itself (its truth scenario), not of today's named
+    # scenario: the cache is kept while the scenario file may have changed since.
+    terrain = load_truth_terrain(mls_dir / "truth")
+    if terrain is None:
+        raise SystemExit(f"{mls_dir / 'truth'}: no scenario.yaml to rebuild the terrain from")
 
     scans = []
     for k, scan in enumerate(with_rings(read_scans(mls_dir / "sequence.bag"), "vlp16")):

@@ -40,14 +40,19 @@ def dtm_cells(dtm_path: str | Path) -> np.ndarray:
     return np.column_stack([x0 + c * cell, y0 + r * cell, z[r, c]])
 
 
+def vertical_errors(points_world: np.ndarray, terrain) -> np.ndarray:
+    """z minus the terrain height under each point (K,3) of the truth frame; finite ones only."""
+    points_world = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    dz = points_world[:, 2] - terrain.height_at(points_world[:, :2])
+    return dz[np.isfinite(dz)]
+
+
 def height_errors(points: np.ndarray, alignment: np.ndarray, terrain) -> dict:
     """Vertical errors of points (K,3) in the estimate frame, moved by `alignment` (4,4)
     estimate -> truth, against the terrain: n, median_abs_m, bias_m (median signed), rmse_m,
     p90_abs_m (None when there are no points)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    world = points @ alignment[:3, :3].T + alignment[:3, 3]
-    dz = world[:, 2] - terrain.height_at(world[:, :2])
-    dz = dz[np.isfinite(dz)]
+    dz = vertical_errors(points @ alignment[:3, :3].T + alignment[:3, 3], terrain)
     if len(dz) == 0:
         return {"n": 0, "median_abs_m": None, "bias_m": None, "rmse_m": None, "p90_abs_m": None}
     return {
