@@ -254,18 +254,15 @@ def real_mls(out: Path) -> None:
 
 def rigid_icp(source: np.ndarray, target: np.ndarray, iterations: int = 40, keep: float = 0.5):
     """T_target_source (4,4) by trimmed point-to-point ICP (the closer `keep` share of pairs)."""
+    from forestslam.evaluation import umeyama
+
     tree = cKDTree(target)
     T = np.eye(4)
     for _ in range(iterations):
         moved = source @ T[:3, :3].T + T[:3, 3]
         d, j = tree.query(moved)
         near = d <= np.quantile(d, keep)
-        x, y = moved[near], target[j[near]]
-        u, _, vt = np.linalg.svd((x - x.mean(0)).T @ (y - y.mean(0)))
-        r = vt.T @ np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
-        step = np.eye(4)
-        step[:3, :3], step[:3, 3] = r, y.mean(0) - r @ x.mean(0)
-        T = step @ T
+        T = umeyama(moved[near], target[j[near]]) @ T
     return T
 
 
