@@ -157,8 +157,36 @@ class _BagSource:
     def __len__(self) -> int:
         return next(t.count for t in self._topics if t.name == self.topic)
 
-    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+    def _open(self):
+        """The rosbags reader of this storage (a context manager)."""
         raise NotImplementedError
+
+    def _can_walk(self) -> bool:
+        """Whether a salvage walk can resume after a damaged chunk of this storage."""
+        return True
+
+    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        if self._salvage is not None:
+            yield from self._salvaged(self._salvage)
+            return
+        done: list[int] = []  # stamps already yielded (to resume after a damaged chunk)
+        with self._open() as reader:
+            conns = [c for c in reader.connections if c.topic == self.topic]
+            try:
+                for _conn, time_ns, raw in reader.messages(connections=conns):
+                    yield time_ns, raw
+                    done.append(time_ns)
+                return
+            except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
+                failure = exc
+        if not self._can_walk():
+            self.stats.skipped += max(len(self) - len(done), 0)
+            line = f"{self.path}: damaged storage, stopped reading ({failure})"
+            self.stats.warnings.append(line)
+            log.warning(line)
+            return
+        # rosbags stops at a chunk it cannot read: walk the file and resume after that chunk.
+        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
 
     def _read_topics(self) -> list[TopicInfo]:
         raise NotImplementedError
@@ -235,14 +263,14 @@ class Ros1BagSource(_BagSource):
     format = "ros1"
 
     def _read_topics(self) -> list[TopicInfo]:
-        from rosbags.rosbag1 import Reader, ReaderError
+        from rosbags.rosbag1 import ReaderError
 
         from forestslam.io import ros1_salvage
 
         self._store = _typestore(True)
         self._salvage = None
         try:
-            with Reader(self.path) as reader:
+            with self._open() as reader:
                 return [
                     TopicInfo(name, info.msgtype or "?", info.msgcount)
                     for name, info in sorted(reader.topics.items())
@@ -274,24 +302,10 @@ class Ros1BagSource(_BagSource):
         for _conn, time_ns, raw in salvage.messages(conns):
             yield time_ns, raw
 
-    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
-        if self._salvage is not None:
-            yield from self._salvaged(self._salvage)
-            return
+    def _open(self):
         from rosbags.rosbag1 import Reader
 
-        done: list[int] = []  # stamps already yielded (to resume after a damaged chunk)
-        with Reader(self.path) as reader:
-            conns = [c for c in reader.connections if c.topic == self.topic]
-            try:
-                for _conn, time_ns, raw in reader.messages(connections=conns):
-                    yield time_ns, raw
-                    done.append(time_ns)
-                return
-            except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
-                failure = exc
-        # rosbags stops at a chunk it cannot read: walk the bag and resume after that chunk.
-        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
+        return Reader(self.path)
 
     def _deserialize(self, raw):
         return self._store.deserialize_ros1(raw, POINTCLOUD2)
@@ -335,6 +349,9 @@ class Ros2BagSource(_BagSource):
             t.count += ch.count
         return sorted(by_topic.values(), key=lambda t: t.name)
 
+    def _can_walk(self) -> bool:
+        return self._is_mcap_file()
+
     def _is_mcap_file(self) -> bool:
         from forestslam.io.mcap_salvage import MAGIC
 
@@ -354,28 +371,6 @@ class Ros2BagSource(_BagSource):
         ids = {c.id for c in salvage.index.channels.values() if c.topic == self.topic}
         for _ch, time_ns, raw in salvage.messages(ids):
             yield time_ns, raw
-
-    def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
-        if self._salvage is not None:
-            yield from self._salvaged(self._salvage)
-            return
-        done: list[int] = []
-        with self._open() as reader:
-            conns = [c for c in reader.connections if c.topic == self.topic]
-            try:
-                for _conn, time_ns, raw in reader.messages(connections=conns):
-                    yield time_ns, raw
-                    done.append(time_ns)
-                return
-            except Exception as exc:  # noqa: BLE001 - storage damage ends the iteration
-                failure = exc
-        if not self._is_mcap_file():
-            self.stats.skipped += max(len(self) - len(done), 0)
-            line = f"{self.path}: damaged storage, stopped reading ({failure})"
-            self.stats.warnings.append(line)
-            log.warning(line)
-            return
-        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
 
     def _deserialize(self, raw):
         return self._store.deserialize_cdr(raw, POINTCLOUD2)
