@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <random>
 
@@ -130,4 +131,108 @@ TEST(ForestScene, GridMatchesBruteForce) {
     EXPECT_GT(kinds[kGround], 100);
     EXPECT_GT(kinds[kStem], 50);
     EXPECT_GT(kinds[kFoliage], 50);
+}
+
+TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
+    // castBatch walks the grid once per bundle of rays sharing an origin; it must return
+    // exactly cast()'s hit for every ray: tilted spinning columns, raster rows (horizontal
+    // fans), steep rays, sensors outside the grid, axis-parallel rays.
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<double> u(-25, 25), r(0.05, 0.4), h(4, 25), s(-0.08, 0.08);
+    std::uniform_real_distribution<double> unit(0, 1);
+    std::vector<Stem> stems;
+    std::vector<Cylinder> cyl;
+    std::vector<FoliageEllipsoid> fol;
+    for (int i = 0; i < 120; ++i) {
+        Stem st;
+        st.base = {u(rng), u(rng), 0.0};
+        st.shear = {s(rng), s(rng)};
+        st.semi_a = r(rng);
+        st.semi_b = st.semi_a * (0.8 + 0.2 * unit(rng));
+        st.angle = u(rng);
+        st.taper = 0.02;
+        st.height = h(rng);
+        st.bark_amp = 0.004;
+        for (double &ph : st.phase) ph = 6.28 * unit(rng);
+        stems.push_back(st);
+        cyl.push_back({st.base + Eigen::Vector3d(0, 0, 2 + 3 * unit(rng)),
+                       st.base + Eigen::Vector3d(u(rng) / 10, u(rng) / 10, 4), 0.03, kBranch});
+        if (i % 4 == 0)  // lying logs
+            cyl.push_back({Eigen::Vector3d(u(rng), u(rng), 0.1),
+                           Eigen::Vector3d(u(rng), u(rng), 0.15), 0.15, kLog});
+        fol.push_back({st.base + Eigen::Vector3d(0, 0, st.height),
+                       {1 + 2 * unit(rng), 1 + 2 * unit(rng), 2 + 2 * unit(rng)},
+                       0.5 + unit(rng),
+                       kFoliage});
+        if (i % 3 == 0)
+            fol.push_back({Eigen::Vector3d(u(rng), u(rng), 0.4), {0.8, 0.6, 0.5}, 2.0, kShrub});
+    }
+    Eigen::MatrixXd z = planeGrid(140, 0.5, -35, -35, 0.03, -0.02, 0.0);
+    for (Eigen::Index i = 0; i < z.size(); ++i) z.data()[i] += 0.05 * unit(rng);
+    const Heightfield hf(-35, -35, 0.5, z);
+    int checked = 0, kinds[7] = {0};
+    for (double cell_m : {3.0, 1.3}) {
+        const ForestScene scene(hf, stems, cyl, fol, cell_m);
+        auto compare = [&](const std::vector<Ray> &rays) {
+            std::vector<Hit> hits(rays.size());
+            scene.castBatch(rays.data(), rays.size(), hits.data());
+            for (size_t i = 0; i < rays.size(); ++i) {
+                const Hit one = scene.cast(rays[i]);
+                ASSERT_EQ(hits[i].t, one.t) << i;
+                ASSERT_EQ(hits[i].surface, one.surface) << i;
+                ASSERT_EQ(hits[i].object, one.object) << i;
+                ASSERT_EQ(hits[i].cos_incidence, one.cos_incidence) << i;
+                ++kinds[one.surface];
+                ++checked;
+            }
+        };
+        const Eigen::Vector3d origins[4] = {
+            {0.3, -0.7, 1.2}, {14.0, 9.0, 2.5}, {-60.0, 3.0, 1.0}, {40.0, 45.0, 12.0}};
+        for (int o = 0; o < 4; ++o) {
+            const double roll = 0.2 * (unit(rng) - 0.5), pitch = 0.2 * (unit(rng) - 0.5);
+            const Eigen::Matrix3d rot = (Eigen::AngleAxisd(u(rng), Eigen::Vector3d::UnitZ()) *
+                                         Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                                         Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
+                                            .toRotationMatrix();
+            std::vector<Ray> rays;
+            auto add = [&](const Eigen::Vector3d &local, uint64_t key) {
+                Ray ray = makeRay(origins[o], rot * local);
+                ray.t_max = 100.0;
+                ray.key = key;
+                rays.push_back(ray);
+            };
+            // Spinning columns: 16 beams from -15 to +15 degrees, 0.4 degree steps.
+            for (int c = 0; c < 900; ++c) {
+                const double az = c * 2 * M_PI / 900;
+                for (int b = 0; b < 16; ++b) {
+                    const double e = (-15.0 + 2.0 * ((b * 9) % 16)) * M_PI / 180;
+                    add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)},
+                        rays.size());
+                }
+            }
+            // Raster rows: 31 rays across 6 degrees of azimuth at one elevation.
+            for (int g = 0; g < 60; ++g) {
+                const double az0 = 2 * M_PI * unit(rng), e = 0.4 * (unit(rng) - 0.6);
+                for (int k = 0; k < 31; ++k) {
+                    const double az = az0 + k * 0.0035;
+                    add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)},
+                        rays.size());
+                }
+            }
+            // Steep rays and axis-parallel ones, mixed into the same origin's run.
+            for (double e : {1.55, -1.55, 1.2, -1.2}) add({std::cos(e), 0, std::sin(e)}, 7);
+            for (const Eigen::Vector3d &d :
+                 {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(0, 1, 0),
+                  Eigen::Vector3d(-1, 0, -0.05), Eigen::Vector3d(0, 0, -1)})
+                add(rot.transpose() * d, 11);
+            compare(rays);
+        }
+    }
+    EXPECT_GT(checked, 100000);
+    EXPECT_GT(kinds[kGround], 5000);
+    EXPECT_GT(kinds[kStem], 2000);
+    EXPECT_GT(kinds[kFoliage], 2000);
+    EXPECT_GT(kinds[kBranch], 20);
+    EXPECT_GT(kinds[kLog], 20);
+    EXPECT_GT(kinds[kShrub], 20);
 }

@@ -227,7 +227,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         throw std::invalid_argument("scene grid too large");
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
-    std::vector<uint32_t> count(nbin + 1, 0);
+    std::vector<uint32_t> count(nbin + 1, 0), cell_count(ncell + 1, 0);
     cell_layers_.assign(ncell, 0);
     auto cell_range = [&](const Box &b, int &ix0, int &iy0, int &ix1, int &iy1, int &l0, int &l1) {
         ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
@@ -243,6 +243,7 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         for (int iy = iy0; iy <= iy1; ++iy)
             for (int ix = ix0; ix <= ix1; ++ix) {
                 const size_t c = static_cast<size_t>(iy) * nx_ + ix;
+                ++cell_count[c + 1];
                 for (int l = l0; l <= l1; ++l) {
                     ++count[c * nl_ + l + 1];
                     cell_layers_[c] |= uint64_t{1} << l;
@@ -250,9 +251,13 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
             }
     }
     for (size_t c = 0; c < nbin; ++c) count[c + 1] += count[c];
+    for (size_t c = 0; c < ncell; ++c) cell_count[c + 1] += cell_count[c];
     bin_start_ = count;
     bin_items_.resize(count[nbin]);
     std::vector<uint32_t> fill(bin_start_.begin(), bin_start_.end() - 1);
+    cell_start_ = cell_count;
+    cell_items_.resize(cell_count[ncell]);
+    std::vector<uint32_t> cell_fill(cell_start_.begin(), cell_start_.end() - 1);
     prims_.resize(boxes.size());
     for (size_t row = 0; row < boxes.size(); ++row) {
         const Box &b = boxes[row];
@@ -265,10 +270,12 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
             b.code,
             0};
         for (int iy = iy0; iy <= iy1; ++iy)
-            for (int ix = ix0; ix <= ix1; ++ix)
+            for (int ix = ix0; ix <= ix1; ++ix) {
+                const size_t c = static_cast<size_t>(iy) * nx_ + ix;
+                cell_items_[cell_fill[c]++] = static_cast<uint32_t>(row);
                 for (int l = l0; l <= l1; ++l)
-                    bin_items_[fill[(static_cast<size_t>(iy) * nx_ + ix) * nl_ + l]++] =
-                        static_cast<uint32_t>(row);
+                    bin_items_[fill[c * nl_ + l]++] = static_cast<uint32_t>(row);
+            }
     }
 }
 
@@ -405,6 +412,233 @@ Hit ForestScene::cast(const Ray &ray) const {
     return best;
 }
 
+namespace {
+// Bundling limits: rays within 60 degrees of the walk axis (at most two cells across per
+// column), not steeper than about 87 degrees, and a fan of at most 0.05 in XY slope (about
+// 3 degrees): wider fans would make the shared walk cover many cells no single ray crosses.
+constexpr double kBundleMinAxis = 0.5;
+constexpr double kBundleMinHorizontal = 0.05;
+constexpr double kBundleMaxSlopeSpread = 0.05;
+}  // namespace
+
+void ForestScene::castBatch(const Ray *rays, size_t n, Hit *hits) const {
+    if (nx_ == 0) {
+        for (size_t i = 0; i < n; ++i) hits[i] = cast(rays[i]);
+        return;
+    }
+    std::vector<uint32_t> stamp;
+    uint32_t id = 0;
+    size_t i = 0;
+    while (i < n) {
+        const Ray &r0 = rays[i];
+        const bool along_x = std::abs(r0.dir.x()) >= std::abs(r0.dir.y());
+        // XY slope of a ray relative to the walk axis; false when it cannot join a bundle.
+        auto slope = [&](const Ray &r, double &s) {
+            const double du = along_x ? r.dir.x() : r.dir.y();
+            const double dv = along_x ? r.dir.y() : r.dir.x();
+            const double h = std::sqrt(du * du + dv * dv);
+            if (!(h >= kBundleMinHorizontal) || !(std::abs(du) >= kBundleMinAxis * h) ||
+                !std::isfinite(r.dir.z()) || !(r.t_min >= 0.0) ||
+                (du > 0) != (r0.dir[along_x ? 0 : 1] > 0))
+                return false;
+            s = dv / du;
+            return true;
+        };
+        size_t j = i + 1;
+        double s0;
+        if (r0.origin.allFinite() && slope(r0, s0)) {
+            double s_lo = s0, s_hi = s0;
+            while (j < n && j - i < static_cast<size_t>(kMaxBundle)) {
+                const Ray &r = rays[j];
+                double s;
+                if (r.origin != r0.origin || !slope(r, s)) break;
+                const double lo = std::min(s_lo, s), hi = std::max(s_hi, s);
+                if (hi - lo > kBundleMaxSlopeSpread) break;
+                s_lo = lo;
+                s_hi = hi;
+                ++j;
+            }
+        }
+        if (j - i == 1) {
+            hits[i] = cast(r0);
+        } else {
+            if (stamp.empty()) stamp.assign(prims_.size(), 0);
+            if (++id == 0) {  // wrapped: start the marks afresh
+                std::fill(stamp.begin(), stamp.end(), 0);
+                id = 1;
+            }
+            castBundle(rays + i, static_cast<int>(j - i), along_x, hits + i, stamp.data(), id);
+        }
+        i = j;
+    }
+}
+
+void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
+                             uint32_t id) const {
+    // Along the walk axis u all rays of the bundle advance together: a ray is at the offset
+    // a = |u - u_origin| at t = a / |du|, where it is at v_origin + a sv and z_origin + a kz.
+    // One lane per ray still walking, sorted by kz: its segment [t_lo, t_stop] inside the grid
+    // (t_stop: grid exit, end of range, or the best hit so far) and a_stop = t_stop |du|.
+    struct Lane {
+        int k;
+        double t_lo, t_stop, a_stop, adu, inv_adu, sv, kz;
+    };
+    Lane lanes[kMaxBundle];
+    int n_active = 0;
+    const Eigen::Vector3d &o = rays[0].origin;
+    const double ox = o.x(), oy = o.y(), oz = o.z();
+    const double xmax = x0_ + nx_ * cell_, ymax = y0_ + ny_ * cell_;
+    for (int k = 0; k < n; ++k) {
+        // Terrain and clipping exactly as cast() does.
+        const Ray &ray = rays[k];
+        Hit &best = hits[k];
+        best = Hit();
+        const GridRay grid_ray(ray);
+        terrain_.intersect(ray, grid_ray, ray.t_max, best);
+        const double dz = ray.dir.z();
+        double t_end = std::min(ray.t_max, best.t);
+        if (dz > 0.0) {
+            if (oz > z_max_) continue;
+            t_end = std::min(t_end, (z_max_ - oz) / dz + 1e-9);
+        }
+        double t = ray.t_min, t1 = t_end;
+        if (grid_ray.inv_dx == 0.0) {
+            if (ox < x0_ || ox > xmax) continue;
+        } else {
+            const double ta = (x0_ - ox) * grid_ray.inv_dx, tb = (xmax - ox) * grid_ray.inv_dx;
+            t = std::max(t, std::min(ta, tb));
+            t1 = std::min(t1, std::max(ta, tb));
+        }
+        if (grid_ray.inv_dy == 0.0) {
+            if (oy < y0_ || oy > ymax) continue;
+        } else {
+            const double ta = (y0_ - oy) * grid_ray.inv_dy, tb = (ymax - oy) * grid_ray.inv_dy;
+            t = std::max(t, std::min(ta, tb));
+            t1 = std::min(t1, std::max(ta, tb));
+        }
+        if (!(t <= t1)) continue;
+        Lane l;
+        l.k = k;
+        l.t_lo = t;
+        l.t_stop = std::min(t1, best.t);
+        const double du = along_x ? ray.dir.x() : ray.dir.y();
+        const double dv = along_x ? ray.dir.y() : ray.dir.x();
+        l.adu = std::abs(du);
+        l.inv_adu = 1.0 / l.adu;
+        l.sv = dv * l.inv_adu;
+        l.kz = dz * l.inv_adu;
+        l.a_stop = l.t_stop * l.adu;
+        int a = n_active++;
+        for (; a > 0 && lanes[a - 1].kz > l.kz; --a) lanes[a] = lanes[a - 1];
+        lanes[a] = l;
+    }
+    if (n_active == 0) return;
+    const double su = (along_x ? rays[0].dir.x() : rays[0].dir.y()) > 0 ? 1.0 : -1.0;
+    const int step = su > 0 ? 1 : -1;
+    const double u0 = along_x ? x0_ : y0_;
+    const int nu = along_x ? nx_ : ny_, nv = along_x ? ny_ : nx_;
+    const int au = along_x ? 0 : 1, av = along_x ? 1 : 0;  // axes of u and v in x, y
+    const double ro[3] = {ox - x0_, oy - y0_, oz - z0_};   // origin relative to the boxes
+    const double lmax = nl_ - 1.0;
+    const uint64_t *layers = cell_layers_.data();
+    const Prim *prims = prims_.data();
+    const uint32_t *items = cell_items_.data();
+    const uint32_t *starts = cell_start_.data();
+    // Fan of the active lanes across (sv) and their nearest end (a_stop), refreshed when a lane
+    // leaves; the lanes stay sorted by kz.
+    double sv_lo = kInf, sv_hi = -kInf, a_stop_min = kInf;
+    auto refresh = [&] {
+        sv_lo = kInf;
+        sv_hi = -kInf;
+        a_stop_min = kInf;
+        for (int a = 0; a < n_active; ++a) {
+            sv_lo = std::min(sv_lo, lanes[a].sv);
+            sv_hi = std::max(sv_hi, lanes[a].sv);
+            a_stop_min = std::min(a_stop_min, lanes[a].a_stop);
+        }
+    };
+    refresh();
+    const double ou = along_x ? ox : oy;
+    int iu = static_cast<int>(std::clamp(std::floor((ou - u0) * inv_cell_), 0.0, nu - 1.0));
+    for (; n_active > 0 && iu >= 0 && iu < nu; iu += step) {
+        // Offsets of this column's near and far boundaries (the origin's column from a = 0).
+        const double a0 = std::max(0.0, su * (u0 + (su > 0 ? iu : iu + 1) * cell_ - ou));
+        const double a1 = su * (u0 + (su > 0 ? iu + 1 : iu) * cell_ - ou);
+        if (a1 >= a0) {
+            // Box of all lanes' paths in this column, grid-relative, widened by a hair so that
+            // round-off never drops a cell, a layer or a primitive.
+            const double m = 1e-7;
+            const double kz_lo = lanes[0].kz, kz_hi = lanes[n_active - 1].kz;
+            double lo[3], hi[3];
+            lo[au] = ro[au] + std::min(su * a0, su * a1) - m;
+            hi[au] = ro[au] + std::max(su * a0, su * a1) + m;
+            lo[av] = ro[av] + std::min(a0 * sv_lo, a1 * sv_lo) - m;
+            hi[av] = ro[av] + std::max(a0 * sv_hi, a1 * sv_hi) + m;
+            lo[2] = ro[2] + std::min(a0 * kz_lo, a1 * kz_lo) - m;
+            hi[2] = ro[2] + std::max(a0 * kz_hi, a1 * kz_hi) + m;
+            const int iv0 =
+                static_cast<int>(std::clamp(std::floor(lo[av] * inv_cell_), 0.0, nv - 1.0));
+            const int iv1 =
+                static_cast<int>(std::clamp(std::floor(hi[av] * inv_cell_), 0.0, nv - 1.0));
+            const int l0 = static_cast<int>(std::clamp(lo[2] * inv_layer_m_, 0.0, lmax));
+            const int l1 = static_cast<int>(std::clamp(hi[2] * inv_layer_m_, 0.0, lmax));
+            const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
+            for (int iv = iv0; iv <= iv1; ++iv) {
+                const size_t c = along_x ? static_cast<size_t>(iv) * nx_ + iu
+                                         : static_cast<size_t>(iu) * nx_ + iv;
+                if (!((layers[c] >> l0) & span)) continue;
+                for (uint32_t q = starts[c], q1 = starts[c + 1]; q < q1; ++q) {
+                    const uint32_t row = items[q];
+                    if (stamp[row] == id) continue;
+                    const Prim &p = prims[row];
+                    if (p.lo[0] > hi[0] || p.hi[0] < lo[0] || p.lo[1] > hi[1] || p.hi[1] < lo[1] ||
+                        p.lo[2] > hi[2] || p.hi[2] < lo[2])
+                        continue;  // may still meet the bundle in a later column
+                    // Tested once for the bundle: each lane whose whole segment can meet the
+                    // box, i.e. whose a range overlaps the box's and whose slope kz reaches
+                    // the box's z extent over it (a contiguous run of the sorted lanes).
+                    stamp[row] = id;
+                    const double pa0 = su * (p.lo[au] - ro[au]), pa1 = su * (p.hi[au] - ro[au]);
+                    const double pa_lo = std::min(pa0, pa1), pa_hi = std::max(pa0, pa1);
+                    double k_lo = -kInf, k_hi = kInf;
+                    if (pa_lo > 0.0) {
+                        const double bz0 = p.lo[2] - ro[2], bz1 = p.hi[2] - ro[2];
+                        k_lo = std::min(bz0 / pa_lo, bz0 / pa_hi);
+                        k_hi = std::max(bz1 / pa_lo, bz1 / pa_hi);
+                    }
+                    bool hit_any = false;
+                    for (int a = 0; a < n_active && lanes[a].kz <= k_hi; ++a) {
+                        Lane &l = lanes[a];
+                        if (l.kz < k_lo || pa_lo * l.inv_adu > l.t_stop ||
+                            pa_hi * l.inv_adu < l.t_lo)
+                            continue;
+                        const Ray &ray = rays[l.k];
+                        Hit &best = hits[l.k];
+                        Hit h;
+                        if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) &&
+                            h.t < best.t) {
+                            best = h;
+                            l.t_stop = std::min(l.t_stop, h.t);
+                            l.a_stop = l.t_stop * l.adu;
+                            hit_any = true;
+                        }
+                    }
+                    if (hit_any) refresh();
+                }
+            }
+        }
+        // Lanes whose segment ends in this column are done (kept one column more when the
+        // end lies within round-off of the boundary).
+        if (a_stop_min <= a1 - 1e-9) {
+            int w = 0;
+            for (int a = 0; a < n_active; ++a)
+                if (lanes[a].a_stop > a1 - 1e-9) lanes[w++] = lanes[a];
+            n_active = w;
+            refresh();
+        }
+    }
+}
+
 CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
                                  const Eigen::Ref<const Points3> &dirs, double range_min,
                                  double range_max, uint64_t seed) const {
@@ -419,6 +653,10 @@ CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
     out.surface.setZero(n);
     out.object.setConstant(n, -1);
     out.cos_incidence.setZero(n);
+    std::vector<Ray> rays;
+    std::vector<Eigen::Index> rows;
+    rays.reserve(static_cast<size_t>(n));
+    rows.reserve(static_cast<size_t>(n));
     for (Eigen::Index i = 0; i < n; ++i) {
         Ray ray;
         ray.origin = origins.row(i / per_origin).transpose();
@@ -429,7 +667,14 @@ CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
         ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
         ray.t_max = range_max;
         ray.key = mixKey(seed, static_cast<uint64_t>(i));
-        const Hit hit = cast(ray);
+        rays.push_back(ray);
+        rows.push_back(i);
+    }
+    std::vector<Hit> hits(rays.size());
+    castBatch(rays.data(), rays.size(), hits.data());
+    for (size_t q = 0; q < rays.size(); ++q) {
+        const Hit &hit = hits[q];
+        const Eigen::Index i = rows[q];
         if (!hit.valid() || hit.t < range_min) continue;
         out.range[i] = hit.t;
         out.surface[i] = hit.surface;

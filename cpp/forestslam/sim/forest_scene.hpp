@@ -79,12 +79,26 @@ class ForestScene {
                         const Eigen::Ref<const Points3> &dirs, double range_min, double range_max,
                         uint64_t seed) const;
 
+    // First hits of rays[0..n): hits[i] is exactly cast(rays[i]). Consecutive rays with the same
+    // origin whose XY directions lie in a narrow fan (a firing column of a spinning sensor, a few
+    // neighbours in a raster row) are cast together: one walk over the grid columns covering
+    // all their XY paths, each primitive of the covered bins rejected once for the whole bundle
+    // against the union of the rays' segments, then tested with a ray-box slab test and the
+    // exact test per ray. Steep rays, wide fans and lone rays are cast one by one.
+    void castBatch(const Ray *rays, size_t n, Hit *hits) const;
+
     const Heightfield &terrain() const { return terrain_; }
     const std::vector<Stem> &stems() const { return stems_; }
 
   private:
     void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
     bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
+    // n (2..kMaxBundle) rays sharing one origin, their XY directions within 60 degrees of the x
+    // axis (along_x) or of the y axis, all pointing the same way along it. stamp (one per row
+    // of prims_) marks with `id` the primitives already tested for this bundle.
+    static constexpr int kMaxBundle = 64;
+    void castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
+                    uint32_t id) const;
 
     Heightfield terrain_;
     std::vector<Stem> stems_;
@@ -120,6 +134,9 @@ class ForestScene {
     // Per XY cell, bit l set when layer l holds an item: empty bins are skipped without
     // touching the bin lists.
     std::vector<uint64_t> cell_layers_;
+    // Per XY cell, its primitives once each whatever their layers (CSR like the bins): a bundle
+    // of rays (castBatch) spans many layers at once.
+    std::vector<uint32_t> cell_start_, cell_items_;
     double z_max_ = -kInf;
 };
 

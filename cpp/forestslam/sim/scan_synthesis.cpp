@@ -129,33 +129,57 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
     out.surface.resize(n);
     out.object.resize(n);
     Eigen::Index kept = 0;
-    for (Eigen::Index i = 0; i < n; ++i) {
-        const Eigen::Vector3d local = local_dirs.row(i).transpose();
-        const size_t g = static_cast<size_t>(group[i]);
-        Ray ray;
-        ray.origin = pos[g];
-        ray.dir = rot[g] * local;
-        const double norm = ray.dir.norm();
-        if (!(norm > 0.0) || !std::isfinite(norm)) continue;
-        ray.dir /= norm;
-        ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
-        ray.t_max = model.range_max_m;
-        ray.key = mixKey(cast_seed, static_cast<uint64_t>(i));
-        const Hit hit = scene.cast(ray);
-        if (!hit.valid() || hit.t < model.range_min_m) continue;
-        const uint64_t key = mixKey(noise_seed, static_cast<uint64_t>(i));
-        if (model.dropout_rate > 0.0 && hashUniform(key, kDropoutSalt) < model.dropout_rate)
-            continue;
-        const double range =
-            hit.t + model.range_noise_m * normalQuantile(hashUniform(key, kRangeSalt));
-        const double intensity_noise = normalQuantile(hashUniform(key, kIntensitySalt));
-        out.ray[kept] = i;
-        out.points.row(kept) = (range / norm) * local.transpose();
-        out.intensity[kept] =
-            returnIntensity(hit.surface, hit.cos_incidence, intensity_noise, model);
-        out.surface[kept] = hit.surface;
-        out.object[kept] = hit.object;
-        ++kept;
+    // Rays in chunks of whole groups (a few thousand rays stay in cache), cast together so that
+    // rays sharing a pose share their grid walk (ForestScene::castBatch, same hits as one by one).
+    constexpr Eigen::Index kChunk = 2048;
+    std::vector<Ray> rays;
+    std::vector<Eigen::Index> rows;
+    std::vector<double> norms;
+    std::vector<Hit> hits;
+    rays.reserve(kChunk + 64);
+    for (Eigen::Index begin = 0; begin < n;) {
+        Eigen::Index end = std::min(n, begin + kChunk);
+        while (end < n && group[end] == group[end - 1]) ++end;
+        rays.clear();
+        rows.clear();
+        norms.clear();
+        for (Eigen::Index i = begin; i < end; ++i) {
+            const Eigen::Vector3d local = local_dirs.row(i).transpose();
+            const size_t g = static_cast<size_t>(group[i]);
+            Ray ray;
+            ray.origin = pos[g];
+            ray.dir = rot[g] * local;
+            const double norm = ray.dir.norm();
+            if (!(norm > 0.0) || !std::isfinite(norm)) continue;
+            ray.dir /= norm;
+            ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
+            ray.t_max = model.range_max_m;
+            ray.key = mixKey(cast_seed, static_cast<uint64_t>(i));
+            rays.push_back(ray);
+            rows.push_back(i);
+            norms.push_back(norm);
+        }
+        hits.resize(rays.size());
+        scene.castBatch(rays.data(), rays.size(), hits.data());
+        for (size_t q = 0; q < rays.size(); ++q) {
+            const Hit &hit = hits[q];
+            const Eigen::Index i = rows[q];
+            if (!hit.valid() || hit.t < model.range_min_m) continue;
+            const uint64_t key = mixKey(noise_seed, static_cast<uint64_t>(i));
+            if (model.dropout_rate > 0.0 && hashUniform(key, kDropoutSalt) < model.dropout_rate)
+                continue;
+            const double range =
+                hit.t + model.range_noise_m * normalQuantile(hashUniform(key, kRangeSalt));
+            const double intensity_noise = normalQuantile(hashUniform(key, kIntensitySalt));
+            out.ray[kept] = i;
+            out.points.row(kept) = (range / norms[q]) * local_dirs.row(i);
+            out.intensity[kept] =
+                returnIntensity(hit.surface, hit.cos_incidence, intensity_noise, model);
+            out.surface[kept] = hit.surface;
+            out.object[kept] = hit.object;
+            ++kept;
+        }
+        begin = end;
     }
     out.ray.conservativeResize(kept);
     out.points.conservativeResize(kept, 3);
