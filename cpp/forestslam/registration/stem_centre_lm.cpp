@@ -52,9 +52,11 @@ struct VirtualPair {
     Eigen::Vector3d centre, target;
     double radius;
     double weight;  // virtual_weight shared by the pairs of one centre
+    Eigen::Index index;
 };
 struct PlanePair {
     Eigen::Vector3d source, origin, normal;
+    Eigen::Index index;
 };
 
 // All pairs of one correspondence round in one residual block with analytic Jacobians. The
@@ -144,6 +146,139 @@ class PairsCost : public ceres::CostFunction {
     Eigen::Vector3d t0_;
 };
 
+// In-sweep motion: the pairs of one round with the features at their current positions q
+// (pose and in-sweep motion so far) and times tau; the parameters are a perturbation per
+// polynomial order k = 0..K, [dt_k (3), dw_k (3)], the feature at tau moving to
+// exp(sum_k tau^k dw_k) (q - o) + o + sum_k tau^k dt_k (o the sensor position). Same robust
+// residuals as PairsCost; d/d[dt_k, dw_k] = tau^k [u, (q - o) x u].
+class SweepPairsCost : public ceres::CostFunction {
+  public:
+    SweepPairsCost(const std::vector<VirtualPair> &v, const std::vector<PlanePair> &p,
+                   const Points3 &qc, const Points3 &qr, const Eigen::VectorXd &tc,
+                   const Eigen::VectorXd &tr, const Eigen::Vector3d &origin, int order,
+                   double scale)
+        : v_(v), p_(p), qc_(qc), qr_(qr), tc_(tc), tr_(tr), o_(origin), K_(order), c_(scale) {
+        set_num_residuals(static_cast<int>(v.size() + p.size()));
+        mutable_parameter_block_sizes()->push_back(6 * (order + 1));
+    }
+
+    bool Evaluate(double const *const *parameters, double *residuals,
+                  double **jacobians) const override {
+        const double *d = parameters[0];
+        const int np = 6 * (K_ + 1);
+        double *J = (jacobians != nullptr) ? jacobians[0] : nullptr;
+        std::size_t i = 0;
+        auto move = [&](const Eigen::Vector3d &q, double tau, Eigen::Vector3d &moved) {
+            Eigen::Vector3d dt = Eigen::Vector3d::Zero(), dw = Eigen::Vector3d::Zero();
+            double pw = 1.0;
+            for (int k = 0; k <= K_; ++k) {
+                dt += pw * Eigen::Vector3d(d[6 * k], d[6 * k + 1], d[6 * k + 2]);
+                dw += pw * Eigen::Vector3d(d[6 * k + 3], d[6 * k + 4], d[6 * k + 5]);
+                pw *= tau;
+            }
+            const double angle = dw.norm();
+            const Eigen::Matrix3d dR = angle > 0
+                                           ? Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix()
+                                           : Eigen::Matrix3d::Identity();
+            moved = dR * (q - o_) + o_ + dt;
+        };
+        auto writeRow = [&](double *row, const Eigen::Vector3d &u, const Eigen::Vector3d &q,
+                            double tau, double w) {
+            const Eigen::Vector3d qu = (q - o_).cross(u);
+            double pw = 1.0;
+            for (int k = 0; k <= K_; ++k) {
+                for (int c = 0; c < 3; ++c) {
+                    row[6 * k + c] = w * pw * u[c];
+                    row[6 * k + 3 + c] = w * pw * qu[c];
+                }
+                pw *= tau;
+            }
+        };
+        Eigen::Vector3d q;
+        for (const auto &v : v_) {
+            const double tau = tc_[v.index];
+            move(qc_.row(v.index).transpose(), tau, q);
+            const double dx = q.x() - v.target.x(), dy = q.y() - v.target.y();
+            const double dn = std::sqrt(dx * dx + dy * dy + 1e-12);
+            double f, df;
+            robust(dn - v.radius, f, df);
+            const double w = std::sqrt(v.weight);
+            residuals[i] = w * f;
+            if (J != nullptr)
+                writeRow(J + np * i, Eigen::Vector3d(dx / dn, dy / dn, 0.0), q, tau, w * df);
+            ++i;
+        }
+        for (const auto &p : p_) {
+            const double tau = tr_[p.index];
+            move(qr_.row(p.index).transpose(), tau, q);
+            double f, df;
+            robust(p.normal.dot(q - p.origin), f, df);
+            residuals[i] = f;
+            if (J != nullptr) writeRow(J + np * i, p.normal, q, tau, df);
+            ++i;
+        }
+        return true;
+    }
+
+  private:
+    void robust(double r, double &f, double &df) const {
+        const double u = r / c_;
+        if (std::abs(u) < 1e-6) {
+            f = r;
+            df = 1.0;
+            return;
+        }
+        f = std::copysign(c_ * std::sqrt(std::log1p(u * u)), r);
+        df = r / ((1.0 + u * u) * f);
+    }
+
+    const std::vector<VirtualPair> &v_;
+    const std::vector<PlanePair> &p_;
+    const Points3 &qc_, &qr_;
+    const Eigen::VectorXd &tc_, &tr_;
+    Eigen::Vector3d o_;
+    int K_;
+    double c_;
+};
+
+// Zero prior on the in-sweep coefficients (orders 1..K): residual s (c_k + d_k) tau0^k / sigma,
+// s the feature residuals' scale (metres), so that the prior weighs like one feature whose
+// residual is s when the coefficient's effect at tau0 is sigma.
+class SweepPriorCost : public ceres::CostFunction {
+  public:
+    SweepPriorCost(const Eigen::MatrixXd &current, double tau0, double sigma_m, double sigma_rad,
+                   double scale_m)
+        : c_(current), tau0_(tau0), sm_(sigma_m / scale_m), sr_(sigma_rad / scale_m) {
+        const auto K = static_cast<int>(current.rows());
+        set_num_residuals(6 * K);
+        mutable_parameter_block_sizes()->push_back(6 * (K + 1));
+    }
+
+    bool Evaluate(double const *const *parameters, double *residuals,
+                  double **jacobians) const override {
+        const double *d = parameters[0];
+        const auto K = static_cast<int>(c_.rows());
+        const int np = 6 * (K + 1);
+        double *J = (jacobians != nullptr) ? jacobians[0] : nullptr;
+        if (J != nullptr) std::fill(J, J + static_cast<std::size_t>(6 * K * np), 0.0);
+        double pw = tau0_;
+        for (int k = 1; k <= K; ++k) {
+            for (int c = 0; c < 6; ++c) {
+                const double w = pw / (c < 3 ? sm_ : sr_);
+                const int r = 6 * (k - 1) + c;
+                residuals[r] = w * (c_(k - 1, c) + d[6 * k + c]);
+                if (J != nullptr) J[r * np + 6 * k + c] = w;
+            }
+            pw *= tau0_;
+        }
+        return true;
+    }
+
+  private:
+    const Eigen::MatrixXd &c_;
+    double tau0_, sm_, sr_;
+};
+
 // Target points that can pair with each virtual feature, gathered with a slack around where
 // the centre was: reused while the moved centre stays within the slack (exact, as a pair needs
 // |d - r| < gate <= virtual_max_gate_m and |dz| <= virtual_window_m), so the hash cells are
@@ -194,14 +329,13 @@ struct VirtualCandidates {
     }
 };
 
+// Features in the source frame with their current positions qc / qr in the target frame.
 void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
-               const Eigen::VectorXd &radii, const Points3 &real, const Eigen::Matrix4d &T,
-               const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
+               const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
+               const Points3 &qr, const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
                std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
     vpairs.clear();
     ppairs.clear();
-    const Eigen::Matrix3d R = T.block<3, 3>(0, 0);
-    const Eigen::Vector3d t = T.block<3, 1>(0, 3);
     std::vector<int> idx;
     std::vector<float> d2;
     const int sectors = std::max(1, cfg.virtual_sectors);
@@ -210,7 +344,7 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
     std::vector<double> best_err(static_cast<std::size_t>(sectors));
     for (Eigen::Index i = 0; i < centres.rows(); ++i) {
         const Eigen::Vector3d c = centres.row(i).transpose();
-        const Eigen::Vector3d q = R * c + t;
+        const Eigen::Vector3d q = qc.row(i).transpose();
         const double r = radii[i];
         std::fill(best.begin(), best.end(), -1);
         std::fill(best_err.begin(), best_err.end(), std::numeric_limits<double>::infinity());
@@ -232,14 +366,14 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         for (int j : best) {
             if (j >= 0) {
                 vpairs.push_back(
-                    {c, target.points.row(j).transpose(), r, cfg.virtual_weight / found});
+                    {c, target.points.row(j).transpose(), r, cfg.virtual_weight / found, i});
             }
         }
     }
     constexpr int kPlaneCandidates = 10;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
-        const Eigen::Vector3d q = R * s + t;
+        const Eigen::Vector3d q = qr.row(i).transpose();
         pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
                             static_cast<float>(q.z()));
         if (target.tree.nearestKSearch(query, kPlaneCandidates, idx, d2) < 3) continue;
@@ -254,7 +388,7 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
                 {(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
             if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
             const Eigen::Vector3d n = cross.normalized();
-            if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n});
+            if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n, i});
             break;
         }
     }
@@ -267,29 +401,72 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
                                         const Eigen::Matrix4d &T_initial,
-                                        const StemCentreLmConfig &config) {
+                                        const StemCentreLmConfig &config, const SweepTimes *times) {
     StemCentreLmResult result;
     result.T_target_source = T_initial;
     if (target.size() < 3 || !T_initial.allFinite()) return result;
 
-    // Keep only finite features (and centres with a usable radius).
+    const int order = (times != nullptr && times->centres.size() == virtual_centres.rows() &&
+                       times->real.size() == real_points.rows())
+                          ? std::max(0, config.sweep_order)
+                          : 0;
+    // Keep only finite features (and centres with a usable radius), with their times.
     Points3 centres(0, 3);
-    Eigen::VectorXd rad(0);
+    Eigen::VectorXd rad(0), tc(0), tr(0);
+    Points3 real(0, 3);
     {
         std::vector<int> keep;
         const Eigen::Index nv = std::min(virtual_centres.rows(), radii.size());
         for (Eigen::Index i = 0; i < nv; ++i) {
-            if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0) {
+            if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0 &&
+                (order == 0 || std::isfinite(times->centres[i]))) {
                 keep.push_back(static_cast<int>(i));
             }
         }
         centres = selectRows(virtual_centres, keep);
         rad.resize(static_cast<Eigen::Index>(keep.size()));
-        for (std::size_t k = 0; k < keep.size(); ++k) rad[k] = radii[keep[k]];
+        tc = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(keep.size()));
+        for (std::size_t k = 0; k < keep.size(); ++k) {
+            rad[k] = radii[keep[k]];
+            if (order > 0) tc[k] = times->centres[keep[k]];
+        }
+        std::vector<int> keep_real;
+        for (Eigen::Index i = 0; i < real_points.rows(); ++i) {
+            if (real_points.row(i).allFinite() && (order == 0 || std::isfinite(times->real[i]))) {
+                keep_real.push_back(static_cast<int>(i));
+            }
+        }
+        real = selectRows(real_points, keep_real);
+        tr = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(keep_real.size()));
+        for (std::size_t k = 0; k < keep_real.size(); ++k) {
+            if (order > 0) tr[k] = times->real[keep_real[k]];
+        }
     }
-    const Points3 real = finiteRows(real_points);
 
     Eigen::Matrix4d T_cur = T_initial;
+    Eigen::MatrixXd sweep = Eigen::MatrixXd::Zero(order, 6);  // in-sweep coefficients so far
+    Points3 qc(centres.rows(), 3), qr(real.rows(), 3);
+    // Current positions of the features in the target frame (pose and in-sweep motion).
+    auto place = [&](const Points3 &src, const Eigen::VectorXd &tau, Points3 &out) {
+        const Eigen::Matrix3d R = T_cur.block<3, 3>(0, 0);
+        const Eigen::Vector3d t = T_cur.block<3, 1>(0, 3);
+        for (Eigen::Index i = 0; i < src.rows(); ++i) {
+            Eigen::Vector3d q = R * src.row(i).transpose() + t;
+            if (order > 0) {
+                Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
+                double pw = tau[i];
+                for (int k = 0; k < order; ++k) {
+                    c += pw * sweep.row(k).transpose();
+                    pw *= tau[i];
+                }
+                const Eigen::Vector3d w = c.tail<3>();
+                const double angle = w.norm();
+                if (angle > 0) q = Eigen::AngleAxisd(angle, w / angle) * (q - t) + t;
+                q += c.head<3>();
+            }
+            out.row(i) = q.transpose();
+        }
+    };
     VirtualCandidates candidates;
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -302,16 +479,29 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         round_cfg.real_gate_m *= scale;
         round_cfg.plane_gate_m *= scale;
         round_cfg.robust_scale_m *= scale;
-        findPairs(target.impl(), centres, rad, real, T_before, round_cfg, candidates, vpairs,
-                  ppairs);
+        place(centres, tc, qc);
+        place(real, tr, qr);
+        findPairs(target.impl(), centres, rad, real, qc, qr, round_cfg, candidates, vpairs, ppairs);
         result.iterations = round + 1;
         if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
 
-        double delta[6] = {0, 0, 0, 0, 0, 0};
+        std::vector<double> delta(static_cast<std::size_t>(6 * (order + 1)), 0.0);
         ceres::Problem::Options problem_options;
         ceres::Problem problem(problem_options);
-        problem.AddResidualBlock(new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m),
-                                 nullptr, delta);
+        if (order == 0) {
+            problem.AddResidualBlock(
+                new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m), nullptr,
+                delta.data());
+        } else {
+            const Eigen::Vector3d o = T_before.block<3, 1>(0, 3);
+            problem.AddResidualBlock(new SweepPairsCost(vpairs, ppairs, qc, qr, tc, tr, o, order,
+                                                        round_cfg.robust_scale_m),
+                                     nullptr, delta.data());
+            problem.AddResidualBlock(
+                new SweepPriorCost(sweep, config.sweep_prior_tau_s, config.sweep_prior_m,
+                                   config.sweep_prior_rad, config.robust_scale_m),
+                nullptr, delta.data());
+        }
         ceres::Solver::Options options;
         options.minimizer_type = ceres::TRUST_REGION;
         options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
@@ -328,11 +518,30 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         if (angle > 0)
             D.block<3, 3>(0, 0) = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
         D.block<3, 1>(0, 3) = Eigen::Vector3d(delta[0], delta[1], delta[2]);
-        T_cur = D * T_before;
+        if (order == 0) {
+            T_cur = D * T_before;
+        } else {
+            // About the sensor position: the rotation leaves it in place.
+            T_cur = T_before;
+            T_cur.block<3, 3>(0, 0) = D.block<3, 3>(0, 0) * T_before.block<3, 3>(0, 0);
+            T_cur.block<3, 1>(0, 3) = T_before.block<3, 1>(0, 3) + D.block<3, 1>(0, 3);
+        }
+        double sweep_step = 0.0;  // largest in-sweep change at the prior time
+        for (int k = 1; k <= order; ++k) {
+            double mt = 0.0, mr = 0.0;
+            for (int c = 0; c < 6; ++c) {
+                sweep(k - 1, c) += delta[static_cast<std::size_t>(6 * k + c)];
+                (c < 3 ? mt : mr) += delta[static_cast<std::size_t>(6 * k + c)] *
+                                     delta[static_cast<std::size_t>(6 * k + c)];
+            }
+            const double pw = std::pow(config.sweep_prior_tau_s, k);
+            sweep_step = std::max({sweep_step, std::sqrt(mt) * pw / config.converged_translation_m,
+                                   std::sqrt(mr) * pw / config.converged_rotation_rad});
+        }
         // The step as seen from the sensor (independent of where the target origin lies).
         const Eigen::Matrix4d step = T_before.inverse() * T_cur;
         if (scale <= 1.0 && step.block<3, 1>(0, 3).norm() < config.converged_translation_m &&
-            angle < config.converged_rotation_rad) {
+            angle < config.converged_rotation_rad && sweep_step < 1.0) {
             result.converged = true;
             break;
         }
@@ -343,9 +552,13 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                               .normalized()
                               .toRotationMatrix();
     result.T_target_source = T;
+    result.sweep = sweep;
 
     // Statistics and covariance at the solution with renewed pairs.
-    findPairs(target.impl(), centres, rad, real, T, config, candidates, vpairs, ppairs);
+    T_cur = T;
+    place(centres, tc, qc);
+    place(real, tr, qr);
+    findPairs(target.impl(), centres, rad, real, qc, qr, config, candidates, vpairs, ppairs);
     result.virtual_inliers = static_cast<int>(vpairs.size());
     result.real_inliers = static_cast<int>(ppairs.size());
     result.inliers = result.virtual_inliers + result.real_inliers;
@@ -353,8 +566,6 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         result.converged = false;
         return result;
     }
-    const Eigen::Matrix3d R = T.block<3, 3>(0, 0);
-    const Eigen::Vector3d t = T.block<3, 1>(0, 3);
     // Each pair: transformed point q, residual direction, residual, Cauchy IRLS weight.
     std::vector<Eigen::Vector3d> qs, dirs;
     std::vector<double> res, wts;
@@ -367,7 +578,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     };
     double vsum = 0.0, psum = 0.0;
     for (const auto &v : vpairs) {
-        const Eigen::Vector3d q = R * v.centre + t;
+        const Eigen::Vector3d q = qc.row(v.index).transpose();
         const Eigen::Vector3d d(q.x() - v.target.x(), q.y() - v.target.y(), 0.0);
         const double dn = std::max(d.norm(), 1e-9);
         const double r = dn - v.radius;
@@ -375,7 +586,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         add(q, d / dn, r, v.weight);
     }
     for (const auto &p : ppairs) {
-        const Eigen::Vector3d q = R * p.source + t;
+        const Eigen::Vector3d q = qr.row(p.index).transpose();
         const double r = p.normal.dot(q - p.origin);
         psum += r * r;
         add(q, p.normal, r, 1.0);

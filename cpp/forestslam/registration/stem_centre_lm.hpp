@@ -38,6 +38,23 @@ struct StemCentreLmConfig {
     double converged_rotation_rad = 1e-5;   // ... and rotates less than this
     int min_inliers = 12;                   // fewer pairs than this: not converged
     double degenerate_eigen_ratio = 1e-3;   // min/max eigenvalue of the normalised information
+    // Motion during the sweep (continuous time; needs SweepTimes): 0 = rigid frame; k > 0
+    // estimates, besides the pose at time 0, a polynomial of order k in the feature time tau
+    // (seconds from the registration time, e.g. mid-sweep) of a 6-vector [t (3), w (3)]: the
+    // feature at tau is moved by exp(w(tau)) about the sensor position plus t(tau) after the
+    // pose (vibrating hand-held scanners: roll/pitch and height change within a sweep). Each
+    // coefficient has a weak zero prior: its effect at tau = sweep_prior_tau_s has a standard
+    // deviation of sweep_prior_m / sweep_prior_rad (only matters where the data are weak).
+    int sweep_order = 0;
+    double sweep_prior_tau_s = 0.05;
+    double sweep_prior_m = 0.03;
+    double sweep_prior_rad = 0.02;
+};
+
+// Per-feature times (seconds from the registration time) for the in-sweep motion.
+struct SweepTimes {
+    Eigen::VectorXd centres;  // (V,) one per virtual centre
+    Eigen::VectorXd real;     // (R,) one per real feature
 };
 
 // RegistrationResult (T_target_source, 6x6 covariance over the left perturbation
@@ -49,6 +66,11 @@ struct StemCentreLmResult : RegistrationResult {
     int real_inliers = 0;
     double virtual_rms_m = 0.0;  // RMS of d - r over virtual pairs at the solution (0 if none)
     double real_rms_m = 0.0;     // RMS point-to-plane distance over real pairs (0 if none)
+    // In-sweep motion (sweep_order rows, row k-1 the coefficient of tau^k, columns [t, w] in
+    // the target frame) about the sensor position T_target_source.translation(); empty when
+    // rigid. A source point p at time tau lies at
+    // exp(w(tau)) (T p - o) + o + t(tau), o = T translation, (t, w)(tau) = sum_k tau^k row_k.
+    Eigen::MatrixXd sweep;
 };
 
 // Target surface: a KD-tree over a map or frame cloud, built once and reused for many frames.
@@ -71,12 +93,14 @@ class StemCentreTarget {
 
 // Register source features onto the target. virtual_centres (V,3) with radii (V,), real
 // points (R,3), both in the source frame. Either set may be empty; with too few pairs the
-// result is flagged not converged / degenerate and T stays at the initial guess.
+// result is flagged not converged / degenerate and T stays at the initial guess. times (one
+// per feature) are needed when config.sweep_order > 0 and ignored otherwise.
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
                                         const Eigen::Matrix4d &T_initial,
-                                        const StemCentreLmConfig &config = {});
+                                        const StemCentreLmConfig &config = {},
+                                        const SweepTimes *times = nullptr);
 
 }  // namespace forestslam

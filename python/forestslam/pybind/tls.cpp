@@ -40,9 +40,21 @@ void define_tls(py::module_ &m) {
            const Eigen::Matrix4d &T_initial, const py::kwargs &kwargs) {
             StemCentreLmConfig cfg;
             using C = StemCentreLmConfig;
+            SweepTimes times;
+            bool have_centre_times = false, have_real_times = false;
             for (const auto &item : kwargs) {
                 const auto key = item.first.cast<std::string>();
                 const auto &v = item.second;
+                if (key == "centre_times") {
+                    times.centres = v.cast<Eigen::VectorXd>();
+                    have_centre_times = true;
+                    continue;
+                }
+                if (key == "real_times") {
+                    times.real = v.cast<Eigen::VectorXd>();
+                    have_real_times = true;
+                    continue;
+                }
                 const bool ok =
                     setField(cfg, key, v, "max_rounds", &C::max_rounds) ||
                     setField(cfg, key, v, "max_solver_iterations", &C::max_solver_iterations) ||
@@ -60,16 +72,28 @@ void define_tls(py::module_ &m) {
                     setField(cfg, key, v, "min_inliers", &C::min_inliers) ||
                     setField(cfg, key, v, "converged_translation_m", &C::converged_translation_m) ||
                     setField(cfg, key, v, "converged_rotation_rad", &C::converged_rotation_rad) ||
-                    setField(cfg, key, v, "degenerate_eigen_ratio", &C::degenerate_eigen_ratio);
+                    setField(cfg, key, v, "degenerate_eigen_ratio", &C::degenerate_eigen_ratio) ||
+                    setField(cfg, key, v, "sweep_order", &C::sweep_order) ||
+                    setField(cfg, key, v, "sweep_prior_tau_s", &C::sweep_prior_tau_s) ||
+                    setField(cfg, key, v, "sweep_prior_m", &C::sweep_prior_m) ||
+                    setField(cfg, key, v, "sweep_prior_rad", &C::sweep_prior_rad);
                 if (!ok) throw py::value_error("unknown option '" + key + "'");
             }
             if (centres.rows() != radii.size()) {
                 throw py::value_error("centres and radii must have the same length");
             }
+            const bool sweep = cfg.sweep_order > 0;
+            if (sweep &&
+                (!have_centre_times || !have_real_times || times.centres.size() != centres.rows() ||
+                 times.real.size() != real.rows())) {
+                throw py::value_error(
+                    "sweep_order > 0 needs centre_times (V,) and real_times (R,), one per feature");
+            }
             StemCentreLmResult r;
             {
                 py::gil_scoped_release release;
-                r = registerStemCentreLm(target, centres, radii, real, T_initial, cfg);
+                r = registerStemCentreLm(target, centres, radii, real, T_initial, cfg,
+                                         sweep ? &times : nullptr);
             }
             py::dict out;
             out["T_target_source"] = r.T_target_source;
@@ -83,6 +107,7 @@ void define_tls(py::module_ &m) {
             out["real_rms_m"] = r.real_rms_m;
             out["rmse"] = r.rmse;
             out["iterations"] = r.iterations;
+            out["sweep"] = r.sweep;
             return out;
         },
         py::arg("target"), py::arg("centres"), py::arg("radii"), py::arg("real_points"),
@@ -90,8 +115,10 @@ void define_tls(py::module_ &m) {
         "Stem-centre LM: virtual features centres (V,3) + radii (V,), real features (R,3), all "
         "in the source frame, onto target from T_initial (4,4). -> dict T_target_source (4,4), "
         "covariance (6,6) over [tx,ty,tz,rx,ry,rz] (left perturbation), converged, degenerate, "
-        "inliers, virtual_inliers, real_inliers, virtual_rms_m, real_rms_m, rmse, iterations. "
-        "Options as keywords (StemCentreLmConfig field names).");
+        "inliers, virtual_inliers, real_inliers, virtual_rms_m, real_rms_m, rmse, iterations, "
+        "sweep (sweep_order,6) in-sweep motion coefficients. Options as keywords "
+        "(StemCentreLmConfig field names); with sweep_order > 0 also centre_times (V,) and "
+        "real_times (R,): feature times in seconds from the registration time.");
 
     m.def(
         "register_ndt",
