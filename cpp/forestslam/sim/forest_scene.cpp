@@ -595,22 +595,29 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
                         p.lo[2] > hi[2] || p.hi[2] < lo[2])
                         continue;  // may still meet the bundle in a later column
                     // Tested once for the bundle: each lane whose whole segment can meet the
-                    // box, i.e. whose a range overlaps the box's and whose slope kz reaches
-                    // the box's z extent over it (a contiguous run of the sorted lanes).
+                    // box, i.e. whose a range overlaps the box's and whose slopes sv and kz
+                    // reach the box's v and z extents over it (for kz a contiguous run of the
+                    // sorted lanes). The slope bounds hold over the whole box, so a box no
+                    // active lane's slope reaches is done with for the bundle.
                     stamp[row] = id;
                     const double pa0 = su * (p.lo[au] - ro[au]), pa1 = su * (p.hi[au] - ro[au]);
                     const double pa_lo = std::min(pa0, pa1), pa_hi = std::max(pa0, pa1);
-                    double k_lo = -kInf, k_hi = kInf;
+                    double k_lo = -kInf, k_hi = kInf, s_lo = -kInf, s_hi = kInf;
                     if (pa_lo > 0.0) {
+                        const double r_lo = 1.0 / pa_lo, r_hi = 1.0 / pa_hi;
+                        const double bv0 = p.lo[av] - ro[av], bv1 = p.hi[av] - ro[av];
+                        s_lo = std::min(bv0 * r_lo, bv0 * r_hi);
+                        s_hi = std::max(bv1 * r_lo, bv1 * r_hi);
+                        if (s_lo > sv_hi || s_hi < sv_lo) continue;
                         const double bz0 = p.lo[2] - ro[2], bz1 = p.hi[2] - ro[2];
-                        k_lo = std::min(bz0 / pa_lo, bz0 / pa_hi);
-                        k_hi = std::max(bz1 / pa_lo, bz1 / pa_hi);
+                        k_lo = std::min(bz0 * r_lo, bz0 * r_hi);
+                        k_hi = std::max(bz1 * r_lo, bz1 * r_hi);
                     }
                     bool hit_any = false;
                     for (int a = 0; a < n_active && lanes[a].kz <= k_hi; ++a) {
                         Lane &l = lanes[a];
-                        if (l.kz < k_lo || pa_lo * l.inv_adu > l.t_stop ||
-                            pa_hi * l.inv_adu < l.t_lo)
+                        if (l.kz < k_lo || l.sv < s_lo || l.sv > s_hi ||
+                            pa_lo * l.inv_adu > l.t_stop || pa_hi * l.inv_adu < l.t_lo)
                             continue;
                         const Ray &ray = rays[l.k];
                         Hit &best = hits[l.k];
