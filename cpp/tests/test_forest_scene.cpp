@@ -195,14 +195,19 @@ TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
                                          Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
                                             .toRotationMatrix();
             std::vector<Ray> rays;
+            // A moving sensor: each firing column a little further, jittered (bundles take
+            // origins up to 1 cm apart; real columns are well under a millimetre apart).
+            Eigen::Vector3d origin = origins[o];
+            const Eigen::Vector3d drift(2e-3, -1e-3, 5e-4);
             auto add = [&](const Eigen::Vector3d &local, uint64_t key) {
-                Ray ray = makeRay(origins[o], rot * local);
+                Ray ray = makeRay(origin, rot * local);
                 ray.t_max = 100.0;
                 ray.key = key;
                 rays.push_back(ray);
             };
             // Spinning columns: 16 beams from -15 to +15 degrees, 0.4 degree steps.
             for (int c = 0; c < 900; ++c) {
+                origin += drift + 2e-3 * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, 0.0);
                 const double az = c * 2 * M_PI / 900;
                 for (int b = 0; b < 16; ++b) {
                     const double e = (-15.0 + 2.0 * ((b * 9) % 16)) * M_PI / 180;
@@ -211,6 +216,7 @@ TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
                 }
             }
             // Raster rows: 31 rays across 6 degrees of azimuth at one elevation.
+            origin = origins[o];
             for (int g = 0; g < 60; ++g) {
                 const double az0 = 2 * M_PI * unit(rng), e = 0.4 * (unit(rng) - 0.6);
                 for (int k = 0; k < 31; ++k) {
@@ -235,4 +241,29 @@ TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
     EXPECT_GT(kinds[kBranch], 20);
     EXPECT_GT(kinds[kLog], 20);
     EXPECT_GT(kinds[kShrub], 20);
+}
+
+TEST(ForestScene, BundleWithNearbyOriginsKeepsHitsOfTheOffsetRays) {
+    // Parallel rays from origins spread over 9.5 mm across a thin vertical branch 10 m away: the
+    // first origin's ray misses it, the others hit or miss it depending on their own origin. A
+    // bundle must not judge the others by the first origin.
+    const Cylinder branch{{10, 0, 0}, {10, 0, 3}, 0.02, kBranch};
+    const ForestScene scene(Heightfield(), {}, {branch}, {}, 3.0);
+    std::vector<Ray> rays;
+    for (int k = 0; k < 64; ++k) {
+        Ray ray = makeRay({0, -0.025 + 0.00015 * k, 1.0}, {1, 0, 0.001 * (k % 3)});
+        ray.t_max = 50;
+        rays.push_back(ray);
+    }
+    std::vector<Hit> hits(rays.size());
+    scene.castBatch(rays.data(), rays.size(), hits.data());
+    int n_hit = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const Hit one = scene.cast(rays[i]);
+        EXPECT_EQ(hits[i].t, one.t) << i;
+        EXPECT_EQ(hits[i].object, one.object) << i;
+        n_hit += one.valid();
+    }
+    EXPECT_GT(n_hit, 20);
+    EXPECT_LT(n_hit, 64);
 }

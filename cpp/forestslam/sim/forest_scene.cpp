@@ -414,11 +414,14 @@ Hit ForestScene::cast(const Ray &ray) const {
 
 namespace {
 // Bundling limits: rays within 60 degrees of the walk axis (at most two cells across per
-// column), not steeper than about 87 degrees, and a fan of at most 0.05 in XY slope (about
-// 3 degrees): wider fans would make the shared walk cover many cells no single ray crosses.
+// column), not steeper than about 87 degrees, a fan of at most 0.05 in XY slope (about
+// 3 degrees): wider fans would make the shared walk cover many cells no single ray crosses,
+// and origins within 1 cm of the first ray's (successive firing columns of a moving sensor
+// are a fraction of a millimetre apart).
 constexpr double kBundleMinAxis = 0.5;
 constexpr double kBundleMinHorizontal = 0.05;
 constexpr double kBundleMaxSlopeSpread = 0.05;
+constexpr double kBundleMaxOriginSpread = 0.01;
 }  // namespace
 
 void ForestScene::castBatch(const Ray *rays, size_t n, Hit *hits) const {
@@ -451,7 +454,10 @@ void ForestScene::castBatch(const Ray *rays, size_t n, Hit *hits) const {
             while (j < n && j - i < static_cast<size_t>(kMaxBundle)) {
                 const Ray &r = rays[j];
                 double s;
-                if (r.origin != r0.origin || !slope(r, s)) break;
+                if (!r.origin.allFinite() ||
+                    !((r.origin - r0.origin).cwiseAbs().maxCoeff() <= kBundleMaxOriginSpread) ||
+                    !slope(r, s))
+                    break;
                 const double lo = std::min(s_lo, s), hi = std::max(s_hi, s);
                 if (hi - lo > kBundleMaxSlopeSpread) break;
                 s_lo = lo;
@@ -485,12 +491,18 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
     };
     Lane lanes[kMaxBundle];
     int n_active = 0;
+    // The walk runs from the first ray's origin; every other ray's origin is within eps of it
+    // (in each axis), so a ray translated to the first origin meets a box grown by eps wherever
+    // the ray itself meets the box: all rejections below use boxes grown by eps.
     const Eigen::Vector3d &o = rays[0].origin;
     const double ox = o.x(), oy = o.y(), oz = o.z();
     const double xmax = x0_ + nx_ * cell_, ymax = y0_ + ny_ * cell_;
+    double eps = 0.0;
     for (int k = 0; k < n; ++k) {
-        // Terrain and clipping exactly as cast() does.
+        // Terrain and clipping exactly as cast() does, from the ray's own origin.
         const Ray &ray = rays[k];
+        eps = std::max(eps, (ray.origin - o).cwiseAbs().maxCoeff());
+        const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
         Hit &best = hits[k];
         best = Hit();
         const GridRay grid_ray(ray);
@@ -562,20 +574,23 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
     int iu = static_cast<int>(std::clamp(std::floor((ou - u0) * inv_cell_), 0.0, nu - 1.0));
     for (; n_active > 0 && iu >= 0 && iu < nu; iu += step) {
         // Offsets of this column's near and far boundaries (the origin's column from a = 0).
-        const double a0 = std::max(0.0, su * (u0 + (su > 0 ? iu : iu + 1) * cell_ - ou));
         const double a1 = su * (u0 + (su > 0 ? iu + 1 : iu) * cell_ - ou);
-        if (a1 >= a0) {
-            // Box of all lanes' paths in this column, grid-relative, widened by a hair so that
-            // round-off never drops a cell, a layer or a primitive.
-            const double m = 1e-7;
+        // The lanes' paths over the column, grown by eps along the walk (a point of a ray is
+        // within eps of its translate, whose offset a may then lie just outside the column).
+        const double a0 = std::max(0.0, su * (u0 + (su > 0 ? iu : iu + 1) * cell_ - ou) - eps);
+        const double a1e = a1 + eps;
+        if (a1e >= a0) {
+            // Box of all lanes' paths in this column, grid-relative, widened by eps and a hair
+            // so that round-off never drops a cell, a layer or a primitive.
+            const double m = 1e-7 + eps;
             const double kz_lo = lanes[0].kz, kz_hi = lanes[n_active - 1].kz;
             double lo[3], hi[3];
-            lo[au] = ro[au] + std::min(su * a0, su * a1) - m;
-            hi[au] = ro[au] + std::max(su * a0, su * a1) + m;
-            lo[av] = ro[av] + std::min(a0 * sv_lo, a1 * sv_lo) - m;
-            hi[av] = ro[av] + std::max(a0 * sv_hi, a1 * sv_hi) + m;
-            lo[2] = ro[2] + std::min(a0 * kz_lo, a1 * kz_lo) - m;
-            hi[2] = ro[2] + std::max(a0 * kz_hi, a1 * kz_hi) + m;
+            lo[au] = ro[au] + std::min(su * a0, su * a1e) - m;
+            hi[au] = ro[au] + std::max(su * a0, su * a1e) + m;
+            lo[av] = ro[av] + std::min(a0 * sv_lo, a1e * sv_lo) - m;
+            hi[av] = ro[av] + std::max(a0 * sv_hi, a1e * sv_hi) + m;
+            lo[2] = ro[2] + std::min(a0 * kz_lo, a1e * kz_lo) - m;
+            hi[2] = ro[2] + std::max(a0 * kz_hi, a1e * kz_hi) + m;
             const int iv0 =
                 static_cast<int>(std::clamp(std::floor(lo[av] * inv_cell_), 0.0, nv - 1.0));
             const int iv1 =
@@ -601,15 +616,18 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
                     // active lane's slope reaches is done with for the bundle.
                     stamp[row] = id;
                     const double pa0 = su * (p.lo[au] - ro[au]), pa1 = su * (p.hi[au] - ro[au]);
-                    const double pa_lo = std::min(pa0, pa1), pa_hi = std::max(pa0, pa1);
+                    const double pa_lo = std::min(pa0, pa1) - eps;
+                    const double pa_hi = std::max(pa0, pa1) + eps;
                     double k_lo = -kInf, k_hi = kInf, s_lo = -kInf, s_hi = kInf;
                     if (pa_lo > 0.0) {
                         const double r_lo = 1.0 / pa_lo, r_hi = 1.0 / pa_hi;
-                        const double bv0 = p.lo[av] - ro[av], bv1 = p.hi[av] - ro[av];
+                        const double bv0 = p.lo[av] - ro[av] - eps;
+                        const double bv1 = p.hi[av] - ro[av] + eps;
                         s_lo = std::min(bv0 * r_lo, bv0 * r_hi);
                         s_hi = std::max(bv1 * r_lo, bv1 * r_hi);
                         if (s_lo > sv_hi || s_hi < sv_lo) continue;
-                        const double bz0 = p.lo[2] - ro[2], bz1 = p.hi[2] - ro[2];
+                        const double bz0 = p.lo[2] - ro[2] - eps;
+                        const double bz1 = p.hi[2] - ro[2] + eps;
                         k_lo = std::min(bz0 * r_lo, bz0 * r_hi);
                         k_hi = std::max(bz1 * r_lo, bz1 * r_hi);
                     }
@@ -636,10 +654,11 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
         }
         // Lanes whose segment ends in this column are done (kept one column more when the
         // end lies within round-off of the boundary).
-        if (a_stop_min <= a1 - 1e-9) {
+        const double a_done = a1 - eps - 1e-9;
+        if (a_stop_min <= a_done) {
             int w = 0;
             for (int a = 0; a < n_active; ++a)
-                if (lanes[a].a_stop > a1 - 1e-9) lanes[w++] = lanes[a];
+                if (lanes[a].a_stop > a_done) lanes[w++] = lanes[a];
             n_active = w;
             refresh();
         }

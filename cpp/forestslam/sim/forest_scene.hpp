@@ -79,12 +79,13 @@ class ForestScene {
                         const Eigen::Ref<const Points3> &dirs, double range_min, double range_max,
                         uint64_t seed) const;
 
-    // First hits of rays[0..n): hits[i] is exactly cast(rays[i]). Consecutive rays with the same
-    // origin whose XY directions lie in a narrow fan (a firing column of a spinning sensor, a few
-    // neighbours in a raster row) are cast together: one walk over the grid columns covering
-    // all their XY paths, each primitive of the covered bins rejected once for the whole bundle
-    // against the union of the rays' segments, then tested with a ray-box slab test and the
-    // exact test per ray. Steep rays, wide fans and lone rays are cast one by one.
+    // First hits of rays[0..n): hits[i] is exactly cast(rays[i]). Consecutive rays with origins
+    // within 1 cm of each other whose XY directions lie in a narrow fan (successive firing
+    // columns of a spinning sensor, a few neighbours in a raster row) are cast together: one
+    // walk over the grid columns covering all their XY paths, each primitive of the covered
+    // cells rejected once for the whole bundle, then per ray only where its slopes reach the
+    // primitive's box, and the exact test. Steep rays, wide fans and lone rays are cast one by
+    // one.
     void castBatch(const Ray *rays, size_t n, Hit *hits) const;
 
     const Heightfield &terrain() const { return terrain_; }
@@ -93,8 +94,8 @@ class ForestScene {
   private:
     void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
     bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
-    // n (2..kMaxBundle) rays sharing one origin, their XY directions within 60 degrees of the x
-    // axis (along_x) or of the y axis, all pointing the same way along it. stamp (one per row
+    // n (2..kMaxBundle) rays with nearby origins, their XY directions within 60 degrees of the
+    // x axis (along_x) or of the y axis, all pointing the same way along it. stamp (one per row
     // of prims_) marks with `id` the primitives already tested for this bundle.
     static constexpr int kMaxBundle = 64;
     void castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
