@@ -483,11 +483,11 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
                              uint32_t id) const {
     // Along the walk axis u all rays of the bundle advance together: a ray is at the offset
     // a = |u - u_origin| at t = a / |du|, where it is at v_origin + a sv and z_origin + a kz.
-    // One lane per ray still walking, sorted by kz: its segment [t_lo, t_stop] inside the grid
-    // (t_stop: grid exit, end of range, or the best hit so far) and a_stop = t_stop |du|.
+    // One lane per ray still walking, sorted by kz: its segment inside the grid as offsets
+    // [a_lo, a_stop] (a_stop: grid exit, end of range, or the best hit so far).
     struct Lane {
         int k;
-        double t_lo, t_stop, a_stop, adu, inv_adu, sv, kz;
+        double a_lo, a_stop, adu, sv, kz;
     };
     Lane lanes[kMaxBundle];
     int n_active = 0;
@@ -529,22 +529,19 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
             t1 = std::min(t1, std::max(ta, tb));
         }
         if (!(t <= t1)) continue;
-        Lane l;
+        Lane &l = lanes[n_active++];
         l.k = k;
-        l.t_lo = t;
-        l.t_stop = std::min(t1, best.t);
         const double du = along_x ? ray.dir.x() : ray.dir.y();
         const double dv = along_x ? ray.dir.y() : ray.dir.x();
         l.adu = std::abs(du);
-        l.inv_adu = 1.0 / l.adu;
-        l.sv = dv * l.inv_adu;
-        l.kz = dz * l.inv_adu;
-        l.a_stop = l.t_stop * l.adu;
-        int a = n_active++;
-        for (; a > 0 && lanes[a - 1].kz > l.kz; --a) lanes[a] = lanes[a - 1];
-        lanes[a] = l;
+        const double inv_adu = 1.0 / l.adu;
+        l.sv = dv * inv_adu;
+        l.kz = dz * inv_adu;
+        l.a_lo = t * l.adu;
+        l.a_stop = std::min(t1, best.t) * l.adu;
     }
     if (n_active == 0) return;
+    std::sort(lanes, lanes + n_active, [](const Lane &a, const Lane &b) { return a.kz < b.kz; });
     const double su = (along_x ? rays[0].dir.x() : rays[0].dir.y()) > 0 ? 1.0 : -1.0;
     const int step = su > 0 ? 1 : -1;
     const double u0 = along_x ? x0_ : y0_;
@@ -631,11 +628,15 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
                         k_lo = std::min(bz0 * r_lo, bz0 * r_hi);
                         k_hi = std::max(bz1 * r_lo, bz1 * r_hi);
                     }
-                    bool hit_any = false;
-                    for (int a = 0; a < n_active && lanes[a].kz <= k_hi; ++a) {
+                    int a = 0;
+                    if (k_lo > lanes[0].kz)
+                        a = static_cast<int>(
+                            std::partition_point(lanes, lanes + n_active,
+                                                 [&](const Lane &l) { return l.kz < k_lo; }) -
+                            lanes);
+                    for (; a < n_active && lanes[a].kz <= k_hi; ++a) {
                         Lane &l = lanes[a];
-                        if (l.kz < k_lo || l.sv < s_lo || l.sv > s_hi ||
-                            pa_lo * l.inv_adu > l.t_stop || pa_hi * l.inv_adu < l.t_lo)
+                        if (l.sv < s_lo || l.sv > s_hi || pa_lo > l.a_stop || pa_hi < l.a_lo)
                             continue;
                         const Ray &ray = rays[l.k];
                         Hit &best = hits[l.k];
@@ -643,12 +644,10 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
                         if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) &&
                             h.t < best.t) {
                             best = h;
-                            l.t_stop = std::min(l.t_stop, h.t);
-                            l.a_stop = l.t_stop * l.adu;
-                            hit_any = true;
+                            l.a_stop = std::min(l.a_stop, h.t * l.adu);
+                            a_stop_min = std::min(a_stop_min, l.a_stop);
                         }
                     }
-                    if (hit_any) refresh();
                 }
             }
         }
