@@ -51,10 +51,21 @@ def pose(x: float, y: float, yaw: float, z: float = MLS_HEIGHT_M - STATION_HEIGH
     return T
 
 
-def mls_frame(trees: np.ndarray, T_tls_sensor: np.ndarray, stamp: float, seed: int = 0) -> Scan:
-    """VLP-16 scan from a levelled pose (x, y, yaw) at MLS_HEIGHT_M above the ground."""
+def mls_frame(
+    trees: np.ndarray,
+    T_tls_sensor: np.ndarray,
+    stamp: float,
+    seed: int = 0,
+    with_times: bool = False,
+) -> Scan:
+    """VLP-16 scan from a levelled pose (x, y, yaw) at MLS_HEIGHT_M above the ground. With
+    with_times, per-point times of a 0.1 s sweep (from the azimuth), the pose held still."""
     R = T_tls_sensor[:2, :2]
     local = (trees[:, :2] - T_tls_sensor[:2, 3]) @ R
     frame_trees = np.column_stack([local, trees[:, 2]])
     scan = synthetic_scan("vlp16", frame_trees, sensor_height_m=MLS_HEIGHT_M, seed=seed)
-    return Scan(stamp, scan.points, scan.intensity, scan.ring, scan.time)
+    times = scan.time
+    if with_times:
+        az = np.arctan2(scan.points[:, 1], scan.points[:, 0])
+        times = 0.1 * (az + np.pi) / (2 * np.pi)
+    return Scan(stamp, scan.points, scan.intensity, scan.ring, times)

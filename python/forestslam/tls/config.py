@@ -33,6 +33,14 @@ class MapConfig:
     # has enough virtual pairs; frames without stems still get a pose but never join the map.
     accept_virtual_rms_m: float = 0.03
     accept_min_virtual_inliers: int = 24
+    # ... and when it also sits on the TLS reference itself, not only on the growing map (which
+    # may hold frames with small errors): the LM of the frame against the reference alone,
+    # started at the frame's pose with the fine gates, must converge, not be degenerate and
+    # move the pose by at most accept_reference_max_m / accept_reference_max_deg. A frame
+    # placed on wrongly merged frames, or in a wrong local minimum, moves (or fails) there.
+    accept_reference_max_m: float = 0.03
+    accept_reference_max_deg: float = 0.3
+    accept_reference_rounds: int = 4
     frame_min_range_m: float = 1.0  # the operator carrying the scanner is not mapped
     frame_max_range_m: float = 25.0
     # Accepted frames are merged into the map (and the LM target rebuilt) in batches of this
@@ -65,6 +73,11 @@ class RegistrationConfig:
     # Spinning scans with per-point time are deskewed (constant velocity from the last two
     # frames) to the middle of their sweep and registered there.
     deskew: bool = True
+    # ... and, once registered rigidly, registered again with the motion during the sweep
+    # estimated as a polynomial of this order in time (0: rigid frames; see tls.sweep), with
+    # sweep_lm_rounds correspondence rounds; kept when that LM is trusted. Needs per-point time.
+    sweep_order: int = 2
+    sweep_lm_rounds: int = 10
     lm_converged_translation_m: float = 1e-3  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: float = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
@@ -85,6 +98,11 @@ class RegistrationConfig:
     # lost and each frame is also placed afresh by the coarse stem alignment (then LM; kept
     # when trusted with its stems on the reference's stems).
     relocalize_after_frames: int = 3
+    # The velocity (deskew, NDT guess, prediction) is only used while it is fresh: measured
+    # between two consecutive trusted frames at most this long ago. A stale velocity (e.g. the
+    # turn rate at the moment tracking was lost) would keep distorting every later frame by
+    # its deskew and send the prediction around in circles, so tracking could never recover.
+    max_velocity_age_s: float = 0.5
 
 
 @dataclass

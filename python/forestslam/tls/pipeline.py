@@ -28,12 +28,14 @@ from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
+    FrameFeatures,
     coarse_stem_alignment,
     frame_features,
     ground_height_near,
     planar_pose,
     reference_stems,
 )
+from forestslam.tls.sweep import apply_sweep, feature_times
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +67,14 @@ class FrameRecord:
     t_mid_s: float = 0.0
     deskew_twist: np.ndarray = field(default_factory=lambda: np.zeros(6))
     T_tls_mid: np.ndarray = field(default_factory=lambda: np.eye(4))  # pose at t_mid_s
+    relocalized: bool = False  # placed afresh by its stems on the reference's (tracking lost)
+    # The acceptance test against the reference alone (NaN when not run): how far the LM on
+    # the reference moved the frame's pose.
+    reference_correction_m: float = float("nan")
+    reference_correction_deg: float = float("nan")
+    # In-sweep motion (K,6) estimated by the LM (see tls.sweep.apply_sweep; empty: rigid),
+    # applied to the points (deskewed to t_mid_s) after deskew_twist.
+    sweep: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
 
 
 @dataclass
@@ -122,6 +132,21 @@ def _frame_points_times(
         times = t[ok]
     rings = None if scan.ring is None else np.asarray(scan.ring)[ok]
     return np.ascontiguousarray(pts[ok]), rings, times
+
+
+def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.ndarray:
+    """The usable points (N,3) of a registered frame in its registration frame (the sensor at
+    record.t_mid_s), as the pipeline merged them: deskewed with record.deskew_twist and moved
+    by its in-sweep motion record.sweep. Place them with record.T_tls_mid."""
+    pts, _, times = _frame_points_times(scan, config)
+    if times is None:
+        return pts
+    tau = times - record.t_mid_s
+    if np.any(record.deskew_twist):
+        pts = deskew_points(pts, tau, record.deskew_twist)
+    if len(record.sweep):
+        pts = apply_sweep(pts, tau, record.T_tls_mid, record.sweep)
+    return pts
 
 
 class _GlobalMap:
@@ -218,8 +243,14 @@ def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
     return True
 
 
-def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
+def _lm(core, target, feats, T_init, config: TlsConfig, **options) -> dict:
     reg = config.registration
+    options = {
+        "max_rounds": reg.lm_max_rounds,
+        "converged_translation_m": reg.lm_converged_translation_m,
+        "converged_rotation_rad": reg.lm_converged_rotation_rad,
+        **options,
+    }
     return core.register_stem_centre_lm(
         target,
         feats.centres,
@@ -229,10 +260,79 @@ def _lm(core, target, feats, T_init, config: TlsConfig) -> dict:
         virtual_gate_m=reg.lm_virtual_gate_m,
         plane_gate_m=reg.lm_plane_gate_m,
         robust_scale_m=reg.lm_robust_scale_m,
-        max_rounds=reg.lm_max_rounds,
-        converged_translation_m=reg.lm_converged_translation_m,
-        converged_rotation_rad=reg.lm_converged_rotation_rad,
+        **options,
     )
+
+
+class _ReferenceCheck:
+    """The acceptance test against the TLS reference alone (see MapConfig.accept_reference_*):
+    a KD-tree over the voxelized reference, built on first use; the frame's LM from its pose
+    with the fine gates only (no coarse start) and a few rounds."""
+
+    def __init__(self, reference: np.ndarray, config: TlsConfig):
+        self.reference = reference
+        self.config = config
+        self.target = None
+
+    def __call__(self, feats, T: np.ndarray) -> tuple[bool, dict]:
+        core = _core()
+        if self.target is None:
+            voxel = max(self.config.map.target_voxel_m, self.config.map.voxel_m)
+            self.target = core.StemCentreTarget(core.voxel_downsample(self.reference, voxel))
+        m = self.config.map
+        r = _lm(
+            core,
+            self.target,
+            feats,
+            T,
+            self.config,
+            max_rounds=m.accept_reference_rounds,
+            coarse_gate_factor=1.0,
+        )
+        dt, dr = _correction(T, r["T_target_source"])
+        r["correction_m"], r["correction_deg"] = dt, dr
+        ok = (
+            bool(r["converged"])
+            and not r["degenerate"]
+            and dt <= m.accept_reference_max_m
+            and dr <= m.accept_reference_max_deg
+        )
+        return ok, r
+
+
+def _sweep_lm(lm: dict, feats, points, times, t_mid: float, lm_at, config: TlsConfig, ms: dict):
+    """The trusted rigid result lm refined with the motion during the sweep (see tls.sweep)
+    -> (LM result, features moved by that motion into the registration frame, sweep (K,6)),
+    or None when the refined LM is not trusted (then the rigid result stands)."""
+    reg = config.registration
+    t0 = time.process_time()
+    real = feats.real_points
+    tau_c = feature_times(feats.centres, points, times) - t_mid
+    tau_r = feature_times(real, points, times) - t_mid
+    ms["features"] += (time.process_time() - t0) * 1e3
+    T0 = np.asarray(lm["T_target_source"])
+    result = lm_at(
+        T0,
+        sweep_order=reg.sweep_order,
+        centre_times=np.ascontiguousarray(tau_c),
+        real_times=np.ascontiguousarray(tau_r),
+        max_rounds=reg.sweep_lm_rounds,
+        coarse_gate_factor=1.0,
+    )
+    if not _trusted(result, T0, config):
+        return None
+    T, sweep = np.asarray(result["T_target_source"]), np.asarray(result["sweep"])
+    real = apply_sweep(real, tau_r, T, sweep)
+    k = len(feats.keypoints)
+    moved = FrameFeatures(
+        centres=apply_sweep(feats.centres, tau_c, T, sweep),
+        radii=feats.radii,
+        stems=feats.stems,
+        stem_radii=feats.stem_radii,
+        keypoints=real[:k],
+        ground=real[k:],
+    )
+    return result, moved, sweep
 
 
 def _coarse_initial_pose(
@@ -288,6 +388,7 @@ def register_mls_to_tls(
     core = _core()
     ref = _check_reference(reference)
     gmap = _GlobalMap(ref, config)
+    check_reference = _ReferenceCheck(ref, config)
     ref_stems = None
     frames: list[FrameRecord] = []
     centres: list[np.ndarray] = []
@@ -302,6 +403,7 @@ def register_mls_to_tls(
     # Velocity: body-frame twist (6,) per second (translation, rotation vector) between the
     # mid-sweep frames of the last two consecutive frames; t_prev the previous mid-sweep time.
     twist = np.zeros(6)
+    t_twist = None  # mid-sweep time of the frame that gave the twist
     t_prev = None
     seen = 0
     method = "given" if initial_pose is not None else "stems"
@@ -321,18 +423,20 @@ def register_mls_to_tls(
         t_mid = 0.0 if times is None else float(0.5 * (times.min() + times.max()))
         t_ref = float(scan.stamp) + t_mid
         dt = 0.0 if t_prev is None else max(t_ref - t_prev, 1e-6)
+        if t_twist is None or t_ref - t_twist > config.registration.max_velocity_age_s:
+            twist = np.zeros(6)  # stale: no deskew, no extrapolation over a long gap
         t0 = time.process_time()
         if times is not None and t_prev is not None and np.any(twist):
             points = deskew_points(points, times - t_mid, twist)
         feats = frame_features(points, rings, config.features)
         ms = {"features": (time.process_time() - t0) * 1e3, "ndt": 0.0, "target": 0.0, "lm": 0.0}
 
-        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms) -> dict:
+        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms, **options) -> dict:
             """LM of this frame from T_start against the map target cropped around it."""
             t0 = time.process_time()
             target, _ = gmap.target_at(T_start[:2, 3], _z_range(points, T_start))
             t1 = time.process_time()
-            result = _lm(core, target, feats, T_start, config)
+            result = _lm(core, target, feats, T_start, config, **options)
             ms["target"] += (t1 - t0) * 1e3
             ms["lm"] += (time.process_time() - t1) * 1e3
             return result
@@ -379,7 +483,7 @@ def register_mls_to_tls(
 
         lm = lm_at(T_init)
         good = _trusted(lm, T_pred, config)
-        fallback = False
+        fallback = relocalized = False
         if not good and T_good is not None and config.registration.initial_pose != "ndt":
             # Fallback: NDT against the previous frame, chained onto its pose.
             T_ndt = ndt_from_previous(V)
@@ -407,8 +511,15 @@ def register_mls_to_tls(
                 if _trusted(lm2, None, config) and _stems_on_reference(
                     feats, lm2["T_target_source"], ref_stems, config
                 ):
-                    lm, good, fallback = lm2, True, True
+                    lm, good, fallback, relocalized = lm2, True, True, True
                     log.info("frame %d at %.3f: relocalized on the reference stems", index, t_ref)
+        # Motion during the sweep: the trusted frame registered again with it (continuous time).
+        sweep = np.zeros((0, 6))
+        if good and times is not None and config.registration.sweep_order > 0:
+            refined = _sweep_lm(lm, feats, points, times, t_mid, lm_at, config, ms)
+            if refined is not None:
+                lm, feats, sweep = refined
+                points = apply_sweep(points, times - t_mid, lm["T_target_source"], sweep)
         # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
         # paper); else the initial pose. Only trusted frames join the map.
         lm_ok = lm["converged"] and not lm["degenerate"]
@@ -432,8 +543,21 @@ def register_mls_to_tls(
         # registered onto earlier wrongly placed frames must not spread the error.
         if ref_stems is None:
             ref_stems = reference_stems(ref, config.features)
-        accepted = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
-        lost = 0 if accepted else lost + 1
+        on_reference = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
+        # A relocalized frame restarts the tracking but does not join the map itself (a coarse
+        # placement can sit in a wrong minimum and still look trusted); a frame joins only when
+        # its pose also holds on the TLS reference alone (see MapConfig.accept_reference_*).
+        # With per-point times, only a frame whose in-sweep motion was estimated joins: a rigid
+        # frame of a vibrating scanner is distorted by centimetres (its ground above all).
+        swept = len(sweep) > 0 or times is None or config.registration.sweep_order <= 0
+        accepted = False
+        ref_dt = ref_dr = float("nan")
+        if on_reference and swept and not relocalized:
+            t0 = time.process_time()
+            accepted, check = check_reference(feats, T)
+            ms["lm"] += (time.process_time() - t0) * 1e3
+            ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
+        lost = 0 if on_reference else lost + 1
         if accepted:
             pts_tls = points @ T[:3, :3].T + T[:3, 3]
             gmap.add(pts_tls)
@@ -443,6 +567,7 @@ def register_mls_to_tls(
         # poses: a bad pose would distort the next frames through the deskew.
         if T_prev is not None and good and prev_good:
             twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
+            t_twist = t_ref
         record = FrameRecord(
             stamp=float(scan.stamp),
             T_tls_sensor=np.asarray(T @ se3_exp(-twist * t_mid)),
@@ -461,6 +586,10 @@ def register_mls_to_tls(
             t_mid_s=t_mid,
             deskew_twist=twist_used if times is not None else np.zeros(6),
             T_tls_mid=np.asarray(T),
+            relocalized=relocalized,
+            reference_correction_m=ref_dt,
+            reference_correction_deg=ref_dr,
+            sweep=sweep,
         )
         frames.append(record)
         if on_frame is not None:
