@@ -97,7 +97,7 @@ class ForestScene {
     // n (2..kMaxBundle) rays with nearby origins, their XY directions within 60 degrees of the
     // x axis (along_x) or of the y axis, all pointing the same way along it. stamp (one per row
     // of prims_) marks with `id` the primitives already tested for this bundle.
-    static constexpr int kMaxBundle = 64;
+    static constexpr int kMaxBundle = 128;
     void castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
                     uint32_t id) const;
 
