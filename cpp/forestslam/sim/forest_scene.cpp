@@ -679,33 +679,43 @@ CastResult ForestScene::castRays(const Eigen::Ref<const Points3> &origins,
     out.surface.setZero(n);
     out.object.setConstant(n, -1);
     out.cos_incidence.setZero(n);
+    // In chunks of a few thousand rays: memory stays small for millions of rays, and rays
+    // sharing an origin are still cast together (castBatch gives the same hits wherever a chunk
+    // ends).
+    constexpr Eigen::Index kChunk = 4096;
     std::vector<Ray> rays;
     std::vector<Eigen::Index> rows;
-    rays.reserve(static_cast<size_t>(n));
-    rows.reserve(static_cast<size_t>(n));
-    for (Eigen::Index i = 0; i < n; ++i) {
-        Ray ray;
-        ray.origin = origins.row(i / per_origin).transpose();
-        ray.dir = dirs.row(i).transpose();
-        const double norm = ray.dir.norm();
-        if (!(norm > 0.0) || !ray.origin.allFinite() || !std::isfinite(norm)) continue;
-        ray.dir /= norm;
-        ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
-        ray.t_max = range_max;
-        ray.key = mixKey(seed, static_cast<uint64_t>(i));
-        rays.push_back(ray);
-        rows.push_back(i);
-    }
-    std::vector<Hit> hits(rays.size());
-    castBatch(rays.data(), rays.size(), hits.data());
-    for (size_t q = 0; q < rays.size(); ++q) {
-        const Hit &hit = hits[q];
-        const Eigen::Index i = rows[q];
-        if (!hit.valid() || hit.t < range_min) continue;
-        out.range[i] = hit.t;
-        out.surface[i] = hit.surface;
-        out.object[i] = hit.object;
-        out.cos_incidence[i] = hit.cos_incidence;
+    std::vector<Hit> hits;
+    rays.reserve(kChunk);
+    rows.reserve(kChunk);
+    for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
+        const Eigen::Index end = std::min(n, begin + kChunk);
+        rays.clear();
+        rows.clear();
+        for (Eigen::Index i = begin; i < end; ++i) {
+            Ray ray;
+            ray.origin = origins.row(i / per_origin).transpose();
+            ray.dir = dirs.row(i).transpose();
+            const double norm = ray.dir.norm();
+            if (!(norm > 0.0) || !ray.origin.allFinite() || !std::isfinite(norm)) continue;
+            ray.dir /= norm;
+            ray.t_min = 0.0;  // anything closer than range_min still blocks the beam
+            ray.t_max = range_max;
+            ray.key = mixKey(seed, static_cast<uint64_t>(i));
+            rays.push_back(ray);
+            rows.push_back(i);
+        }
+        hits.resize(rays.size());
+        castBatch(rays.data(), rays.size(), hits.data());
+        for (size_t q = 0; q < rays.size(); ++q) {
+            const Hit &hit = hits[q];
+            const Eigen::Index i = rows[q];
+            if (!hit.valid() || hit.t < range_min) continue;
+            out.range[i] = hit.t;
+            out.surface[i] = hit.surface;
+            out.object[i] = hit.object;
+            out.cos_incidence[i] = hit.cos_incidence;
+        }
     }
     return out;
 }

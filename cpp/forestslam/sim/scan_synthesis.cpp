@@ -129,17 +129,19 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
     out.surface.resize(n);
     out.object.resize(n);
     Eigen::Index kept = 0;
-    // Rays in chunks of whole groups (a few thousand rays stay in cache), cast together so that
-    // rays sharing a pose share their grid walk (ForestScene::castBatch, same hits as one by one).
-    constexpr Eigen::Index kChunk = 2048;
+    // Rays in chunks of a few thousand (they stay in cache; memory does not grow with a TLS
+    // station's millions of rays), ending at a group boundary when one comes soon, cast together
+    // so that rays sharing a pose share their grid walk (ForestScene::castBatch: same hits as one
+    // by one, wherever a chunk ends).
+    constexpr Eigen::Index kChunk = 2048, kChunkSlack = 256;
     std::vector<Ray> rays;
     std::vector<Eigen::Index> rows;
     std::vector<double> norms;
     std::vector<Hit> hits;
-    rays.reserve(kChunk + 64);
+    rays.reserve(kChunk + kChunkSlack);
     for (Eigen::Index begin = 0; begin < n;) {
         Eigen::Index end = std::min(n, begin + kChunk);
-        while (end < n && group[end] == group[end - 1]) ++end;
+        while (end < n && end - begin < kChunk + kChunkSlack && group[end] == group[end - 1]) ++end;
         rays.clear();
         rows.clear();
         norms.clear();
