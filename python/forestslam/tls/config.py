@@ -113,6 +113,12 @@ class TreeConfig:
     ground_cell_m: float = 1.0
     coverage_sectors: int = 36
     coverage_tolerance_m: float = 0.03
+    # Stem detection in the cloud (layer circle fits, see features.reference_stems): inlier
+    # threshold and largest fit RMS. A plot map merged from mobile frames has stem walls as
+    # thick as the mobile scanner's range noise (VLP-16: 1.5 cm sigma) plus the registration
+    # spread, so the single-scan gates (1.5 cm) drop most of its stems; 2x the sensor noise.
+    stem_fit_inlier_m: float = 0.03
+    stem_max_fit_rms_m: float = 0.03
 
 
 @dataclass

@@ -108,9 +108,13 @@ def frame_features(
     )
 
 
-def reference_stems(points: np.ndarray, config: FeatureConfig) -> tuple[np.ndarray, np.ndarray]:
+def reference_stems(
+    points: np.ndarray, config: FeatureConfig, **fit_options
+) -> tuple[np.ndarray, np.ndarray]:
     """Stem positions (S,3) and radii (S,) of a TLS / map cloud, from horizontal layers between
-    0.5 m and 3.5 m above its lowest ground (cheap, and below most crowns)."""
+    0.5 m and 3.5 m above its lowest ground (cheap, and below most crowns). fit_options: layer
+    circle-fit options of extract_virtual_features (e.g. fit_inlier_m, max_fit_rms_m: a map
+    merged from noisy mobile frames has thicker stem walls than one TLS scan)."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0)
@@ -122,6 +126,7 @@ def reference_stems(points: np.ndarray, config: FeatureConfig) -> tuple[np.ndarr
         max_diameter_m=config.max_diameter_m,
         min_z_m=ground + 0.5,
         max_z_m=ground + 3.5,
+        **fit_options,
     )
     return np.asarray(vf["stems"]).reshape(-1, 3), np.asarray(vf["stem_radii"])
 

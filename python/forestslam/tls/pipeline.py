@@ -5,6 +5,14 @@ MLS frames) cropped around the predicted pose. When the LM from the prediction i
 (not converged, degenerate, high residuals, or a correction too large for the motion model),
 3D-NDT against the last trusted frame chained onto its pose (the paper's Section 3.3) gives a
 second initial pose. Frames that still fail are rejected: not merged, not chained from.
+The velocity (deskew, prediction) is used only while fresh (RegistrationConfig
+.max_velocity_age_s). A trusted frame of a spinning scanner is registered again with its motion
+during the sweep (continuous time, see tls.sweep) and its points are moved with it.
+
+What joins the map: a trusted frame whose in-sweep motion was estimated (when it has per-point
+times), whose stems sit on the reference's stems, that was not itself relocalized, and whose
+pose holds on the TLS reference alone (MapConfig.accept_reference_*). Frames that do not join
+still get a pose (tracking goes on through them).
 
 The first frame's pose in the TLS frame comes from `initial_pose` when given, else from a
 coarse stem alignment: stem positions of the frame (ring circle fits) are matched to those of

@@ -61,7 +61,12 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
     """Stems from horizontal-layer stem centres, DBH by the robust circle fit on the band
     config.band_m above the local ground (dbh_std_m from four sub-slices)."""
     points = np.ascontiguousarray(points, dtype=np.float64)
-    stems, radii = reference_stems(points, features)
+    stems, radii = reference_stems(
+        points,
+        features,
+        fit_inlier_m=config.stem_fit_inlier_m,
+        max_fit_rms_m=config.stem_max_fit_rms_m,
+    )
     if len(stems) == 0:
         empty = np.zeros(0)
         return PlotTrees(np.zeros((0, 3)), empty, empty, empty, [])
