@@ -267,3 +267,23 @@ TEST(ForestScene, BundleWithNearbyOriginsKeepsHitsOfTheOffsetRays) {
     EXPECT_GT(n_hit, 20);
     EXPECT_LT(n_hit, 64);
 }
+
+TEST(ForestScene, BundleWalkStartsBehindTheFirstOrigin) {
+    // The first ray's origin lies just past a cell boundary; the second ray starts 4.5 mm
+    // behind it, in the previous cell, and meets a thin twig there at once.
+    // The anchors make the grid start at x = 0 and span three 3 m cells.
+    const Cylinder anchor{{0.05, 10, 0}, {0.05, 10, 3}, 0.05, kBranch};
+    const Cylinder far_anchor{{8.5, 10, 0}, {8.5, 10, 3}, 0.05, kBranch};
+    const Cylinder twig{{2.998, 0, 0}, {2.998, 0, 2}, 0.0005, kBranch};
+    const ForestScene scene(Heightfield(), {}, {anchor, twig, far_anchor}, {}, 3.0);
+    std::vector<Ray> rays = {makeRay({3.0005, 0, 1}, {1, 0, 0}), makeRay({2.996, 0, 1}, {1, 0, 0})};
+    std::vector<Hit> hits(rays.size());
+    scene.castBatch(rays.data(), rays.size(), hits.data());
+    EXPECT_FALSE(scene.cast(rays[0]).valid());
+    EXPECT_FALSE(hits[0].valid());
+    const Hit one = scene.cast(rays[1]);
+    ASSERT_TRUE(one.valid());
+    EXPECT_NEAR(one.t, 0.0015, 1e-9);
+    EXPECT_EQ(hits[1].t, one.t);
+    EXPECT_EQ(hits[1].object, 1);
+}

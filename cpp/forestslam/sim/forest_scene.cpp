@@ -503,7 +503,7 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
         // Terrain and clipping exactly as cast() does, from the ray's own origin.
         const Ray &ray = rays[k];
         eps = std::max(eps, (ray.origin - o).cwiseAbs().maxCoeff());
-        const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
+        const double rx = ray.origin.x(), ry = ray.origin.y(), rz = ray.origin.z();
         Hit &best = hits[k];
         best = Hit();
         const GridRay grid_ray(ray);
@@ -511,21 +511,21 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
         const double dz = ray.dir.z();
         double t_end = std::min(ray.t_max, best.t);
         if (dz > 0.0) {
-            if (oz > z_max_) continue;
-            t_end = std::min(t_end, (z_max_ - oz) / dz + 1e-9);
+            if (rz > z_max_) continue;
+            t_end = std::min(t_end, (z_max_ - rz) / dz + 1e-9);
         }
         double t = ray.t_min, t1 = t_end;
         if (grid_ray.inv_dx == 0.0) {
-            if (ox < x0_ || ox > xmax) continue;
+            if (rx < x0_ || rx > xmax) continue;
         } else {
-            const double ta = (x0_ - ox) * grid_ray.inv_dx, tb = (xmax - ox) * grid_ray.inv_dx;
+            const double ta = (x0_ - rx) * grid_ray.inv_dx, tb = (xmax - rx) * grid_ray.inv_dx;
             t = std::max(t, std::min(ta, tb));
             t1 = std::min(t1, std::max(ta, tb));
         }
         if (grid_ray.inv_dy == 0.0) {
-            if (oy < y0_ || oy > ymax) continue;
+            if (ry < y0_ || ry > ymax) continue;
         } else {
-            const double ta = (y0_ - oy) * grid_ray.inv_dy, tb = (ymax - oy) * grid_ray.inv_dy;
+            const double ta = (y0_ - ry) * grid_ray.inv_dy, tb = (ymax - ry) * grid_ray.inv_dy;
             t = std::max(t, std::min(ta, tb));
             t1 = std::min(t1, std::max(ta, tb));
         }
@@ -569,9 +569,12 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
     };
     refresh();
     const double ou = along_x ? ox : oy;
-    int iu = static_cast<int>(std::clamp(std::floor((ou - u0) * inv_cell_), 0.0, nu - 1.0));
+    // From the column of the rearmost origin: the others start up to eps behind the first.
+    int iu =
+        static_cast<int>(std::clamp(std::floor((ou - su * eps - u0) * inv_cell_), 0.0, nu - 1.0));
     for (; n_active > 0 && iu >= 0 && iu < nu; iu += step) {
-        // Offsets of this column's near and far boundaries (the origin's column from a = 0).
+        // Offsets of this column's near and far boundaries from the first origin (its column
+        // and any behind it from a = 0).
         const double a1 = su * (u0 + (su > 0 ? iu + 1 : iu) * cell_ - ou);
         // The lanes' paths over the column, grown by eps along the walk (a point of a ray is
         // within eps of its translate, whose offset a may then lie just outside the column).
