@@ -287,3 +287,85 @@ TEST(ForestScene, BundleWalkStartsBehindTheFirstOrigin) {
     EXPECT_EQ(hits[1].t, one.t);
     EXPECT_EQ(hits[1].object, 1);
 }
+
+TEST(ForestScene, BundledCastsMatchAmongDenseTwigsNearTheSensors) {
+    // Stress for the bundle's conservative rejections: many millimetre twigs and small leaf
+    // clumps right around the sensors, small cells (frequent boundaries), origins jittered by up
+    // to 1 cm within a bundle, fans up to the bundling limit, every walk direction.
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> unit(0, 1), pos(-4, 4);
+    std::vector<Cylinder> cyl;
+    std::vector<FoliageEllipsoid> fol;
+    std::vector<Stem> stems;
+    for (int i = 0; i < 1500; ++i) {
+        const Eigen::Vector3d a(pos(rng), pos(rng), 2 * unit(rng));
+        const Eigen::Vector3d d = Eigen::Vector3d(pos(rng), pos(rng), pos(rng)).normalized();
+        cyl.push_back({a, a + (0.05 + 0.3 * unit(rng)) * d, 0.001 + 0.004 * unit(rng), kBranch});
+    }
+    for (int i = 0; i < 300; ++i)
+        fol.push_back({{pos(rng), pos(rng), 2 * unit(rng)},
+                       {0.02 + 0.1 * unit(rng), 0.02 + 0.1 * unit(rng), 0.02 + 0.1 * unit(rng)},
+                       5.0,
+                       kShrub});
+    for (int i = 0; i < 20; ++i) {
+        Stem st;
+        st.base = {pos(rng), pos(rng), 0.0};
+        st.semi_a = st.semi_b = 0.03 + 0.05 * unit(rng);
+        st.height = 2.5;
+        st.bark_amp = 0.002;
+        stems.push_back(st);
+    }
+    const Heightfield hf(-6, -6, 0.5, planeGrid(24, 0.5, -6, -6, 0.02, 0.01, -0.2));
+    int checked = 0, hit_objects = 0;
+    for (double cell_m : {0.7, 0.31}) {
+        const ForestScene scene(hf, stems, cyl, fol, cell_m);
+        std::vector<Ray> rays;
+        for (int b = 0; b < 400; ++b) {
+            const Eigen::Vector3d o(pos(rng), pos(rng), 0.2 + 1.6 * unit(rng));
+            const double az = 2 * M_PI * unit(rng), fan = 0.2 * unit(rng);
+            const int m = 2 + static_cast<int>(60 * unit(rng));
+            for (int k = 0; k < m; ++k) {
+                const double a = az + fan * unit(rng), e = 0.8 * (unit(rng) - 0.5);
+                Ray ray =
+                    makeRay(o + 0.01 * Eigen::Vector3d(unit(rng), unit(rng), unit(rng)),
+                            {std::cos(e) * std::cos(a), std::cos(e) * std::sin(a), std::sin(e)});
+                ray.t_max = 20.0;
+                ray.key = rays.size();
+                rays.push_back(ray);
+            }
+        }
+        std::vector<Hit> hits(rays.size());
+        scene.castBatch(rays.data(), rays.size(), hits.data());
+        for (size_t i = 0; i < rays.size(); ++i) {
+            const Hit one = scene.cast(rays[i]);
+            ASSERT_EQ(hits[i].t, one.t) << i;
+            ASSERT_EQ(hits[i].object, one.object) << i;
+            ASSERT_EQ(hits[i].surface, one.surface) << i;
+            hit_objects += one.valid() && one.surface != kGround;
+            ++checked;
+        }
+    }
+    EXPECT_GT(checked, 20000);
+    EXPECT_GT(hit_objects, 2000);
+}
+
+TEST(ForestScene, BundleKeepsAnOffsetRayUpToItsOwnRangeEnd) {
+    // The second ray starts 5 mm ahead of the first; its range ends 4.5 mm past a cell
+    // boundary, just after a twig that lies wholly in the next cell. Seen from the first origin
+    // its range ends before the boundary: the bundle must still test the twig for it.
+    const Cylinder anchor{{0.05, 10, 0}, {0.05, 10, 3}, 0.05, kBranch};  // grid from x = 0
+    const Cylinder far_anchor{{8.5, 10, 0}, {8.5, 10, 3}, 0.05, kBranch};
+    const Cylinder twig{{3.002, 0, 0}, {3.002, 0, 2}, 0.0005, kBranch};
+    const ForestScene scene(Heightfield(), {}, {anchor, twig, far_anchor}, {}, 3.0);
+    std::vector<Ray> rays = {makeRay({0.5, 0.008, 1}, {1, 0, 0}),
+                             makeRay({0.505, 0, 1}, {1, 0, 0})};
+    rays[1].t_max = 2.4995;
+    std::vector<Hit> hits(rays.size());
+    scene.castBatch(rays.data(), rays.size(), hits.data());
+    const Hit one = scene.cast(rays[1]);
+    ASSERT_TRUE(one.valid());
+    EXPECT_NEAR(one.t, 2.4965, 1e-9);
+    EXPECT_EQ(hits[1].t, one.t);
+    EXPECT_EQ(hits[1].object, 1);
+    EXPECT_EQ(hits[0].t, scene.cast(rays[0]).t);
+}
