@@ -302,38 +302,46 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
     return true;
 }
 
-Hit ForestScene::cast(const Ray &ray) const {
-    Hit best;
-    const GridRay grid_ray(ray);
+bool ForestScene::startCast(const Ray &ray, const GridRay &grid_ray, Hit &best, double &t,
+                            double &t1) const {
     terrain_.intersect(ray, grid_ray, ray.t_max, best);
-    if (nx_ == 0) return best;
-    const double oz = ray.origin.z(), dz = ray.dir.z();
-    double t_end = std::min(ray.t_max, best.t);
+    if (nx_ == 0) return false;
+    const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
+    const double dz = ray.dir.z();
+    t = ray.t_min;
+    t1 = std::min(ray.t_max, best.t);
     if (dz > 0.0) {  // a rising ray is done once above every primitive
-        if (oz > z_max_) return best;
-        t_end = std::min(t_end, (z_max_ - oz) / dz + 1e-9);
+        if (oz > z_max_) return false;
+        t1 = std::min(t1, (z_max_ - oz) / dz + 1e-9);
     }
-    // Clip to the grid's XY slab, then walk its cells in ray order (2D DDA, written out here so
-    // that an empty cell costs a few operations: its layer mask against the ray's layers).
-    const double ox = ray.origin.x(), oy = ray.origin.y();
-    const double dx = ray.dir.x(), dy = ray.dir.y();
-    double t = ray.t_min, t1 = t_end;
+    // Clipped to the grid's XY slab.
     const double xmax = x0_ + nx_ * cell_, ymax = y0_ + ny_ * cell_;
     if (grid_ray.inv_dx == 0.0) {
-        if (ox < x0_ || ox > xmax) return best;
+        if (ox < x0_ || ox > xmax) return false;
     } else {
         const double ta = (x0_ - ox) * grid_ray.inv_dx, tb = (xmax - ox) * grid_ray.inv_dx;
         t = std::max(t, std::min(ta, tb));
         t1 = std::min(t1, std::max(ta, tb));
     }
     if (grid_ray.inv_dy == 0.0) {
-        if (oy < y0_ || oy > ymax) return best;
+        if (oy < y0_ || oy > ymax) return false;
     } else {
         const double ta = (y0_ - oy) * grid_ray.inv_dy, tb = (ymax - oy) * grid_ray.inv_dy;
         t = std::max(t, std::min(ta, tb));
         t1 = std::min(t1, std::max(ta, tb));
     }
-    if (!(t <= t1)) return best;
+    return t <= t1;
+}
+
+Hit ForestScene::cast(const Ray &ray) const {
+    Hit best;
+    const GridRay grid_ray(ray);
+    double t, t1;
+    if (!startCast(ray, grid_ray, best, t, t1)) return best;
+    // Walk the grid cells in ray order (2D DDA, written out here so that an empty cell costs a
+    // few operations: its layer mask against the ray's layers).
+    const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
+    const double dx = ray.dir.x(), dy = ray.dir.y(), dz = ray.dir.z();
     int ix = std::clamp(static_cast<int>(std::floor((ox + t * dx - x0_) * inv_cell_)), 0, nx_ - 1);
     int iy = std::clamp(static_cast<int>(std::floor((oy + t * dy - y0_) * inv_cell_)), 0, ny_ - 1);
     const int sx = dx > 0 ? 1 : -1, sy = dy > 0 ? 1 : -1;
@@ -497,39 +505,16 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
     // the ray itself meets the box: all rejections below use boxes grown by eps.
     const Eigen::Vector3d &o = rays[0].origin;
     const double ox = o.x(), oy = o.y(), oz = o.z();
-    const double xmax = x0_ + nx_ * cell_, ymax = y0_ + ny_ * cell_;
     double eps = 0.0;
     for (int k = 0; k < n; ++k) {
-        // Terrain and clipping exactly as cast() does, from the ray's own origin.
+        // Terrain and the segment to walk exactly as cast() does, from the ray's own origin.
         const Ray &ray = rays[k];
         eps = std::max(eps, (ray.origin - o).cwiseAbs().maxCoeff());
-        const double rx = ray.origin.x(), ry = ray.origin.y(), rz = ray.origin.z();
         Hit &best = hits[k];
         best = Hit();
-        const GridRay grid_ray(ray);
-        terrain_.intersect(ray, grid_ray, ray.t_max, best);
+        double t, t1;
+        if (!startCast(ray, GridRay(ray), best, t, t1)) continue;
         const double dz = ray.dir.z();
-        double t_end = std::min(ray.t_max, best.t);
-        if (dz > 0.0) {
-            if (rz > z_max_) continue;
-            t_end = std::min(t_end, (z_max_ - rz) / dz + 1e-9);
-        }
-        double t = ray.t_min, t1 = t_end;
-        if (grid_ray.inv_dx == 0.0) {
-            if (rx < x0_ || rx > xmax) continue;
-        } else {
-            const double ta = (x0_ - rx) * grid_ray.inv_dx, tb = (xmax - rx) * grid_ray.inv_dx;
-            t = std::max(t, std::min(ta, tb));
-            t1 = std::min(t1, std::max(ta, tb));
-        }
-        if (grid_ray.inv_dy == 0.0) {
-            if (ry < y0_ || ry > ymax) continue;
-        } else {
-            const double ta = (y0_ - ry) * grid_ray.inv_dy, tb = (ymax - ry) * grid_ray.inv_dy;
-            t = std::max(t, std::min(ta, tb));
-            t1 = std::min(t1, std::max(ta, tb));
-        }
-        if (!(t <= t1)) continue;
         Lane &l = lanes[n_active++];
         l.k = k;
         const double du = along_x ? ray.dir.x() : ray.dir.y();

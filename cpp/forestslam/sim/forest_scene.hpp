@@ -94,6 +94,10 @@ class ForestScene {
   private:
     void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
     bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
+    // The terrain hit (into best), then the part [t, t1] of the ray left to walk through the
+    // primitive grid: before that hit, below the highest primitive, inside the grid's XY slab.
+    // False when nothing is left. Shared by cast() and castBundle() so both see the same rays.
+    bool startCast(const Ray &ray, const GridRay &grid_ray, Hit &best, double &t, double &t1) const;
     // n (2..kMaxBundle) rays with nearby origins, their XY directions within 60 degrees of the
     // x axis (along_x) or of the y axis, all pointing the same way along it. stamp (one per row
     // of prims_) marks with `id` the primitives already tested for this bundle.
