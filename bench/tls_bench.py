@@ -500,7 +500,7 @@ def print_simulated(name: str, r: dict) -> None:
         n = block.get("frames", t["frames_registered"])
         print(f"--- {name}: {title}; {n} frames")
         print(
-            f"{'method':10s} {'tracked':>8s} {'trans mean':>11s} {'rot mean':>10s} "
+            f"{'method':10s} {'tracked':>8s} {'trans mean':>11s} {'median':>9s} {'rot mean':>10s} "
             f"{'stem dev vs TLS':>16s} {'stems':>6s}"
         )
         for meth, v in block.items():
@@ -508,6 +508,7 @@ def print_simulated(name: str, r: dict) -> None:
                 continue
             print(
                 f"{meth:10s} {v['tracked']:8d} {_cm(v['trans_err_mean_m']):>11s} "
+                f"{_cm(v['trans_err_median_m']):>9s} "
                 f"{v['rot_err_mean_deg']:6.3f} deg {_cm(v['stem_dev_mls_vs_tls_mean_m']):>16s} "
                 f"{v['stems_matched']:6d}"
             )

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from forestslam.tls.sweep import apply_sweep, feature_times, sweep_offsets
+from forestslam.tls.sweep import apply_sweep, feature_times, sweep_offsets, sweep_pose
 
 
 def test_feature_times_follow_the_azimuth():
@@ -42,3 +42,18 @@ def test_apply_sweep_moves_points_as_the_model_says():
     # No motion, no change.
     assert np.array_equal(apply_sweep(pts, tau, T, np.zeros((2, 6))), pts)
     assert np.array_equal(apply_sweep(pts, tau, T, np.zeros((0, 6))), pts)
+
+
+def test_sweep_pose_places_a_point_where_apply_sweep_does():
+    rng = np.random.default_rng(5)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.01, 0.03, -1.2]).as_matrix()
+    T[:3, 3] = [-4.0, 7.0, 1.1]
+    sweep = np.array([[0.2, 0.1, -0.3, 0.3, 0.1, -0.05], [1.0, 0.0, 2.0, 4.0, -5.0, 0.5]])
+    for tau in (-0.05, -0.01, 0.0, 0.04):
+        p = rng.normal(0, 8, (1, 3))
+        moved = apply_sweep(p, np.array([tau]), T, sweep)[0]
+        T_tau = sweep_pose(T, sweep, tau)
+        assert np.allclose(T_tau[:3, :3] @ p[0] + T_tau[:3, 3], T[:3, :3] @ moved + T[:3, 3])
+        assert np.allclose(T_tau[:3, :3].T @ T_tau[:3, :3], np.eye(3))
+    assert np.allclose(sweep_pose(T, sweep, 0.0), T)

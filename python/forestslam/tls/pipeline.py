@@ -43,7 +43,7 @@ from forestslam.tls.features import (
     planar_pose,
     reference_stems,
 )
-from forestslam.tls.sweep import apply_sweep, feature_times
+from forestslam.tls.sweep import apply_sweep, feature_times, sweep_pose
 
 log = logging.getLogger(__name__)
 
@@ -576,9 +576,15 @@ def register_mls_to_tls(
         if T_prev is not None and good and prev_good:
             twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
             t_twist = t_ref
+        # The pose at the stamp (sweep start): from the frame's own in-sweep motion when
+        # estimated (on top of the deskew it was estimated after), else extrapolated.
+        if len(sweep):
+            T_stamp = sweep_pose(T, sweep, -t_mid) @ se3_exp(-twist_used * t_mid)
+        else:
+            T_stamp = T @ se3_exp(-twist * t_mid)
         record = FrameRecord(
             stamp=float(scan.stamp),
-            T_tls_sensor=np.asarray(T @ se3_exp(-twist * t_mid)),
+            T_tls_sensor=np.asarray(T_stamp),
             accepted=bool(accepted),
             converged=bool(lm["converged"]),
             degenerate=bool(lm["degenerate"]),

@@ -67,3 +67,15 @@ def apply_sweep(
     q = points @ R.T  # T p - o
     q = Rotation.from_rotvec(c[:, 3:]).apply(q) + c[:, :3]
     return np.ascontiguousarray(q @ R)
+
+
+def sweep_pose(T: np.ndarray, sweep: np.ndarray, tau: float) -> np.ndarray:
+    """(4,4) the in-sweep motion sweep (K,6) at time tau applied to the frame's pose T (4,4):
+    the rotation exp(w(tau)) about the sensor position, then the shift t(tau)."""
+    sweep = np.asarray(sweep, dtype=np.float64).reshape(-1, 6)
+    c = sweep_offsets(np.array([float(tau)]), sweep)[0]
+    E = np.eye(4)
+    E[:3, :3] = Rotation.from_rotvec(c[3:]).as_matrix()
+    o = T[:3, 3]
+    E[:3, 3] = o - E[:3, :3] @ o + c[:3]
+    return E @ T
