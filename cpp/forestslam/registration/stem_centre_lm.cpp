@@ -59,6 +59,20 @@ struct PlanePair {
     Eigen::Index index;
 };
 
+// The Cauchy-robust residual of raw residual r with scale c, as one least-squares term:
+// f = sign(r) sqrt(rho(r)), rho(r) = c^2 log(1 + r^2 / c^2), and df/dr = r / ((1 + r^2/c^2) f)
+// (-> 1 at r = 0).
+void cauchyResidual(double r, double c, double &f, double &df) {
+    const double u = r / c;
+    if (std::abs(u) < 1e-6) {
+        f = r;
+        df = 1.0;
+        return;
+    }
+    f = std::copysign(c * std::sqrt(std::log1p(u * u)), r);
+    df = r / ((1.0 + u * u) * f);
+}
+
 // All pairs of one correspondence round in one residual block with analytic Jacobians. The
 // parameters are a left perturbation [dt (3), dw (3)] of the round's starting pose T0:
 // q = exp(dw) (R0 s + t0) + dt. Pair i has the raw residual r_i = d - r (virtual: d the
@@ -117,17 +131,7 @@ class PairsCost : public ceres::CostFunction {
     }
 
   private:
-    // f = sign(r) sqrt(rho(r)) and df/dr = r / ((1 + r^2/c^2) f) (-> 1 at r = 0).
-    void robust(double r, double &f, double &df) const {
-        const double u = r / c_;
-        if (std::abs(u) < 1e-6) {
-            f = r;
-            df = 1.0;
-            return;
-        }
-        f = std::copysign(c_ * std::sqrt(std::log1p(u * u)), r);
-        df = r / ((1.0 + u * u) * f);
-    }
+    void robust(double r, double &f, double &df) const { cauchyResidual(r, c_, f, df); }
 
     // d r / d [dt, dw] = [u, q x u] (u the residual direction), scaled by w.
     static void writeRow(double *row, const Eigen::Vector3d &u, const Eigen::Vector3d &q,
@@ -221,16 +225,7 @@ class SweepPairsCost : public ceres::CostFunction {
     }
 
   private:
-    void robust(double r, double &f, double &df) const {
-        const double u = r / c_;
-        if (std::abs(u) < 1e-6) {
-            f = r;
-            df = 1.0;
-            return;
-        }
-        f = std::copysign(c_ * std::sqrt(std::log1p(u * u)), r);
-        df = r / ((1.0 + u * u) * f);
-    }
+    void robust(double r, double &f, double &df) const { cauchyResidual(r, c_, f, df); }
 
     const std::vector<VirtualPair> &v_;
     const std::vector<PlanePair> &p_;
