@@ -4,6 +4,7 @@ estimated motion applied to a frame's points."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from forestslam.tls.sweep import apply_sweep, feature_times, sweep_offsets, sweep_pose
@@ -57,3 +58,24 @@ def test_sweep_pose_places_a_point_where_apply_sweep_does():
         assert np.allclose(T_tau[:3, :3] @ p[0] + T_tau[:3, 3], T[:3, :3] @ moved + T[:3, 3])
         assert np.allclose(T_tau[:3, :3].T @ T_tau[:3, :3], np.eye(3))
     assert np.allclose(sweep_pose(T, sweep, 0.0), T)
+
+
+def test_in_sweep_lm_without_feature_times_is_a_clear_error():
+    from forestslam import _core
+
+    rng = np.random.default_rng(6)
+    target = _core.StemCentreTarget(rng.uniform(-5, 5, (2000, 3)))
+    centres, radii, real = rng.normal(0, 3, (4, 3)), np.full(4, 0.15), rng.normal(0, 3, (30, 3))
+    with pytest.raises(ValueError, match="one time per virtual centre"):
+        _core.register_stem_centre_lm(target, centres, radii, real, np.eye(4), sweep_order=2)
+    with pytest.raises(ValueError, match="one time per virtual centre"):
+        _core.register_stem_centre_lm(
+            target,
+            centres,
+            radii,
+            real,
+            np.eye(4),
+            sweep_order=2,
+            centre_times=np.zeros(4),
+            real_times=np.zeros(29),
+        )

@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <stdexcept>
+
 #include "forestslam/features/dog_keypoints.hpp"
 #include "forestslam/features/virtual_features.hpp"
 #include "forestslam/registration/stem_centre_lm.hpp"
@@ -196,15 +198,26 @@ TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
     EXPECT_LT((sweep.T_target_source.block<3, 1>(0, 3) - T_mid.translation()).norm(), 0.02);
 }
 
-TEST(StemCentreLm, SweepOrderWithoutTimesStaysRigid) {
+TEST(StemCentreLm, SweepOrderNeedsOneTimePerFeature) {
     const auto scene = test::defaultScene();
     const StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_true = test::makePose(0.6, -0.4, 0.2, 0.02, -0.015, 0.3);
     const Frame f = makeFrame(scene, T_true);
+    const auto n_c = f.vf.centres.rows(), n_r = f.kp.points.rows();
     StemCentreLmConfig cfg;
     cfg.sweep_order = 2;
-    const auto r =
-        registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true.matrix(), cfg);
+    // No times, or a time missing: an error, not a silently rigid registration.
+    EXPECT_THROW(
+        registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true.matrix(), cfg),
+        std::invalid_argument);
+    const SweepTimes short_real{Eigen::VectorXd::Zero(n_c), Eigen::VectorXd::Zero(n_r - 1)};
+    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                      T_true.matrix(), cfg, &short_real),
+                 std::invalid_argument);
+    // A rigid registration ignores times.
+    cfg.sweep_order = 0;
+    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                        T_true.matrix(), cfg, &short_real);
     EXPECT_TRUE(r.converged);
     EXPECT_EQ(r.sweep.rows(), 0);
     EXPECT_LT((r.T_target_source.block<3, 1>(0, 3) - T_true.translation()).norm(), 0.01);

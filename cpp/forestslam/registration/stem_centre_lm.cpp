@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
 #include <unordered_map>
 #include <vector>
 
@@ -397,14 +398,15 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &real_points,
                                         const Eigen::Matrix4d &T_initial,
                                         const StemCentreLmConfig &config, const SweepTimes *times) {
+    const int order = std::max(0, config.sweep_order);
+    if (order > 0 && (times == nullptr || times->centres.size() != virtual_centres.rows() ||
+                      times->real.size() != real_points.rows()))
+        throw std::invalid_argument(
+            "sweep_order > 0 needs one time per virtual centre and one per real feature");
     StemCentreLmResult result;
     result.T_target_source = T_initial;
     if (target.size() < 3 || !T_initial.allFinite()) return result;
 
-    const int order = (times != nullptr && times->centres.size() == virtual_centres.rows() &&
-                       times->real.size() == real_points.rows())
-                          ? std::max(0, config.sweep_order)
-                          : 0;
     // Keep only finite features (and centres with a usable radius), with their times.
     Points3 centres(0, 3);
     Eigen::VectorXd rad(0), tc(0), tr(0);

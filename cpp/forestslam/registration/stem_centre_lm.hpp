@@ -94,7 +94,8 @@ class StemCentreTarget {
 // Register source features onto the target. virtual_centres (V,3) with radii (V,), real
 // points (R,3), both in the source frame. Either set may be empty; with too few pairs the
 // result is flagged not converged / degenerate and T stays at the initial guess. times (one
-// per feature) are needed when config.sweep_order > 0 and ignored otherwise.
+// per feature) are needed when config.sweep_order > 0 (std::invalid_argument without them, or
+// with other lengths) and ignored otherwise.
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,

@@ -40,19 +40,16 @@ void define_tls(py::module_ &m) {
            const Eigen::Matrix4d &T_initial, const py::kwargs &kwargs) {
             StemCentreLmConfig cfg;
             using C = StemCentreLmConfig;
-            SweepTimes times;
-            bool have_centre_times = false, have_real_times = false;
+            SweepTimes times;  // checked by registerStemCentreLm when sweep_order > 0
             for (const auto &item : kwargs) {
                 const auto key = item.first.cast<std::string>();
                 const auto &v = item.second;
                 if (key == "centre_times") {
                     times.centres = v.cast<Eigen::VectorXd>();
-                    have_centre_times = true;
                     continue;
                 }
                 if (key == "real_times") {
                     times.real = v.cast<Eigen::VectorXd>();
-                    have_real_times = true;
                     continue;
                 }
                 const bool ok =
@@ -82,18 +79,10 @@ void define_tls(py::module_ &m) {
             if (centres.rows() != radii.size()) {
                 throw py::value_error("centres and radii must have the same length");
             }
-            const bool sweep = cfg.sweep_order > 0;
-            if (sweep &&
-                (!have_centre_times || !have_real_times || times.centres.size() != centres.rows() ||
-                 times.real.size() != real.rows())) {
-                throw py::value_error(
-                    "sweep_order > 0 needs centre_times (V,) and real_times (R,), one per feature");
-            }
             StemCentreLmResult r;
             {
                 py::gil_scoped_release release;
-                r = registerStemCentreLm(target, centres, radii, real, T_initial, cfg,
-                                         sweep ? &times : nullptr);
+                r = registerStemCentreLm(target, centres, radii, real, T_initial, cfg, &times);
             }
             py::dict out;
             out["T_target_source"] = r.T_target_source;
