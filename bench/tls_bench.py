@@ -594,6 +594,18 @@ def run_real(out: Path) -> dict:
     }
 
 
+def strict_json(value):
+    """A copy of value (nested dicts, lists, numbers) with NaN and infinities as None: the
+    report stays valid JSON for any reader (json.dumps would write NaN)."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=100000, help="first N MLS frames")
@@ -619,12 +631,14 @@ def main() -> None:
     report = {}
     if not args.skip_real:
         report["real"] = run_real(args.out)
-        print(json.dumps(report["real"], indent=1))
+        print(json.dumps(strict_json(report["real"]), indent=1))
     if not args.skip_sim:
         report["simulated"] = {
             name: run_simulated(args, args.out, name) for name in args.scenarios.split(",")
         }
-    (args.out / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+    (args.out / "report.json").write_text(
+        json.dumps(strict_json(report), indent=1, allow_nan=False) + "\n"
+    )
     print(f"wrote {args.out}/report.json")
 
 
