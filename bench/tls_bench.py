@@ -26,6 +26,7 @@ slice; MLS-like frames cut from it, moved by known transforms and registered bac
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -129,12 +130,9 @@ def mid_points(scan, record, cfg: TlsConfig, sweep: bool) -> np.ndarray:
     """Usable points of a scan in its registration frame (sensor at mid-sweep), deskewed with
     the velocity the pipeline used for this frame (the same input for every method), and moved
     by the frame's estimated in-sweep motion when sweep (as the pipeline merged them)."""
-    if sweep:
-        return registered_points(scan, record, cfg)
-    pts, _, times = _frame_points_times(scan, cfg)
-    if times is not None and np.any(record.deskew_twist):
-        pts = deskew_points(pts, times - record.t_mid_s, record.deskew_twist)
-    return pts
+    if not sweep:
+        record = dataclasses.replace(record, sweep=np.zeros((0, 6)))
+    return registered_points(scan, record, cfg)
 
 
 def ground_floor(scans, world, t0: float, cfg: TlsConfig, every: int = 8) -> dict:
