@@ -20,7 +20,7 @@ def load(tmp_path, text: str) -> ForestSlamConfig:
     ("text", "message"),
     [
         # wrong types, each once a traceback or a silent nonsense value
-        ("perception:\n  filter:\n    voxel_m: abc\n", r"perception.filter.voxel_m: 'abc' .*a number"),
+        ("perception:\n  filter:\n    voxel_m: abc\n", r"filter.voxel_m: 'abc' .*a number"),
         ("perception:\n  filter:\n    voxel_m: true\n", r"voxel_m: True .*a number"),
         ("slam:\n  keyframe_distance_m: null\n", r"slam.keyframe_distance_m: None .*null"),
         ("slam:\n  keyframe_distance_m: .nan\n", r"keyframe_distance_m: nan .*finite"),

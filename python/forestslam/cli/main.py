@@ -1,4 +1,9 @@
-"""Entry point: builds the typer app from one module per command and turns errors into one line."""
+"""Entry point: builds the typer app from one module per command and turns errors into one line.
+
+The error boundary: a ForestSlamError, any OSError (with its path), a usage error or even an
+unexpected exception ends the program with one line on stderr and a non-zero exit; only
+`--debug` shows a traceback.
+"""
 
 from __future__ import annotations
 
@@ -20,39 +25,74 @@ app = typer.Typer(
 for command_module in (info, simulate, detect, run, evaluate, localize, tls_register):
     command_module.register(app)
 
+_debug = False
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        import forestslam
+
+        print(f"forestslam {forestslam.__version__}")
+        raise typer.Exit()
+
 
 @app.callback()
 def _root(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Log debug messages."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Log warnings and errors only."),
+    debug: bool = typer.Option(False, "--debug", help="Show the traceback of an error."),
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True, help="Print the version."
+    ),
 ) -> None:
+    global _debug
+    _debug = debug
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     fmt = "%(levelname)s %(name)s: %(message)s"
     logging.basicConfig(level=level, format=fmt, stream=sys.stderr)
 
 
+def describe_os_error(exc: OSError) -> str:
+    """'PATH: reason' (both paths of a rename) for an OSError, whatever raised it."""
+    reason = exc.strerror or str(exc)
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{' -> '.join(paths)}: {reason}" if paths else reason
+
+
+def _fail(message: str, code: int = 1) -> None:
+    print(f"forestslam: error: {message}", file=sys.stderr)
+    sys.exit(code)
+
+
 def main() -> None:
-    """Run the CLI; a ForestSlamError or a bad file becomes one line on stderr and exit 1."""
+    """Run the CLI; every error becomes one line on stderr and a non-zero exit."""
     from forestslam.errors import ForestSlamError
 
     try:
         app(standalone_mode=False)
-    except (ForestSlamError, FileNotFoundError, PermissionError, IsADirectoryError) as exc:
-        print(f"forestslam: error: {exc}", file=sys.stderr)
-        sys.exit(1)
-    except KeyboardInterrupt:
-        print("forestslam: interrupted", file=sys.stderr)
-        sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except typer.Abort:
         sys.exit(1)
+    except KeyboardInterrupt:
+        print("forestslam: interrupted", file=sys.stderr)
+        sys.exit(130)
     except Exception as exc:
-        # Usage errors of typer's (vendored) click: show its message, no traceback.
+        if _debug:
+            raise
+        if isinstance(exc, ForestSlamError):
+            _fail(str(exc))
+        if isinstance(exc, OSError):
+            _fail(describe_os_error(exc))
+        # Usage errors of typer's (vendored) click: show its message.
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):
             exc.show()
             sys.exit(exc.exit_code)
-        raise
+        _fail(
+            f"internal error: {type(exc).__name__}: {exc} "
+            "(please report it; `forestslam --debug ...` shows the traceback)",
+            code=2,
+        )
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ def register(app: typer.Typer) -> None:
         "run",
         help="Run odometry, tree SLAM and mapping on a bag / folder / cloud file and write "
         "trajectory.tum, odometry.tum, trees.csv, trees.geojson, map.png, timing.json, run.yaml "
-        "(map3d also ground.ply and dtm.*) into OUT.",
+        "(map3d also ground.ply and dtm.*) into OUT. A re-run into OUT replaces the earlier "
+        "run's outputs; OUT holding another command's outputs is refused without --overwrite.",
     )
     def _command(
         input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
@@ -24,6 +25,9 @@ def register(app: typer.Typer) -> None:
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        overwrite: bool = typer.Option(
+            False, "--overwrite", help="Replace the outputs of another command in OUT."
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -37,6 +41,7 @@ def register(app: typer.Typer) -> None:
             max_scans=max_scans,
             topic=topic,
             progress=not no_progress,
+            overwrite=overwrite,
         )
         rs = s.read_stats
         print(
