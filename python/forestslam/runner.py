@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from forestslam.errors import ForestSlamError, InputError
+from forestslam.geometry import inverse, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -175,7 +176,7 @@ class Pipeline:
             log.warning("scan at %.3f s skipped: non-finite odometry pose", scan.stamp)
             return
         if self._T0_inv is None:
-            self._T0_inv = np.linalg.inv(T)
+            self._T0_inv = inverse(T)
         T = self._T0_inv @ T  # output frame: the first scan's sensor frame
         self.stamps.append(float(step.stamp))
         self.odom.append(T)
@@ -216,7 +217,7 @@ class Pipeline:
             if ground is not None and len(ground):
                 self.ground.add_keyframe(res.keyframe, np.asarray(ground, dtype=np.float64))
         if k:
-            centre_map = centre @ res.T_map_sensor[:3, :3].T + res.T_map_sensor[:3, 3]
+            centre_map = transform_points(res.T_map_sensor, centre)
             self.trees.add(
                 i,
                 res.T_map_sensor,

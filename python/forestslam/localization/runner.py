@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError, ProcessingError
+from forestslam.geometry import planar_pose
 from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.localize import Localization, aggregate_stems, localize
 from forestslam.localization.tree_map import TreeMap, load_map
@@ -73,12 +73,7 @@ def _write_outputs(run: LocalizationRun, meta: dict) -> None:
     doc["accepted"] = run.accepted
     atomic_write_text(run.out_dir / "localization.json", json.dumps(doc, indent=1) + "\n")
     acc = [q for q in run.queries if q["accepted"]]
-    poses = np.zeros((len(acc), 4, 4))
-    for i, q in enumerate(acc):
-        c, s = math.cos(q["yaw"]), math.sin(q["yaw"])
-        poses[i] = np.eye(4)
-        poses[i, :2, :2] = [[c, -s], [s, c]]
-        poses[i, :2, 3] = [q["x"], q["y"]]
+    poses = np.array([planar_pose(q["x"], q["y"], q["yaw"]) for q in acc]).reshape(-1, 4, 4)
     write_tum(run.out_dir / "localization.tum", np.array([q["stamp"] for q in acc]), poses)
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose
 from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees_csv, write_tum
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
@@ -64,13 +65,8 @@ def parse_initial_pose(text: str | None) -> np.ndarray | None:
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg") from exc
     if len(values) not in (3, 4) or not np.all(np.isfinite(values)):
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg")
-    x, y = values[0], values[1]
     z = values[2] if len(values) == 4 else 0.0
-    yaw = np.radians(values[-1])
-    T = np.eye(4)
-    T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-    T[:3, 3] = [x, y, z]
-    return T
+    return planar_pose(values[0], values[1], np.radians(values[-1]), z)
 
 
 def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
