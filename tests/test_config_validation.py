@@ -95,3 +95,21 @@ def test_dict_configs_are_checked_too():
     with pytest.raises(InputError, match=r"config.slam.robust_k: '1' .*a number"):
         config_from_dict({"slam": {"robust_k": "1"}})
     assert config_from_dict({"slam": {"robust_k": 2}}).slam.robust_k == 2.0
+
+
+def test_a_jobs_run_yaml_is_a_config_file(tmp_path):
+    """run.yaml holds the job's config under `config`; --config run.yaml reads that section."""
+    import yaml
+
+    from forestslam.config import config_to_dict
+
+    cfg = ForestSlamConfig()
+    cfg.slam.keyframe_distance_m = 0.75
+    doc = {"command": "run", "input": "x.bag", "config": config_to_dict(cfg), "summary": {}}
+    path = tmp_path / "run.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    assert load_config(path) == cfg
+    doc["config"]["slam"]["robust_kernel"] = "banana"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match=r"run.yaml: config.slam.robust_kernel: 'banana'"):
+        load_config(path)

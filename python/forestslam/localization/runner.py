@@ -97,7 +97,7 @@ def run_localization(
     The local frame of a query is the sensor frame of its last scan; the pose written is that
     sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
     """
-    from forestslam.config_utils import validate
+    from forestslam.config_utils import to_dict, validate
     from forestslam.job import Job, Progress, ScanWindow
     from forestslam.sensors import load_profile
 
@@ -129,6 +129,7 @@ def run_localization(
         "keyframe_distance_m": cfg.keyframe_distance_m,
         **window.meta(),
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
+        "config": {"localization": to_dict(cfg)},
     }
     inputs = [input_path, config_path, None if isinstance(map_path, TreeMap) else map_path]
     with Job("localize", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
