@@ -4,9 +4,15 @@ the test double of tests/test_run.py."""
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+
 import pytest
 import yaml
-from test_run import install_fake, make_input
+from test_run import REPO, install_fake, make_input
 
 from forestslam.errors import InputError
 from forestslam.io import read_tum
@@ -86,3 +92,37 @@ def test_bad_config_object_is_refused_before_the_directory_is_touched(tmp_path, 
     with pytest.raises(InputError, match=r"mapping.checkpoint_every_scans: 0"):
         run(scans, "vlp16", tmp_path / "out", config=cfg, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_run import install_fake
+install_fake(delay_s=0.02)
+from forestslam.cli.main import main
+sys.argv = ["forestslam", "run", {scans!r}, "--sensor", "vlp16", "--out", {out!r},
+            "--no-progress"]
+main()
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_stopped_run_says_interrupted(tmp_path, sig):
+    scans, _ = make_input(tmp_path, 2000)
+    out = tmp_path / "out"
+    script = SCRIPT.format(tests=str(REPO / "tests"), scans=str(scans), out=str(out))
+    path = [str(REPO / "python")] + os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in path if p))
+    proc = subprocess.Popen([sys.executable, "-c", script], env=env, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while time.time() < deadline and not (out / "run.yaml").is_file():
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    err = err.decode()
+    assert proc.returncode == (143 if sig == signal.SIGTERM else 130), err[-3000:] + str(status(out))
+    assert "forestslam: interrupted" in err and "Traceback" not in err
+    s = status(out)
+    assert s["status"] == "interrupted" and 0 < s["scans"] < 2000
+    assert len(read_tum(out / "odometry.tum")[0]) == s["scans"]  # final outputs written

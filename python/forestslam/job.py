@@ -240,7 +240,7 @@ class Job:
         if kind is None:
             self.status = "complete"
         elif issubclass(kind, KeyboardInterrupt):
-            self.status, self.error = "interrupted", "interrupted (Ctrl-C or SIGINT)"
+            self.status, self.error = "interrupted", str(exc) or "interrupted (Ctrl-C)"
         else:
             self.status, self.error = "failed", f"{kind.__name__}: {exc}"
         try:

@@ -8,7 +8,9 @@ unexpected exception ends the program with one line on stderr and a non-zero exi
 from __future__ import annotations
 
 import logging
+import signal
 import sys
+import threading
 
 import typer
 
@@ -64,19 +66,50 @@ def _fail(message: str, code: int = 1) -> None:
     sys.exit(code)
 
 
+_stop_signal: int | None = None  # the signal that stopped the job (typer swallows the exception)
+
+
+def _stop(signum, frame) -> None:
+    """SIGINT / SIGTERM: stop where the job is, as Ctrl-C does (its run.yaml: `interrupted`)."""
+    from forestslam.errors import Terminated
+
+    global _stop_signal
+    _stop_signal = signum
+    name = signal.Signals(signum).name
+    raise Terminated(f"stopped by {name}") if signum != signal.SIGINT else KeyboardInterrupt(name)
+
+
 def main() -> None:
-    """Run the CLI; every error becomes one line on stderr and a non-zero exit."""
+    """Run the CLI; every error becomes one line on stderr and a non-zero exit. SIGTERM stops a
+    job like Ctrl-C (exit 128 + signal number)."""
+    global _stop_signal
+    _stop_signal = None
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        _main()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _main() -> None:
     from forestslam.errors import ForestSlamError
 
     try:
-        app(standalone_mode=False)
+        code = app(standalone_mode=False)  # returns an exit code instead of raising typer.Exit
+        if _stop_signal is not None:  # typer turned the KeyboardInterrupt into exit code 130
+            raise KeyboardInterrupt
+        sys.exit(code if isinstance(code, int) else 0)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except typer.Abort:
         sys.exit(1)
     except KeyboardInterrupt:
-        print("forestslam: interrupted", file=sys.stderr)
-        sys.exit(130)
+        sig = _stop_signal or signal.SIGINT
+        print(f"forestslam: interrupted ({signal.Signals(sig).name})", file=sys.stderr)
+        sys.exit(128 + sig)
     except Exception as exc:
         if _debug:
             raise
