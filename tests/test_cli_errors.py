@@ -121,10 +121,23 @@ def test_detect_scan_window_skips_without_decoding(tmp_path, run_main):
     """--scan K reads scan K only: an unreadable scan before it is never decoded."""
     folder = tmp_path / "scans"
     folder.mkdir()
+    rng = np.random.default_rng(0)
     for i in range(4):
-        np.save(folder / f"{i:03d}.npy", np.zeros((3, 3)))
+        np.save(folder / f"{i:03d}.npy", rng.uniform(-10, 10, (200, 3)))
     (folder / "000.npy").write_bytes(b"garbage")
     out = tmp_path / "t.csv"
     res = run_main("detect", folder, "--scan", "2", "--sensor", "vlp16", "--out", out)
     assert res.returncode == 0, res.stderr
     assert "in 1 scan(s)" in res.stdout and "skipped" not in res.stderr
+
+
+def test_run_modes_are_choices(run_main, scans, tmp_path):
+    from typing import get_args
+
+    from forestslam.cli.run import Mode
+    from forestslam.runner import MODES
+
+    assert get_args(Mode) == MODES
+    res = run_main("run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--mode", "fly")
+    assert res.returncode == 2 and "slam" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "o").exists()

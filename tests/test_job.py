@@ -158,11 +158,11 @@ def test_scan_window_checks_and_counts():
 def test_scan_window_skips_without_decoding(tmp_path):
     """Scans before --start are never read: a corrupt one there costs nothing."""
     for i in range(6):
-        np.save(tmp_path / f"{i:03d}.npy", np.full((4, 3), float(i)))
+        np.save(tmp_path / f"{i:03d}.npy", np.full((20, 3), float(i + 1)))
     (tmp_path / "001.npy").write_bytes(b"not a numpy file")
     stream, scans, count = ScanWindow(2, 3).open(tmp_path)
     got = [float(s.points[0, 0]) for s in scans]
-    assert got == [2.0, 3.0, 4.0] and count == 3
+    assert got == [3.0, 4.0, 5.0] and count == 3
     assert stream.stats.skipped == 0
 
 

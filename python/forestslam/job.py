@@ -51,6 +51,10 @@ KNOWN_OUTPUTS: dict[str, tuple[str, ...]] = {
         "dtm.npz",
         "dtm.csv",
         "dtm.png",
+        "map.laz",
+        "trees.gpkg",
+        "metrics.json",  # `forestslam evaluate DIR` of the earlier run: stale with a new one
+        "errors.png",
     ),
     "localize": ("localization.json", "localization.tum"),
     "tls-register": ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"),

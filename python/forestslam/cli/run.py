@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
+
+# The modes of forestslam.runner.MODES (kept here so the CLI loads without numpy; a test checks).
+Mode = Literal["slam", "map3d", "odometry"]
 
 
 def register(app: typer.Typer) -> None:
@@ -19,7 +23,7 @@ def register(app: typer.Typer) -> None:
         input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
         sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
         out: Path = typer.Option(..., "--out", help="Output directory."),
-        mode: str = typer.Option("slam", "--mode", help="slam | map3d | odometry."),
+        mode: Mode = typer.Option("slam", "--mode", help="What to build (see the README)."),
         config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
         topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
