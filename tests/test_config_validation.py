@@ -113,3 +113,17 @@ def test_a_jobs_run_yaml_is_a_config_file(tmp_path):
     path.write_text(yaml.safe_dump(doc))
     with pytest.raises(InputError, match=r"run.yaml: config.slam.robust_kernel: 'banana'"):
         load_config(path)
+
+
+def test_numpy_numbers_are_numbers_but_numpy_bools_are_not():
+    import numpy as np
+
+    cfg = ForestSlamConfig()
+    cfg.odometry.max_source_points = np.int64(800)
+    cfg.odometry.source_voxel_m = np.float32(0.25)
+    validate(cfg)
+    assert type(cfg.odometry.max_source_points) is int
+    assert type(cfg.odometry.source_voxel_m) is float
+    cfg.odometry.source_voxel_m = np.bool_(True)
+    with pytest.raises(InputError, match="source_voxel_m: .*a number"):
+        validate(cfg)

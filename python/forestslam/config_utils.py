@@ -12,7 +12,9 @@ is allowed.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import numbers
 import re
 import types
 import typing
@@ -68,18 +70,18 @@ def _key(where: str, name: str) -> str:
 
 
 def _check_number(hint: type, value: Any, where: str) -> Any:
+    """A Python or numpy number as `hint` (float / int); bools are not numbers here."""
     name = "an integer" if hint is int else "a number"
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    is_bool = isinstance(value, bool) or type(value).__name__ == "bool_"  # numpy's too
+    if is_bool or not isinstance(value, numbers.Real):
         raise _fail(where, value, name)
+    if not math.isfinite(value):
+        raise _fail(where, value, f"a finite {name.split()[-1]}")
     if hint is float:
-        if not math.isfinite(value):
-            raise _fail(where, value, "a finite number")
         return float(value)
-    if isinstance(value, float):
-        if not value.is_integer():
-            raise _fail(where, value, name)
-        return int(value)
-    return value
+    if not isinstance(value, numbers.Integral) and not float(value).is_integer():
+        raise _fail(where, value, name)
+    return int(value)
 
 
 def _check_tuple(args: tuple, value: Any, where: str, ranges: list[Range]) -> tuple:
@@ -149,6 +151,7 @@ def _describe(hint: Any) -> str:
     return names.get(hint, "a mapping" if dataclasses.is_dataclass(hint) else str(hint))
 
 
+@functools.cache
 def _hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls, include_extras=True)
 
