@@ -182,3 +182,15 @@ def test_progress_in_a_log_is_one_line_every_few_seconds(monkeypatch):
     bar.update(5)
     bar.close()
     assert quiet.getvalue() == ""
+
+
+def test_a_foreign_run_yaml_is_not_taken_for_an_earlier_run(tmp_path):
+    (tmp_path / "run.yaml").write_text("my: own settings\n")
+    (tmp_path / "a").write_text("keep")
+    with pytest.raises(InputError, match=r"files of no forestslam run.yaml \(run.yaml\)"):
+        Job("run", tmp_path).__enter__()
+    assert (tmp_path / "run.yaml").read_text() == "my: own settings\n"
+    # a damaged `outputs` list of an earlier run.yaml names nothing to remove
+    (tmp_path / "run.yaml").write_text("command: run\nsummary: {status: complete}\noutputs: a\n")
+    with Job("run", tmp_path):
+        assert (tmp_path / "a").read_text() == "keep"

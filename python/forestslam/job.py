@@ -183,14 +183,17 @@ class Progress:
 
 
 # --------------------------------------------------------------------------------- job
-def _read_meta(path: Path) -> dict:
+def _read_meta(path: Path) -> dict | None:
+    """The run.yaml a forestslam job wrote at `path` (a mapping with `summary.status`), else
+    None (missing, unreadable, or some other file of that name)."""
     import yaml
 
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return {}
-    return data if isinstance(data, dict) else {}
+        return None
+    ours = isinstance(data, dict) and isinstance(data.get("summary"), dict)
+    return data if ours and "status" in data["summary"] else None
 
 
 class Job:
@@ -290,15 +293,15 @@ class Job:
         self._lock_fd = None
 
     def _clear_earlier_outputs(self) -> None:
-        meta_path = self.out / META_NAME
-        earlier = _read_meta(meta_path) if meta_path.is_file() else None
-        mine = set(KNOWN_OUTPUTS.get(self.command, ()))
+        earlier = _read_meta(self.out / META_NAME)
+        mine = set(KNOWN_OUTPUTS.get(self.command, ())) | {META_NAME}
         if earlier is None:  # files of our names, but no run.yaml of a job accounts for them
             command, names = None, mine
         else:
-            command = str(earlier.get("command", "run"))  # run.yaml before 0.2: only `run`
-            names = mine | set(KNOWN_OUTPUTS.get(command, ())) | {META_NAME}
-            names |= {str(n) for n in earlier.get("outputs", []) if _is_plain_name(n)}
+            command = str(earlier.get("command", "run"))  # older run.yaml: only `run` wrote one
+            names = mine | set(KNOWN_OUTPUTS.get(command, ()))
+            listed = earlier.get("outputs")
+            names |= {n for n in listed if _is_plain_name(n)} if isinstance(listed, list) else set()
         present = sorted(n for n in names if (self.out / n).exists() or (self.out / n).is_symlink())
         if not present:
             return
