@@ -354,15 +354,19 @@ class Job:
 
 
 class Checkpoints:
-    """Due every `every` processed items (>= 1, from the validated config)."""
+    """Due once at every `every`-th processed item (>= 1, from the validated config); asking
+    again with the same count (an item that failed) is not due again."""
 
     def __init__(self, every: int) -> None:
         if every < 1:
             raise InputError(f"checkpoint interval must be >= 1, not {every}")
-        self.every = every
+        self.every, self._last = every, 0
 
     def due(self, n: int) -> bool:
-        return n > 0 and n % self.every == 0
+        if n <= self._last or n % self.every:
+            return False
+        self._last = n
+        return True
 
 
 def _plain(value: Any) -> Any:
