@@ -141,3 +141,19 @@ def test_run_modes_are_choices(run_main, scans, tmp_path):
     res = run_main("run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--mode", "fly")
     assert res.returncode == 2 and "slam" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_warns_about_a_run_that_did_not_complete(tmp_path, run_main):
+    from forestslam.job import Job
+
+    scans_dir, truth = make_input(tmp_path, 5)
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError), Job("run", out) as job:
+        from forestslam.io import write_tum
+
+        stamps, poses = np.arange(5) / 10.0, np.tile(np.eye(4), (5, 1, 1))
+        write_tum(job.out / "odometry.tum", stamps, poses)
+        raise RuntimeError("killed by a test")
+    res = run_main("evaluate", out, "--truth", truth)
+    assert res.returncode == 0, res.stderr
+    assert "run.yaml says status: failed (RuntimeError: killed by a test)" in res.stderr

@@ -196,6 +196,14 @@ def _read_meta(path: Path) -> dict | None:
     return data if ours and "status" in data["summary"] else None
 
 
+def run_status(out_dir: str | Path) -> tuple[str | None, str | None]:
+    """(status, error) of the job that wrote `out_dir`/run.yaml; (None, None) without one."""
+    meta = _read_meta(Path(out_dir) / META_NAME)
+    if meta is None:
+        return None, None
+    return str(meta["summary"]["status"]), meta["summary"].get("error")
+
+
 class Job:
     """One job writing into one output directory; use as a context manager::
 
