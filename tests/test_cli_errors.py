@@ -129,6 +129,22 @@ def test_detect_scan_window_skips_without_decoding(tmp_path, run_main):
     res = run_main("detect", folder, "--scan", "2", "--sensor", "vlp16", "--out", out)
     assert res.returncode == 0, res.stderr
     assert "in 1 scan(s)" in res.stdout and "skipped" not in res.stderr
+    res = run_main(
+        "detect",
+        folder,
+        "--start",
+        "1",
+        "--max-scans",
+        "2",
+        "--sensor",
+        "vlp16",
+        "--out",
+        out,
+        "--no-progress",
+    )
+    assert res.returncode == 0 and "in 2 scan(s)" in res.stdout, res.stderr
+    assert open(out).readline().startswith("scan,")  # several scans: a scan column
+    assert {int(line.split(",")[0]) for line in open(out).readlines()[1:]} <= {1, 2}
 
 
 def test_run_modes_are_choices(run_main, scans, tmp_path):
