@@ -14,7 +14,6 @@ skipped and counted; stretches without trees are bridged by odometry.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import platform
 import time
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from forestslam.errors import ForestSlamError, InputError
+from forestslam.geometry import inverse, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -176,7 +176,7 @@ class Pipeline:
             log.warning("scan at %.3f s skipped: non-finite odometry pose", scan.stamp)
             return
         if self._T0_inv is None:
-            self._T0_inv = np.linalg.inv(T)
+            self._T0_inv = inverse(T)
         T = self._T0_inv @ T  # output frame: the first scan's sensor frame
         self.stamps.append(float(step.stamp))
         self.odom.append(T)
@@ -217,7 +217,7 @@ class Pipeline:
             if ground is not None and len(ground):
                 self.ground.add_keyframe(res.keyframe, np.asarray(ground, dtype=np.float64))
         if k:
-            centre_map = centre @ res.T_map_sensor[:3, :3].T + res.T_map_sensor[:3, 3]
+            centre_map = transform_points(res.T_map_sensor, centre)
             self.trees.add(
                 i,
                 res.T_map_sensor,
@@ -325,94 +325,78 @@ def run(
     max_scans: int | None = None,
     topic: str | None = None,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> RunSummary:
-    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`."""
-    import yaml
-    from tqdm import tqdm
+    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`.
 
+    The output directory is owned as `forestslam.job` describes (lock, an earlier run's outputs
+    replaced or refused, run.yaml with the outcome)."""
     from forestslam.config import config_to_dict, load_config
-    from forestslam.io import read_scans
-    from forestslam.io.atomic import atomic_write_text, remove_stale_temporaries
+    from forestslam.config_utils import validate
+    from forestslam.job import Checkpoints, Job, Progress, ScanWindow
     from forestslam.sensors import load_profile
 
     if mode not in MODES:
         raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
-    if start < 0 or (max_scans is not None and max_scans < 1):
-        raise InputError("--start must be >= 0 and --max-scans >= 1")
-    cfg = config if config is not None else load_config(config_path)
+    window = ScanWindow(start, max_scans)
+    cfg = validate(config) if config is not None else load_config(config_path)
     profile = load_profile(sensor)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if remove_stale_temporaries(out):
-        log.info("%s: removed temporaries left by an earlier, killed run", out)
-    stream = read_scans(input_path, topic, start=start)
-    total = len(stream)
-    remaining = max(0, total - start)
-    if max_scans is not None:
-        remaining = min(remaining, max_scans)
-    pipe = Pipeline(profile, cfg, mode, out)
-    summary = RunSummary(out_dir=out, mode=mode)
+    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
     meta = {
         "input": str(input_path),
         "topic": topic,
         "sensor": profile.name,
         "mode": mode,
-        "start": start,
-        "max_scans": max_scans,
+        **window.meta(),
         "versions": _versions(),
         "config": config_to_dict(cfg),
     }
+    with Job("run", out_dir, meta, inputs=[input_path, config_path], overwrite=overwrite) as job:
+        pipe = Pipeline(profile, cfg, mode, job.out)
+        summary = RunSummary(out_dir=job.out, mode=mode)
+        checkpoints = Checkpoints(cfg.mapping.checkpoint_every_scans)
+        bar = Progress(count, "scan", "run", enabled=progress)
+        t0, c0 = time.perf_counter(), time.process_time()
 
-    def write_meta() -> None:
-        meta["summary"] = summary.to_dict()
-        atomic_write_text(out / "run.yaml", yaml.safe_dump(meta, sort_keys=False))
+        def update_summary() -> None:
+            summary.wall_s = time.perf_counter() - t0
+            summary.scans = pipe.n
+            summary.failed_scans = pipe.failed
+            summary.degraded_scans = pipe.degraded
+            summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+            summary.cpu_s = time.process_time() - c0
+            summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
+            summary.read_stats = stream.stats.to_dict()
+            job.summary = summary.to_dict()
 
-    write_meta()
-    every = max(1, int(cfg.mapping.checkpoint_every_scans))
-    t0, c0 = time.perf_counter(), time.process_time()
-    scans = itertools.islice(stream, max_scans)  # read_scans skipped `start` undecoded
-    bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
-
-    def update_summary() -> None:
-        summary.wall_s = time.perf_counter() - t0
-        summary.scans = pipe.n
-        summary.failed_scans = pipe.failed
-        summary.degraded_scans = pipe.degraded
-        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
-        summary.cpu_s = time.process_time() - c0
-        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
-        summary.read_stats = stream.stats.to_dict()
-
-    try:
-        for scan in scans:
-            pipe.process(scan)
-            bar.update(1)
-            if pipe.slam is not None and pipe.n % 10 == 0:
-                bar.set_postfix(trees=pipe.slam.n_landmarks, refresh=False)
-            if pipe.n and pipe.n % every == 0:
-                pipe.write(final=False)
-                update_summary()  # a killed run's run.yaml then has counts up to here
-                write_meta()
-        summary.status = "complete"
-    except KeyboardInterrupt:
-        summary.status = "interrupted"
-        raise
-    except BaseException:
-        summary.status = "failed"
-        raise
-    finally:
-        bar.close()
-        update_summary()
-        if pipe.n:
-            table = pipe.write(final=True)
-            summary.trees = len(table.get("id", []))
-        if pipe.slam is not None:
-            summary.keyframes = pipe.slam.n_keyframes
-            summary.loop_closures = pipe.slam.loop_closures
-        if pipe.refiner is not None:
-            summary.icp_accepted = pipe.refiner.accepted
-            summary.icp_rejected = pipe.refiner.rejected
-        write_meta()
-    if pipe.n == 0:
-        raise InputError(f"{input_path}: no scan could be processed")
+        try:
+            for scan in scans:
+                pipe.process(scan)
+                trees = {"trees": pipe.slam.n_landmarks} if pipe.slam is not None else {}
+                bar.update(1, **trees)
+                if checkpoints.due(pipe.n):
+                    pipe.write(final=False)
+                    update_summary()  # a killed run's run.yaml then has counts up to here
+                    job.write_meta()
+            if pipe.n == 0:
+                raise InputError(f"{input_path}: no scan could be processed")
+        finally:
+            bar.close()
+            update_summary()
+            _finish(pipe, summary)
+            job.summary = summary.to_dict()
+    summary.status = job.status
     return summary
+
+
+def _finish(pipe: Pipeline, summary: RunSummary) -> None:
+    """Final outputs and counts of a run, whatever its outcome (the Job records the status)."""
+    if pipe.n:
+        table = pipe.write(final=True)
+        summary.trees = len(table.get("id", []))
+    if pipe.slam is not None:
+        summary.keyframes = pipe.slam.n_keyframes
+        summary.loop_closures = pipe.slam.loop_closures
+    if pipe.refiner is not None:
+        summary.icp_accepted = pipe.refiner.accepted
+        summary.icp_rejected = pipe.refiner.rejected
