@@ -3,6 +3,7 @@
 - `x.bag`: ROS1 bag (rosbags; unindexed or truncated bags are walked chunk by chunk).
 - `x.mcap`, `x.db3`, a folder with `metadata.yaml`: ROS2 bag (rosbags; an `.mcap` cut short by
   a killed recorder is walked chunk by chunk).
+- `x.pcap`: raw Velodyne packets (forestslam.io.velodyne), one scan per revolution.
 - a folder of `.pcd` / `.ply` / `.las` / `.laz` / `.bin` / `.npy` files: one scan per file.
 - one such file: one scan.
 
@@ -27,6 +28,7 @@ from forestslam.io.clouds import CLOUD_READERS, read_cloud_array
 from forestslam.io.fields import scan_from_structured
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, ScanSource, TopicInfo
+from forestslam.io.velodyne import PcapSource
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +151,10 @@ READERS: dict[str, tuple[Callable[[Path], bool], SourceFactory]] = {
         ),
         lambda p, topic, rate: Ros2BagSource(p, topic),
     ),
+    "pcap": (
+        lambda p: p.is_file() and p.suffix.lower() == ".pcap",
+        lambda p, topic, rate: PcapSource(p),
+    ),
     "clouds": (
         lambda p: p.is_dir() or p.suffix.lower() in CLOUD_READERS,
         lambda p, topic, rate: CloudFilesSource(p, rate),
@@ -169,7 +175,7 @@ def open_source(
             if topic is not None and not source.topics():
                 raise InputError(f"{path}: topic {topic} given, but the input has no topics")
             return source
-    supported = ", ".join([*BAG_SUFFIXES, *sorted(CLOUD_READERS)])
+    supported = ", ".join([*BAG_SUFFIXES, ".pcap", *sorted(CLOUD_READERS)])
     raise InputError(f"{path}: unsupported input type {path.suffix!r} (supported: {supported})")
 
 

@@ -1,0 +1,115 @@
+"""Raw Velodyne packets (pcap captures, packet streams) decode to the returns they hold."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from velodyne_packets import (
+    BLOCK_US,
+    DUAL,
+    expected_points,
+    udp_frame,
+    vlp16_packet,
+)
+
+from forestslam.errors import InputError
+from forestslam.io import open_source, read_scans
+from forestslam.io.velodyne import PacketConfig, PacketStream
+
+STEP_CDEG = 40  # 0.4 deg per block: a VLP-16 at 10 Hz
+PACKETS_PER_REV = 75
+T0 = 1_700_000_000.0
+
+
+def _packets(n, seed=1, mode=None):
+    """n consecutive packets from azimuth 0: (host stamp, payload, expected points/ring/time)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        az = (np.arange(12) + 12 * k) * STEP_CDEG
+        ranges = rng.integers(1000, 3000, size=(12, 32))  # 2-6 m in 2 mm units
+        inten = rng.integers(1, 255, size=(12, 32))
+        device_us = k * 12 * BLOCK_US
+        packet = vlp16_packet(az, ranges, inten, device_us, *(() if mode is None else (mode,)))
+        pts, ring, t = expected_points(az % 36000, ranges, STEP_CDEG)
+        out.append((T0 + device_us * 1e-6, packet, pts, ring, t + device_us * 1e-6))
+    return out
+
+
+def _first_scan(packets, config=PacketConfig()):
+    stream = PacketStream(config)
+    for stamp, payload, *_ in packets:
+        scan = stream.push(stamp, payload)
+        if scan is not None:
+            return scan
+    return stream.finish()
+
+
+def _write_pcap(path, packets, cut_last=0):
+    import dpkt
+
+    with open(path, "wb") as f:
+        writer = dpkt.pcap.Writer(f)
+        for stamp, payload, *_ in packets:
+            writer.writepkt(udp_frame(payload), ts=stamp)
+    if cut_last:
+        with open(path, "r+b") as f:
+            f.truncate(path.stat().st_size - cut_last)
+
+
+def test_packets_decode_to_their_points_ring_and_time():
+    packets = _packets(PACKETS_PER_REV + 5)
+    scan = _first_scan(packets)
+    pts = np.vstack([p[2] for p in packets])
+    rings = np.concatenate([p[3] for p in packets])
+    times = np.concatenate([p[4] for p in packets])
+    dist, idx = cKDTree(pts).query(scan.points)
+    assert len(scan) >= 0.95 * PACKETS_PER_REV * 384
+    assert dist.max() < 1e-3  # within 1 mm
+    assert np.array_equal(scan.ring, rings[idx])
+    assert scan.stamp == pytest.approx(T0, abs=1e-6)
+    np.testing.assert_allclose(scan.time, times[idx], atol=2e-6)
+    assert scan.intensity is not None and scan.intensity.max() < 255
+
+
+def test_dual_return_packets_give_both_returns():
+    single = _first_scan(_packets(PACKETS_PER_REV + 5, seed=2))
+    dual = _first_scan(_packets(PACKETS_PER_REV + 5, seed=2, mode=DUAL))
+    assert len(dual) > 0
+    # a dual-return packet holds 6 azimuths (pairs of blocks), each with two returns
+    assert abs(len(dual) - len(single)) < 0.1 * len(single)
+
+
+def test_pcap_reads_revolutions_and_counts_them(tmp_path):
+    path = tmp_path / "capture.pcap"
+    _write_pcap(path, _packets(3 * PACKETS_PER_REV + 10))
+    source = open_source(path)
+    assert source.format == "pcap"
+    scans = list(read_scans(path))
+    assert len(source) == len(scans) == 4  # three whole revolutions and the start of a fourth
+    assert np.all(np.diff([s.stamp for s in scans]) > 0.09)
+    assert set(source.fields()) >= {"x", "y", "z", "intensity", "ring", "time"}
+
+
+def test_pcap_cut_mid_packet_is_read_up_to_the_damage(tmp_path):
+    path = tmp_path / "cut.pcap"
+    packets = _packets(2 * PACKETS_PER_REV + 3)
+    _write_pcap(path, packets, cut_last=500)
+    stream = read_scans(path)
+    scans = list(stream)
+    assert len(scans) == 3
+    assert stream.stats.lost_bytes > 0
+    assert any("cut" in w for w in stream.stats.warnings)
+
+
+def test_file_that_is_not_a_capture_is_a_clear_error(tmp_path):
+    path = tmp_path / "junk.pcap"
+    path.write_bytes(b"not a capture at all" * 10)
+    with pytest.raises(InputError, match="pcap"):
+        open_source(path)
+
+
+def test_unknown_packet_model_is_a_clear_error():
+    with pytest.raises(InputError, match="VLP16"):
+        PacketStream(PacketConfig(model="VLP99"))
