@@ -8,6 +8,8 @@ from scipy.spatial import cKDTree
 from velodyne_packets import (
     BLOCK_US,
     DUAL,
+    VLP16_ELEVATION_DEG,
+    VLP16_VERTICAL_MM,
     expected_points,
     udp_frame,
     vlp16_packet,
@@ -20,9 +22,10 @@ from forestslam.io.velodyne import PacketConfig, PacketStream
 STEP_CDEG = 40  # 0.4 deg per block: a VLP-16 at 10 Hz
 PACKETS_PER_REV = 75
 T0 = 1_700_000_000.0
+RING_OF_LASER = np.argsort(np.argsort(VLP16_ELEVATION_DEG))
 
 
-def _packets(n, seed=1, mode=None):
+def _packets(n, seed=1):
     """n consecutive packets from azimuth 0: (host stamp, payload, expected points/ring/time)."""
     rng = np.random.default_rng(seed)
     out = []
@@ -31,7 +34,7 @@ def _packets(n, seed=1, mode=None):
         ranges = rng.integers(1000, 3000, size=(12, 32))  # 2-6 m in 2 mm units
         inten = rng.integers(1, 255, size=(12, 32))
         device_us = k * 12 * BLOCK_US
-        packet = vlp16_packet(az, ranges, inten, device_us, *(() if mode is None else (mode,)))
+        packet = vlp16_packet(az, ranges, inten, device_us)
         pts, ring, t = expected_points(az % 36000, ranges, STEP_CDEG)
         out.append((T0 + device_us * 1e-6, packet, pts, ring, t + device_us * 1e-6))
     return out
@@ -74,11 +77,29 @@ def test_packets_decode_to_their_points_ring_and_time():
 
 
 def test_dual_return_packets_give_both_returns():
-    single = _first_scan(_packets(PACKETS_PER_REV + 5, seed=2))
-    dual = _first_scan(_packets(PACKETS_PER_REV + 5, seed=2, mode=DUAL))
-    assert len(dual) > 0
-    # a dual-return packet holds 6 azimuths (pairs of blocks), each with two returns
-    assert abs(len(dual) - len(single)) < 0.1 * len(single)
+    """Dual-return packets: block pairs share an azimuth, the first holding the last return
+    (here 0.2 m behind) and the second the strongest; both are decoded, each on its ring."""
+    rng = np.random.default_rng(3)
+    packets, expected = [], {r: [] for r in range(16)}
+    for k in range(PACKETS_PER_REV * 2 + 5):
+        az = np.repeat(np.arange(6) + 6 * k, 2) * STEP_CDEG  # a pair spans one block's time
+        strongest = rng.integers(1000, 3000, size=(6, 32))
+        ranges = np.empty((12, 32), dtype=np.int64)
+        ranges[0::2], ranges[1::2] = strongest + 100, strongest
+        device_us = k * 6 * BLOCK_US
+        packets.append(
+            (T0 + device_us * 1e-6, vlp16_packet(az, ranges, ranges % 200 + 1, device_us, DUAL))
+        )
+        for c in range(32):
+            expected[RING_OF_LASER[c % 16]].extend(ranges[:, c] * 0.002)
+    scan = _first_scan(packets)
+    assert len(scan) >= 0.95 * PACKETS_PER_REV * 2 * 384  # both returns of every firing
+    vertical = VLP16_VERTICAL_MM[np.argsort(VLP16_ELEVATION_DEG)] * 1e-3  # by ring
+    for ring in range(16):
+        pts = scan.points[scan.ring == ring]
+        ranges = np.linalg.norm(pts - [0.0, 0.0, vertical[ring]], axis=1)
+        gap = np.abs(ranges[:, None] - np.unique(expected[ring])[None, :]).min(axis=1)
+        assert gap.max() < 1e-3
 
 
 def test_pcap_reads_revolutions_and_counts_them(tmp_path):
