@@ -13,6 +13,7 @@ from velodyne_packets import (
     expected_points,
     udp_frame,
     vlp16_packet,
+    write_velodyne_bag,
 )
 
 from forestslam.errors import InputError
@@ -134,3 +135,34 @@ def test_file_that_is_not_a_capture_is_a_clear_error(tmp_path):
 def test_unknown_packet_model_is_a_clear_error():
     with pytest.raises(InputError, match="VLP16"):
         PacketStream(PacketConfig(model="VLP99"))
+
+
+@pytest.mark.parametrize("suffix", [".bag", ".mcap"])
+def test_velodyne_scan_messages_in_ros1_and_ros2_bags(tmp_path, suffix):
+    packets = _packets(2 * PACKETS_PER_REV, seed=4)
+    revolutions = [
+        [(p[0], p[1]) for p in packets[:PACKETS_PER_REV]],
+        [(p[0], p[1]) for p in packets[PACKETS_PER_REV:]],
+    ]
+    path = write_velodyne_bag(tmp_path / f"packets{suffix}", revolutions)
+    stream = read_scans(path)
+    assert stream.source.topics()[0].msgtype == "velodyne_msgs/msg/VelodyneScan"
+    scans = list(stream)
+    assert len(scans) == len(stream) == 2
+    pts = np.vstack([p[2] for p in packets[:PACKETS_PER_REV]])
+    rings = np.concatenate([p[3] for p in packets[:PACKETS_PER_REV]])
+    dist, idx = cKDTree(pts).query(scans[0].points)
+    assert len(scans[0]) == len(pts)
+    assert dist.max() < 1e-3
+    assert np.array_equal(scans[0].ring, rings[idx])
+    assert scans[1].stamp == pytest.approx(packets[PACKETS_PER_REV][0], abs=1e-6)
+
+
+def test_profile_of_another_model_is_refused(tmp_path):
+    from forestslam.sensors import load_profile
+
+    path = tmp_path / "vlp16.pcap"
+    _write_pcap(path, _packets(PACKETS_PER_REV + 2))
+    assert len(list(read_scans(path, packets=load_profile("vlp16").packet_config()))) == 2
+    with pytest.raises(InputError, match="VLP16.*HDL32E"):
+        list(read_scans(path, packets=load_profile("hdl32").packet_config()))

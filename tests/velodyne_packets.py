@@ -62,3 +62,50 @@ def udp_frame(payload: bytes) -> bytes:
     ip = dpkt.ip.IP(src=bytes([192, 168, 1, 201]), dst=bytes([255, 255, 255, 255]), p=17, data=udp)
     ip.len = len(ip)
     return bytes(dpkt.ethernet.Ethernet(type=dpkt.ethernet.ETH_TYPE_IP, data=ip))
+
+
+def write_velodyne_bag(path, revolutions, topic="/velodyne_packets"):
+    """A ROS1 .bag or ROS2 .mcap with one velodyne_msgs/VelodyneScan per revolution:
+    `revolutions` is a list of lists of (host stamp, payload)."""
+    from pathlib import Path
+
+    from forestslam.io.bags import VELODYNE_SCAN, _typestore
+
+    path = Path(path)
+    ros1 = path.suffix == ".bag"
+    store = _typestore(ros1)
+    types = store.types
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        writer, serialize = Writer(path), store.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer = Writer(path.with_suffix(""), version=8, storage_plugin=StoragePlugin.MCAP)
+        serialize = store.serialize_cdr
+
+    def stamp(seconds):
+        ns = int(round(seconds * 1e9))
+        return types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+
+    with writer:
+        conn = writer.add_connection(topic, VELODYNE_SCAN, typestore=store)
+        for seq, packets in enumerate(revolutions):
+            t0 = stamp(packets[0][0])
+            header = types["std_msgs/msg/Header"](
+                **({"seq": seq} if ros1 else {}), stamp=t0, frame_id="velodyne"
+            )
+            msg = types[VELODYNE_SCAN](
+                header=header,
+                packets=[
+                    types["velodyne_msgs/msg/VelodynePacket"](
+                        stamp=stamp(t), data=np.frombuffer(payload, dtype=np.uint8)
+                    )
+                    for t, payload in packets
+                ],
+            )
+            writer.write(conn, int(round(packets[0][0] * 1e9)), serialize(msg, VELODYNE_SCAN))
+    if not ros1:
+        return path.with_suffix("") / f"{path.stem}.mcap"
+    return path

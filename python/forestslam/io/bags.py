@@ -1,5 +1,6 @@
-"""ROS bags without ROS (rosbags): PointCloud2 scans from ROS1 .bag, ROS2 .db3/.mcap, and a
-writer for both in the Velodyne driver layout (see forestslam.io.pointcloud2)."""
+"""ROS bags without ROS (rosbags): PointCloud2 or raw `velodyne_msgs/VelodyneScan` scans from
+ROS1 .bag, ROS2 .db3/.mcap, and a writer for both in the Velodyne driver layout (see
+forestslam.io.pointcloud2)."""
 
 from __future__ import annotations
 
@@ -24,19 +25,32 @@ from forestslam.io.pointcloud2 import (
 )
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, TopicInfo
+from forestslam.io.velodyne import FIELDS as VELODYNE_FIELDS_DECODED
+from forestslam.io.velodyne import VELODYNE_SCAN, PacketConfig, decode_scan_message
 
 log = logging.getLogger(__name__)
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+SCAN_MSGTYPES = (POINTCLOUD2, VELODYNE_SCAN)
+# velodyne_msgs is not in the standard type stores; its definitions (ROS1 and ROS2 differ only
+# in the stamp's type) are registered from the package's .msg files.
+_VELODYNE_MSGS = {
+    "velodyne_msgs/msg/VelodynePacket": "{time} stamp\nuint8[1206] data",
+    VELODYNE_SCAN: "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets",
+}
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
 @functools.lru_cache(maxsize=2)
 def _typestore(ros1: bool):
     """rosbags type store (cached: building one takes a few hundred ms)."""
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    for name, text in _VELODYNE_MSGS.items():
+        text = text.format(time="time" if ros1 else "builtin_interfaces/Time")
+        store.register(get_types_from_msg(text, name))
+    return store
 
 
 # --------------------------------------------------------------------------- writing
@@ -122,22 +136,29 @@ def write_scans(
 
 
 def choose_topic(path: Path, topics: list[TopicInfo], topic: str | None) -> str:
-    """The PointCloud2 topic to read: `topic` when given, else the only one in the bag."""
+    """The scan topic to read (PointCloud2 or VelodyneScan): `topic` when given, else the only
+    one in the bag."""
     listing = ", ".join(f"{t.name} ({t.msgtype}, {t.count} msgs)" for t in topics) or "none"
-    clouds = [t for t in topics if t.msgtype == POINTCLOUD2]
+    clouds = [t for t in topics if t.msgtype in SCAN_MSGTYPES]
     if topic is not None:
         match = [t for t in topics if t.name == topic]
         if not match:
             raise InputError(f"{path}: no topic {topic!r}; topics: {listing}")
-        if match[0].msgtype != POINTCLOUD2:
-            raise InputError(f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2")
+        if match[0].msgtype not in SCAN_MSGTYPES:
+            raise InputError(
+                f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2 or VelodyneScan"
+            )
         return topic
     if len(clouds) == 1:
         return clouds[0].name
     if not clouds:
-        raise InputError(f"{path}: no sensor_msgs/PointCloud2 topic; topics: {listing}")
+        raise InputError(
+            f"{path}: no sensor_msgs/PointCloud2 or velodyne_msgs/VelodyneScan topic; "
+            f"topics: {listing}"
+        )
     names = ", ".join(f"{t.name} ({t.count} msgs)" for t in clouds)
-    raise InputError(f"{path}: several PointCloud2 topics, choose one with --topic: {names}")
+    kinds = "/".join(sorted({t.msgtype.rsplit("/", 1)[-1] for t in clouds}))
+    raise InputError(f"{path}: several {kinds} topics, choose one with --topic: {names}")
 
 
 class _BagSource:
@@ -145,11 +166,13 @@ class _BagSource:
 
     format = "bag"
 
-    def __init__(self, path: Path, topic: str | None) -> None:
+    def __init__(self, path: Path, topic: str | None, packets: PacketConfig | None = None) -> None:
         self.path = path
         self.stats = ReadStats()
         self._topics = self._read_topics()
         self.topic = choose_topic(path, self._topics, topic)
+        self.msgtype = next(t.msgtype for t in self._topics if t.name == self.topic)
+        self.packet_config = packets or PacketConfig()  # how VelodyneScan packets are decoded
 
     def topics(self) -> list[TopicInfo]:
         return list(self._topics)
@@ -197,6 +220,8 @@ class _BagSource:
     def _decode(self, raw, time_ns: int) -> Scan | None:
         where = f"{self.path} {self.topic} message {self.stats.messages}"
         try:
+            if self.msgtype == VELODYNE_SCAN:
+                return decode_scan_message(self._deserialize(raw), self.packet_config)
             return decode_pointcloud2(self._deserialize(raw), where)
         except Exception as exc:  # noqa: BLE001 - any decoding failure is a corrupt message
             self.stats.skipped += 1
@@ -248,6 +273,8 @@ class _BagSource:
         self.stats.skipped += max(len(self) - got, 0)
 
     def fields(self) -> dict[str, str]:
+        if self.msgtype == VELODYNE_SCAN:
+            return dict(VELODYNE_FIELDS_DECODED)
         for time_ns, raw in self._raw_messages():
             try:
                 return describe_fields(self._deserialize(raw).fields)
@@ -308,7 +335,7 @@ class Ros1BagSource(_BagSource):
         return Reader(self.path)
 
     def _deserialize(self, raw):
-        return self._store.deserialize_ros1(raw, POINTCLOUD2)
+        return self._store.deserialize_ros1(raw, self.msgtype)
 
 
 def _normalize_msgtype(name: str) -> str:
@@ -319,9 +346,9 @@ def _normalize_msgtype(name: str) -> str:
 class Ros2BagSource(_BagSource):
     """ROS2 bag: a directory with metadata.yaml, or a single .db3 or .mcap storage file."""
 
-    def __init__(self, path: Path, topic: str | None) -> None:
+    def __init__(self, path: Path, topic: str | None, packets: PacketConfig | None = None) -> None:
         self.format = "ros2-" + ("dir" if path.is_dir() else path.suffix.lstrip(".").lower())
-        super().__init__(path, topic)
+        super().__init__(path, topic, packets)
 
     def _open(self):
         from rosbags.rosbag2 import Reader
@@ -373,4 +400,4 @@ class Ros2BagSource(_BagSource):
             yield time_ns, raw
 
     def _deserialize(self, raw):
-        return self._store.deserialize_cdr(raw, POINTCLOUD2)
+        return self._store.deserialize_cdr(raw, self.msgtype)

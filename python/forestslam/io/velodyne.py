@@ -29,8 +29,12 @@ POSITION_PACKET_BYTES = 512  # GPS/position packets on port 8308: not point data
 VELODYNE_SCAN = "velodyne_msgs/msg/VelodyneScan"
 # Model names accepted in a sensor profile's `packet_model` (velodyne_decoder's Model enum).
 PACKET_MODELS = ("VLP16", "PuckHiRes", "PuckLite", "VLP32C", "HDL32E")
-_FIELDS = {"x": "float64", "y": "float64", "z": "float64", "intensity": "float32"}
-_FIELDS |= {"ring": "uint16", "time": "float64"}
+# The factory byte (last byte of a data packet) of each model; 0 on old firmware (unknown).
+_FACTORY_BYTE = {0x21: "HDL32E", 0x22: "VLP16", 0x24: "PuckHiRes", 0x28: "VLP32C"}
+_SAME_PACKETS = {"PuckLite": "VLP16"}  # models that send another model's factory byte
+# The fields a decoded packet scan carries ({name: datatype}, as `forestslam info` lists them).
+FIELDS = {"x": "float64", "y": "float64", "z": "float64", "intensity": "float32"}
+FIELDS |= {"ring": "uint16", "time": "float64"}
 
 
 @dataclass(frozen=True)
@@ -82,14 +86,30 @@ class PacketStream:
         import velodyne_decoder as vd
 
         self._decoder = vd.StreamDecoder(config.decoder_config())
+        self._model, self._checked = config.model, False
 
     def push(self, stamp: float, payload: bytes) -> Scan | None:
+        if not self._checked:
+            check_model(payload, self._model)
+            self._checked = True
         result = self._decoder.decode(float(stamp), payload)
         return None if result is None else scan_from_decoded(result[0].host, result[1])
 
     def finish(self) -> Scan | None:
         result = self._decoder.finish()
         return None if result is None else scan_from_decoded(result[0].host, result[1])
+
+
+def check_model(payload: bytes, model: str | None) -> None:
+    """InputError when a packet's factory byte names another model than the profile's: decoding
+    with the wrong beam table gives a plausible-looking but wrong cloud."""
+    sent = _FACTORY_BYTE.get(payload[-1])
+    if model is None or sent is None or _SAME_PACKETS.get(model, model) == sent:
+        return
+    raise InputError(
+        f"the packets come from a {sent} (factory byte 0x{payload[-1]:02x}) but the sensor "
+        f"profile decodes them as {model}: choose the matching --sensor"
+    )
 
 
 def decode_scan_message(msg, config: PacketConfig = PacketConfig()) -> Scan:
@@ -102,6 +122,8 @@ def decode_scan_message(msg, config: PacketConfig = PacketConfig()) -> Scan:
         data = np.asarray(packet.data, dtype=np.uint8)
         if len(data) != PACKET_BYTES:
             raise ValueError(f"a packet holds {len(data)} bytes, not {PACKET_BYTES}")
+        if not len(packets):
+            check_model(bytes(data), config.model)
         packets.append(vd.VelodynePacket(stamp, data))
     if not len(packets):
         raise ValueError("the message holds no packets")
@@ -186,7 +208,7 @@ class PcapSource:
         return []
 
     def fields(self) -> dict[str, str]:
-        return dict(_FIELDS)
+        return dict(FIELDS)
 
     def __len__(self) -> int:
         """Revolutions in the capture, counted from the packets' azimuths without decoding."""
