@@ -65,7 +65,11 @@ def test_map_laz_round_trip_keeps_millimetres_classes_ids_and_crs(tmp_path, utm_
     assert np.abs(back - pts).max() <= 0.0005 + 1e-9  # 1 mm scale: half a millimetre at most
     assert np.array_equal(las.classification, classes)
     assert np.array_equal(las.tree_id, tree_id)
-    np.testing.assert_allclose(las.gps_time, gps_time)
+    # Unix 1.7e9 = Tue 2023-11-14 22:13:20 UTC: GPS week 2288 (from Sunday the 12th), 2 days,
+    # 80000 s and 18 leap seconds into it; adjusted standard GPS time subtracts 1e9
+    np.testing.assert_allclose(las.gps_time - las.gps_time[0], gps_time - gps_time[0], atol=1e-6)
+    assert las.gps_time[0] == pytest.approx(2288 * 604800 + 2 * 86400 + 80018 - 1e9, abs=1e-6)
+    assert las.header.global_encoding.gps_time_type
     assert las.header.parse_crs().to_epsg() == 32612
 
 

@@ -22,6 +22,8 @@ from forestslam.errors import InputError
 
 GROUND, UNCLASSIFIED = 2, 1  # ASPRS classes
 SCALE_M = 0.001
+GPS_EPOCH_UNIX_S = 315964800.0  # 1980-01-06 in Unix seconds
+GPS_LEAP_S = 18.0  # GPS - UTC since 2017-01-01
 
 
 @contextmanager
@@ -48,8 +50,9 @@ def write_map_laz(
     crs=None,
 ) -> None:
     """Write the map cloud: `points` (N,3) float64 in the output frame, `classification` (N,)
-    ASPRS classes, `tree_id` (N,) (0: not a stem), `gps_time` (N,) seconds; `crs` a pyproj CRS
-    or None."""
+    ASPRS classes, `tree_id` (N,) (0: not a stem), `gps_time` (N,) the scans' stamps; `crs` a
+    pyproj CRS or None. Stamps on the Unix clock (a recording's) become adjusted standard GPS
+    time (the header says so); others (a simulation's seconds) are written as they are."""
     import laspy
 
     path = Path(path)
@@ -70,13 +73,23 @@ def write_map_laz(
     header.offsets = np.floor(pts.min(axis=0)) if n else np.zeros(3)
     if crs is not None:
         header.add_crs(crs)
+    times, adjusted = las_gps_time(np.asarray(gps_time, dtype=np.float64))
+    header.global_encoding.gps_time_type = adjusted
     las = laspy.LasData(header)
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
     las.classification = np.asarray(classification, dtype=np.uint8)
     las.tree_id = np.asarray(tree_id, dtype=np.uint32)
-    las.gps_time = np.asarray(gps_time, dtype=np.float64)
+    las.gps_time = times
     with _atomic_target(path) as tmp:
         las.write(str(tmp))
+
+
+def las_gps_time(stamps: np.ndarray) -> tuple[np.ndarray, bool]:
+    """LAS GPS time of stamps: adjusted standard GPS time (GPS seconds - 1e9) when every stamp is
+    a Unix time after 2001, else the stamps unchanged; and whether they were converted."""
+    if len(stamps) and np.all(stamps > 1e9):
+        return stamps - GPS_EPOCH_UNIX_S + GPS_LEAP_S - 1e9, True
+    return stamps, False
 
 
 def write_trees_gpkg(path: str | Path, table: dict[str, np.ndarray], crs=None) -> None:
