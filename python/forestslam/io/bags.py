@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.io.livox import CUSTOM_MSG_TYPES, decode_custom_msg, layout_matches
 from forestslam.io.pointcloud2 import (
     VELODYNE_FIELDS,
     VELODYNE_POINT_STEP,
@@ -31,7 +32,7 @@ from forestslam.io.velodyne import VELODYNE_SCAN, PacketConfig, decode_scan_mess
 log = logging.getLogger(__name__)
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
-SCAN_MSGTYPES = (POINTCLOUD2, VELODYNE_SCAN)
+SCAN_MSGTYPES = (POINTCLOUD2, VELODYNE_SCAN, *CUSTOM_MSG_TYPES)
 # velodyne_msgs is not in the standard type stores; its definitions (ROS1 and ROS2 differ only
 # in the stamp's type) are registered from the package's .msg files.
 _VELODYNE_MSGS = {
@@ -136,8 +137,8 @@ def write_scans(
 
 
 def choose_topic(path: Path, topics: list[TopicInfo], topic: str | None) -> str:
-    """The scan topic to read (PointCloud2 or VelodyneScan): `topic` when given, else the only
-    one in the bag."""
+    """The scan topic to read (PointCloud2, VelodyneScan or Livox CustomMsg): `topic` when given,
+    else the only one in the bag."""
     listing = ", ".join(f"{t.name} ({t.msgtype}, {t.count} msgs)" for t in topics) or "none"
     clouds = [t for t in topics if t.msgtype in SCAN_MSGTYPES]
     if topic is not None:
@@ -146,14 +147,16 @@ def choose_topic(path: Path, topics: list[TopicInfo], topic: str | None) -> str:
             raise InputError(f"{path}: no topic {topic!r}; topics: {listing}")
         if match[0].msgtype not in SCAN_MSGTYPES:
             raise InputError(
-                f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2 or VelodyneScan"
+                f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2, VelodyneScan or "
+                "Livox CustomMsg"
             )
         return topic
     if len(clouds) == 1:
         return clouds[0].name
     if not clouds:
         raise InputError(
-            f"{path}: no sensor_msgs/PointCloud2 or velodyne_msgs/VelodyneScan topic; "
+            f"{path}: no sensor_msgs/PointCloud2, velodyne_msgs/VelodyneScan or Livox CustomMsg "
+            "topic; "
             f"topics: {listing}"
         )
     names = ", ".join(f"{t.name} ({t.count} msgs)" for t in clouds)
@@ -173,6 +176,8 @@ class _BagSource:
         self.topic = choose_topic(path, self._topics, topic)
         self.msgtype = next(t.msgtype for t in self._topics if t.name == self.topic)
         self.packet_config = packets or PacketConfig()  # how VelodyneScan packets are decoded
+        if self.msgtype in CUSTOM_MSG_TYPES:
+            self._check_livox_layout()
 
     def topics(self) -> list[TopicInfo]:
         return list(self._topics)
@@ -222,6 +227,8 @@ class _BagSource:
         try:
             if self.msgtype == VELODYNE_SCAN:
                 return decode_scan_message(self._deserialize(raw), self.packet_config)
+            if self.msgtype in CUSTOM_MSG_TYPES:
+                return decode_custom_msg(raw, cdr=not isinstance(self, Ros1BagSource))
             return decode_pointcloud2(self._deserialize(raw), where)
         except Exception as exc:  # noqa: BLE001 - any decoding failure is a corrupt message
             self.stats.skipped += 1
@@ -272,8 +279,20 @@ class _BagSource:
             yield time_ns, raw
         self.stats.skipped += max(len(self) - got, 0)
 
+    def _check_livox_layout(self) -> None:
+        """Livox points are read from the bytes: refuse a stored definition of another layout."""
+        if self._salvage is not None:
+            return  # a damaged bag: no definition to check, the decoder checks sizes
+        with self._open() as reader:
+            conn = next(c for c in reader.connections if c.topic == self.topic)
+            if not layout_matches(conn.msgdef.data):
+                raise InputError(
+                    f"{self.path}: {self.topic} is a {self.msgtype} of another layout than the "
+                    "Livox driver's (header, timebase, point_num, lidar_id, rsvd, points)"
+                )
+
     def fields(self) -> dict[str, str]:
-        if self.msgtype == VELODYNE_SCAN:
+        if self.msgtype in (VELODYNE_SCAN, *CUSTOM_MSG_TYPES):
             return dict(VELODYNE_FIELDS_DECODED)
         for time_ns, raw in self._raw_messages():
             try:
