@@ -62,9 +62,13 @@ def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
     return {name: table[:, k] for k, name in enumerate(names)}
 
 
-def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> None:
+def write_trees_geojson(
+    path: str | Path, columns: dict[str, np.ndarray], crs_name: str | None = None
+) -> None:
     """A FeatureCollection of Points at (x, y[, z]) with every other column as properties.
-    Coordinates are in the map frame (metres), not WGS84, so no `crs` member is claimed."""
+    Coordinates are in the run's frame (metres); with `crs_name` (an OGC URN such as
+    urn:ogc:def:crs:EPSG::32612) they are in that CRS and the collection names it in a `crs`
+    member (GeoJSON 2008, read by QGIS and GDAL), else none is claimed."""
     path = Path(path)
     arrays = _columns(columns, path)
     if "x" not in arrays or "y" not in arrays:
@@ -88,7 +92,9 @@ def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> Non
         }
         for i in range(n)
     ]
-    text = json.dumps(
-        {"type": "FeatureCollection", "features": features}, indent=1, allow_nan=False
-    )
+    collection: dict = {"type": "FeatureCollection"}
+    if crs_name is not None:
+        collection["crs"] = {"type": "name", "properties": {"name": crs_name}}
+    collection["features"] = features
+    text = json.dumps(collection, indent=1, allow_nan=False)
     atomic_write_text(path, text + "\n")
