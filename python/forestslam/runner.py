@@ -121,7 +121,9 @@ class _Timer:
 class Pipeline:
     """Holds the state of one run; `process(scan)` per scan, `write(final)` for outputs."""
 
-    def __init__(self, sensor, config, mode: str, out_dir: Path) -> None:
+    def __init__(
+        self, sensor, config, mode: str, out_dir: Path, prior_map=None, initial_pose=None
+    ) -> None:
         from forestslam.mapping import GroundMap, TreeMap
         from forestslam.slam import LandmarkSlam
 
@@ -149,6 +151,14 @@ class Pipeline:
             from forestslam.mapping.refine import ScanToMapRefiner
 
             self.refiner = ScanToMapRefiner(config.mapping)
+        self.prior = None  # multisession.PriorTracker when the run starts in a prior map
+        if prior_map is not None:
+            if mode == "odometry":
+                raise InputError("--prior-map needs --mode slam or map3d (trees to place)")
+            from forestslam.multisession.prior import PriorTracker
+
+            self.prior = PriorTracker(prior_map, config.prior_map, config.localization)
+        self.initial_pose = initial_pose  # (3,) x, y, yaw of the first scan in the map
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []
@@ -210,6 +220,8 @@ class Pipeline:
             source = self.refiner.source_points(stems)
             self.slam.refine_hook = self._refine_hook(T, source)
         res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh, z_odom)
+        if self.prior is not None and res.keyframe is not None:
+            self._place(i, step.stamp, res)
         if res.keyframe is not None and source is not None:
             self.refiner.add_keyframe(source, res.T_map_sensor)
         if res.keyframe is not None and self.ground is not None:
@@ -229,6 +241,19 @@ class Pipeline:
             )
         if i % self.cfg.mapping.dbh_window_scans == 0:
             self.trees.flush(i)
+
+    def _place(self, i: int, stamp: float, res) -> None:
+        """Place the run in the prior map: at once with an initial pose, else by global
+        localization of its trees (see forestslam.multisession.prior)."""
+        if self.prior.placed:
+            return
+        if self.initial_pose is not None:
+            from forestslam.multisession.prior import planar_matrix
+
+            T_map_first = planar_matrix(*self.initial_pose)  # the first scan's sensor frame
+            self.prior.place_at(self.slam, T_map_first, i, stamp)
+            return
+        self.prior.maybe_place(self.slam, res.keyframe, res.T_map_sensor, i, stamp)
 
     def _refine_hook(self, T_odom: np.ndarray, source: np.ndarray):
         """Scan-to-map ICP from the SLAM prediction (planar (3,3)) -> planar pose + covariance."""
@@ -252,11 +277,18 @@ class Pipeline:
     # ---------------------------------------------------------------- outputs
     def tree_table(self) -> dict:
         xy, nobs = self.slam.landmarks()
-        table = self.trees.table(np.arange(len(xy)), xy, nobs)
+        counts = nobs if self.prior is None else self.prior.table_counts(nobs)
+        table = self.trees.table(np.arange(len(xy)), xy, counts)
         # tree heights corrected for the odometry's z drift, where the SLAM has them
         heights = self.slam.landmark_heights()[table["id"]]
         table["z"] = np.where(np.isfinite(heights), heights, table["z"])
+        if self.prior is not None:  # ids, positions, DBH and counts in the prior map
+            table = self.prior.express_table(table, self.slam)
         return table
+
+    def _in_output_frame(self, poses: np.ndarray) -> np.ndarray:
+        """Poses of the odometry/SLAM frame in the output frame (the prior map's once placed)."""
+        return poses if self.prior is None else self.prior.express_poses(poses)
 
     def write(self, final: bool) -> dict:
         from forestslam.io import write_trees_csv, write_trees_geojson, write_tum
@@ -264,13 +296,15 @@ class Pipeline:
         out = self.out_dir
         stamps = np.asarray(self.stamps)
         odom = np.stack(self.odom) if self.odom else np.zeros((0, 4, 4))
-        write_tum(out / "odometry.tum", stamps, odom)
         table = None
+        if self.slam is not None and self.prior is not None:
+            self.prior.refit(self.slam)
+        write_tum(out / "odometry.tum", stamps, self._in_output_frame(odom))
         if self.slam is not None:
             if final:
                 self.trees.flush(None)
             s, poses = self.slam.trajectory()
-            write_tum(out / "trajectory.tum", s, poses)
+            write_tum(out / "trajectory.tum", s, self._in_output_frame(poses))
             table = self.tree_table()
             write_trees_csv(out / "trees.csv", table)
             write_trees_geojson(out / "trees.geojson", table)
@@ -291,8 +325,8 @@ class Pipeline:
         s, poses = self.slam.trajectory()
         plot_map(
             out / "map.png",
-            poses[:, :2, 3],
-            odom[:, :2, 3],
+            self._in_output_frame(poses)[:, :2, 3],
+            self._in_output_frame(odom)[:, :2, 3],
             np.column_stack([table["x"], table["y"]]),
             table["dbh_m"],
             title=f"{len(table['id'])} trees, {len(s)} scans ({self.mode})",
@@ -306,7 +340,10 @@ class Pipeline:
         from forestslam.mapping.plot import plot_dtm
 
         kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
-        ground = self.ground.build(kf_poses)
+        ground = self.ground.build(kf_poses)  # voxels in the run's own frame, near its origin
+        if self.prior is not None:  # then moved, in float64, into map coordinates
+            T = self.prior.T_map_odom()
+            ground = ground @ T[:3, :3].T + T[:3, 3]
         write_cloud(self.out_dir / "ground.ply", ground)
         m = self.cfg.mapping
         dtm = dtm_grid(ground, m.dtm_cell_m, m.dtm_min_points, m.dtm_window_m, m.dtm_max_raise_m)
@@ -325,8 +362,12 @@ def run(
     max_scans: int | None = None,
     topic: str | None = None,
     progress: bool = True,
+    prior_map: str | Path | None = None,
+    initial_pose: str | None = None,
 ) -> RunSummary:
-    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`."""
+    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`.
+    `prior_map` (a tree CSV, saved map or run directory) starts the run in that map; an
+    `initial_pose` "x,y,yaw_deg" of the first scan in the map skips the search."""
     import yaml
     from tqdm import tqdm
 
@@ -350,7 +391,17 @@ def run(
     remaining = max(0, total - start)
     if max_scans is not None:
         remaining = min(remaining, max_scans)
-    pipe = Pipeline(profile, cfg, mode, out)
+    prior = pose = None
+    if initial_pose is not None and prior_map is None:
+        raise InputError("--initial-pose places the run in a prior map: give --prior-map too")
+    if prior_map is not None:
+        from forestslam.multisession.prior import load_prior_map, parse_initial_pose
+
+        prior = load_prior_map(prior_map, cfg.prior_map)
+        if initial_pose is not None:
+            pose = parse_initial_pose(initial_pose)
+            pose[:2] -= prior.origin
+    pipe = Pipeline(profile, cfg, mode, out, prior, pose)
     summary = RunSummary(out_dir=out, mode=mode)
     meta = {
         "input": str(input_path),
@@ -365,6 +416,8 @@ def run(
 
     def write_meta() -> None:
         meta["summary"] = summary.to_dict()
+        if pipe.prior is not None:
+            meta["prior_map"] = pipe.prior.to_dict()
         atomic_write_text(out / "run.yaml", yaml.safe_dump(meta, sort_keys=False))
 
     write_meta()

@@ -24,6 +24,15 @@ def register(app: typer.Typer) -> None:
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        prior_map: Path | None = typer.Option(
+            None,
+            "--prior-map",
+            help="Start in this tree map (a tree CSV x,y[,dbh_m] in any frame, a saved map "
+            ".npz, or an earlier run's directory): outputs are in its frame once placed.",
+        ),
+        initial_pose: str | None = typer.Option(
+            None, "--initial-pose", help="x,y,yaw_deg of the first scan in the prior map."
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -37,6 +46,8 @@ def register(app: typer.Typer) -> None:
             max_scans=max_scans,
             topic=topic,
             progress=not no_progress,
+            prior_map=prior_map,
+            initial_pose=initial_pose,
         )
         rs = s.read_stats
         print(

@@ -87,7 +87,11 @@ def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> Non
             "type": "Feature",
             "geometry": {
                 "type": "Point",
-                "coordinates": [round(float(arrays[c][i]), 6) for c in coord_names],
+                "coordinates": [  # a tree without a known height is a 2D point
+                    round(float(arrays[c][i]), 6)
+                    for c in coord_names
+                    if c != "z" or np.isfinite(arrays[c][i])
+                ],
             },
             "properties": {k: value(arrays[k][i]) for k in props},
         }
