@@ -122,7 +122,14 @@ class Pipeline:
     """Holds the state of one run; `process(scan)` per scan, `write(final)` for outputs."""
 
     def __init__(
-        self, sensor, config, mode: str, out_dir: Path, prior_map=None, initial_pose=None
+        self,
+        sensor,
+        config,
+        mode: str,
+        out_dir: Path,
+        prior_map=None,
+        initial_pose=None,
+        drift=None,
     ) -> None:
         from forestslam.mapping import GroundMap, TreeMap
         from forestslam.slam import LandmarkSlam
@@ -159,6 +166,12 @@ class Pipeline:
 
             self.prior = PriorTracker(prior_map, config.prior_map, config.localization)
         self.initial_pose = initial_pose  # (3,) x, y, yaw of the first scan in the map
+        self.loops = None  # place recognition: loop closure when re-association cannot
+        if self.slam is not None and config.place_recognition.enabled:
+            from forestslam.multisession.loops import PlaceRecognition
+
+            self.loops = PlaceRecognition(config.place_recognition, config.localization)
+        self.drift = drift  # a DriftInjector corrupting the odometry (tests and benches)
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []
@@ -188,6 +201,8 @@ class Pipeline:
         if self._T0_inv is None:
             self._T0_inv = np.linalg.inv(T)
         T = self._T0_inv @ T  # output frame: the first scan's sensor frame
+        if self.drift is not None:
+            T = self.drift.apply(T)
         self.stamps.append(float(step.stamp))
         self.odom.append(T)
         self.degraded += bool(step.degraded)
@@ -222,6 +237,8 @@ class Pipeline:
         res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh, z_odom)
         if self.prior is not None and res.keyframe is not None:
             self._place(i, step.stamp, res)
+        if self.loops is not None and res.keyframe is not None:
+            self.loops.step(self.slam, res.keyframe, res.T_map_sensor)
         if res.keyframe is not None and source is not None:
             self.refiner.add_keyframe(source, res.T_map_sensor)
         if res.keyframe is not None and self.ground is not None:
@@ -278,6 +295,11 @@ class Pipeline:
     def tree_table(self) -> dict:
         xy, nobs = self.slam.landmarks()
         counts = nobs if self.prior is None else self.prior.table_counts(nobs)
+        alias = self.slam.aliases()  # trees mapped twice, tied by place recognition: one row
+        tied = alias >= 0
+        counts = counts.copy()
+        np.add.at(counts, alias[tied], counts[tied])
+        counts[tied] = 0
         table = self.trees.table(np.arange(len(xy)), xy, counts)
         # tree heights corrected for the odometry's z drift, where the SLAM has them
         heights = self.slam.landmark_heights()[table["id"]]
@@ -364,6 +386,7 @@ def run(
     progress: bool = True,
     prior_map: str | Path | None = None,
     initial_pose: str | None = None,
+    inject_drift: str | None = None,
 ) -> RunSummary:
     """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`.
     `prior_map` (a tree CSV, saved map or run directory) starts the run in that map; an
@@ -401,7 +424,12 @@ def run(
         if initial_pose is not None:
             pose = parse_initial_pose(initial_pose)
             pose[:2] -= prior.origin
-    pipe = Pipeline(profile, cfg, mode, out, prior, pose)
+    drift = None
+    if inject_drift is not None:
+        from forestslam.multisession.drift import DriftInjector
+
+        drift = DriftInjector.parse(inject_drift)
+    pipe = Pipeline(profile, cfg, mode, out, prior, pose, drift)
     summary = RunSummary(out_dir=out, mode=mode)
     meta = {
         "input": str(input_path),
@@ -418,6 +446,8 @@ def run(
         meta["summary"] = summary.to_dict()
         if pipe.prior is not None:
             meta["prior_map"] = pipe.prior.to_dict()
+        if pipe.loops is not None:
+            meta["place_recognition"] = dict(pipe.loops.stats)
         atomic_write_text(out / "run.yaml", yaml.safe_dump(meta, sort_keys=False))
 
     write_meta()

@@ -33,6 +33,11 @@ def register(app: typer.Typer) -> None:
         initial_pose: str | None = typer.Option(
             None, "--initial-pose", help="x,y,yaw_deg of the first scan in the prior map."
         ),
+        inject_drift: str | None = typer.Option(
+            None,
+            "--inject-drift",
+            help="scale,yaw_deg_per_10m: corrupt the odometry (tests and benches), e.g. 0.02,1.",
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -48,6 +53,7 @@ def register(app: typer.Typer) -> None:
             progress=not no_progress,
             prior_map=prior_map,
             initial_pose=initial_pose,
+            inject_drift=inject_drift,
         )
         rs = s.read_stats
         print(
