@@ -20,6 +20,8 @@ from pathlib import Path
 from forestslam.config_utils import from_dict, read_yaml, to_dict
 from forestslam.localization.config import LocalizationConfig
 from forestslam.mapping.config import MappingConfig
+from forestslam.multisession.loops import PlaceRecognitionConfig
+from forestslam.multisession.prior import PriorMapConfig
 from forestslam.odometry.config import OdometryConfig
 from forestslam.perception.config import PerceptionConfig
 from forestslam.slam.config import SlamConfig
@@ -36,6 +38,8 @@ class ForestSlamConfig:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     localization: LocalizationConfig = field(default_factory=LocalizationConfig)
     tls: TlsConfig = field(default_factory=TlsConfig)
+    prior_map: PriorMapConfig = field(default_factory=PriorMapConfig)
+    place_recognition: PlaceRecognitionConfig = field(default_factory=PlaceRecognitionConfig)
 
 
 def load_config(path: str | Path | None = None) -> ForestSlamConfig:

@@ -58,6 +58,14 @@ KNOWN_OUTPUTS: dict[str, tuple[str, ...]] = {
     ),
     "localize": ("localization.json", "localization.tum"),
     "tls-register": ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"),
+    "merge": (
+        "trees.csv",
+        "trees.geojson",
+        "trajectory_a.tum",
+        "trajectory_b.tum",
+        "merge.yaml",
+        "map.png",
+    ),
 }
 
 

@@ -14,7 +14,7 @@ import threading
 
 import typer
 
-from forestslam.cli import detect, evaluate, info, localize, run, simulate, tls_register
+from forestslam.cli import detect, evaluate, info, localize, merge, run, simulate, tls_register
 
 app = typer.Typer(
     name="forestslam",
@@ -24,7 +24,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-for command_module in (info, simulate, detect, run, evaluate, localize, tls_register):
+for command_module in (info, simulate, detect, run, evaluate, localize, tls_register, merge):
     command_module.register(app)
 
 _debug = False

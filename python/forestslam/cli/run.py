@@ -32,6 +32,20 @@ def register(app: typer.Typer) -> None:
         overwrite: bool = typer.Option(
             False, "--overwrite", help="Replace the outputs of another command in OUT."
         ),
+        prior_map: Path | None = typer.Option(
+            None,
+            "--prior-map",
+            help="Start in this tree map (a tree CSV x,y[,dbh_m] in any frame, a saved map "
+            ".npz, or an earlier run's directory): outputs are in its frame once placed.",
+        ),
+        initial_pose: str | None = typer.Option(
+            None, "--initial-pose", help="x,y,yaw_deg of the first scan in the prior map."
+        ),
+        inject_drift: str | None = typer.Option(
+            None,
+            "--inject-drift",
+            help="scale,yaw_deg_per_10m: corrupt the odometry (tests and benches), e.g. 0.02,1.",
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -46,6 +60,9 @@ def register(app: typer.Typer) -> None:
             topic=topic,
             progress=not no_progress,
             overwrite=overwrite,
+            prior_map=prior_map,
+            initial_pose=initial_pose,
+            inject_drift=inject_drift,
         )
         rs = s.read_stats
         print(

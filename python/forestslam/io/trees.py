@@ -43,7 +43,8 @@ def write_trees_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
 
 
 def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
-    """CSV with a header -> {column: float64 array} (empty cells become NaN)."""
+    """CSV with a header -> {column: array}: float64 where every cell is a number or empty
+    (empty -> NaN), else the column's text (a `source` or `status` flag, a species)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: tree CSV not found")
@@ -54,12 +55,16 @@ def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
     rows = [ln.split(",") for ln in lines[1:]]
     if any(len(r) != len(names) for r in rows):
         raise InputError(f"{path}: rows with a number of cells other than {len(names)}")
+    cells = np.array(rows, dtype=str).reshape(len(rows), len(names))
+    return {name: _column(cells[:, k]) for k, name in enumerate(names)}
+
+
+def _column(cells: np.ndarray) -> np.ndarray:
+    stripped = np.char.strip(cells)
     try:
-        table = np.array([[float(c) if c.strip() else np.nan for c in r] for r in rows])
-    except ValueError as exc:
-        raise InputError(f"{path}: non-numeric cell ({exc})") from None
-    table = table.reshape(len(rows), len(names))
-    return {name: table[:, k] for k, name in enumerate(names)}
+        return np.where(stripped == "", "nan", stripped).astype(np.float64)
+    except ValueError:
+        return stripped.astype(object)
 
 
 def write_trees_geojson(
@@ -86,7 +91,11 @@ def write_trees_geojson(
             "type": "Feature",
             "geometry": {
                 "type": "Point",
-                "coordinates": [round(float(arrays[c][i]), 6) for c in coord_names],
+                "coordinates": [  # a tree without a known height is a 2D point
+                    round(float(arrays[c][i]), 6)
+                    for c in coord_names
+                    if c != "z" or np.isfinite(arrays[c][i])
+                ],
             },
             "properties": {k: value(arrays[k][i]) for k in props},
         }
