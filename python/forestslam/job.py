@@ -125,12 +125,13 @@ class ScanWindow:
         left = max(0, total - self.start)
         return left if self.max_scans is None else min(left, self.max_scans)
 
-    def open(self, input_path: str | Path, topic: str | None = None):
+    def open(self, input_path: str | Path, topic: str | None = None, packets=None):
         """(stream, scans, count): the reader's stream (stats), the window's scans of it and
-        their number (None when the source cannot tell)."""
+        their number (None when the source cannot tell). `packets`: how raw Velodyne packets
+        are decoded (a sensor profile's `packet_config()`)."""
         from forestslam.io import read_scans
 
-        stream = read_scans(input_path, topic, start=self.start)
+        stream = read_scans(input_path, topic, start=self.start, packets=packets)
         total = len(stream) if hasattr(stream, "__len__") else None
         return stream, itertools.islice(stream, self.max_scans), self.count(total)
 

@@ -14,8 +14,10 @@ skipped and counted; stretches without trees are bridged by odometry.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import platform
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +27,8 @@ import numpy as np
 
 from forestslam.errors import ForestSlamError, InputError
 from forestslam.geometry import inverse, transform_points
+from forestslam.georef import Georeference
+from forestslam.output_frame import OutputFrame
 
 log = logging.getLogger(__name__)
 
@@ -118,18 +122,24 @@ class _Timer:
         return d
 
 
+@dataclass
+class RunOptions:
+    """What a run adds to the plain job: a prior map to start in (multisession.PriorMap) and the
+    first scan's pose there (x, y, yaw in its local frame), injected drift (tests, benches), the
+    georeference of the outputs, and a live viewer (forestslam.viewer.RerunView)."""
+
+    prior_map: Any = None
+    initial_pose: np.ndarray | None = None
+    drift: Any = None
+    georef: Any = None
+    viewer: Any = None
+
+
 class Pipeline:
     """Holds the state of one run; `process(scan)` per scan, `write(final)` for outputs."""
 
     def __init__(
-        self,
-        sensor,
-        config,
-        mode: str,
-        out_dir: Path,
-        prior_map=None,
-        initial_pose=None,
-        drift=None,
+        self, sensor, config, mode: str, out_dir: Path, options: RunOptions | None = None
     ) -> None:
         from forestslam.mapping import GroundMap, TreeMap
         from forestslam.slam import LandmarkSlam
@@ -158,20 +168,28 @@ class Pipeline:
             from forestslam.mapping.refine import ScanToMapRefiner
 
             self.refiner = ScanToMapRefiner(config.mapping)
+        opts = options or RunOptions()
         self.prior = None  # multisession.PriorTracker when the run starts in a prior map
-        if prior_map is not None:
+        if opts.prior_map is not None:
             if mode == "odometry":
                 raise InputError("--prior-map needs --mode slam or map3d (trees to place)")
             from forestslam.multisession.prior import PriorTracker
 
-            self.prior = PriorTracker(prior_map, config.prior_map, config.localization)
-        self.initial_pose = initial_pose  # (3,) x, y, yaw of the first scan in the map
+            self.prior = PriorTracker(opts.prior_map, config.prior_map, config.localization)
+        self.initial_pose = opts.initial_pose  # (3,) x, y, yaw of the first scan in the map
         self.loops = None  # place recognition: loop closure when re-association cannot
         if self.slam is not None and config.place_recognition.enabled:
             from forestslam.multisession.loops import PlaceRecognition
 
             self.loops = PlaceRecognition(config.place_recognition, config.localization)
-        self.drift = drift  # a DriftInjector corrupting the odometry (tests and benches)
+        self.drift = opts.drift  # a DriftInjector corrupting the odometry (tests and benches)
+        self.frame = OutputFrame(opts.georef or Georeference(), self.prior)
+        self.viewer = opts.viewer
+        self.cloud = None  # the registered cloud for map.laz
+        if self.slam is not None and config.mapping.map_laz:
+            from forestslam.mapping.cloud_map import CloudMap
+
+            self.cloud = CloudMap(config.mapping.map_voxel_m, config.mapping.map_voxel_m)
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []
@@ -206,9 +224,11 @@ class Pipeline:
         self.stamps.append(float(step.stamp))
         self.odom.append(T)
         self.degraded += bool(step.degraded)
+        if self.viewer is not None:
+            self.viewer.scan(i, step.stamp, T, scan.points)
         if self.slam is not None:
             try:
-                self._map(i, step, T)
+                self._map(i, step, T, scan)
             except ForestSlamError as exc:  # the scan keeps its odometry pose
                 self.failed += 1
                 log.error("scan at %.3f s: mapping failed: %s", scan.stamp, exc)
@@ -217,7 +237,7 @@ class Pipeline:
         self.n += 1
         self.timer.n = self.n
 
-    def _map(self, i: int, step, T: np.ndarray) -> None:
+    def _map(self, i: int, step, T: np.ndarray, scan) -> None:
         from forestslam.slam import level_points
 
         stems = step.stems
@@ -241,12 +261,19 @@ class Pipeline:
             self.loops.step(self.slam, res.keyframe, res.T_map_sensor)
         if res.keyframe is not None and source is not None:
             self.refiner.add_keyframe(source, res.T_map_sensor)
+        ground = getattr(stems, "ground", None) if stems is not None else None
         if res.keyframe is not None and self.ground is not None:
-            ground = getattr(stems, "ground", None) if stems is not None else None
             if ground is not None and len(ground):
                 self.ground.add_keyframe(res.keyframe, np.asarray(ground, dtype=np.float64))
+        if res.keyframe is not None and self.cloud is not None:
+            stem_points = list(stems.points) if k else []
+            self.cloud.add_keyframe(
+                res.keyframe, step.stamp, scan.points, ground, stem_points, res.landmark_ids + 1
+            )
         if k:
             centre_map = transform_points(res.T_map_sensor, centre)
+            if self.viewer is not None:
+                self.viewer.stems(i, step.stamp, centre_map, dbh)
             self.trees.add(
                 i,
                 res.T_map_sensor,
@@ -293,6 +320,7 @@ class Pipeline:
 
     # ---------------------------------------------------------------- outputs
     def tree_table(self) -> dict:
+        """trees.csv in the output frame; `self.tree_ids` maps each landmark to its row's id."""
         xy, nobs = self.slam.landmarks()
         counts = nobs if self.prior is None else self.prior.table_counts(nobs)
         alias = self.slam.aliases()  # trees mapped twice, tied by place recognition: one row
@@ -301,16 +329,23 @@ class Pipeline:
         np.add.at(counts, alias[tied], counts[tied])
         counts[tied] = 0
         table = self.trees.table(np.arange(len(xy)), xy, counts)
+        landmarks = np.asarray(table["id"], dtype=np.int64)
         # tree heights corrected for the odometry's z drift, where the SLAM has them
-        heights = self.slam.landmark_heights()[table["id"]]
+        heights = self.slam.landmark_heights()[landmarks]
         table["z"] = np.where(np.isfinite(heights), heights, table["z"])
         if self.prior is not None:  # ids, positions, DBH and counts in the prior map
             table = self.prior.express_table(table, self.slam)
-        return table
+        else:
+            table["id"] = landmarks + 1  # ids from 1: 0 is "no tree" in map.laz's tree_id
+        self.tree_ids = np.zeros(len(xy), dtype=np.int64)
+        self.tree_ids[landmarks] = table["id"]
+        self.tree_ids[tied] = self.tree_ids[alias[tied]]
+        self._last_table = self.frame.table(table)
+        return self._last_table
 
     def _in_output_frame(self, poses: np.ndarray) -> np.ndarray:
-        """Poses of the odometry/SLAM frame in the output frame (the prior map's once placed)."""
-        return poses if self.prior is None else self.prior.express_poses(poses)
+        """Poses of the odometry/SLAM frame in the output frame (see OutputFrame)."""
+        return self.frame.poses(poses)
 
     def write(self, final: bool) -> dict:
         from forestslam.io import write_trees_csv, write_trees_geojson, write_tum
@@ -329,10 +364,21 @@ class Pipeline:
             write_tum(out / "trajectory.tum", s, self._in_output_frame(poses))
             table = self.tree_table()
             write_trees_csv(out / "trees.csv", table)
-            write_trees_geojson(out / "trees.geojson", table)
+            write_trees_geojson(out / "trees.geojson", table, self.frame.crs_urn())
+            self._show_map(s, poses)
         if final:
             self._write_final(stamps, odom, table)
         return table or {}
+
+    def _show_map(self, stamps: np.ndarray, poses: np.ndarray) -> None:
+        """The viewer's trajectory and tree map (the run's own frame: Rerun keeps float32)."""
+        if self.viewer is None or not len(stamps):
+            return
+        xy, _ = self.slam.landmarks()
+        z = self.slam.landmark_heights()
+        self.viewer.trajectory(self.n - 1, stamps[-1], poses[:, :3, 3])
+        dbh = np.array([self.trees.dbh(int(j))[0] for j in range(len(xy))])
+        self.viewer.trees(self.n - 1, stamps[-1], np.column_stack([xy, np.nan_to_num(z)]), dbh)
 
     def _write_final(self, stamps, odom, table) -> None:
         from forestslam.io.atomic import atomic_write_text
@@ -353,19 +399,42 @@ class Pipeline:
             table["dbh_m"],
             title=f"{len(table['id'])} trees, {len(s)} scans ({self.mode})",
         )
-        if self.ground is not None:
-            self._write_ground(poses)
+        from forestslam.io.gis import write_trees_gpkg
 
-    def _write_ground(self, poses: np.ndarray) -> None:
+        status = table.get("status", np.full(len(table["id"]), "new", dtype=object))
+        write_trees_gpkg(out / "trees.gpkg", {**table, "status": status}, self.frame.crs)
+        kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
+        if self.cloud is not None:
+            self._write_map_laz(kf_poses)
+        if self.ground is not None:
+            self._write_ground(kf_poses)
+
+    def _write_map_laz(self, kf_poses: np.ndarray) -> None:
+        """map.laz: the keyframes' clouds placed by the optimised poses, ground and tree ids."""
+        from forestslam.io.gis import write_map_laz
+        from forestslam.mapping.cloud_map import label_stems
+
+        cloud = self.cloud.build(kf_poses)
+        label = cloud["tree_id"].astype(np.int64)  # landmark + 1, 0: none
+        ids = np.concatenate([[0], self.tree_ids])[np.minimum(label, len(self.tree_ids))]
+        points = self.frame.points(cloud["points"])
+        ids = label_stems(points, cloud["classification"], ids, self._last_table)
+        write_map_laz(
+            self.out_dir / "map.laz",
+            points,
+            cloud["classification"],
+            ids,
+            cloud["time"],
+            self.frame.crs,
+        )
+
+    def _write_ground(self, kf_poses: np.ndarray) -> None:
         from forestslam.io import write_cloud
         from forestslam.mapping import dtm_grid, write_dtm
         from forestslam.mapping.plot import plot_dtm
 
-        kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
         ground = self.ground.build(kf_poses)  # voxels in the run's own frame, near its origin
-        if self.prior is not None:  # then moved, in float64, into map coordinates
-            T = self.prior.T_map_odom()
-            ground = ground @ T[:3, :3].T + T[:3, 3]
+        ground = self.frame.points(ground)  # then moved, in float64, into the output frame
         write_cloud(self.out_dir / "ground.ply", ground)
         m = self.cfg.mapping
         dtm = dtm_grid(ground, m.dtm_cell_m, m.dtm_min_points, m.dtm_window_m, m.dtm_max_raise_m)
@@ -375,7 +444,7 @@ class Pipeline:
 
 def run(
     input_path: str | Path,
-    sensor: str,
+    sensor: str | None,
     out_dir: str | Path,
     mode: str = "slam",
     config: Any = None,
@@ -388,11 +457,18 @@ def run(
     prior_map: str | Path | None = None,
     initial_pose: str | None = None,
     inject_drift: str | None = None,
+    crs: str | None = None,
+    georef: str | None = None,
+    rerun: bool = False,
+    rerun_save: str | Path | None = None,
 ) -> RunSummary:
     """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`.
+    `sensor` None: identified from the first scans (forestslam.sensors.identify).
     `prior_map` (a tree CSV, saved map or run directory) starts the run in that map; an
     `initial_pose` "x,y,yaw_deg" of the first scan in the map skips the search;
     `inject_drift` "scale,yaw_deg_per_10m" corrupts the odometry (tests and benches).
+    `crs` (EPSG:N ...) with a prior map in it, or with `georef` "x,y,z,yaw_deg" (the first
+    scan's pose in it): every output in that CRS. `rerun` / `rerun_save`: a live view.
 
     The output directory is owned as `forestslam.job` describes (lock, an earlier run's outputs
     replaced or refused, run.yaml with the outcome)."""
@@ -405,20 +481,30 @@ def run(
         raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
     window = ScanWindow(start, max_scans)
     cfg = validate(config) if config is not None else load_config(config_path)
-    profile = load_profile(sensor)
-    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
+    profile = load_profile(sensor) if sensor is not None else None
+    packets = profile.packet_config() if profile is not None else None
+    stream, scans, count = window.open(input_path, topic, packets)  # `start` skipped undecoded
+    if profile is None:
+        profile, scans = _identify_sensor(scans)
     prior, pose, drift = _multisession(cfg, prior_map, initial_pose, inject_drift)
+    options = RunOptions(prior, pose, drift, Georeference.from_options(crs, georef))
+    if rerun or rerun_save is not None:
+        from forestslam.viewer import RerunView
+
+        options.viewer = RerunView(spawn=rerun, save=rerun_save)
     meta = {
         "input": str(input_path),
         "topic": topic,
         "sensor": profile.name,
+        "sensor_identified": sensor is None,
         "mode": mode,
         **window.meta(),
         "versions": _versions(),
         "config": config_to_dict(cfg),
     }
     with Job("run", out_dir, meta, inputs=[input_path, config_path], overwrite=overwrite) as job:
-        pipe = Pipeline(profile, cfg, mode, job.out, prior, pose, drift)
+        pipe = Pipeline(profile, cfg, mode, job.out, options)
+        job.meta["output_frame"] = pipe.frame.to_dict()
         summary = RunSummary(out_dir=job.out, mode=mode)
         checkpoints = Checkpoints(cfg.mapping.checkpoint_every_scans)
         bar = Progress(count, "scan", "run", enabled=progress)
@@ -453,8 +539,24 @@ def run(
             _finish(pipe, summary)
             job.summary = summary.to_dict()
             _record_multisession(job, pipe)  # after the final refit of the placement
+            job.meta["output_frame"] = pipe.frame.to_dict()
+            if pipe.viewer is not None:
+                pipe.viewer.close()
     summary.status = job.status
     return summary
+
+
+def _identify_sensor(scans):
+    """(profile, scans): the shipped profile the first scans fit, and the scans with those put
+    back in front."""
+    from forestslam.sensors.identify import identify
+
+    first = list(itertools.islice(scans, 5))
+    if not first:
+        raise InputError("no scans to identify the sensor from: give --sensor")
+    profile = identify(first)
+    print(f"forestslam: sensor identified as {profile.name} from the data", file=sys.stderr)
+    return profile, itertools.chain(first, scans)
 
 
 def _multisession(cfg, prior_map, initial_pose, inject_drift):

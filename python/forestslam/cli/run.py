@@ -15,13 +15,18 @@ def register(app: typer.Typer) -> None:
     @app.command(
         "run",
         help="Run odometry, tree SLAM and mapping on a bag / folder / cloud file and write "
-        "trajectory.tum, odometry.tum, trees.csv, trees.geojson, map.png, timing.json, run.yaml "
+        "trajectory.tum, odometry.tum, trees.csv, trees.geojson, trees.gpkg, map.laz, map.png, "
+        "timing.json, run.yaml "
         "(map3d also ground.ply and dtm.*) into OUT. A re-run into OUT replaces the earlier "
         "run's outputs; OUT holding another command's outputs is refused without --overwrite.",
     )
     def _command(
         input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
-        sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
+        sensor: str | None = typer.Option(
+            None,
+            "--sensor",
+            help="Sensor profile name or YAML file (default: identified from the data).",
+        ),
         out: Path = typer.Option(..., "--out", help="Output directory."),
         mode: Mode = typer.Option("slam", "--mode", help="What to build (see the README)."),
         config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
@@ -46,6 +51,16 @@ def register(app: typer.Typer) -> None:
             "--inject-drift",
             help="scale,yaw_deg_per_10m: corrupt the odometry (tests and benches), e.g. 0.02,1.",
         ),
+        crs: str | None = typer.Option(
+            None, "--crs", help="Coordinate reference system of the outputs, e.g. EPSG:32633."
+        ),
+        georef: str | None = typer.Option(
+            None, "--georef", help="x,y,z,yaw_deg: the first scan's pose in --crs (no prior map)."
+        ),
+        rerun: bool = typer.Option(False, "--rerun", help="Stream the run to a Rerun viewer."),
+        rerun_save: Path | None = typer.Option(
+            None, "--rerun-save", help="Record the Rerun view to this .rrd file instead."
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -63,6 +78,10 @@ def register(app: typer.Typer) -> None:
             prior_map=prior_map,
             initial_pose=initial_pose,
             inject_drift=inject_drift,
+            crs=crs,
+            georef=georef,
+            rerun=rerun,
+            rerun_save=rerun_save,
         )
         rs = s.read_stats
         print(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -105,7 +106,9 @@ def write_trees_gpkg(path: str | Path, table: dict[str, np.ndarray], crs=None) -
     y = np.asarray(table["y"], dtype=np.float64)
     names = [k for k in table if k not in ("x", "y")]
     data = [_field(np.asarray(table[k])) for k in names]
-    with _atomic_target(path) as tmp:
+    with _atomic_target(path) as tmp, warnings.catch_warnings():
+        # a run without a CRS writes a layer without one on purpose (its local frame)
+        warnings.filterwarnings("ignore", message="'crs' was not provided")
         write(
             str(tmp),
             geometry=_wkb_points(x, y),

@@ -54,7 +54,9 @@ class CloudMap:
         if ground_points is not None and len(ground_points):
             ground = np.isin(keys, voxel_keys(np.asarray(ground_points, np.float64), v))
         tree_id = np.zeros(len(pts), dtype=np.uint32)
-        for stem, tid in zip(stem_points or [], stem_tree_ids or [], strict=True):
+        stems = [] if stem_points is None else stem_points
+        ids = [] if stem_tree_ids is None else stem_tree_ids
+        for stem, tid in zip(stems, ids, strict=True):
             if tid > 0 and len(stem):
                 tree_id[np.isin(keys, voxel_keys(np.asarray(stem, np.float64), v))] = tid
         self._keyframes.append(_Keyframe(keyframe, stamp, pts.astype(np.float32), ground, tree_id))
@@ -109,3 +111,39 @@ def _empty() -> dict[str, np.ndarray]:
         "tree_id": np.zeros(0, dtype=np.uint32),
         "time": np.zeros(0),
     }
+
+
+def label_stems(
+    points: np.ndarray,
+    classification: np.ndarray,
+    tree_id: np.ndarray,
+    trees: dict,
+    margin_m: float = 0.1,
+    below_m: float = 1.3,
+    above_m: float = 2.7,
+) -> np.ndarray:
+    """Tree ids completed geometrically: a non-ground point within a tree's stem radius
+    (DBH / 2, 0.15 m when unknown) plus `margin_m` of its axis, from `below_m` under to
+    `above_m` over its breast-height centre, takes the tree's id where perception left it
+    unlabelled (a stem seen before it became a tree, or at a scan between keyframes)."""
+    from scipy.spatial import cKDTree
+
+    ids = np.asarray(tree_id).copy()
+    if not len(trees.get("x", [])) or not len(points):
+        return ids
+    xy = np.column_stack([trees["x"], trees["y"]])
+    dbh = np.asarray(trees["dbh_m"], dtype=np.float64)
+    radius = np.where(np.isfinite(dbh), dbh / 2, 0.15) + margin_m
+    z = np.asarray(trees["z"], dtype=np.float64)
+    free = np.flatnonzero((ids == 0) & (classification != GROUND))
+    dist, k = cKDTree(xy).query(points[free, :2], distance_upper_bound=float(radius.max()))
+    hit = np.isfinite(dist)
+    free, dist, k = free[hit], dist[hit], k[hit]
+    dz = points[free, 2] - z[k]
+    inside = (
+        (dist <= radius[k])
+        & (np.nan_to_num(dz, nan=0.0) >= -below_m)
+        & (np.nan_to_num(dz, nan=0.0) <= above_m)
+    )
+    ids[free[inside]] = np.asarray(trees["id"])[k[inside]]
+    return ids

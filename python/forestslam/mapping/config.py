@@ -43,3 +43,6 @@ class MappingConfig:
     icp_sigma_floor_deg: Positive = 0.2
     # Outputs: trajectory / trees rewritten atomically every this many scans.
     checkpoint_every_scans: PositiveInt = 100
+    # map.laz (slam, map3d): every keyframe's scan thinned to map_voxel_m, ground and tree ids.
+    map_laz: bool = True
+    map_voxel_m: Positive = 0.1
