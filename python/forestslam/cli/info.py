@@ -73,7 +73,7 @@ def _text(info: dict) -> str:
     if info["skipped"] or info["lost_bytes"] or info["damaged_chunks"]:
         lines.append(
             f"damage:   {info['skipped']} messages skipped, {info['damaged_chunks']} damaged "
-            f"chunks, {info['lost_bytes']} bytes lost at the end (see warnings above)"
+            f"chunks, {info['lost_bytes']} bytes lost (see the warnings above)"
         )
     return "\n".join(lines)
 
