@@ -16,6 +16,7 @@ graph (`forestslam.slam.height`), applied to `trajectory()` and given by `landma
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from dataclasses import dataclass, field
@@ -99,7 +100,13 @@ class LandmarkSlam:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
         params.relinearizeSkip = self.cfg.relinearize_skip
+        self._isam_params = params
         self.isam = gtsam.ISAM2(params)
+        # What iSAM2 holds after the last successful update: a failed update leaves iSAM2 with
+        # its new variables half added, so it is rebuilt from these (see _rebuild_isam).
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._estimate = gtsam.Values()
+        self.failed_updates = 0  # keyframes whose update failed and was rolled back
         # per scan
         self._stamps: list[float] = []
         self._odom: list[np.ndarray] = []  # (4,4)
@@ -201,17 +208,16 @@ class LandmarkSlam:
         ids = np.full(len(stems_xy), -1, dtype=np.int64)
 
         if first or self._is_keyframe(stamp, o2):
+            before = self._snapshot()
             try:
                 kf = self._add_keyframe(
                     o2, stems_xy[idx], stems_dbh[idx], stems_z[idx], ids, idx, first
                 )
             except ProcessingError:  # forget this scan so the trajectory stays consistent
-                n_kf = self.n_keyframes
+                self._restore(before)
                 del self._stamps[-1], self._odom[-1]
-                del self._kf_scan[len(self._kf_est) :], self._kf_odom2[len(self._kf_est) :]
-                if self.height is not None:
-                    self.height.truncate(len(self._kf_est))
-                log.debug("keyframe %d dropped", n_kf)
+                self.failed_updates += 1
+                log.debug("keyframe %d dropped", self.n_keyframes)
                 raise
             self._scan_kf.append(kf)
             pose = self._kf_est[kf]
@@ -426,11 +432,13 @@ class LandmarkSlam:
         try:
             self.isam.update(graph, values)
         except RuntimeError as exc:  # gtsam's IndeterminateLinearSystemException and kin
+            self._rebuild_isam()
             raise ProcessingError(f"pose graph update failed at keyframe {kf}: {exc}") from exc
+        self._graph.push_back(graph)
         big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
         for _ in range(cfg.extra_updates_on_loop if big else 0):
             self.isam.update()
-        est = self.isam.calculateEstimate()
+        est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         if self.n_landmarks:
             self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
@@ -441,6 +449,31 @@ class LandmarkSlam:
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
         return kf
+
+    def _snapshot(self) -> dict:
+        """What adding a keyframe changes before its iSAM2 update (to undo a failed one)."""
+        return {
+            "lm": (self._lm_xy.copy(), self._lm_nobs.copy(), self._lm_dbh.copy()),
+            "tentative": copy.deepcopy(self._tentative),
+            "counts": (self.loop_closures, self.n_landmark_factors),
+            "keyframes": self.n_keyframes,
+            "height_obs": None if self.height is None else self.height.n_observations,
+        }
+
+    def _restore(self, before: dict) -> None:
+        self._lm_xy, self._lm_nobs, self._lm_dbh = before["lm"]
+        self._tentative = before["tentative"]
+        self.loop_closures, self.n_landmark_factors = before["counts"]
+        n = before["keyframes"]
+        del self._kf_scan[n:], self._kf_odom2[n:]
+        if self.height is not None:
+            self.height.truncate(n, before["height_obs"])
+
+    def _rebuild_isam(self) -> None:
+        """A fresh iSAM2 holding the factors and estimate of the last successful update."""
+        self.isam = gtsam.ISAM2(self._isam_params)
+        if self._graph.size():
+            self.isam.update(self._graph, self._estimate)
 
     def _update_tentatives(
         self, kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, unmatched, graph, values
