@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.io.checks import check_scan
 from forestslam.io.pointcloud2 import (
     VELODYNE_FIELDS,
     VELODYNE_POINT_STEP,
@@ -212,6 +213,8 @@ class _BagSource:
                 continue
             self.stats.messages += 1
             scan = self._decode(raw, time_ns)
+            if scan is not None:
+                scan = check_scan(scan, self.stats, f"{self.path} {self.topic}")
             if scan is not None:
                 self.stats.scans += 1
                 yield scan
