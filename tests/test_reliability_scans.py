@@ -48,6 +48,9 @@ def test_absurd_per_point_time_is_ignored_not_deskewed(sim_scans, tmp_path, capl
     assert stats.degraded == {"time_ignored": 2}
     assert "time field ignored, scan not deskewed" in caplog.text
     assert caplog.text.count("time field ignored") == 1  # warned once, counted twice
+    from forestslam.cli.info import summarize
+
+    assert summarize(tmp_path / "mutated.bag", None, 10.0)["degraded"] == {"time_ignored": 2}
 
 
 @pytest.mark.parametrize(
