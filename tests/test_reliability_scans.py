@@ -124,13 +124,13 @@ def test_kitti_bin_of_wrong_size_is_rejected(sim_scans, tmp_path):
     folder = tmp_path / "velodyne"
     for k, scan in enumerate(sim_scans[:3]):
         write_cloud(folder / f"{k:06d}.bin", scan.points, scan.intensity)
-    cut = folder / "000001.bin"
-    cut.write_bytes(cut.read_bytes()[:-5])
+    odd = folder / "000001.bin"
+    odd.write_bytes(odd.read_bytes() + b"\0\0\0")  # whole floats a multiple of 4: was accepted
     stream = read_scans(folder)
     assert len(list(stream)) == 2 and stream.stats.skipped == 1
     assert "not a multiple of 16" in stream.stats.warnings[0]
     with pytest.raises(InputError, match="000001.bin.*multiple of 16"):
-        list(read_scans(cut))
+        list(read_scans(odd))
 
 
 def test_symlink_loop_is_reported_as_such(tmp_path):
