@@ -3,7 +3,9 @@ test session as a ROS1 bag or an MCAP file, for the tests of damaged and fuzzed 
 
 from __future__ import annotations
 
+import atexit
 import functools
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -16,5 +18,6 @@ def sample_sequence(fmt: str = "bag", scans: int = SCANS) -> Path:
     from forestslam.sim.simulate import simulate
 
     out = Path(tempfile.mkdtemp(prefix=f"forestslam-sim-{fmt}-"))
+    atexit.register(shutil.rmtree, out, ignore_errors=True)
     simulate("sample", out, max_scans=scans, format=fmt)
     return out / f"sequence.{fmt}"
