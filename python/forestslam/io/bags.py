@@ -224,7 +224,7 @@ class _BagSource:
         one line for the walk, one per byte range lost mid-file, one for a lost end."""
         lines = [f"{self.path}: {why}; found {len(index.entries)} messages by walking the file"]
         lines += [f"{self.path}: skipped {loss.describe()}" for loss in index.losses]
-        self.stats.damaged_chunks = len(index.bad_chunks)
+        self.stats.damaged_chunks = len(index.losses)
         self.stats.lost_bytes = index.lost_bytes
         if index.damaged:
             tail = index.tail_bytes

@@ -24,8 +24,9 @@ class ReadStats:
     messages: messages (or files) read on the chosen topic; scans: scans yielded;
     skipped: corrupt or lost messages/files (each one logged); lost_bytes: bytes of a damaged
     bag that could not be read (mid-file and at the end; where: `warnings`); damaged_chunks:
-    chunks skipped mid-bag; degraded: scans per kind of problem found in decoded scans (see
-    forestslam.io.checks: empty_scans skipped, time_ignored, ring_ignored, implausible_range);
+    damaged chunks or records skipped mid-file (each a byte range in `warnings`); degraded:
+    scans per kind of problem found in decoded scans (see forestslam.io.checks: empty_scans
+    skipped, time_ignored, ring_ignored, implausible_range);
     warnings: one line per problem (per kind for `degraded`).
     """
 
