@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from forestslam.evaluation.report import evaluate_run
+from forestslam.geometry import planar_pose
 from forestslam.io import read_trees_csv, read_tum, write_trees_csv, write_tum
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,11 +31,7 @@ SPEED = 1.0
 
 def truth_pose(t):
     a = SPEED * t / RADIUS
-    T = np.eye(4)
-    yaw = a + math.pi / 2
-    T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-    T[:3, 3] = [RADIUS * math.cos(a), RADIUS * math.sin(a), 1.0]
-    return T
+    return planar_pose(RADIUS * math.cos(a), RADIUS * math.sin(a), a + math.pi / 2, z=1.0)
 
 
 def make_trees():
@@ -65,9 +62,7 @@ class FakeOdometry:
         else:
             rel = np.linalg.inv(self.prev) @ T
             d = np.linalg.norm(rel[:2, 3])
-            yaw = math.radians(0.1) * d
-            bias = np.eye(4)
-            bias[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
+            bias = planar_pose(0.0, 0.0, math.radians(0.1) * d)
             self.drifted = self.drifted @ rel @ bias
         self.prev = T
         local = (self.trees_xy - T[:2, 3]) @ T[:2, :2]

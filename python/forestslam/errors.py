@@ -11,3 +11,7 @@ class InputError(ForestSlamError):
 
 class ProcessingError(ForestSlamError):
     """An algorithm cannot produce a result from otherwise valid input."""
+
+
+class Terminated(KeyboardInterrupt):
+    """The process was asked to stop (SIGTERM); a job records it as `interrupted`."""

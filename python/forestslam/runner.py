@@ -14,7 +14,6 @@ skipped and counted; stretches without trees are bridged by odometry.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import platform
 import time
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from forestslam.errors import ForestSlamError, InputError
+from forestslam.geometry import inverse, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,16 @@ class _Timer:
 class Pipeline:
     """Holds the state of one run; `process(scan)` per scan, `write(final)` for outputs."""
 
-    def __init__(self, sensor, config, mode: str, out_dir: Path) -> None:
+    def __init__(
+        self,
+        sensor,
+        config,
+        mode: str,
+        out_dir: Path,
+        prior_map=None,
+        initial_pose=None,
+        drift=None,
+    ) -> None:
         from forestslam.mapping import GroundMap, TreeMap
         from forestslam.slam import LandmarkSlam
 
@@ -149,6 +158,20 @@ class Pipeline:
             from forestslam.mapping.refine import ScanToMapRefiner
 
             self.refiner = ScanToMapRefiner(config.mapping)
+        self.prior = None  # multisession.PriorTracker when the run starts in a prior map
+        if prior_map is not None:
+            if mode == "odometry":
+                raise InputError("--prior-map needs --mode slam or map3d (trees to place)")
+            from forestslam.multisession.prior import PriorTracker
+
+            self.prior = PriorTracker(prior_map, config.prior_map, config.localization)
+        self.initial_pose = initial_pose  # (3,) x, y, yaw of the first scan in the map
+        self.loops = None  # place recognition: loop closure when re-association cannot
+        if self.slam is not None and config.place_recognition.enabled:
+            from forestslam.multisession.loops import PlaceRecognition
+
+            self.loops = PlaceRecognition(config.place_recognition, config.localization)
+        self.drift = drift  # a DriftInjector corrupting the odometry (tests and benches)
         self.timer = _Timer()
         self.stamps: list[float] = []
         self.odom: list[np.ndarray] = []
@@ -176,8 +199,10 @@ class Pipeline:
             log.warning("scan at %.3f s skipped: non-finite odometry pose", scan.stamp)
             return
         if self._T0_inv is None:
-            self._T0_inv = np.linalg.inv(T)
+            self._T0_inv = inverse(T)
         T = self._T0_inv @ T  # output frame: the first scan's sensor frame
+        if self.drift is not None:
+            T = self.drift.apply(T)
         self.stamps.append(float(step.stamp))
         self.odom.append(T)
         self.degraded += bool(step.degraded)
@@ -210,6 +235,10 @@ class Pipeline:
             source = self.refiner.source_points(stems)
             self.slam.refine_hook = self._refine_hook(T, source)
         res = self.slam.add_scan(step.stamp, T, step.covariance, step.degraded, level, dbh, z_odom)
+        if self.prior is not None and res.keyframe is not None:
+            self._place(i, step.stamp, res)
+        if self.loops is not None and res.keyframe is not None:
+            self.loops.step(self.slam, res.keyframe, res.T_map_sensor)
         if res.keyframe is not None and source is not None:
             self.refiner.add_keyframe(source, res.T_map_sensor)
         if res.keyframe is not None and self.ground is not None:
@@ -217,7 +246,7 @@ class Pipeline:
             if ground is not None and len(ground):
                 self.ground.add_keyframe(res.keyframe, np.asarray(ground, dtype=np.float64))
         if k:
-            centre_map = centre @ res.T_map_sensor[:3, :3].T + res.T_map_sensor[:3, 3]
+            centre_map = transform_points(res.T_map_sensor, centre)
             self.trees.add(
                 i,
                 res.T_map_sensor,
@@ -229,6 +258,19 @@ class Pipeline:
             )
         if i % self.cfg.mapping.dbh_window_scans == 0:
             self.trees.flush(i)
+
+    def _place(self, i: int, stamp: float, res) -> None:
+        """Place the run in the prior map: at once with an initial pose, else by global
+        localization of its trees (see forestslam.multisession.prior)."""
+        if self.prior.placed:
+            return
+        if self.initial_pose is not None:
+            from forestslam.multisession.prior import planar_matrix
+
+            T_map_first = planar_matrix(*self.initial_pose)  # the first scan's sensor frame
+            self.prior.place_at(self.slam, T_map_first, i, stamp)
+            return
+        self.prior.maybe_place(self.slam, res.keyframe, res.T_map_sensor, i, stamp)
 
     def _refine_hook(self, T_odom: np.ndarray, source: np.ndarray):
         """Scan-to-map ICP from the SLAM prediction (planar (3,3)) -> planar pose + covariance."""
@@ -252,11 +294,23 @@ class Pipeline:
     # ---------------------------------------------------------------- outputs
     def tree_table(self) -> dict:
         xy, nobs = self.slam.landmarks()
-        table = self.trees.table(np.arange(len(xy)), xy, nobs)
+        counts = nobs if self.prior is None else self.prior.table_counts(nobs)
+        alias = self.slam.aliases()  # trees mapped twice, tied by place recognition: one row
+        tied = alias >= 0
+        counts = counts.copy()
+        np.add.at(counts, alias[tied], counts[tied])
+        counts[tied] = 0
+        table = self.trees.table(np.arange(len(xy)), xy, counts)
         # tree heights corrected for the odometry's z drift, where the SLAM has them
         heights = self.slam.landmark_heights()[table["id"]]
         table["z"] = np.where(np.isfinite(heights), heights, table["z"])
+        if self.prior is not None:  # ids, positions, DBH and counts in the prior map
+            table = self.prior.express_table(table, self.slam)
         return table
+
+    def _in_output_frame(self, poses: np.ndarray) -> np.ndarray:
+        """Poses of the odometry/SLAM frame in the output frame (the prior map's once placed)."""
+        return poses if self.prior is None else self.prior.express_poses(poses)
 
     def write(self, final: bool) -> dict:
         from forestslam.io import write_trees_csv, write_trees_geojson, write_tum
@@ -264,13 +318,15 @@ class Pipeline:
         out = self.out_dir
         stamps = np.asarray(self.stamps)
         odom = np.stack(self.odom) if self.odom else np.zeros((0, 4, 4))
-        write_tum(out / "odometry.tum", stamps, odom)
         table = None
+        if self.slam is not None and self.prior is not None:
+            self.prior.refit(self.slam)
+        write_tum(out / "odometry.tum", stamps, self._in_output_frame(odom))
         if self.slam is not None:
             if final:
                 self.trees.flush(None)
             s, poses = self.slam.trajectory()
-            write_tum(out / "trajectory.tum", s, poses)
+            write_tum(out / "trajectory.tum", s, self._in_output_frame(poses))
             table = self.tree_table()
             write_trees_csv(out / "trees.csv", table)
             write_trees_geojson(out / "trees.geojson", table)
@@ -291,8 +347,8 @@ class Pipeline:
         s, poses = self.slam.trajectory()
         plot_map(
             out / "map.png",
-            poses[:, :2, 3],
-            odom[:, :2, 3],
+            self._in_output_frame(poses)[:, :2, 3],
+            self._in_output_frame(odom)[:, :2, 3],
             np.column_stack([table["x"], table["y"]]),
             table["dbh_m"],
             title=f"{len(table['id'])} trees, {len(s)} scans ({self.mode})",
@@ -306,7 +362,10 @@ class Pipeline:
         from forestslam.mapping.plot import plot_dtm
 
         kf_poses = poses[self.slam.keyframe_scans] if len(poses) else np.zeros((0, 4, 4))
-        ground = self.ground.build(kf_poses)
+        ground = self.ground.build(kf_poses)  # voxels in the run's own frame, near its origin
+        if self.prior is not None:  # then moved, in float64, into map coordinates
+            T = self.prior.T_map_odom()
+            ground = ground @ T[:3, :3].T + T[:3, 3]
         write_cloud(self.out_dir / "ground.ply", ground)
         m = self.cfg.mapping
         dtm = dtm_grid(ground, m.dtm_cell_m, m.dtm_min_points, m.dtm_window_m, m.dtm_max_raise_m)
@@ -325,94 +384,114 @@ def run(
     max_scans: int | None = None,
     topic: str | None = None,
     progress: bool = True,
+    overwrite: bool = False,
+    prior_map: str | Path | None = None,
+    initial_pose: str | None = None,
+    inject_drift: str | None = None,
 ) -> RunSummary:
-    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`."""
-    import yaml
-    from tqdm import tqdm
+    """Run the pipeline on a bag / folder / file and write the outputs into `out_dir`.
+    `prior_map` (a tree CSV, saved map or run directory) starts the run in that map; an
+    `initial_pose` "x,y,yaw_deg" of the first scan in the map skips the search;
+    `inject_drift` "scale,yaw_deg_per_10m" corrupts the odometry (tests and benches).
 
+    The output directory is owned as `forestslam.job` describes (lock, an earlier run's outputs
+    replaced or refused, run.yaml with the outcome)."""
     from forestslam.config import config_to_dict, load_config
-    from forestslam.io import read_scans
-    from forestslam.io.atomic import atomic_write_text, remove_stale_temporaries
+    from forestslam.config_utils import validate
+    from forestslam.job import Checkpoints, Job, Progress, ScanWindow
     from forestslam.sensors import load_profile
 
     if mode not in MODES:
         raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
-    if start < 0 or (max_scans is not None and max_scans < 1):
-        raise InputError("--start must be >= 0 and --max-scans >= 1")
-    cfg = config if config is not None else load_config(config_path)
+    window = ScanWindow(start, max_scans)
+    cfg = validate(config) if config is not None else load_config(config_path)
     profile = load_profile(sensor)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if remove_stale_temporaries(out):
-        log.info("%s: removed temporaries left by an earlier, killed run", out)
-    stream = read_scans(input_path, topic, start=start)
-    total = len(stream)
-    remaining = max(0, total - start)
-    if max_scans is not None:
-        remaining = min(remaining, max_scans)
-    pipe = Pipeline(profile, cfg, mode, out)
-    summary = RunSummary(out_dir=out, mode=mode)
+    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
+    prior, pose, drift = _multisession(cfg, prior_map, initial_pose, inject_drift)
     meta = {
         "input": str(input_path),
         "topic": topic,
         "sensor": profile.name,
         "mode": mode,
-        "start": start,
-        "max_scans": max_scans,
+        **window.meta(),
         "versions": _versions(),
         "config": config_to_dict(cfg),
     }
+    with Job("run", out_dir, meta, inputs=[input_path, config_path], overwrite=overwrite) as job:
+        pipe = Pipeline(profile, cfg, mode, job.out, prior, pose, drift)
+        summary = RunSummary(out_dir=job.out, mode=mode)
+        checkpoints = Checkpoints(cfg.mapping.checkpoint_every_scans)
+        bar = Progress(count, "scan", "run", enabled=progress)
+        t0, c0 = time.perf_counter(), time.process_time()
 
-    def write_meta() -> None:
-        meta["summary"] = summary.to_dict()
-        atomic_write_text(out / "run.yaml", yaml.safe_dump(meta, sort_keys=False))
+        def update_summary() -> None:
+            summary.wall_s = time.perf_counter() - t0
+            summary.scans = pipe.n
+            summary.failed_scans = pipe.failed
+            summary.degraded_scans = pipe.degraded
+            summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+            summary.cpu_s = time.process_time() - c0
+            summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
+            summary.read_stats = stream.stats.to_dict()
+            job.summary = summary.to_dict()
+            _record_multisession(job, pipe)
 
-    write_meta()
-    every = max(1, int(cfg.mapping.checkpoint_every_scans))
-    t0, c0 = time.perf_counter(), time.process_time()
-    scans = itertools.islice(stream, max_scans)  # read_scans skipped `start` undecoded
-    bar = tqdm(total=remaining, unit="scan", disable=not progress, dynamic_ncols=True)
-
-    def update_summary() -> None:
-        summary.wall_s = time.perf_counter() - t0
-        summary.scans = pipe.n
-        summary.failed_scans = pipe.failed
-        summary.degraded_scans = pipe.degraded
-        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
-        summary.cpu_s = time.process_time() - c0
-        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
-        summary.read_stats = stream.stats.to_dict()
-
-    try:
-        for scan in scans:
-            pipe.process(scan)
-            bar.update(1)
-            if pipe.slam is not None and pipe.n % 10 == 0:
-                bar.set_postfix(trees=pipe.slam.n_landmarks, refresh=False)
-            if pipe.n and pipe.n % every == 0:
-                pipe.write(final=False)
-                update_summary()  # a killed run's run.yaml then has counts up to here
-                write_meta()
-        summary.status = "complete"
-    except KeyboardInterrupt:
-        summary.status = "interrupted"
-        raise
-    except BaseException:
-        summary.status = "failed"
-        raise
-    finally:
-        bar.close()
-        update_summary()
-        if pipe.n:
-            table = pipe.write(final=True)
-            summary.trees = len(table.get("id", []))
-        if pipe.slam is not None:
-            summary.keyframes = pipe.slam.n_keyframes
-            summary.loop_closures = pipe.slam.loop_closures
-        if pipe.refiner is not None:
-            summary.icp_accepted = pipe.refiner.accepted
-            summary.icp_rejected = pipe.refiner.rejected
-        write_meta()
-    if pipe.n == 0:
-        raise InputError(f"{input_path}: no scan could be processed")
+        try:
+            for scan in scans:
+                pipe.process(scan)
+                trees = {"trees": pipe.slam.n_landmarks} if pipe.slam is not None else {}
+                bar.update(1, **trees)
+                if checkpoints.due(pipe.n):
+                    pipe.write(final=False)
+                    update_summary()  # a killed run's run.yaml then has counts up to here
+                    job.write_meta()
+            if pipe.n == 0:
+                raise InputError(f"{input_path}: no scan could be processed")
+        finally:
+            bar.close()
+            update_summary()
+            _finish(pipe, summary)
+            job.summary = summary.to_dict()
+            _record_multisession(job, pipe)  # after the final refit of the placement
+    summary.status = job.status
     return summary
+
+
+def _multisession(cfg, prior_map, initial_pose, inject_drift):
+    """(prior map, initial pose in its local frame, drift injector), each None when not asked."""
+    prior = pose = drift = None
+    if initial_pose is not None and prior_map is None:
+        raise InputError("--initial-pose places the run in a prior map: give --prior-map too")
+    if prior_map is not None:
+        from forestslam.multisession.prior import load_prior_map, parse_initial_pose
+
+        prior = load_prior_map(prior_map, cfg.prior_map)
+        if initial_pose is not None:
+            pose = parse_initial_pose(initial_pose)
+            pose[:2] -= prior.origin
+    if inject_drift is not None:
+        from forestslam.multisession.drift import DriftInjector
+
+        drift = DriftInjector.parse(inject_drift)
+    return prior, pose, drift
+
+
+def _record_multisession(job, pipe: Pipeline) -> None:
+    """run.yaml: how the run was placed in its prior map, and what place recognition did."""
+    if pipe.prior is not None:
+        job.meta["prior_map"] = pipe.prior.to_dict()
+    if pipe.loops is not None:
+        job.meta["place_recognition"] = dict(pipe.loops.stats)
+
+
+def _finish(pipe: Pipeline, summary: RunSummary) -> None:
+    """Final outputs and counts of a run, whatever its outcome (the Job records the status)."""
+    if pipe.n:
+        table = pipe.write(final=True)
+        summary.trees = len(table.get("id", []))
+    if pipe.slam is not None:
+        summary.keyframes = pipe.slam.n_keyframes
+        summary.loop_closures = pipe.slam.loop_closures
+    if pipe.refiner is not None:
+        summary.icp_accepted = pipe.refiner.accepted
+        summary.icp_rejected = pipe.refiner.rejected

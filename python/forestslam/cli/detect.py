@@ -24,6 +24,9 @@ def register(app: typer.Typer) -> None:
         ),
         topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic of a bag."),
         config: Path | None = typer.Option(None, "--config", help="YAML (perception section)."),
+        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
+        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
     ) -> None:
         import time
 
@@ -31,7 +34,8 @@ def register(app: typer.Typer) -> None:
 
         from forestslam.config import load_config
         from forestslam.errors import InputError
-        from forestslam.io import read_scans, write_trees_csv
+        from forestslam.io import write_trees_csv
+        from forestslam.job import Progress, ScanWindow, check_output_file
         from forestslam.perception import detect
         from forestslam.sensors import load_profile
 
@@ -39,12 +43,16 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(config).perception
         if scan is not None and scan < 0:
             raise InputError(f"--scan must be >= 0, not {scan}")
-        stream = read_scans(input, topic)
+        if scan is not None and (start or max_scans is not None):
+            raise InputError("--scan K is one scan: give it without --start / --max-scans")
+        check_output_file(out)
+        window = ScanWindow(scan, 1) if scan is not None else ScanWindow(start, max_scans)
+        _, stream, count = window.open(input, topic)  # scans before the window not decoded
+        bar = Progress(count, "scan", "detect", enabled=not no_progress and count != 1)
         rows: dict[str, list] = {k: [] for k in ("scan", "id", "x", "y", "z", "dbh_m")}
         n_scans, last, total_ms = 0, None, 0.0
-        for k, sc in enumerate(stream):
-            if scan is not None and k != scan:
-                continue
+        for k, sc in enumerate(stream, start=window.start):
+            bar.update(1)
             t0 = time.perf_counter()
             stems = detect(sc, profile, cfg)
             total_ms += (time.perf_counter() - t0) * 1e3
@@ -56,8 +64,7 @@ def register(app: typer.Typer) -> None:
             rows["y"] += stems.xy[:, 1].tolist()
             rows["z"] += stems.z.tolist()
             rows["dbh_m"] += stems.dbh.tolist()
-            if scan is not None:
-                break
+        bar.close()
         if n_scans == 0:
             what = f"scan {scan}" if scan is not None else "any scan"
             raise InputError(f"{input}: has no {what}")

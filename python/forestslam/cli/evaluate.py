@@ -22,8 +22,18 @@ def register(app: typer.Typer) -> None:
         json_out: bool = typer.Option(False, "--json", help="Print metrics.json instead."),
     ) -> None:
         import json
+        import sys
 
         from forestslam.evaluation.report import evaluate_run, format_table
+        from forestslam.job import run_status
 
+        status, error = run_status(run_dir)
+        if status not in (None, "complete"):
+            why = f" ({error})" if error else ""
+            print(
+                f"forestslam: warning: {run_dir}/run.yaml says status: {status}{why}; "
+                "scoring the outputs as of its last checkpoint",
+                file=sys.stderr,
+            )
         m = evaluate_run(run_dir, truth, gate_m=gate_m, min_dbh_m=min_dbh_m, max_dist_m=max_dist_m)
         print(json.dumps(m, indent=1) if json_out else format_table(m))

@@ -39,6 +39,9 @@ def register(app: typer.Typer) -> None:
             None, "--save-map", help="Also save the map (e.g. built from a CSV) as .npz."
         ),
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        overwrite: bool = typer.Option(
+            False, "--overwrite", help="Replace the outputs of another command in OUT."
+        ),
     ) -> None:
         from forestslam.localization import load_map
         from forestslam.localization.runner import run_localization
@@ -59,6 +62,7 @@ def register(app: typer.Typer) -> None:
             max_scans=max_scans,
             progress=not no_progress,
             keyframe_distance_m=keyframe_distance,
+            overwrite=overwrite,
         )
         print(
             f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "

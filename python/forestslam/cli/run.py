@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
+
+# The modes of forestslam.runner.MODES (kept here so the CLI loads without numpy; a test checks).
+Mode = Literal["slam", "map3d", "odometry"]
 
 
 def register(app: typer.Typer) -> None:
@@ -12,18 +16,36 @@ def register(app: typer.Typer) -> None:
         "run",
         help="Run odometry, tree SLAM and mapping on a bag / folder / cloud file and write "
         "trajectory.tum, odometry.tum, trees.csv, trees.geojson, map.png, timing.json, run.yaml "
-        "(map3d also ground.ply and dtm.*) into OUT.",
+        "(map3d also ground.ply and dtm.*) into OUT. A re-run into OUT replaces the earlier "
+        "run's outputs; OUT holding another command's outputs is refused without --overwrite.",
     )
     def _command(
         input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
         sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
         out: Path = typer.Option(..., "--out", help="Output directory."),
-        mode: str = typer.Option("slam", "--mode", help="slam | map3d | odometry."),
+        mode: Mode = typer.Option("slam", "--mode", help="What to build (see the README)."),
         config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
         topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        overwrite: bool = typer.Option(
+            False, "--overwrite", help="Replace the outputs of another command in OUT."
+        ),
+        prior_map: Path | None = typer.Option(
+            None,
+            "--prior-map",
+            help="Start in this tree map (a tree CSV x,y[,dbh_m] in any frame, a saved map "
+            ".npz, or an earlier run's directory): outputs are in its frame once placed.",
+        ),
+        initial_pose: str | None = typer.Option(
+            None, "--initial-pose", help="x,y,yaw_deg of the first scan in the prior map."
+        ),
+        inject_drift: str | None = typer.Option(
+            None,
+            "--inject-drift",
+            help="scale,yaw_deg_per_10m: corrupt the odometry (tests and benches), e.g. 0.02,1.",
+        ),
     ) -> None:
         from forestslam.runner import run
 
@@ -37,6 +59,10 @@ def register(app: typer.Typer) -> None:
             max_scans=max_scans,
             topic=topic,
             progress=not no_progress,
+            overwrite=overwrite,
+            prior_map=prior_map,
+            initial_pose=initial_pose,
+            inject_drift=inject_drift,
         )
         rs = s.read_stats
         print(

@@ -14,7 +14,7 @@ def register(app: typer.Typer) -> None:
         "Start from a named scenario or YAML (--scenario) and override with flags.",
     )
     def simulate_command(
-        out: Path = typer.Option(..., "--out", help="Output folder."),
+        out: Path = typer.Option(None, "--out", help="Output folder (required but with --list)."),
         scenario: str = typer.Option(
             None, "--scenario", help="Named scenario (sample, vlp16-loop, ...) or a YAML file."
         ),
@@ -46,12 +46,17 @@ def register(app: typer.Typer) -> None:
 
         import yaml
 
+        from forestslam.config_utils import parse_yaml
         from forestslam.errors import InputError
+        from forestslam.job import check_output_path
         from forestslam.sim import available_scenarios, simulate
 
         if list_scenarios:
             print("\n".join(available_scenarios()))
             return
+        if out is None:
+            raise InputError("missing option '--out' (the output folder)")
+        check_output_path(out)  # before the simulation, not after it
         overrides: dict = {
             "stand": stand,
             "sensor": sensor,
@@ -76,7 +81,7 @@ def register(app: typer.Typer) -> None:
             key, sep, value = item.partition("=")
             if not sep or not key.strip():
                 raise InputError(f"--set {item!r}: expected section.field=value")
-            overrides[key.strip().replace(".", "__")] = yaml.safe_load(value)
+            overrides[key.strip().replace(".", "__")] = parse_yaml(value, f"--set {item!r}")
         start = time.perf_counter()
         out_dir = simulate(scenario, out, progress=True, **overrides)
         elapsed = time.perf_counter() - start

@@ -35,26 +35,31 @@ def register(app: typer.Typer) -> None:
         ),
         topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic of the bag."),
         config: Path | None = typer.Option(None, "--config", help="YAML (tls section)."),
+        start: int = typer.Option(0, "--start", help="Skip this many MLS scans first."),
+        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
+        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        overwrite: bool = typer.Option(
+            False, "--overwrite", help="Replace the outputs of another command in DIR."
+        ),
     ) -> None:
-        from tqdm import tqdm
-
         from forestslam.config import load_config
         from forestslam.tls.runner import parse_initial_pose, run_tls_register
 
         cfg = load_config(config).tls
         pose = parse_initial_pose(initial_pose)
-        bar = tqdm(unit="frame", desc="tls-register", leave=False)
-
-        def on_frame(record) -> None:
-            bar.update(1)
-            bar.set_postfix(accepted=record.accepted, stems_rms=f"{record.virtual_rms_m:.3f}")
-
-        try:
-            summary = run_tls_register(
-                input, reference, sensor, out, cfg, pose, topic=topic, on_frame=on_frame
-            )
-        finally:
-            bar.close()
+        summary = run_tls_register(
+            input,
+            reference,
+            sensor,
+            out,
+            cfg,
+            pose,
+            topic=topic,
+            start=start,
+            max_scans=max_scans,
+            progress=not no_progress,
+            overwrite=overwrite,
+        )
         print(
             f"{summary['frames']} frames registered ({summary['accepted']} joined the map), "
             f"{summary['stems']} stems, map {summary['map_points']} points, "
@@ -65,4 +70,4 @@ def register(app: typer.Typer) -> None:
                 f"stem circumference covered at breast height: TLS alone "
                 f"{summary['coverage_tls']:.0%}, merged {summary['coverage_merged']:.0%}"
             )
-        print(f"wrote {out}/trajectory.tum plot.laz trees.csv coverage.json plot.png")
+        print(f"wrote {out}/trajectory.tum plot.laz trees.csv coverage.json plot.png run.yaml")

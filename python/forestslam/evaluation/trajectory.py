@@ -55,18 +55,9 @@ def umeyama(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         raise InputError("umeyama: no point pairs to align")
     if not (np.isfinite(src).all() and np.isfinite(dst).all()):
         raise InputError("umeyama: non-finite coordinates")
-    mu_s = src.mean(axis=0)
-    mu_d = dst.mean(axis=0)
-    cov = (dst - mu_d).T @ (src - mu_s) / len(src)
-    u, _, vt = np.linalg.svd(cov)
-    s = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        s[2, 2] = -1.0
-    rot = u @ s @ vt
-    t = np.eye(4)
-    t[:3, :3] = rot
-    t[:3, 3] = mu_d - rot @ mu_s
-    return t
+    from forestslam.geometry import rigid_fit
+
+    return rigid_fit(src, dst)
 
 
 def _inverse(poses: np.ndarray) -> np.ndarray:

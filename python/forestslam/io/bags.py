@@ -1,5 +1,6 @@
-"""ROS bags without ROS (rosbags): PointCloud2 scans from ROS1 .bag, ROS2 .db3/.mcap, and a
-writer for both in the Velodyne driver layout (see forestslam.io.pointcloud2)."""
+"""ROS bags without ROS (rosbags): PointCloud2 or raw `velodyne_msgs/VelodyneScan` scans from
+ROS1 .bag, ROS2 .db3/.mcap, and a writer for both in the Velodyne driver layout (see
+forestslam.io.pointcloud2)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from forestslam.errors import InputError
 from forestslam.io.checks import check_scan
+from forestslam.io.livox import CUSTOM_MSG_TYPES, decode_custom_msg, layout_matches
 from forestslam.io.pointcloud2 import (
     VELODYNE_FIELDS,
     VELODYNE_POINT_STEP,
@@ -25,19 +27,32 @@ from forestslam.io.pointcloud2 import (
 )
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, TopicInfo
+from forestslam.io.velodyne import FIELDS as VELODYNE_FIELDS_DECODED
+from forestslam.io.velodyne import VELODYNE_SCAN, PacketConfig, decode_scan_message
 
 log = logging.getLogger(__name__)
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+SCAN_MSGTYPES = (POINTCLOUD2, VELODYNE_SCAN, *CUSTOM_MSG_TYPES)
+# velodyne_msgs is not in the standard type stores; its definitions (ROS1 and ROS2 differ only
+# in the stamp's type) are registered from the package's .msg files.
+_VELODYNE_MSGS = {
+    "velodyne_msgs/msg/VelodynePacket": "{time} stamp\nuint8[1206] data",
+    VELODYNE_SCAN: "std_msgs/Header header\nvelodyne_msgs/VelodynePacket[] packets",
+}
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
 @functools.lru_cache(maxsize=2)
 def _typestore(ros1: bool):
     """rosbags type store (cached: building one takes a few hundred ms)."""
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    for name, text in _VELODYNE_MSGS.items():
+        text = text.format(time="time" if ros1 else "builtin_interfaces/Time")
+        store.register(get_types_from_msg(text, name))
+    return store
 
 
 # --------------------------------------------------------------------------- writing
@@ -123,22 +138,31 @@ def write_scans(
 
 
 def choose_topic(path: Path, topics: list[TopicInfo], topic: str | None) -> str:
-    """The PointCloud2 topic to read: `topic` when given, else the only one in the bag."""
+    """The scan topic to read (PointCloud2, VelodyneScan or Livox CustomMsg): `topic` when given,
+    else the only one in the bag."""
     listing = ", ".join(f"{t.name} ({t.msgtype}, {t.count} msgs)" for t in topics) or "none"
-    clouds = [t for t in topics if t.msgtype == POINTCLOUD2]
+    clouds = [t for t in topics if t.msgtype in SCAN_MSGTYPES]
     if topic is not None:
         match = [t for t in topics if t.name == topic]
         if not match:
             raise InputError(f"{path}: no topic {topic!r}; topics: {listing}")
-        if match[0].msgtype != POINTCLOUD2:
-            raise InputError(f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2")
+        if match[0].msgtype not in SCAN_MSGTYPES:
+            raise InputError(
+                f"{path}: topic {topic} is {match[0].msgtype}, not PointCloud2, VelodyneScan or "
+                "Livox CustomMsg"
+            )
         return topic
     if len(clouds) == 1:
         return clouds[0].name
     if not clouds:
-        raise InputError(f"{path}: no sensor_msgs/PointCloud2 topic; topics: {listing}")
+        raise InputError(
+            f"{path}: no sensor_msgs/PointCloud2, velodyne_msgs/VelodyneScan or Livox CustomMsg "
+            "topic; "
+            f"topics: {listing}"
+        )
     names = ", ".join(f"{t.name} ({t.count} msgs)" for t in clouds)
-    raise InputError(f"{path}: several PointCloud2 topics, choose one with --topic: {names}")
+    kinds = "/".join(sorted({t.msgtype.rsplit("/", 1)[-1] for t in clouds}))
+    raise InputError(f"{path}: several {kinds} topics, choose one with --topic: {names}")
 
 
 class _BagSource:
@@ -146,11 +170,15 @@ class _BagSource:
 
     format = "bag"
 
-    def __init__(self, path: Path, topic: str | None) -> None:
+    def __init__(self, path: Path, topic: str | None, packets: PacketConfig | None = None) -> None:
         self.path = path
         self.stats = ReadStats()
         self._topics = self._read_topics()
         self.topic = choose_topic(path, self._topics, topic)
+        self.msgtype = next(t.msgtype for t in self._topics if t.name == self.topic)
+        self.packet_config = packets or PacketConfig()  # how VelodyneScan packets are decoded
+        if self.msgtype in CUSTOM_MSG_TYPES:
+            self._check_livox_layout()
 
     def topics(self) -> list[TopicInfo]:
         return list(self._topics)
@@ -199,6 +227,10 @@ class _BagSource:
     def _decode(self, raw, time_ns: int) -> Scan | None:
         where = f"{self.path} {self.topic} message {self.stats.messages}"
         try:
+            if self.msgtype == VELODYNE_SCAN:
+                return decode_scan_message(self._deserialize(raw), self.packet_config)
+            if self.msgtype in CUSTOM_MSG_TYPES:
+                return decode_custom_msg(raw, cdr=not isinstance(self, Ros1BagSource))
             return decode_pointcloud2(self._deserialize(raw), where)
         except Exception as exc:  # noqa: BLE001 - any decoding failure is a corrupt message
             self.stats.skipped += 1
@@ -253,7 +285,21 @@ class _BagSource:
             yield time_ns, raw
         self.stats.skipped += max(len(self) - got, 0)
 
+    def _check_livox_layout(self) -> None:
+        """Livox points are read from the bytes: refuse a stored definition of another layout."""
+        if self._salvage is not None:
+            return  # a damaged bag: no definition to check, the decoder checks sizes
+        with self._open() as reader:
+            conn = next(c for c in reader.connections if c.topic == self.topic)
+            if not layout_matches(conn.msgdef.data):
+                raise InputError(
+                    f"{self.path}: {self.topic} is a {self.msgtype} of another layout than the "
+                    "Livox driver's (header, timebase, point_num, lidar_id, rsvd, points)"
+                )
+
     def fields(self) -> dict[str, str]:
+        if self.msgtype in (VELODYNE_SCAN, *CUSTOM_MSG_TYPES):
+            return dict(VELODYNE_FIELDS_DECODED)
         for time_ns, raw in self._raw_messages():
             try:
                 return describe_fields(self._deserialize(raw).fields)
@@ -314,7 +360,7 @@ class Ros1BagSource(_BagSource):
         return Reader(self.path)
 
     def _deserialize(self, raw):
-        return self._store.deserialize_ros1(raw, POINTCLOUD2)
+        return self._store.deserialize_ros1(raw, self.msgtype)
 
 
 def _why(exc: BaseException) -> str:
@@ -331,9 +377,9 @@ def _normalize_msgtype(name: str) -> str:
 class Ros2BagSource(_BagSource):
     """ROS2 bag: a directory with metadata.yaml, or a single .db3 or .mcap storage file."""
 
-    def __init__(self, path: Path, topic: str | None) -> None:
+    def __init__(self, path: Path, topic: str | None, packets: PacketConfig | None = None) -> None:
         self.format = "ros2-" + ("dir" if path.is_dir() else path.suffix.lstrip(".").lower())
-        super().__init__(path, topic)
+        super().__init__(path, topic, packets)
 
     def _open(self):
         from rosbags.rosbag2 import Reader
@@ -387,4 +433,4 @@ class Ros2BagSource(_BagSource):
             yield time_ns, raw
 
     def _deserialize(self, raw):
-        return self._store.deserialize_cdr(raw, POINTCLOUD2)
+        return self._store.deserialize_cdr(raw, self.msgtype)

@@ -3,6 +3,7 @@
 - `x.bag`: ROS1 bag (rosbags; unindexed or truncated bags are walked chunk by chunk).
 - `x.mcap`, `x.db3`, a folder with `metadata.yaml`: ROS2 bag (rosbags; an `.mcap` cut short by
   a killed recorder is walked chunk by chunk).
+- `x.pcap`: raw Velodyne packets (forestslam.io.velodyne), one scan per revolution.
 - a folder of `.pcd` / `.ply` / `.las` / `.laz` / `.bin` / `.npy` files: one scan per file.
 - one such file: one scan.
 
@@ -28,6 +29,7 @@ from forestslam.io.clouds import CLOUD_READERS, read_cloud_array, why_missing
 from forestslam.io.fields import scan_from_structured
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, ScanSource, TopicInfo
+from forestslam.io.velodyne import PacketConfig, PcapSource
 
 log = logging.getLogger(__name__)
 
@@ -139,40 +141,49 @@ class CloudFilesSource:
 
 
 # The explicit registry: format name -> (does it handle this path?, how to open it).
-SourceFactory = Callable[[Path, "str | None", float], ScanSource]
+SourceFactory = Callable[[Path, "str | None", float, PacketConfig], ScanSource]
 READERS: dict[str, tuple[Callable[[Path], bool], SourceFactory]] = {
     "ros1": (
         lambda p: p.is_file() and p.suffix.lower() == ".bag",
-        lambda p, topic, rate: Ros1BagSource(p, topic),
+        lambda p, topic, rate, packets: Ros1BagSource(p, topic, packets),
     ),
     "ros2": (
         lambda p: (
             (p.is_file() and p.suffix.lower() in (".mcap", ".db3"))
             or (p.is_dir() and (p / "metadata.yaml").is_file())
         ),
-        lambda p, topic, rate: Ros2BagSource(p, topic),
+        lambda p, topic, rate, packets: Ros2BagSource(p, topic, packets),
+    ),
+    "pcap": (
+        lambda p: p.is_file() and p.suffix.lower() == ".pcap",
+        lambda p, topic, rate, packets: PcapSource(p, packets),
     ),
     "clouds": (
         lambda p: p.is_dir() or p.suffix.lower() in CLOUD_READERS,
-        lambda p, topic, rate: CloudFilesSource(p, rate),
+        lambda p, topic, rate, packets: CloudFilesSource(p, rate),
     ),
 }
 
 
 def open_source(
-    path: str | Path, topic: str | None = None, rate_hz: float = DEFAULT_RATE_HZ
+    path: str | Path,
+    topic: str | None = None,
+    rate_hz: float = DEFAULT_RATE_HZ,
+    packets: PacketConfig | None = None,
 ) -> ScanSource:
-    """Open any supported input; InputError names the file and the problem."""
+    """Open any supported input; InputError names the file and the problem. `packets`: how raw
+    Velodyne packets are decoded (a sensor profile's `packet_config()`; default: by the packets'
+    factory byte, cut at velodyne_decoder's default azimuth)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: {why_missing(path)}")
     for _name, (handles, factory) in READERS.items():
         if handles(path):
-            source = factory(path, topic, rate_hz)
+            source = factory(path, topic, rate_hz, packets or PacketConfig())
             if topic is not None and not source.topics():
                 raise InputError(f"{path}: topic {topic} given, but the input has no topics")
             return source
-    supported = ", ".join([*BAG_SUFFIXES, *sorted(CLOUD_READERS)])
+    supported = ", ".join([*BAG_SUFFIXES, ".pcap", *sorted(CLOUD_READERS)])
     raise InputError(f"{path}: unsupported input type {path.suffix!r} (supported: {supported})")
 
 
@@ -202,6 +213,7 @@ def read_scans(
     topic: str | None = None,
     rate_hz: float = DEFAULT_RATE_HZ,
     start: int = 0,
+    packets: PacketConfig | None = None,
 ) -> ScanStream:
     """Scans of a bag, folder or file in time order (see the module doc for formats).
 
@@ -211,4 +223,4 @@ def read_scans(
     """
     if start < 0:
         raise InputError(f"start must be >= 0, not {start}")
-    return ScanStream(open_source(path, topic, rate_hz), start)
+    return ScanStream(open_source(path, topic, rate_hz, packets), start)

@@ -43,7 +43,8 @@ def write_trees_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
 
 
 def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
-    """CSV with a header -> {column: float64 array} (empty cells become NaN)."""
+    """CSV with a header -> {column: array}: float64 where every cell is a number or empty
+    (empty -> NaN), else the column's text (a `source` or `status` flag, a species)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: tree CSV not found")
@@ -54,17 +55,25 @@ def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
     rows = [ln.split(",") for ln in lines[1:]]
     if any(len(r) != len(names) for r in rows):
         raise InputError(f"{path}: rows with a number of cells other than {len(names)}")
+    cells = np.array(rows, dtype=str).reshape(len(rows), len(names))
+    return {name: _column(cells[:, k]) for k, name in enumerate(names)}
+
+
+def _column(cells: np.ndarray) -> np.ndarray:
+    stripped = np.char.strip(cells)
     try:
-        table = np.array([[float(c) if c.strip() else np.nan for c in r] for r in rows])
-    except ValueError as exc:
-        raise InputError(f"{path}: non-numeric cell ({exc})") from None
-    table = table.reshape(len(rows), len(names))
-    return {name: table[:, k] for k, name in enumerate(names)}
+        return np.where(stripped == "", "nan", stripped).astype(np.float64)
+    except ValueError:
+        return stripped.astype(object)
 
 
-def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> None:
+def write_trees_geojson(
+    path: str | Path, columns: dict[str, np.ndarray], crs_name: str | None = None
+) -> None:
     """A FeatureCollection of Points at (x, y[, z]) with every other column as properties.
-    Coordinates are in the map frame (metres), not WGS84, so no `crs` member is claimed."""
+    Coordinates are in the run's frame (metres); with `crs_name` (an OGC URN such as
+    urn:ogc:def:crs:EPSG::32612) they are in that CRS and the collection names it in a `crs`
+    member (GeoJSON 2008, read by QGIS and GDAL), else none is claimed."""
     path = Path(path)
     arrays = _columns(columns, path)
     if "x" not in arrays or "y" not in arrays:
@@ -82,13 +91,19 @@ def write_trees_geojson(path: str | Path, columns: dict[str, np.ndarray]) -> Non
             "type": "Feature",
             "geometry": {
                 "type": "Point",
-                "coordinates": [round(float(arrays[c][i]), 6) for c in coord_names],
+                "coordinates": [  # a tree without a known height is a 2D point
+                    round(float(arrays[c][i]), 6)
+                    for c in coord_names
+                    if c != "z" or np.isfinite(arrays[c][i])
+                ],
             },
             "properties": {k: value(arrays[k][i]) for k in props},
         }
         for i in range(n)
     ]
-    text = json.dumps(
-        {"type": "FeatureCollection", "features": features}, indent=1, allow_nan=False
-    )
+    collection: dict = {"type": "FeatureCollection"}
+    if crs_name is not None:
+        collection["crs"] = {"type": "name", "properties": {"name": crs_name}}
+    collection["features"] = features
+    text = json.dumps(collection, indent=1, allow_nan=False)
     atomic_write_text(path, text + "\n")

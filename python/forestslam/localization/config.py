@@ -3,33 +3,49 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
+
+from forestslam.config_utils import (
+    Fraction,
+    NonNegative,
+    NonNegativeInt,
+    Positive,
+    PositiveInt,
+    Range,
+)
 
 
 @dataclass
 class LocalizationConfig:
     """Star matching, verification and acceptance of a query; aggregation of frames (CLI)."""
 
-    candidates_per_star: int = 8  # k nearest map stars per local star
-    max_feature_distance_m: float = 1.5  # in the sqrt feature space (sqrt area, perimeter)
-    rotation_ambiguity: float = 0.15  # try other start edges up to this much longer
-    edge_tolerance_m: float = 0.35  # edge-length agreement of corresponding triangles
-    inlier_gate_m: float = 0.5  # local trunk this close to a map trunk counts as consensus
-    min_inliers: int = 6  # fewer: rejected
-    min_inlier_fraction: float = 0.25  # of the local trunks; fewer: rejected
-    ambiguity_ratio: float = 0.8  # rejected when the second-best distinct pose scores this much
-    distinct_translation_m: float = 1.0  # poses further apart than this are distinct
-    distinct_yaw_deg: float = 5.0
-    refine_iterations: int = 5  # least-squares refinement rounds over all inliers
-    min_sigma_m: float = 0.02  # floor of the residual sigma used for the covariance
-    duplicate_tolerance_m: float = 0.01  # local trunks closer than this are one trunk
+    candidates_per_star: PositiveInt = 8  # k nearest map stars per local star
+    max_feature_distance_m: Positive = 1.5  # in the sqrt feature space (sqrt area, perimeter)
+    rotation_ambiguity: NonNegative = 0.15  # try other start edges up to this much longer
+    edge_tolerance_m: Positive = 0.35  # edge-length agreement of corresponding triangles
+    inlier_gate_m: Positive = 0.5  # local trunk this close to a map trunk counts as consensus
+    min_inliers: Annotated[int, Range(ge=3)] = 6  # fewer: rejected
+    min_inlier_fraction: Fraction = 0.25  # of the local trunks; fewer: rejected
+    # rejected when the second-best distinct pose scores this much
+    ambiguity_ratio: NonNegative = 0.8
+    distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
+    distinct_yaw_deg: NonNegative = 5.0
+    refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers
+    min_sigma_m: Positive = 0.02  # floor of the residual sigma used for the covariance
+    duplicate_tolerance_m: NonNegative = 0.01  # local trunks closer than this are one trunk
     skip_hull_stars: bool = False  # drop local stars touching the local convex hull
     triangle_fallback: bool = True  # single-triangle matching when no star hypothesis is accepted
-    candidates_per_triangle: int = 16  # k nearest map triangles per local triangle (fallback)
-    triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
-    max_query_trunks: int = 100  # hypotheses scored on this many trunks nearest the origin
-    max_fallback_trunks: int = 40  # fallback triangles only from this many nearest trunks
+    # k nearest map triangles per local triangle (fallback)
+    candidates_per_triangle: PositiveInt = 16
+    # fallback triangles: each local trunk with 2 of its k nearest
+    triangle_neighbours: Annotated[int, Range(ge=2)] = 5
+    # hypotheses scored on this many trunks nearest the origin
+    max_query_trunks: Annotated[int, Range(ge=3)] = 100
+    # fallback triangles only from this many nearest trunks
+    max_fallback_trunks: Annotated[int, Range(ge=3)] = 40
     # Aggregation of several scans into one query (CLI / aggregate_stems).
-    merge_radius_m: float = 0.3  # detections of one trunk from several frames are merged
-    keyframe_distance_m: float = 0.0  # frames of a query this far apart; 0 = consecutive scans
-    min_observations: int = 1  # with >= 3 frames, trunks seen fewer times are dropped
-    max_range_m: float = 25.0  # detections further from their sensor are dropped
+    merge_radius_m: NonNegative = 0.3  # detections of one trunk from several frames are merged
+    # frames of a query this far apart; 0 = consecutive scans
+    keyframe_distance_m: NonNegative = 0.0
+    min_observations: PositiveInt = 1  # with >= 3 frames, trunks seen fewer times are dropped
+    max_range_m: Positive = 25.0  # detections further from their sensor are dropped

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError, ProcessingError
+from forestslam.geometry import planar_pose
 from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.localize import Localization, aggregate_stems, localize
 from forestslam.localization.tree_map import TreeMap, load_map
@@ -73,12 +73,7 @@ def _write_outputs(run: LocalizationRun, meta: dict) -> None:
     doc["accepted"] = run.accepted
     atomic_write_text(run.out_dir / "localization.json", json.dumps(doc, indent=1) + "\n")
     acc = [q for q in run.queries if q["accepted"]]
-    poses = np.zeros((len(acc), 4, 4))
-    for i, q in enumerate(acc):
-        c, s = math.cos(q["yaw"]), math.sin(q["yaw"])
-        poses[i] = np.eye(4)
-        poses[i, :2, :2] = [[c, -s], [s, c]]
-        poses[i, :2, 3] = [q["x"], q["y"]]
+    poses = np.array([planar_pose(q["x"], q["y"], q["yaw"]) for q in acc]).reshape(-1, 4, 4)
     write_tum(run.out_dir / "localization.tum", np.array([q["stamp"] for q in acc]), poses)
 
 
@@ -95,17 +90,20 @@ def run_localization(
     max_scans: int | None = None,
     progress: bool = False,
     keyframe_distance_m: float | None = None,
+    overwrite: bool = False,
 ) -> LocalizationRun:
     """Localize along the scans of ``input_path`` in the map; writes the two output files.
 
     The local frame of a query is the sensor frame of its last scan; the pose written is that
     sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
     """
-    from forestslam.io import read_scans
+    from forestslam.config_utils import to_dict, validate
+    from forestslam.job import Job, Progress, ScanWindow
     from forestslam.sensors import load_profile
 
     if frames < 1 or every < 1:
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
+    window = ScanWindow(start, max_scans)
     # The root config imports every component's config: only when a file is given.
     root = None
     if config_path is not None:
@@ -115,13 +113,12 @@ def run_localization(
     cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
     if keyframe_distance_m is not None:
         cfg.keyframe_distance_m = keyframe_distance_m
+    validate(cfg, "localization")
     profile = load_profile(sensor)
     tree_map = map_path if isinstance(map_path, TreeMap) else load_map(map_path)
     if len(tree_map) < 3:
         raise InputError(f"{map_path}: the map holds {len(tree_map)} trees; at least 3 needed")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    run = LocalizationRun(out)
+    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
     meta = {
         "input": str(input_path),
         "map": str(map_path) if not isinstance(map_path, TreeMap) else "(in memory)",
@@ -130,9 +127,34 @@ def run_localization(
         "frames": frames,
         "every": every,
         "keyframe_distance_m": cfg.keyframe_distance_m,
+        **window.meta(),
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
+        "config": {"localization": to_dict(cfg)},
     }
+    inputs = [input_path, config_path, None if isinstance(map_path, TreeMap) else map_path]
+    with Job("localize", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
+        run = LocalizationRun(job.out)
+        bar = Progress(count, "scan", "localize", enabled=progress)
+        t0 = time.perf_counter()
+        try:
+            _localize_along(
+                scans, window.start, tree_map, profile, root, cfg, frames, every, run, meta, bar
+            )
+        finally:
+            bar.close()
+            run.wall_s = time.perf_counter() - t0
+            _write_outputs(run, meta)
+            job.summary = {
+                "scans": run.scans,
+                "queries": len(run.queries),
+                "accepted": run.accepted,
+                "wall_s": round(run.wall_s, 3),
+            }
+    return run
 
+
+def _localize_along(scans, first, tree_map, profile, root, cfg, frames, every, run, meta, bar):
+    """The query loop: stems per scan (odometry when frames > 1), a query when due."""
     odometry = None
     if frames > 1:
         try:
@@ -149,52 +171,30 @@ def run_localization(
     # Earlier frames of the query window (keyframes at least keyframe_distance_m apart); the
     # current scan is always the last frame of a query.
     window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=frames - 1)
-    scans = read_scans(input_path, topic=topic)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(scans) if hasattr(scans, "__len__") else None, unit="scan")
-    t0 = time.perf_counter()
-    try:
-        for i, scan in enumerate(scans):
-            if i < start:
-                continue
-            if max_scans is not None and run.scans >= max_scans:
-                break
-            run.scans += 1
-            if bar is not None:
-                bar.update(1)
-            # First query when the window is full, then every `every` scans.
-            due = run.scans >= frames and (run.scans - frames) % every == 0
-            if odometry is not None:  # every scan: odometry needs them all
-                step = odometry.step(scan)
-                stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
-            elif due:  # one frame per query: only query scans need stems
-                stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
-            else:
-                continue
-            xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
-            if due and len(window) == frames - 1:
-                frames_xy = [w[0] for w in window] + [xy]
-                local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], cfg)
-            else:
-                local = None
-            if frames > 1 and (
-                not window
-                or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= cfg.keyframe_distance_m
-            ):
-                window.append((xy, T))
-            if local is None:
-                continue
-            loc = localize(tree_map, local, cfg)
-            run.queries.append(_query_record(scan.stamp, i, len(local), loc))
-            _write_outputs(run, meta)
-            if bar is not None:
-                bar.set_postfix(queries=len(run.queries), accepted=run.accepted)
-    finally:
-        if bar is not None:
-            bar.close()
-    run.wall_s = time.perf_counter() - t0
-    _write_outputs(run, meta)
-    return run
+    for i, scan in enumerate(scans, start=first):
+        run.scans += 1
+        bar.update(1, queries=len(run.queries), accepted=run.accepted)
+        # First query when the window is full, then every `every` scans.
+        due = run.scans >= frames and (run.scans - frames) % every == 0
+        if odometry is not None:  # every scan: odometry needs them all
+            step = odometry.step(scan)
+            stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
+        elif due:  # one frame per query: only query scans need stems
+            stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
+        else:
+            continue
+        xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
+        if due and len(window) == frames - 1:
+            frames_xy = [w[0] for w in window] + [xy]
+            local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], cfg)
+        else:
+            local = None
+        if frames > 1 and (
+            not window or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= cfg.keyframe_distance_m
+        ):
+            window.append((xy, T))
+        if local is None:
+            continue
+        loc = localize(tree_map, local, cfg)
+        run.queries.append(_query_record(scan.stamp, i, len(local), loc))
+        _write_outputs(run, meta)

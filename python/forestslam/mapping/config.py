@@ -3,40 +3,43 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
+
+from forestslam.config_utils import Fraction, NonNegative, Positive, PositiveInt, Range
 
 
 @dataclass
 class MappingConfig:
     # DBH: stem points of the breast-height band above local ground, accumulated in the map
     # frame over a window of scans (the paper: 25 scans / 2.5 s), then one robust circle fit.
-    dbh_window_scans: int = 25
-    dbh_band_m: tuple[float, float] = (1.15, 1.45)
-    dbh_min_window_scans: int = 5  # a tree leaving view with fewer scans buffered: no fit
-    dbh_min_points: int = 15
-    dbh_min_m: float = 0.04
-    dbh_max_m: float = 1.5
-    circle_inlier_m: float = 0.03
-    dbh_max_rms_m: float = 0.03
-    dbh_min_arc_coverage: float = 0.2
-    dbh_max_points_per_window: int = 4000  # random subsample beyond this (bounded memory)
+    dbh_window_scans: PositiveInt = 25
+    dbh_band_m: tuple[NonNegative, Positive] = (1.15, 1.45)
+    dbh_min_window_scans: PositiveInt = 5  # a tree leaving view with fewer scans buffered: no fit
+    dbh_min_points: Annotated[int, Range(ge=3)] = 15
+    dbh_min_m: Positive = 0.04
+    dbh_max_m: Positive = 1.5
+    circle_inlier_m: Positive = 0.03
+    dbh_max_rms_m: Positive = 0.03
+    dbh_min_arc_coverage: Fraction = 0.2
+    dbh_max_points_per_window: PositiveInt = 4000  # random subsample beyond this (bounded memory)
     # Trees written to the map need this many keyframe observations.
-    min_tree_observations: int = 3
+    min_tree_observations: PositiveInt = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the
     # global map rebuilt from the optimised keyframe poses at voxel_m; DTM cells of dtm_cell_m.
-    ground_keyframe_voxel_m: float = 0.2
-    ground_voxel_m: float = 0.2
-    dtm_cell_m: float = 0.5
-    dtm_min_points: int = 2
+    ground_keyframe_voxel_m: Positive = 0.2
+    ground_voxel_m: Positive = 0.2
+    dtm_cell_m: Positive = 0.5
+    dtm_min_points: PositiveInt = 2
     # DTM cells more than dtm_max_raise_m above the grey opening over dtm_window_m (objects
     # narrower than the window: shrubs, logs) are removed; dtm_window_m <= 0 keeps every cell.
     dtm_window_m: float = 5.0
-    dtm_max_raise_m: float = 0.3
+    dtm_max_raise_m: NonNegative = 0.3
     # map3d: scan-to-map point-to-plane ICP refinement of keyframes on stem + ground points.
     refine_with_icp: bool = True
-    icp_local_map_keyframes: int = 10
-    icp_voxel_m: float = 0.1
-    icp_max_correction_m: float = 0.5  # a larger ICP correction is rejected as a failure
-    icp_sigma_floor_m: float = 0.02
-    icp_sigma_floor_deg: float = 0.2
+    icp_local_map_keyframes: PositiveInt = 10
+    icp_voxel_m: Positive = 0.1
+    icp_max_correction_m: Positive = 0.5  # a larger ICP correction is rejected as a failure
+    icp_sigma_floor_m: Positive = 0.02
+    icp_sigma_floor_deg: Positive = 0.2
     # Outputs: trajectory / trees rewritten atomically every this many scans.
-    checkpoint_every_scans: int = 100
+    checkpoint_every_scans: PositiveInt = 100

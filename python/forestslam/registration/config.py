@@ -4,58 +4,69 @@ cpp/forestslam/registration/*.hpp."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
+
+from forestslam.config_utils import (
+    Fraction,
+    NonNegative,
+    NonNegativeInt,
+    Positive,
+    PositiveInt,
+    Range,
+)
 
 
 @dataclass
 class TreeMatchConfig:
     """Mutually exclusive nearest stems in XY after the constant-velocity prediction."""
 
-    gate_m: float = 1.0
-    ratio: float = 1.0  # < 1: drop pairs whose second-nearest target is within distance / ratio
+    gate_m: Positive = 1.0
+    # < 1: drop pairs whose second-nearest target is within distance / ratio
+    ratio: Annotated[float, Range(gt=0, le=1)] = 1.0
 
 
 @dataclass
 class ShapeConfig:
     """Shape-to-shape Gaussian registration (Eq. 3) over x, y, yaw with a pair consensus."""
 
-    min_sigma_m: float = 0.05
-    consensus_tolerance_m: float = 0.3
-    inlier_threshold_m: float = 0.5
-    max_consensus_pairs: int = 2000
-    max_iterations: int = 50
-    min_inliers_not_degenerate: int = 3
+    min_sigma_m: Positive = 0.05
+    consensus_tolerance_m: Positive = 0.3
+    inlier_threshold_m: Positive = 0.5
+    max_consensus_pairs: PositiveInt = 2000
+    max_iterations: PositiveInt = 50
+    min_inliers_not_degenerate: NonNegativeInt = 3
 
 
 @dataclass
 class IcpConfig:
     """Point-to-plane ICP, 6 DoF, Huber-weighted Gauss-Newton."""
 
-    max_iterations: int = 12
-    max_correspondence_m: float = 1.0
-    final_correspondence_m: float = 0.3
-    shrink_iterations: int = 3
-    huber_m: float = 0.05
-    translation_tolerance_m: float = 5e-4
-    rotation_tolerance_rad: float = 5e-5
-    min_correspondences: int = 20
-    degeneracy_threshold: float = 2e-3
-    degeneracy_length_m: float = 10.0
-    normal_k: int = 10  # target normals from this many nearest neighbours
+    max_iterations: PositiveInt = 12
+    max_correspondence_m: Positive = 1.0
+    final_correspondence_m: Positive = 0.3
+    shrink_iterations: NonNegativeInt = 3
+    huber_m: Positive = 0.05
+    translation_tolerance_m: NonNegative = 5e-4
+    rotation_tolerance_rad: NonNegative = 5e-5
+    min_correspondences: PositiveInt = 20
+    degeneracy_threshold: NonNegative = 2e-3
+    degeneracy_length_m: Positive = 10.0
+    normal_k: Annotated[int, Range(ge=3)] = 10  # target normals from this many nearest neighbours
 
 
 @dataclass
 class FpfhConfig:
     """Baseline: FPFH + RANSAC (SampleConsensusPrerejective) + point-to-plane ICP."""
 
-    voxel_m: float = 0.25
-    normal_radius_m: float = 0.75
-    feature_radius_m: float = 1.25
-    ransac_iterations: int = 20000
-    correspondence_randomness: int = 3
-    similarity_threshold: float = 0.9
-    inlier_distance_m: float = 0.5
-    inlier_fraction: float = 0.25
-    seed: int = 42
+    voxel_m: Positive = 0.25
+    normal_radius_m: Positive = 0.75
+    feature_radius_m: Positive = 1.25
+    ransac_iterations: PositiveInt = 20000
+    correspondence_randomness: PositiveInt = 3
+    similarity_threshold: Fraction = 0.9
+    inlier_distance_m: Positive = 0.5
+    inlier_fraction: Fraction = 0.25
+    seed: NonNegativeInt = 42
 
 
 @dataclass

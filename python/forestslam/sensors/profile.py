@@ -19,7 +19,9 @@ KINDS = ("spinning", "solid_state", "tls", "map")
 class SensorProfile:
     """Vertical angles are `channels` beams evenly spread over `vertical_fov_deg` unless
     `vertical_angles_deg` lists them. `intensity_threshold` None means the sensor has no
-    usable intensity (the intensity filter is skipped)."""
+    usable intensity (the intensity filter is skipped). `packet_model` names the Velodyne model
+    whose raw packets (pcap, VelodyneScan) this profile decodes (None: the packets' factory byte
+    tells), and `cut_angle_deg` the azimuth where a packet stream is cut into scans."""
 
     name: str
     kind: str
@@ -36,6 +38,8 @@ class SensorProfile:
     image_cols: int
     intensity_threshold: float | None
     vertical_angles_deg: tuple[float, ...] | None = None
+    packet_model: str | None = None
+    cut_angle_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -63,6 +67,12 @@ class SensorProfile:
     @property
     def has_range_image(self) -> bool:
         return self.kind in ("spinning", "solid_state") and self.image_rows > 0
+
+    def packet_config(self):
+        """How raw Velodyne packets of this sensor are decoded (forestslam.io.velodyne)."""
+        from forestslam.io.velodyne import PacketConfig
+
+        return PacketConfig(model=self.packet_model, cut_angle_deg=self.cut_angle_deg)
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -104,6 +114,10 @@ def _from_mapping(data: dict, where: str) -> SensorProfile:
         if len(fov) != 2 or not fov[0] <= fov[1]:
             raise ValueError(f"vertical_fov_deg must be [low, high], not {fov}")
         data["vertical_fov_deg"] = fov
+        if data.get("packet_model") is not None:
+            data["packet_model"] = str(data["packet_model"])
+        if data.get("cut_angle_deg") is not None:
+            data["cut_angle_deg"] = float(data["cut_angle_deg"])
         if data.get("vertical_angles_deg") is not None:
             data["vertical_angles_deg"] = tuple(float(v) for v in data["vertical_angles_deg"])
     except (TypeError, ValueError) as exc:
@@ -119,6 +133,7 @@ def _from_mapping(data: dict, where: str) -> SensorProfile:
             (data["range_noise_m"] >= 0, "range_noise_m >= 0"),
             (0 <= data["dropout_rate"] < 1, "0 <= dropout_rate < 1"),
             (data["image_rows"] >= 0 and data["image_cols"] >= 0, "image size >= 0"),
+            (0 <= (data.get("cut_angle_deg") or 0.0) < 360, "0 <= cut_angle_deg < 360"),
         )
         if not ok
     ]

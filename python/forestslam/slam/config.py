@@ -3,55 +3,60 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated, Literal
+
+from forestslam.config_utils import NonNegative, NonNegativeInt, Positive, PositiveInt, Range
 
 
 @dataclass
 class SlamConfig:
     # Keyframes: factors are added and iSAM2 updated only at keyframes (keeps it real time).
-    keyframe_distance_m: float = 0.5
-    keyframe_yaw_deg: float = 10.0
-    keyframe_max_interval_s: float = 1.0
+    keyframe_distance_m: NonNegative = 0.5
+    keyframe_yaw_deg: NonNegative = 10.0
+    keyframe_max_interval_s: Positive = 1.0
     # Odometry factor noise: the registration covariance, summed between keyframes, floored
     # (a constant plus a part proportional to the distance travelled) and inflated when degraded.
-    odom_floor_xy_m: float = 0.01
-    odom_floor_yaw_deg: float = 0.2
-    odom_floor_per_m: float = 0.01  # extra sigma (m, and rad for yaw) per metre travelled
-    degraded_inflation: float = 10.0
-    odom_max_sigma_step: float = 0.5  # eigenvalue caps (m / rad) of a step's covariance
-    odom_max_sigma_keyframe: float = 2.0  # ... and of a keyframe factor's covariance
+    odom_floor_xy_m: Positive = 0.01
+    odom_floor_yaw_deg: Positive = 0.2
+    odom_floor_per_m: NonNegative = 0.01  # extra sigma (m, and rad for yaw) per metre travelled
+    degraded_inflation: Annotated[float, Range(ge=1)] = 10.0
+    odom_max_sigma_step: Positive = 0.5  # eigenvalue caps (m / rad) of a step's covariance
+    odom_max_sigma_keyframe: Positive = 2.0  # ... and of a keyframe factor's covariance
     # Tree observations (range-bearing): the stem centre's position noise, converted to a
     # bearing sigma by the range; observations beyond max range are ignored.
-    observation_sigma_m: float = 0.08
-    bearing_floor_deg: float = 0.3
-    max_observation_range_m: float = 20.0
-    min_observation_range_m: float = 0.5
-    robust_kernel: str = "huber"  # huber | cauchy | none
-    robust_k: float = 1.345
+    observation_sigma_m: Positive = 0.08
+    bearing_floor_deg: Positive = 0.3
+    max_observation_range_m: Positive = 20.0
+    min_observation_range_m: NonNegative = 0.5
+    robust_kernel: Literal["huber", "cauchy", "none"] = "huber"  # huber | cauchy | none
+    robust_k: Positive = 1.345
     # Data association: a consensus shift (drift since the trees were mapped) found within
     # the search radius, then one-to-one assignment by Mahalanobis distance (chi2 gate, 2 dof).
-    association_chi2: float = 9.21
-    search_radius_min_m: float = 0.6
-    search_radius_max_m: float = 3.0
-    consensus_inlier_m: float = 0.35
-    consensus_min_support: int = 3
-    landmark_sigma_floor_m: float = 0.03
-    dbh_gate_ratio: float = 0.5  # |dbh_obs - dbh_map| <= ratio * dbh_map + 5 cm when both known
-    min_landmark_separation_m: float = 0.7
+    association_chi2: Positive = 9.21
+    search_radius_min_m: Positive = 0.6
+    search_radius_max_m: Positive = 3.0
+    consensus_inlier_m: Positive = 0.35
+    consensus_min_support: PositiveInt = 3
+    landmark_sigma_floor_m: Positive = 0.03
+    # |dbh_obs - dbh_map| <= ratio * dbh_map + 5 cm when both known
+    dbh_gate_ratio: NonNegative = 0.5
+    min_landmark_separation_m: NonNegative = 0.7
     # Tentative landmarks enter the graph after this many observations within this gate.
-    tentative_min_observations: int = 3
-    tentative_gate_m: float = 0.5
-    tentative_max_age_keyframes: int = 8
+    tentative_min_observations: PositiveInt = 3
+    tentative_gate_m: Positive = 0.5
+    tentative_max_age_keyframes: PositiveInt = 8
     # Scans between keyframes are aligned onto the tree map when this many stems match (0: off).
-    scan_align_min_matches: int = 4
+    scan_align_min_matches: NonNegativeInt = 4
     # Height correction: per-keyframe z offsets and tree centre heights in a linear 1D graph
     # (the planar graph leaves z to the odometry, which drifts on rough ground). Sigmas: a tree
     # centre's height observation; the z random walk between keyframes, plus per metre.
     height_correction: bool = True
-    height_obs_sigma_m: float = 0.1  # perception centre heights: ~6 cm MAD on rough ground
-    height_step_sigma_m: float = 0.005
-    height_sigma_per_m: float = 0.01
+    height_obs_sigma_m: Positive = 0.1  # perception centre heights: ~6 cm MAD on rough ground
+    height_step_sigma_m: Positive = 0.005
+    height_sigma_per_m: NonNegative = 0.01
     # iSAM2
-    relinearize_threshold: float = 0.01
-    relinearize_skip: int = 1
-    extra_updates_on_loop: int = 2  # extra iSAM2 iterations when a big correction arrives
-    loop_correction_m: float = 0.3
+    relinearize_threshold: NonNegative = 0.01
+    relinearize_skip: PositiveInt = 1
+    # extra iSAM2 iterations when a big correction arrives
+    extra_updates_on_loop: NonNegativeInt = 2
+    loop_correction_m: NonNegative = 0.3

@@ -119,6 +119,11 @@ class LandmarkSlam:
         self._lm_xy = np.zeros((0, 2))
         self._lm_nobs = np.zeros(0, dtype=np.int64)
         self._lm_dbh = np.zeros(0)
+        self._lm_prior_sigma = np.zeros(0)  # position sigma of a prior-map tree, NaN otherwise
+        self._lm_run_obs = np.zeros(0, dtype=np.int64)  # observations made by this run
+        self._lm_last_kf = np.zeros(0, dtype=np.int64)  # last keyframe that saw it (-1: none)
+        self._lm_first_kf = np.zeros(0, dtype=np.int64)  # first keyframe that saw it (-1: none)
+        self._lm_alias = np.zeros(0, dtype=np.int64)  # the older copy a tree was tied to, or -1
         self._tentative: list[_Tentative] = []
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
@@ -162,10 +167,105 @@ class LandmarkSlam:
         return self.height.solve(self.n_landmarks)[1]
 
     def landmark_sigma(self) -> np.ndarray:
-        n = np.maximum(self._lm_nobs, 1)
-        return np.maximum(
-            self.cfg.observation_sigma_m / np.sqrt(n), self.cfg.landmark_sigma_floor_m
+        """Position sigma (L,) of every tree: its observations', combined with its prior's for a
+        prior-map tree (an inventory tree is uncertain until this run sees it)."""
+        so = self.cfg.observation_sigma_m
+        prior = np.isfinite(self._lm_prior_sigma)
+        sp = np.where(prior, self._lm_prior_sigma, np.inf)
+        n = np.where(prior, self._lm_run_obs, np.maximum(self._lm_nobs, 1))
+        info = n / so**2 + 1.0 / sp**2
+        return np.maximum(1.0 / np.sqrt(info), self.cfg.landmark_sigma_floor_m)
+
+    def landmark_keyframes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(L,) first and (L,) last keyframe that observed each tree (-1: never, a prior-map
+        tree this run has not seen)."""
+        return self._lm_first_kf.copy(), self._lm_last_kf.copy()
+
+    def aliases(self) -> np.ndarray:
+        """(L,) for a tree tied to an older copy of itself by place recognition, that copy's
+        index (resolved to the oldest); -1 for the others."""
+        alias = self._lm_alias.copy()
+        for _ in range(8):  # chains of ties are short
+            deeper = (alias >= 0) & (alias[np.maximum(alias, 0)] >= 0)
+            if not deeper.any():
+                break
+            alias[deeper] = alias[alias[deeper]]
+        return alias
+
+    def tie_trees(self, pairs: np.ndarray, sigma_m: float) -> None:
+        """Place recognition found trees mapped twice: each pair (older, newer) of landmark
+        indices is tied by a robust zero-difference factor, which closes the loop; the newer
+        copy becomes an alias of the older in the tree table."""
+        before = self._snapshot()
+        graph = gtsam.NonlinearFactorGraph()
+        noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma_m))
+        for old, new in np.asarray(pairs, dtype=np.int64).reshape(-1, 2):
+            graph.add(
+                gtsam.BetweenFactorPoint2(L(int(old)), L(int(new)), gtsam.Point2(0, 0), noise)
+            )
+            self._lm_alias[new] = old
+        self._update(graph, gtsam.Values(), before, "tying trees")
+        for _ in range(self.cfg.extra_updates_on_loop):
+            self.isam.update()
+        est = self._estimate = self.isam.calculateEstimate()
+        self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
+        self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
+        self.loop_closures += 1
+
+    def observed_this_run(self) -> np.ndarray:
+        """(L,) whether this run observed each tree (prior-map trees may not have been)."""
+        return self._lm_run_obs > 0
+
+    def add_prior_landmarks(
+        self,
+        xy: np.ndarray,
+        dbh: np.ndarray,
+        observations: np.ndarray,
+        sigma_m: np.ndarray,
+        matches: dict[int, int],
+    ) -> np.ndarray:
+        """Trees of a prior map (M,2) in this graph's frame, with DBH (M,), observation counts
+        (M,) and position sigmas (M,): each gets a robust position prior; `matches` {landmark:
+        prior index} makes an existing tree that prior tree (counts summed, DBH fused), the
+        others become new landmarks. Returns the landmark index of every prior tree."""
+        before = self._snapshot()
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        ids = np.full(len(xy), -1, dtype=np.int64)
+        for lm, j in matches.items():
+            ids[j] = lm
+        start, new = self.n_landmarks, np.flatnonzero(ids < 0)
+        ids[new] = start + np.arange(len(new))
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for j, lm in enumerate(ids):
+            if lm >= start:
+                values.insert(L(int(lm)), gtsam.Point2(*xy[j]))
+            noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(2, float(sigma_m[j])))
+            graph.add(gtsam.PriorFactorPoint2(L(int(lm)), gtsam.Point2(*xy[j]), noise))
+        old = ids[ids < start]
+        prior_of_old = np.flatnonzero(ids < start)
+        n_old, n_prior = self._lm_nobs[old].astype(np.float64), observations[prior_of_old]
+        d_old, d_prior = self._lm_dbh[old], dbh[prior_of_old]
+        both = np.isfinite(d_old) & np.isfinite(d_prior)
+        self._lm_dbh[old] = np.where(
+            both,
+            (n_old * d_old + n_prior * d_prior) / (n_old + n_prior),
+            np.where(np.isfinite(d_old), d_old, d_prior),
         )
+        self._lm_nobs[old] += n_prior.astype(np.int64)
+        self._lm_prior_sigma[old] = sigma_m[prior_of_old]
+        self._lm_xy = np.vstack([self._lm_xy, xy[new]])
+        self._lm_nobs = np.append(self._lm_nobs, observations[new].astype(np.int64))
+        self._lm_dbh = np.append(self._lm_dbh, dbh[new])
+        self._lm_prior_sigma = np.append(self._lm_prior_sigma, sigma_m[new])
+        self._lm_run_obs = np.append(self._lm_run_obs, np.zeros(len(new), dtype=np.int64))
+        self._lm_last_kf = np.append(self._lm_last_kf, np.full(len(new), -1, dtype=np.int64))
+        self._lm_first_kf = np.append(self._lm_first_kf, np.full(len(new), -1, dtype=np.int64))
+        self._lm_alias = np.append(self._lm_alias, np.full(len(new), -1, dtype=np.int64))
+        self._update(graph, values, before, "adding prior trees")
+        est = self._estimate = self.isam.calculateEstimate()
+        self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
+        self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
+        return ids
 
     def add_scan(
         self,
@@ -408,6 +508,8 @@ class LandmarkSlam:
             lm = int(res.matches[i])
             graph.add(self._landmark_factor(kf, lm, bearings[i], ranges[i], *noise[i]))
             self._lm_nobs[lm] += 1
+            self._lm_run_obs[lm] += 1
+            self._lm_last_kf[lm] = kf
             if np.isfinite(obs_dbh[i]):
                 n = self._lm_nobs[lm]
                 old = self._lm_dbh[lm]
@@ -453,7 +555,7 @@ class LandmarkSlam:
     def _snapshot(self) -> dict:
         """What adding a keyframe changes before its iSAM2 update (to undo a failed one)."""
         return {
-            "lm": (self._lm_xy.copy(), self._lm_nobs.copy(), self._lm_dbh.copy()),
+            "lm": {k: v.copy() for k, v in vars(self).items() if k.startswith("_lm_")},
             "tentative": copy.deepcopy(self._tentative),
             "counts": (self.loop_closures, self.n_landmark_factors),
             "keyframes": self.n_keyframes,
@@ -461,13 +563,26 @@ class LandmarkSlam:
         }
 
     def _restore(self, before: dict) -> None:
-        self._lm_xy, self._lm_nobs, self._lm_dbh = before["lm"]
+        for name, value in before["lm"].items():
+            setattr(self, name, value)
         self._tentative = before["tentative"]
         self.loop_closures, self.n_landmark_factors = before["counts"]
         n = before["keyframes"]
         del self._kf_scan[n:], self._kf_odom2[n:]
         if self.height is not None:
             self.height.truncate(n, before["height_obs"])
+
+    def _update(self, graph, values, before: dict, what: str) -> None:
+        """iSAM2 update with new factors and values; a failure restores `before`, rebuilds
+        iSAM2 as it was, counts it and raises ProcessingError."""
+        try:
+            self.isam.update(graph, values)
+        except RuntimeError as exc:  # gtsam's IndeterminateLinearSystemException and kin
+            self._restore(before)
+            self._rebuild_isam()
+            self.failed_updates += 1
+            raise ProcessingError(f"pose graph update failed {what}: {exc}") from exc
+        self._graph.push_back(graph)
 
     def _rebuild_isam(self) -> None:
         """A fresh iSAM2 holding the factors and estimate of the last successful update."""
@@ -535,6 +650,11 @@ class LandmarkSlam:
                     graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
                 self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
                 self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
+                self._lm_run_obs = np.append(self._lm_run_obs, len(t.obs))
+                self._lm_last_kf = np.append(self._lm_last_kf, kf)
+                self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
+                self._lm_alias = np.append(self._lm_alias, -1)
+                self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
                 d = np.asarray(t.dbh)
                 self._lm_dbh = np.append(
                     self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan

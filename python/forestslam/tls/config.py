@@ -3,122 +3,125 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated, Literal
+
+from forestslam.config_utils import NonNegative, NonNegativeInt, Positive, PositiveInt, Range
 
 
 @dataclass
 class FeatureConfig:
     """Per-frame features: DoG keypoints (real) and ring stem centres (virtual)."""
 
-    max_keypoints: int = 200
-    keypoint_voxel_m: float = 0.08
-    sigma_small_m: float = 0.15
-    sigma_large_m: float = 0.30
-    nms_radius_m: float = 0.6
-    min_diameter_m: float = 0.06
-    max_diameter_m: float = 1.0
+    max_keypoints: PositiveInt = 200
+    keypoint_voxel_m: Positive = 0.08
+    sigma_small_m: Positive = 0.15
+    sigma_large_m: Positive = 0.30
+    nms_radius_m: NonNegative = 0.6
+    min_diameter_m: Positive = 0.06
+    max_diameter_m: Positive = 1.0
     # Ground samples (real features, see features.ground_samples): lowest point per cell.
-    ground_max_points: int = 120
-    ground_cell_m: float = 1.0
-    ground_max_range_m: float = 15.0
-    ground_max_step_m: float = 0.3
-    ground_band_m: float = 0.1
+    ground_max_points: NonNegativeInt = 120
+    ground_cell_m: Positive = 1.0
+    ground_max_range_m: Positive = 15.0
+    ground_max_step_m: NonNegative = 0.3
+    ground_band_m: NonNegative = 0.1
 
 
 @dataclass
 class MapConfig:
     """Global incremental map: TLS reference plus accepted MLS frames, voxelized."""
 
-    voxel_m: float = 0.03
+    voxel_m: Positive = 0.03
     # A frame joins the map when its stem-centre (virtual) residual RMS is below this and it
     # has enough virtual pairs; frames without stems still get a pose but never join the map.
-    accept_virtual_rms_m: float = 0.03
-    accept_min_virtual_inliers: int = 24
+    accept_virtual_rms_m: Positive = 0.03
+    accept_min_virtual_inliers: NonNegativeInt = 24
     # ... and when it also sits on the TLS reference itself, not only on the growing map (which
     # may hold frames with small errors): the LM of the frame against the reference alone,
     # started at the frame's pose with the fine gates, must converge, not be degenerate and
     # move the pose by at most accept_reference_max_m / accept_reference_max_deg. A frame
     # placed on wrongly merged frames, or in a wrong local minimum, moves (or fails) there.
-    accept_reference_max_m: float = 0.03
-    accept_reference_max_deg: float = 0.3
-    accept_reference_rounds: int = 4
-    frame_min_range_m: float = 1.0  # the operator carrying the scanner is not mapped
-    frame_max_range_m: float = 25.0
+    accept_reference_max_m: NonNegative = 0.03
+    accept_reference_max_deg: NonNegative = 0.3
+    accept_reference_rounds: PositiveInt = 4
+    frame_min_range_m: NonNegative = 1.0  # the operator carrying the scanner is not mapped
+    frame_max_range_m: Positive = 25.0
     # Accepted frames are merged into the map (and the LM target rebuilt) in batches of this
     # many frames (cost bounded; a frame is registered against the map as of the last batch).
-    rebuild_every_frames: int = 30
+    rebuild_every_frames: PositiveInt = 30
     # LM target: a voxelized copy of the map cropped around the predicted pose (x-y disc,
     # height band of the frame plus target_z_margin_m), so its size does not grow with the
     # reference; re-cropped when the platform has moved target_recrop_m from the crop
     # centre, the frame leaves the height band, or the map has changed. The radius should
     # cover the frame's useful range (frame_max_range_m) plus the re-crop distance.
-    target_voxel_m: float = 0.05
-    target_radius_m: float = 30.0
-    target_recrop_m: float = 5.0
-    target_z_margin_m: float = 1.5
-    max_points: int = 30_000_000
+    target_voxel_m: Positive = 0.05
+    target_radius_m: Positive = 30.0
+    target_recrop_m: NonNegative = 5.0
+    target_z_margin_m: NonNegative = 1.5
+    max_points: PositiveInt = 30_000_000
 
 
 @dataclass
 class RegistrationConfig:
-    ndt_voxel_m: float = 0.3
-    ndt_resolution_m: float = 1.0
-    lm_virtual_gate_m: float = 0.1
-    lm_plane_gate_m: float = 0.25
-    lm_robust_scale_m: float = 0.05
-    lm_max_rounds: int = 15
+    ndt_voxel_m: Positive = 0.3
+    ndt_resolution_m: Positive = 1.0
+    lm_virtual_gate_m: Positive = 0.1
+    lm_plane_gate_m: Positive = 0.25
+    lm_robust_scale_m: Positive = 0.05
+    lm_max_rounds: PositiveInt = 15
     # Initial pose of each frame: "ndt" = 3D-NDT against the previous frame (velocity as its
     # guess) chained onto that frame's pose (the paper); "velocity" = constant-velocity
     # prediction, NDT only as a fallback when the LM from the prediction is not trusted.
-    initial_pose: str = "ndt"
+    initial_pose: Literal["ndt", "velocity"] = "ndt"
     # Spinning scans with per-point time are deskewed (constant velocity from the last two
     # frames) to the middle of their sweep and registered there.
     deskew: bool = True
     # ... and, once registered rigidly, registered again with the motion during the sweep
     # estimated as a polynomial of this order in time (0: rigid frames; see tls.sweep), with
     # sweep_lm_rounds correspondence rounds; kept when that LM is trusted. Needs per-point time.
-    sweep_order: int = 2
-    sweep_lm_rounds: int = 10
-    lm_converged_translation_m: float = 1e-3  # a round moving less than this ends the LM ...
-    lm_converged_rotation_rad: float = 2e-4  # ... when it also rotates less than this
+    sweep_order: NonNegativeInt = 2
+    sweep_lm_rounds: PositiveInt = 10
+    lm_converged_translation_m: NonNegative = 1e-3  # a round moving less than this ends the LM ...
+    lm_converged_rotation_rad: NonNegative = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
     # is not degenerate, its real-feature residual RMS is below good_real_rms_m and it moved
     # the predicted pose (constant velocity) by at most max_correction_m / max_correction_deg.
     # Otherwise NDT against the previous frame chained onto its pose gives a second initial
     # pose (fallback); when that fails too the frame is rejected (not merged, velocity not
     # updated) and keeps the NDT-chained (else predicted) pose.
-    good_real_rms_m: float = 0.12
-    max_correction_m: float = 1.5
-    max_correction_deg: float = 15.0
+    good_real_rms_m: Positive = 0.12
+    max_correction_m: Positive = 1.5
+    max_correction_deg: Positive = 15.0
     # First-frame coarse alignment by stem positions (when no --initial-pose is given).
-    coarse_distance_tolerance_m: float = 0.25
-    coarse_inlier_m: float = 0.35
-    coarse_min_stems: int = 3
-    coarse_max_frames: int = 20  # frames tried for the coarse alignment before giving up
+    coarse_distance_tolerance_m: Positive = 0.25
+    coarse_inlier_m: Positive = 0.35
+    coarse_min_stems: Annotated[int, Range(ge=2)] = 3
+    coarse_max_frames: PositiveInt = 20  # frames tried for the coarse alignment before giving up
     # After this many consecutive frames that did not join the map the tracking counts as
     # lost and each frame is also placed afresh by the coarse stem alignment (then LM; kept
     # when trusted with its stems on the reference's stems).
-    relocalize_after_frames: int = 3
+    relocalize_after_frames: PositiveInt = 3
     # The velocity (deskew, NDT guess, prediction) is only used while it is fresh: measured
     # between two consecutive trusted frames at most this long ago. A stale velocity (e.g. the
     # turn rate at the moment tracking was lost) would keep distorting every later frame by
     # its deskew and send the prediction around in circles, so tracking could never recover.
-    max_velocity_age_s: float = 0.5
+    max_velocity_age_s: Positive = 0.5
 
 
 @dataclass
 class TreeConfig:
     """Stems and DBH of the merged cloud; stem coverage at breast height."""
 
-    band_m: tuple[float, float] = (1.2, 1.4)
-    ground_cell_m: float = 1.0
-    coverage_sectors: int = 36
-    coverage_tolerance_m: float = 0.03
+    band_m: tuple[NonNegative, Positive] = (1.2, 1.4)
+    ground_cell_m: Positive = 1.0
+    coverage_sectors: PositiveInt = 36
+    coverage_tolerance_m: Positive = 0.03
     # Stem detection in the cloud (layer circle fits, see features.reference_stems): inlier
     # threshold and largest fit RMS. A plot map merged from mobile frames has stem walls as
     # thick as the mobile scanner's range noise (VLP-16: 1.5 cm sigma) plus the registration
     # spread, so the single-scan gates (1.5 cm) drop most of its stems; 2x the sensor noise.
-    stem_fit_inlier_m: float = 0.03
-    stem_max_fit_rms_m: float = 0.03
+    stem_fit_inlier_m: Positive = 0.03
+    stem_max_fit_rms_m: Positive = 0.03
 
 
 @dataclass
@@ -127,4 +130,4 @@ class TlsConfig:
     map: MapConfig = field(default_factory=MapConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     trees: TreeConfig = field(default_factory=TreeConfig)
-    frame_step: int = 1  # process every n-th MLS frame
+    frame_step: PositiveInt = 1  # process every n-th MLS frame

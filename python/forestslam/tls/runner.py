@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose
 from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees_csv, write_tum
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
@@ -64,13 +65,8 @@ def parse_initial_pose(text: str | None) -> np.ndarray | None:
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg") from exc
     if len(values) not in (3, 4) or not np.all(np.isfinite(values)):
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg")
-    x, y = values[0], values[1]
     z = values[2] if len(values) == 4 else 0.0
-    yaw = np.radians(values[-1])
-    T = np.eye(4)
-    T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-    T[:3, 3] = [x, y, z]
-    return T
+    return planar_pose(values[0], values[1], np.radians(values[-1]), z)
 
 
 def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
@@ -144,9 +140,44 @@ def run_tls_register(
     initial_pose: np.ndarray | None = None,
     topic: str | None = None,
     on_frame=None,
+    start: int = 0,
+    max_scans: int | None = None,
+    progress: bool = False,
+    overwrite: bool = False,
 ) -> dict:
-    config = config or TlsConfig()
+    """Register the MLS scans of the window onto the reference; writes the plot products and
+    run.yaml into `out_dir` (owned as `forestslam.job` describes). Returns the summary."""
+    from forestslam.config_utils import to_dict, validate
+    from forestslam.job import Job, Progress, ScanWindow
+
+    window = ScanWindow(start, max_scans)
+    config = validate(config or TlsConfig(), "tls")
     reference = load_reference(reference_path)
-    scans = with_rings(read_scans(input_path, topic=topic), sensor)
-    run = register_mls_to_tls(scans, reference, config, initial_pose, on_frame=on_frame)
-    return write_products(run, Path(out_dir), config, title=Path(input_path).name)
+    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
+    meta = {
+        "input": str(input_path),
+        "reference": str(reference_path),
+        "topic": topic,
+        "sensor": sensor,
+        **window.meta(),
+        "initial_pose": None if initial_pose is None else np.asarray(initial_pose).tolist(),
+        "config": {"tls": to_dict(config)},
+    }
+    inputs = [input_path, reference_path]
+    with Job("tls-register", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
+        bar = Progress(count, "frame", "tls-register", enabled=progress)
+
+        def frame_done(record) -> None:
+            bar.update(1, accepted=record.accepted, stems_rms=f"{record.virtual_rms_m:.3f}")
+            if on_frame is not None:
+                on_frame(record)
+
+        try:
+            run = register_mls_to_tls(
+                with_rings(scans, sensor), reference, config, initial_pose, on_frame=frame_done
+            )
+        finally:
+            bar.close()
+        job.summary = write_products(run, job.out, config, title=Path(input_path).name)
+        job.summary["read_stats"] = stream.stats.to_dict() if hasattr(stream, "stats") else {}
+    return job.summary

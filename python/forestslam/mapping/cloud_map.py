@@ -1,0 +1,111 @@
+"""The registered point-cloud map (map.laz): every keyframe's scan, voxel-thinned, labelled.
+
+Like the ground map, points are kept per keyframe in its sensor frame and placed with the
+*optimised* keyframe poses when the map is written, so loop closures move them with the
+trajectory. Each voxel is labelled from the keyframe's perception: ground (ASPRS class 2) where a
+ground point falls in it, the tree map's id where a stem point of an associated stem does (0
+elsewhere). Memory is bounded by the keyframe voxel size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from forestslam.io.gis import GROUND, UNCLASSIFIED
+from forestslam.mapping.voxel import voxel_downsample, voxel_keys
+
+
+@dataclass
+class _Keyframe:
+    index: int
+    stamp: float
+    points: np.ndarray  # (N,3) float32, sensor frame
+    ground: np.ndarray  # (N,) bool
+    tree_id: np.ndarray  # (N,) uint32, 0: no stem
+
+
+class CloudMap:
+    def __init__(self, keyframe_voxel_m: float = 0.1, voxel_m: float = 0.1) -> None:
+        self.keyframe_voxel_m = keyframe_voxel_m
+        self.voxel_m = voxel_m
+        self._keyframes: list[_Keyframe] = []
+
+    def __len__(self) -> int:
+        return len(self._keyframes)
+
+    def add_keyframe(
+        self,
+        keyframe: int,
+        stamp: float,
+        points: np.ndarray,
+        ground_points: np.ndarray | None = None,
+        stem_points: list[np.ndarray] | None = None,
+        stem_tree_ids: np.ndarray | None = None,
+    ) -> None:
+        """A keyframe's scan points (N,3) in its sensor frame, with its ground points and its
+        stems' points (one (M,3) array per stem) and their tree ids (>= 1; 0 for a stem the map
+        did not keep)."""
+        v = self.keyframe_voxel_m
+        pts = voxel_downsample(points, v)
+        keys = voxel_keys(pts, v)
+        ground = np.zeros(len(pts), dtype=bool)
+        if ground_points is not None and len(ground_points):
+            ground = np.isin(keys, voxel_keys(np.asarray(ground_points, np.float64), v))
+        tree_id = np.zeros(len(pts), dtype=np.uint32)
+        for stem, tid in zip(stem_points or [], stem_tree_ids or [], strict=True):
+            if tid > 0 and len(stem):
+                tree_id[np.isin(keys, voxel_keys(np.asarray(stem, np.float64), v))] = tid
+        self._keyframes.append(_Keyframe(keyframe, stamp, pts.astype(np.float32), ground, tree_id))
+
+    def build(self, keyframe_poses: np.ndarray) -> dict[str, np.ndarray]:
+        """The map in the poses' frame: points (M,3) float64, classification, tree_id, time
+        (the stamp of the keyframe each voxel's points came from, the latest where several)."""
+        parts = [kf for kf in self._keyframes if kf.index < len(keyframe_poses)]
+        if not parts:
+            return _empty()
+        pts = np.concatenate(
+            [
+                kf.points.astype(np.float64) @ keyframe_poses[kf.index][:3, :3].T
+                + keyframe_poses[kf.index][:3, 3]
+                for kf in parts
+            ]
+        )
+        ground = np.concatenate([kf.ground for kf in parts])
+        tree = np.concatenate([kf.tree_id for kf in parts])
+        stamp = np.concatenate([np.full(len(kf.points), kf.stamp) for kf in parts])
+        origin = pts.min(axis=0)  # voxel keys near the origin, whatever the frame's offsets
+        _, first, inverse = np.unique(
+            voxel_keys(pts - origin, self.voxel_m), return_index=True, return_inverse=True
+        )
+        inverse = inverse.ravel()
+        m = len(first)
+        counts = np.bincount(inverse, minlength=m)
+        centroid = (
+            np.column_stack(
+                [np.bincount(inverse, weights=pts[:, k] - origin[k], minlength=m) for k in range(3)]
+            )
+            / counts[:, None]
+            + origin
+        )
+        is_ground = np.bincount(inverse, weights=ground, minlength=m) > 0
+        tree_id = np.zeros(m, dtype=np.uint32)
+        np.maximum.at(tree_id, inverse, tree)
+        time = np.full(m, -np.inf)
+        np.maximum.at(time, inverse, stamp)
+        return {
+            "points": centroid,
+            "classification": np.where(is_ground, GROUND, UNCLASSIFIED).astype(np.uint8),
+            "tree_id": tree_id,
+            "time": time,
+        }
+
+
+def _empty() -> dict[str, np.ndarray]:
+    return {
+        "points": np.zeros((0, 3)),
+        "classification": np.zeros(0, dtype=np.uint8),
+        "tree_id": np.zeros(0, dtype=np.uint32),
+        "time": np.zeros(0),
+    }

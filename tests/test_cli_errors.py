@@ -1,0 +1,175 @@
+"""The CLI's error boundary (issue 19, items 5 and 9): an output path that is a file, any OSError,
+a bad config or an unexpected exception is one line on stderr and a non-zero exit, never a
+traceback unless `--debug`; `--version`; `simulate --list` without --out."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from test_run import install_fake, make_input
+
+import forestslam
+
+
+@pytest.fixture
+def run_main(capsys, monkeypatch):
+    """The console entry in this process: (exit code, stdout, stderr)."""
+    from forestslam.cli.main import main
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        monkeypatch.setattr(sys, "argv", ["forestslam", *map(str, args)])
+        try:
+            main()
+            code = 0
+        except SystemExit as exc:
+            code = exc.code
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out.out, out.err)
+
+    return run
+
+
+@pytest.fixture
+def scans(tmp_path, monkeypatch):
+    install_fake(monkeypatch)
+    return make_input(tmp_path, 6)[0]
+
+
+def one_line_error(res, *needles: str) -> None:
+    assert res.returncode == 1, (res.stdout, res.stderr)
+    assert "Traceback" not in res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("forestslam: error:")]
+    assert len(lines) == 1, res.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("inside", [False, True])
+def test_output_path_that_is_a_file(tmp_path, scans, run_main, inside):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    out = blocker / "sub" if inside else blocker
+    trees = tmp_path / "map.csv"
+    trees.write_text("x,y\n0,0\n5,0\n0,5\n5,5\n")
+    commands = {
+        "run": ["run", scans, "--sensor", "vlp16", "--out", out, "--no-progress"],
+        "localize": ["localize", scans, "--map", trees, "--sensor", "vlp16", "--out", out],
+        "simulate": ["simulate", "--scenario", "sample", "--out", out],
+        "detect": ["detect", scans, "--sensor", "vlp16", "--out", blocker / "trees.csv"],
+        "tls-register": [
+            "tls-register",
+            scans,
+            "--reference",
+            scans / "000000.npy",
+            "--sensor",
+            "vlp16",
+            "--out",
+            out,
+        ],
+    }
+    for args in commands.values():
+        one_line_error(run_main(*args), str(blocker), "is a file")
+
+
+def test_any_os_error_is_one_line_naming_the_path(tmp_path, scans, run_main, monkeypatch):
+    def denied(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "out" / "run.yaml"))
+
+    monkeypatch.setattr("forestslam.io.atomic.atomic_write_text", denied)
+    res = run_main("run", scans, "--sensor", "vlp16", "--out", tmp_path / "out", "--no-progress")
+    one_line_error(res, str(tmp_path / "out" / "run.yaml"), "Permission denied")
+
+
+def test_unexpected_error_is_one_line_and_debug_shows_the_traceback(
+    scans, tmp_path, run_main, monkeypatch
+):
+    def broken(self, scan):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr("test_run.FakeOdometry.step", broken)
+    args = ["run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--no-progress"]
+    res = run_main(*args)
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    assert "internal error: RuntimeError: a bug" in res.stderr and "--debug" in res.stderr
+    with pytest.raises(RuntimeError, match="a bug"):  # --debug: the exception (traceback) out
+        run_main("--debug", *args)
+
+
+def test_bad_config_value_is_one_line(tmp_path, scans, run_main):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("mapping:\n  dbh_window_scans: 0\n")
+    res = run_main("run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--config", cfg)
+    one_line_error(res, "mapping.dbh_window_scans: 0", ">= 1")
+    assert not (tmp_path / "o").exists()
+
+
+def test_version(run_main):
+    res = run_main("--version")
+    assert res.returncode == 0 and res.stdout.strip() == f"forestslam {forestslam.__version__}"
+
+
+def test_simulate_list_needs_no_out(run_main):
+    res = run_main("simulate", "--list")
+    assert res.returncode == 0 and "sample" in res.stdout.split()
+    one_line_error(run_main("simulate", "--scenario", "sample"), "--out")
+
+
+def test_detect_scan_window_skips_without_decoding(tmp_path, run_main):
+    """--scan K reads scan K only: an unreadable scan before it is never decoded."""
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        np.save(folder / f"{i:03d}.npy", rng.uniform(-10, 10, (200, 3)))
+    (folder / "000.npy").write_bytes(b"garbage")
+    out = tmp_path / "t.csv"
+    res = run_main("detect", folder, "--scan", "2", "--sensor", "vlp16", "--out", out)
+    assert res.returncode == 0, res.stderr
+    assert "in 1 scan(s)" in res.stdout and "skipped" not in res.stderr
+    res = run_main(
+        "detect",
+        folder,
+        "--start",
+        "1",
+        "--max-scans",
+        "2",
+        "--sensor",
+        "vlp16",
+        "--out",
+        out,
+        "--no-progress",
+    )
+    assert res.returncode == 0 and "in 2 scan(s)" in res.stdout, res.stderr
+    assert open(out).readline().startswith("scan,")  # several scans: a scan column
+    assert {int(line.split(",")[0]) for line in open(out).readlines()[1:]} <= {1, 2}
+
+
+def test_run_modes_are_choices(run_main, scans, tmp_path):
+    from typing import get_args
+
+    from forestslam.cli.run import Mode
+    from forestslam.runner import MODES
+
+    assert get_args(Mode) == MODES
+    res = run_main("run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--mode", "fly")
+    assert res.returncode == 2 and "slam" in res.stderr and "Traceback" not in res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_warns_about_a_run_that_did_not_complete(tmp_path, run_main):
+    from forestslam.job import Job
+
+    scans_dir, truth = make_input(tmp_path, 5)
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError), Job("run", out) as job:
+        from forestslam.io import write_tum
+
+        stamps, poses = np.arange(5) / 10.0, np.tile(np.eye(4), (5, 1, 1))
+        write_tum(job.out / "odometry.tum", stamps, poses)
+        raise RuntimeError("killed by a test")
+    res = run_main("evaluate", out, "--truth", truth)
+    assert res.returncode == 0, res.stderr
+    assert "run.yaml says status: failed (RuntimeError: killed by a test)" in res.stderr

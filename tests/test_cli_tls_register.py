@@ -1,0 +1,71 @@
+"""`forestslam tls-register` on the job skeleton: --start / --max-scans reach the registration
+(scans before the window undecoded), run.yaml records the window and the outcome. The
+registration itself is a double here (tests/test_tls_pipeline.py covers it)."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import yaml
+from typer.testing import CliRunner
+
+
+def test_window_and_run_yaml(tmp_path, monkeypatch):
+    import forestslam.tls.runner as runner
+    from forestslam.cli.main import app
+
+    scans = tmp_path / "walk"
+    scans.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(10):
+        xy = rng.uniform(-5, 5, (50, 2))
+        np.save(scans / f"{i:03d}.npy", np.column_stack([xy, np.full(50, i + 1.0)]))
+    (scans / "001.npy").write_bytes(b"garbage")  # before the window: never decoded
+    reference = tmp_path / "ref.npy"
+    np.save(reference, rng.uniform(-5, 5, (100, 3)))
+    seen = []
+
+    def register(scans, reference, config, initial_pose, on_frame=None):
+        for scan in scans:
+            seen.append(float(np.mean(scan.points[:, 2])))
+            on_frame(types.SimpleNamespace(accepted=True, virtual_rms_m=0.01))
+        return "run"
+
+    def write_products(run, out_dir, config, title=""):
+        (out_dir / "trajectory.tum").write_text("")
+        return {
+            "frames": len(seen),
+            "accepted": len(seen),
+            "stems": 0,
+            "map_points": 0,
+            "ms_features_lm_mean": 1.0,
+            "coverage_tls": None,
+        }
+
+    monkeypatch.setattr(runner, "register_mls_to_tls", register)
+    monkeypatch.setattr(runner, "write_products", write_products)
+    out = tmp_path / "plot"
+    args = [
+        "tls-register",
+        str(scans),
+        "--reference",
+        str(reference),
+        "--sensor",
+        "vlp16",
+        "--out",
+        str(out),
+        "--start",
+        "3",
+        "--max-scans",
+        "4",
+        "--no-progress",
+    ]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert seen == [4.0, 5.0, 6.0, 7.0]  # scans 3..6 (z = i + 1)
+    meta = yaml.safe_load((out / "run.yaml").read_text())
+    assert meta["command"] == "tls-register" and meta["start"] == 3 and meta["max_scans"] == 4
+    assert meta["summary"]["status"] == "complete" and meta["summary"]["frames"] == 4
+    assert meta["summary"]["read_stats"]["skipped"] == 0
+    assert meta["outputs"] == ["run.yaml", "trajectory.tum"]

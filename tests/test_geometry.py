@@ -1,0 +1,92 @@
+"""forestslam.geometry: poses, transforms, SE(3)/SE(2) exp and log, the rigid fit (seeded, against
+known answers and scipy)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from forestslam import geometry as g
+
+
+def random_pose(rng) -> np.ndarray:
+    return g.pose3(Rotation.random(random_state=rng).as_matrix(), rng.normal(0, 5, 3))
+
+
+def test_planar_poses_and_yaw():
+    T = g.planar_pose(1.0, 2.0, np.pi / 2, z=0.5)
+    np.testing.assert_allclose(g.transform_points(T, [[1.0, 0.0, 0.0]]), [[1, 3, 0.5]], atol=1e-12)
+    assert g.yaw_of(T) == pytest.approx(np.pi / 2)
+    np.testing.assert_allclose(g.rot2(np.array([0.3, -1.0])), [g.rot2(0.3), g.rot2(-1.0)])
+    np.testing.assert_allclose(g.se2(1, 2, 0.4)[:2, :2], g.rot_z(0.4)[:2, :2])
+    np.testing.assert_allclose(
+        g.transform_points(g.se2(1, 2, np.pi), [[1.0, 1.0]]), [[0, 1]], atol=1e-12
+    )
+
+
+def test_inverse_single_and_batched():
+    rng = np.random.default_rng(0)
+    poses = np.stack([random_pose(rng) for _ in range(5)])
+    np.testing.assert_allclose(g.inverse(poses) @ poses, np.tile(np.eye(4), (5, 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(g.inverse(poses[0]), np.linalg.inv(poses[0]), atol=1e-12)
+    np.testing.assert_allclose(g.inverse(g.se2(1, 2, 3)), np.linalg.inv(g.se2(1, 2, 3)), atol=1e-12)
+
+
+def test_so3_and_se3_exp_log_round_trip():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        phi = rng.normal(0, 1, 3)
+        phi *= min(1.0, 3.0 / np.linalg.norm(phi))  # angle below pi: log is unique
+        np.testing.assert_allclose(
+            g.so3_exp(phi), Rotation.from_rotvec(phi).as_matrix(), atol=1e-12
+        )
+        xi = np.concatenate([rng.normal(0, 3, 3), phi])
+        np.testing.assert_allclose(g.se3_log(g.se3_exp(xi)), xi, atol=1e-9)
+    # a pure translation, and a twist about z: translation along the arc
+    np.testing.assert_allclose(g.se3_exp([1, 2, 3, 0, 0, 0])[:3, 3], [1, 2, 3])
+    T = g.se3_exp([np.pi / 2, 0, 0, 0, 0, np.pi / 2])  # quarter circle of length pi/2
+    np.testing.assert_allclose(T[:3, 3], [1, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(g.se3_exp(np.full(6, 1e-10)), np.eye(4), atol=1e-9)
+
+
+def test_se2_exp_log_round_trip_and_agrees_with_se3():
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        xi = np.array([*rng.normal(0, 3, 2), rng.uniform(-3.0, 3.0)])
+        T = g.se2_exp(xi)
+        np.testing.assert_allclose(g.se2_log(T), xi, atol=1e-9)
+        T3 = g.se3_exp([xi[0], xi[1], 0, 0, 0, xi[2]])
+        np.testing.assert_allclose(T3[:2, :2], T[:2, :2], atol=1e-12)
+        np.testing.assert_allclose(T3[:2, 3], T[:2, 2], atol=1e-12)
+    np.testing.assert_allclose(g.se2_log(g.se2_exp([0.5, -0.2, 1e-12])), [0.5, -0.2, 1e-12])
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_rigid_fit_recovers_the_pose_with_noise_and_weights(d):
+    rng = np.random.default_rng(3)
+    T = random_pose(rng) if d == 3 else g.se2(3.0, -1.0, 2.5)
+    src = rng.uniform(-10, 10, (50, d))
+    dst = g.transform_points(T, src) + rng.normal(0, 0.01, (50, d))
+    np.testing.assert_allclose(g.rigid_fit(src, dst), T, atol=0.01)
+    bad = dst.copy()
+    bad[:5] += 30.0  # outliers with zero weight do not count
+    w = np.r_[np.zeros(5), np.ones(45)]
+    np.testing.assert_allclose(g.rigid_fit(src, bad, w), g.rigid_fit(src[5:], dst[5:]), atol=1e-9)
+
+
+def test_rigid_fit_is_never_a_reflection_and_checks_its_input():
+    rng = np.random.default_rng(4)
+    src = rng.normal(size=(10, 3))
+    dst = src * [1, 1, -1]  # the best orthogonal map is a mirror: fit a rotation instead
+    R = g.rigid_fit(src, dst)[:3, :3]
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(g.rigid_fit(src[:1], src[:1] + 2)[:3, :3], np.eye(3))
+    with pytest.raises(ValueError, match="shapes"):
+        g.rigid_fit(src, src[:, :2])
+    with pytest.raises(ValueError, match="no point pairs"):
+        g.rigid_fit(np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="non-finite"):
+        g.rigid_fit(np.full((2, 3), np.nan), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="weights"):
+        g.rigid_fit(src, src, np.zeros(10))
