@@ -32,14 +32,21 @@ _UNITS = ((1000.0, "millimetres"), (100.0, "centimetres"))
 _MIN_TYPICAL_RANGE_M = 1.0  # a median range in metres is rarely below this
 
 
-def median_range(points: np.ndarray) -> tuple[float, float]:
-    """Median distance of the points from the sensor, and from their median point (on at most
-    ~2000 of them)."""
+def median_range(points: np.ndarray) -> float:
+    """Median distance of the points from the sensor (on at most ~256 of them: enough to
+    tell metres from millimetres)."""
     if len(points) == 0:
-        return 0.0, 0.0
-    sample = points[:: max(1, len(points) // 2000)]
-    spread = np.linalg.norm(sample - np.median(sample, axis=0), axis=1)
-    return float(np.median(np.linalg.norm(sample, axis=1))), float(np.median(spread))
+        return 0.0
+    sample = points[:: max(1, len(points) // 256)]
+    return float(np.median(np.sqrt(np.einsum("ij,ij->i", sample, sample))))
+
+
+def median_spread(points: np.ndarray) -> float:
+    """Median distance of the points from their median point (on at most ~256 of them)."""
+    if len(points) == 0:
+        return 0.0
+    sample = points[:: max(1, len(points) // 256)]
+    return float(np.median(np.linalg.norm(sample - np.median(sample, axis=0), axis=1)))
 
 
 def unit_hint(range_m: float, spread_m: float, max_range_m: float = MAX_PLAUSIBLE_RANGE_M) -> str:
@@ -98,7 +105,8 @@ def check_scan(scan: Scan, stats: ReadStats, where: str) -> Scan | None:
             f"{where}: the ring field is 0 on every point: ignored, as if there were none",
         )
         scan = replace(scan, ring=None)
-    hint = unit_hint(*median_range(scan.points))
-    if hint:
+    range_m = median_range(scan.points)
+    if range_m > MAX_PLAUSIBLE_RANGE_M:
+        hint = unit_hint(range_m, median_spread(scan.points))
         _note(stats, "implausible_range", f"{where} at t={scan.stamp:.3f}: {hint}")
     return scan
