@@ -61,29 +61,35 @@ def test_damaged_index_count_or_chunk_length_is_read_in_full(tmp_path):
 
 def test_damaged_chunk_header_costs_that_chunk_only(tmp_path, caplog):
     """A chunk header that does not parse ended the walk: the scans of every later chunk were
-    lost and reported 'at the end'. Now the walk resumes at the index data after the chunk,
-    which also tells how many messages the chunk held."""
+    lost and reported 'at the end' (9 of 12 here). Now the walk resumes at the index data
+    after the chunk, whose offsets also find the chunk's messages when their records survived;
+    a message whose record is damaged too is lost, and counted."""
     path = sample_sequence("bag")
     scans = [s.stamp for s in read_scans(path)]
     data = path.read_bytes()
     chunks = [r for r in _records(data) if r[0] == rs.OP_CHUNK]
-    assert len(chunks) >= 4
+    index = rs.build_index(path)
+    assert len(chunks) >= 4 and len(index.chunks) == len(chunks)
     for victim in (1, len(chunks) - 1):
         _, start, _, data_start, end = chunks[victim]
+        in_chunk = sorted((e[3], e[0]) for e in index.entries if e[2] == victim)
+        assert 2 <= len(in_chunk) <= 4  # ~3 scans per 1 MB chunk
         damaged = bytearray(data)
         damaged[start : start + 12] = b"\xff" * 12  # header length and the first field
-        bad = tmp_path / "damaged.bag"
-        bad.write_bytes(bytes(damaged))
-        caplog.clear()
-        stream = read_scans(bad)
-        out = [s.stamp for s in stream]
-        in_chunk = len(scans) - len(out)
-        assert 1 <= in_chunk <= 4  # ~3 scans per 1 MB chunk
-        assert out == [t for t in scans if t in set(out)] and set(out) < set(scans)
-        assert out[-1] == scans[-1] or victim == len(chunks) - 1
-        assert stream.stats.skipped == in_chunk and stream.stats.damaged_chunks == 1
-        assert f"bytes {start}-{end}" in caplog.text, caplog.text
-        assert f"{in_chunk} of {in_chunk} messages lost" in caplog.text
+        for wreck_first_message in (False, True):
+            if wreck_first_message:  # the end of its record header: its time and length
+                first = data_start + in_chunk[0][0]
+                damaged[first - 12 : first] = b"\xff" * 12
+            bad = tmp_path / "damaged.bag"
+            bad.write_bytes(bytes(damaged))
+            caplog.clear()
+            stream = read_scans(bad)
+            out = [s.stamp for s in stream]
+            lost = [round(t * 1e9) for t in scans if t not in set(out)]
+            assert lost == ([in_chunk[0][1]] if wreck_first_message else []), victim
+            assert stream.stats.skipped == len(lost) and stream.stats.damaged_chunks == 1
+            assert f"bytes {start}-" in caplog.text, caplog.text
+            assert f"{len(lost)} of {len(in_chunk)} messages lost" in caplog.text
 
 
 def _mcap_chunks(data: bytes) -> list[tuple[int, int]]:

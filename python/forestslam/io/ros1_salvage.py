@@ -35,6 +35,7 @@ U32 = struct.Struct("<I")
 _TOP_OPS = (OP_BAG_HEADER, OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION)
 COMPRESSIONS = (b"none", b"bz2", b"lz4")
 MAX_HEADER = 1 << 16  # bytes; real record headers are < 200 bytes (a connection's ~ 10 kB)
+MAX_CHUNK_HEADER = 128  # bytes; a chunk header (compression, op, size) is ~ 41
 _OP_FIELD = b"\x04\x00\x00\x00op="  # the `op` field of every record header
 _MAX_BEFORE_OP = 128  # header bytes before it (rosbag C++ sorts the fields by name)
 
@@ -199,6 +200,32 @@ def _index_entries(header: dict[str, bytes], data: bytes) -> list[tuple[int, int
     return [(conn, sec * 10**9 + nsec) for sec, nsec, _offset in times]
 
 
+def _index_run(buf, pos: int) -> list[tuple[int, int, int]]:
+    """(conn, time_ns, offset) of the messages the index-data records from `pos` on list."""
+    out = []
+    while _is_anchor(buf, pos) and (rec := _record_at(buf, pos))[0]["op"][0] == OP_INDEX:
+        header, data_start, _, rec_end = rec
+        conn = _u32(header, "conn")
+        times = struct.iter_unpack("<III", buf[data_start:rec_end])
+        out += [(conn, sec * 10**9 + nsec, offset) for sec, nsec, offset in times]
+        pos = rec_end
+    return out
+
+
+def _message_at(buf, data_start: int, conn: int, time_ns: int, offset: int):
+    """(data offset from data_start, data length) of the message record at data_start +
+    offset when it is the one listed (its connection and time), else None."""
+    rec = _record_at(buf, data_start + offset)
+    if rec is None or rec[0]["op"][0] != OP_MSG or rec[3] > len(buf):
+        return None
+    header, msg_start, dlen, _ = rec
+    stamp = header.get("time", b"")
+    if _u32(header, "conn") != conn or len(stamp) != 8:
+        return None
+    sec, nsec = struct.unpack("<II", stamp)
+    return (msg_start - data_start, dlen) if sec * 10**9 + nsec == time_ns else None
+
+
 def _connection(header: dict[str, bytes], data: bytes) -> SalvageConnection:
     conn = U32.unpack(header["conn"])[0]
     info = _parse_header(data)
@@ -309,7 +336,32 @@ class _Walk:
         self.index.losses.append(loss)
         self.owner = loss
         self.index.end_of_data = resume
+        self._rescue(loss)
         return resume
+
+    def _rescue(self, loss: Loss) -> None:
+        """Read the messages of an uncompressed chunk whose header was lost: the index data
+        after it gives each message's offset from the chunk's data start, which lies within a
+        header's length of the loss's start."""
+        listed = _index_run(self.blob, loss.end)
+        if not listed:
+            return
+        best: tuple[int, list] = (0, [])
+        for data_start in range(loss.start + 8, min(loss.start + 8 + MAX_CHUNK_HEADER, loss.end)):
+            found = [m for m in listed if _message_at(self.blob, data_start, *m) is not None]
+            if len(found) > len(best[1]):
+                best = (data_start, found)
+        data_start, found = best
+        if not found:
+            return
+        self.index.chunks.append(_Chunk(data_start, loss.end - data_start, "none", False))
+        chunk_id = len(self.index.chunks) - 1
+        for conn, time_ns, offset in found:
+            start, length = _message_at(self.blob, data_start, conn, time_ns, offset)
+            self.index.entries.append((time_ns, conn, chunk_id, start, length))
+        loss.found = [(conn, time_ns) for conn, time_ns, _ in found]
+        loss.what += f"; {len(found)} messages read from the chunk's data all the same"
+        loss.end = data_start if len(found) == len(listed) else loss.end
 
     def _tail(self, pos: int, reason: str) -> None:
         self.index.damaged, self.index.reason = True, reason
