@@ -66,12 +66,14 @@ def test_round_trip(tmp_path, suffix):
 def test_overwrite_missing_fields_and_empty_scan(tmp_path):
     path = tmp_path / "a.bag"
     write_scans(path, make_scans(2))
-    scans = [Scan(5.0, np.ones((3, 3))), Scan(5.1, np.zeros((0, 3)))]
+    scans = [Scan(5.0, np.ones((12, 3))), Scan(5.1, np.zeros((0, 3)))]
     write_scans(path, scans, topic="/points", frame_id="lidar")  # replaces the old bag
-    out = list(read_scans(path, topic="/points"))
-    assert len(out) == 2 and len(out[1]) == 0
-    np.testing.assert_array_equal(out[0].points, np.ones((3, 3)))
-    np.testing.assert_array_equal(out[0].ring, np.zeros(3))  # written as 0 in the layout
+    stream = read_scans(path, topic="/points")
+    out = list(stream)
+    assert len(out) == 1  # the empty scan is skipped and counted
+    assert stream.stats.degraded == {"empty_scans": 1, "ring_ignored": 1}
+    np.testing.assert_array_equal(out[0].points, np.ones((12, 3)))
+    assert out[0].ring is None  # written as 0 in the layout: no ring information
 
 
 def test_bad_suffix(tmp_path):

@@ -157,7 +157,7 @@ def test_npy_structured_and_kitti_bin(tmp_path):
     np.testing.assert_array_equal(scan.points, table[:, :3])
     np.testing.assert_array_equal(scan.intensity, table[:, 3])
     (tmp_path / "odd.bin").write_bytes(b"\0" * 10)
-    with pytest.raises(InputError, match="multiple of 4"):
+    with pytest.raises(InputError, match="multiple of 16"):
         read_cloud(tmp_path / "odd.bin")
 
 
@@ -182,7 +182,7 @@ def test_folder_stamps_from_names_in_time_order(tmp_path, cloud):
     assert [s.stamp for s in scans] == pytest.approx([1600000000.1, 1600000000.2, 1600000000.3])
     np.testing.assert_array_equal(scans[0].points, points[10:20])
     for k, ns in enumerate((1600000000200000000, 1600000000100000000)):
-        write_cloud(tmp_path / f"ns/{ns}.npy", points[k : k + 1])
+        write_cloud(tmp_path / f"ns/{ns}.npy", points[k : k + 10])
     assert [s.stamp for s in read_scans(tmp_path / "ns")] == pytest.approx(
         [1600000000.1, 1600000000.2]
     )
@@ -192,10 +192,10 @@ def test_folder_times_txt_and_rate(tmp_path, cloud):
     points, _ = cloud
     velo = tmp_path / "seq" / "velodyne"
     for k in range(12):  # natural order: 2 before 10
-        write_cloud(velo / f"{k}.bin", points[k : k + 5])
+        write_cloud(velo / f"{k}.bin", points[k : k + 10])
     scans = list(read_scans(velo, rate_hz=5.0))
     assert [s.stamp for s in scans] == pytest.approx(np.arange(12) / 5.0)
-    np.testing.assert_allclose(scans[10].points, points[10:15], atol=1e-4)
+    np.testing.assert_allclose(scans[10].points, points[10:20], atol=1e-4)
     np.savetxt(tmp_path / "seq" / "times.txt", np.arange(12) * 0.1 + 3.0)
     assert [s.stamp for s in read_scans(velo)] == pytest.approx(np.arange(12) * 0.1 + 3.0)
     source = open_source(velo)
@@ -207,11 +207,11 @@ def test_folder_times_txt_and_rate(tmp_path, cloud):
 def test_folder_skips_a_corrupt_file_and_counts_it(tmp_path, cloud):
     points, _ = cloud
     for k in range(3):
-        write_cloud(tmp_path / f"{k}.ply", points[k : k + 4])
+        write_cloud(tmp_path / f"{k}.ply", points[k : k + 10])
     (tmp_path / "1.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 9\n")
     stream = read_scans(tmp_path)
     assert len(list(stream)) == 2
-    assert stream.stats.skipped == 1 and "1.ply" in stream.stats.warnings[0]
+    assert stream.stats.skipped == 1 and any("1.ply" in w for w in stream.stats.warnings)
 
 
 def test_bad_inputs(tmp_path, cloud):

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
+import sys
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bags import sample_sequence
 
 from forestslam.errors import InputError
 from forestslam.io import read_kitti, read_tum, write_kitti, write_tum
@@ -46,7 +49,7 @@ def test_trajectory_errors(tmp_path, poses):
     with pytest.raises(InputError, match="not found"):
         read_tum(tmp_path / "none.tum")
     (tmp_path / "bad.tum").write_text("1 2 3\n")
-    with pytest.raises(InputError, match="8 columns"):
+    with pytest.raises(InputError, match="8 numbers"):
         read_tum(tmp_path / "bad.tum")
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     with pytest.raises(InputError, match="12 numbers"):
@@ -94,3 +97,40 @@ def test_stale_temporaries_are_removed(tmp_path):
     (tmp_path / "trees.csv").write_text("id\n")
     assert remove_stale_temporaries(tmp_path) == 1
     assert [p.name for p in tmp_path.iterdir()] == ["trees.csv"]
+
+
+@pytest.mark.parametrize(
+    ("line", "needle"),
+    [
+        ("0 0 0 0 0 0 0", "quaternion (qx qy qz qw) of norm 0"),
+        ("nan nan nan nan nan nan nan", "non-finite value"),
+        ("1 2 3 4 5 6 x", "not a number"),
+        ("1 2 3", "need 8 numbers, found 4"),
+    ],
+)
+def test_bad_line_of_a_simulated_trajectory_is_named(tmp_path, capsys, line, needle):
+    """A zero quaternion made `evaluate` print a scipy traceback; NaN or junk gave a loadtxt
+    message without the line."""
+    truth = sample_sequence("bag").parent / "truth"
+    lines = (truth / "trajectory.tum").read_text().splitlines()
+    stamp = lines[6].split()[0]
+    lines[6] = f"{stamp} {line}"
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "trajectory.tum").write_text("# comment\n" + "\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=f"trajectory.tum line 8: .*{re.escape(needle)}"):
+        read_tum(run / "trajectory.tum")
+
+    from forestslam.cli.main import main
+
+    capsys.readouterr()
+    old = sys.argv
+    sys.argv = ["forestslam", "evaluate", str(run), "--truth", str(truth)]
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+    finally:
+        sys.argv = old
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 1 and len(err) == 1, err
+    assert err[0].startswith("forestslam: error: ") and "line 8" in err[0] and needle in err[0]

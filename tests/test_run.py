@@ -117,7 +117,7 @@ def make_input(folder: Path, n: int, corrupt: int | None = None) -> tuple[Path, 
     scans = folder / "scans"
     scans.mkdir(parents=True)
     for i in range(n):
-        np.save(scans / f"{i:06d}.npy", np.ones((5, 3)) * i)
+        np.save(scans / f"{i:06d}.npy", np.ones((10, 3)) * (i + 1))  # >= 10 points, not at 0
     if corrupt is not None:
         (scans / f"{corrupt:06d}.npy").write_bytes(b"not a numpy file")
     truth = folder / "truth"
@@ -269,7 +269,7 @@ def test_corrupt_message_mid_bag_is_skipped_and_counted_in_the_report(tmp_path, 
             m = 50
             scan = Scan(
                 k / RATE,
-                np.full((m, 3), float(k)),
+                np.full((m, 3), float(k + 1)),  # not at the origin
                 np.zeros(m, np.float32),
                 np.zeros(m, np.uint16),
                 np.linspace(0.0, 0.09, m),

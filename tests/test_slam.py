@@ -279,3 +279,44 @@ def test_height_correction_removes_odometry_z_drift():
         cfg=SlamConfig(height_correction=False),
     )
     assert abs(off.trajectory()[1][-1, 2, 3]) > 0.7  # without it the drift stays
+
+
+def test_failed_update_is_rolled_back_and_the_next_keyframe_works():
+    """A keyframe whose odometry is absurd (1e20 m, what a per-point time of 1e20 s made of a
+    scan) fails the iSAM2 update. It left its variable half added: every later keyframe failed
+    with 'key "x11" already exists' (380 of 441 scans here). Now the update is undone."""
+    from forestslam.errors import ProcessingError
+
+    rng = np.random.default_rng(0)
+    truth = square_path(side=10.0)
+    trees = forest(rng)
+    slam = LandmarkSlam(SlamConfig())
+    failed = []
+    for i, p in enumerate(truth):
+        c, s = math.cos(p[2]), math.sin(p[2])
+        rel = trees - p[:2]
+        local = np.column_stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]])
+        T = matrix(p)
+        if i == 60:
+            T[:2, 3] = 1e20
+        try:
+            slam.add_scan(
+                i * 0.1,
+                T,
+                np.diag([1e-4, 1e-4, 1e-5]),
+                False,
+                local[np.linalg.norm(local, axis=1) < 12.0],
+            )
+        except ProcessingError:
+            failed.append(i)
+    assert failed == [60] and slam.failed_updates == 1
+    stamps, poses = slam.trajectory()
+    assert len(stamps) == len(truth) - 1 and 6.0 not in stamps.round(6)
+    keep = np.delete(np.arange(len(truth)), 60)
+    gt = np.stack([matrix(truth[i]) for i in keep])
+    assert np.abs(poses[:, :3, 3] - gt[:, :3, 3]).max() < 1e-6
+    lm, _ = slam.landmarks()
+    t = tree_errors(
+        lm, np.full(len(lm), np.nan), trees, np.full(len(trees), 0.3), truth[:, :2], max_dist_m=11
+    )
+    assert t["recall"] == 1.0 and t["precision"] == 1.0 and t["mean_position_error_m"] < 1e-6

@@ -44,6 +44,7 @@ def summarize(path: Path, topic: str | None, rate_hz: float) -> dict:
         "skipped": stats.skipped,
         "lost_bytes": stats.lost_bytes,
         "damaged_chunks": stats.damaged_chunks,
+        "degraded": dict(stats.degraded),
         "warnings": stats.warnings,
     }
 
@@ -73,8 +74,11 @@ def _text(info: dict) -> str:
     if info["skipped"] or info["lost_bytes"] or info["damaged_chunks"]:
         lines.append(
             f"damage:   {info['skipped']} messages skipped, {info['damaged_chunks']} damaged "
-            f"chunks, {info['lost_bytes']} bytes lost at the end (see warnings above)"
+            f"chunks, {info['lost_bytes']} bytes lost (see the warnings above)"
         )
+    if info["degraded"]:
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(info["degraded"].items()))
+        lines.append(f"checks:   {counts} (see the warnings above)")
     return "\n".join(lines)
 
 

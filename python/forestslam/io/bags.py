@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.io.checks import check_scan
 from forestslam.io.livox import CUSTOM_MSG_TYPES, decode_custom_msg, layout_matches
 from forestslam.io.pointcloud2 import (
     VELODYNE_FIELDS,
@@ -196,25 +197,26 @@ class _BagSource:
     def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
         if self._salvage is not None:
             yield from self._salvaged(self._salvage)
+            self.stats.skipped += self._salvage.index.lost_messages(self._ids(self._salvage))
             return
         done: list[int] = []  # stamps already yielded (to resume after a damaged chunk)
-        with self._open() as reader:
-            conns = [c for c in reader.connections if c.topic == self.topic]
-            try:
+        try:
+            with self._open() as reader:
+                conns = [c for c in reader.connections if c.topic == self.topic]
                 for _conn, time_ns, raw in reader.messages(connections=conns):
                     yield time_ns, raw
                     done.append(time_ns)
-                return
-            except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
-                failure = exc
+            return
+        except Exception as exc:  # noqa: BLE001 - rosbags/lz4/bz2 raise several types
+            failure = exc
         if not self._can_walk():
             self.stats.skipped += max(len(self) - len(done), 0)
-            line = f"{self.path}: damaged storage, stopped reading ({failure})"
+            line = f"{self.path}: damaged storage, stopped reading ({_why(failure)})"
             self.stats.warnings.append(line)
             log.warning(line)
             return
         # rosbags stops at a chunk it cannot read: walk the file and resume after that chunk.
-        yield from self._resume(self._walk(f"damaged chunk ({failure})"), done)
+        yield from self._resume(self._walk(f"damaged chunk ({_why(failure)})"), done)
 
     def _read_topics(self) -> list[TopicInfo]:
         raise NotImplementedError
@@ -244,27 +246,31 @@ class _BagSource:
             self.stats.messages += 1
             scan = self._decode(raw, time_ns)
             if scan is not None:
+                scan = check_scan(scan, self.stats, f"{self.path} {self.topic}")
+            if scan is not None:
                 self.stats.scans += 1
                 yield scan
 
     def _report(self, why: str, index) -> None:
-        """Log and record what a walk over a damaged bag (ros1/mcap salvage index) found."""
-        line = f"{self.path}: {why}; found {len(index.entries)} messages by walking the chunks"
-        for problem in index.bad_chunks:
-            line += f"; skipped a damaged chunk: {problem}"
-        self.stats.damaged_chunks = len(index.bad_chunks)
+        """Log and record what a walk over a damaged bag (ros1/mcap salvage index) found:
+        one line for the walk, one per byte range lost mid-file, one for a lost end."""
+        lines = [f"{self.path}: {why}; found {len(index.entries)} messages by walking the file"]
+        lines += [f"{self.path}: skipped {loss.describe()}" for loss in index.losses]
+        self.stats.damaged_chunks = len(index.losses)
+        self.stats.lost_bytes = index.lost_bytes
         if index.damaged:
-            self.stats.lost_bytes = index.lost_bytes
-            pct = 100.0 * index.lost_bytes / max(index.size, 1)
+            tail = index.tail_bytes
+            pct = 100.0 * tail / max(index.size, 1)
             sizes = [e[4] for e in index.entries]
-            lost_msgs = index.lost_bytes / np.mean(sizes) if sizes else 0.0
+            lost_msgs = tail / np.mean(sizes) if sizes else 0.0
             about = f", about {lost_msgs:.0f} messages" if lost_msgs >= 0.5 else ""
-            line += (
-                f"; {index.reason}: lost {index.lost_bytes} of {index.size} bytes "
-                f"({pct:.1f} %{about}) at the end"
+            lines.append(
+                f"{self.path}: {index.reason}: lost {tail} of {index.size} bytes "
+                f"({pct:.1f} %{about}) at the end, from byte {index.end_of_data}"
             )
-        self.stats.warnings.append(line)
-        log.warning(line)
+        for line in lines:
+            self.stats.warnings.append(line)
+            log.warning(line)
 
     def _resume(self, salvage, done: list[int]) -> Iterator[tuple[int, bytes]]:
         """Messages of a salvage walk not yet yielded (`done`: their stamps, with repeats);
@@ -309,8 +315,6 @@ class Ros1BagSource(_BagSource):
     format = "ros1"
 
     def _read_topics(self) -> list[TopicInfo]:
-        from rosbags.rosbag1 import ReaderError
-
         from forestslam.io import ros1_salvage
 
         self._store = _typestore(True)
@@ -321,13 +325,13 @@ class Ros1BagSource(_BagSource):
                     TopicInfo(name, info.msgtype or "?", info.msgcount)
                     for name, info in sorted(reader.topics.items())
                 ]
-        except (ReaderError, UnicodeDecodeError, ValueError, OSError) as exc:
-            if isinstance(exc, (PermissionError, IsADirectoryError)):
-                raise InputError(f"{self.path}: cannot open ({exc})") from None
+        except (PermissionError, IsADirectoryError) as exc:
+            raise InputError(f"{self.path}: cannot open ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - a damaged index makes rosbags raise anything
             with self.path.open("rb") as f:
                 if f.read(len(ros1_salvage.MAGIC)) != ros1_salvage.MAGIC:
-                    raise InputError(f"{self.path}: not a ROS1 bag ({exc})") from None
-            self._salvage = self._walk(f"bag index unusable ({exc})")
+                    raise InputError(f"{self.path}: not a ROS1 bag ({_why(exc)})") from None
+            self._salvage = self._walk(f"bag index unusable ({_why(exc)})")
         by_topic: dict[str, TopicInfo] = {}
         for conn in self._salvage.index.connections.values():
             msgtype = _normalize_msgtype(conn.msgtype)
@@ -343,9 +347,11 @@ class Ros1BagSource(_BagSource):
         self._report(why, index)
         return ros1_salvage.SalvageReader(self.path, index)
 
+    def _ids(self, salvage) -> set[int]:
+        return {c.conn for c in salvage.index.connections.values() if c.topic == self.topic}
+
     def _salvaged(self, salvage) -> Iterator[tuple[int, bytes]]:
-        conns = {c.conn for c in salvage.index.connections.values() if c.topic == self.topic}
-        for _conn, time_ns, raw in salvage.messages(conns):
+        for _conn, time_ns, raw in salvage.messages(self._ids(salvage)):
             yield time_ns, raw
 
     def _open(self):
@@ -355,6 +361,12 @@ class Ros1BagSource(_BagSource):
 
     def _deserialize(self, raw):
         return self._store.deserialize_ros1(raw, self.msgtype)
+
+
+def _why(exc: BaseException) -> str:
+    """An exception as text, with its type when its message says nothing (AssertionError)."""
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _normalize_msgtype(name: str) -> str:
@@ -387,8 +399,8 @@ class Ros2BagSource(_BagSource):
             raise
         except Exception as exc:  # noqa: BLE001 - rosbags raises several types here
             if not self._is_mcap_file():
-                raise InputError(f"{self.path}: cannot read ROS2 bag ({exc})") from None
-            self._salvage = self._walk(f"MCAP summary unusable ({exc})")
+                raise InputError(f"{self.path}: cannot read ROS2 bag ({_why(exc)})") from None
+            self._salvage = self._walk(f"MCAP summary unusable ({_why(exc)})")
         by_topic: dict[str, TopicInfo] = {}
         for ch in self._salvage.index.channels.values():
             t = by_topic.setdefault(ch.topic, TopicInfo(ch.topic, ch.msgtype, 0))
@@ -413,9 +425,11 @@ class Ros2BagSource(_BagSource):
         self._report(why, index)
         return mcap_salvage.McapSalvageReader(self.path, index)
 
+    def _ids(self, salvage) -> set[int]:
+        return {c.id for c in salvage.index.channels.values() if c.topic == self.topic}
+
     def _salvaged(self, salvage) -> Iterator[tuple[int, bytes]]:
-        ids = {c.id for c in salvage.index.channels.values() if c.topic == self.topic}
-        for _ch, time_ns, raw in salvage.messages(ids):
+        for _ch, time_ns, raw in salvage.messages(self._ids(salvage)):
             yield time_ns, raw
 
     def _deserialize(self, raw):

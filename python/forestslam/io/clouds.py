@@ -9,7 +9,9 @@ structured array with named fields).
 
 from __future__ import annotations
 
+import errno
 import logging
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -84,9 +86,13 @@ def _read_las(path: Path) -> tuple[np.ndarray, float | None]:
 
 
 def _read_bin(path: Path) -> tuple[np.ndarray, float | None]:
+    size = path.stat().st_size
+    if size % 16:  # np.fromfile would drop a partial float silently
+        raise InputError(
+            f"{path}: KITTI .bin size {size} bytes is not a multiple of 16 "
+            "(4 float32 per point: x, y, z, intensity); the file is cut or not KITTI"
+        )
     raw = np.fromfile(path, dtype="<f4")
-    if raw.size % 4:
-        raise InputError(f"{path}: KITTI .bin size is not a multiple of 4 float32 (x,y,z,i)")
     return _xyz_array(raw.reshape(-1, 4), ("x", "y", "z", "intensity")), None
 
 
@@ -112,6 +118,20 @@ CLOUD_READERS: dict[str, CloudReader] = {
 }
 
 
+def why_missing(path: Path) -> str:
+    """Why an input path does not exist: a symbolic link loop, a dangling link, or absent."""
+    try:
+        path.resolve(strict=True)
+    except RuntimeError:  # Python < 3.13 reports a loop so
+        return "symbolic link loop"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "symbolic link loop (or too many levels of links)"
+        if path.is_symlink():
+            return f"dangling symbolic link (to {os.readlink(path)}, which does not exist)"
+    return "file not found"
+
+
 def read_cloud_array(path: str | Path) -> tuple[np.ndarray, float | None]:
     """One cloud file -> (structured points, stamp or None)."""
     path = Path(path)
@@ -121,14 +141,16 @@ def read_cloud_array(path: str | Path) -> tuple[np.ndarray, float | None]:
             f"{path}: unsupported cloud file type {path.suffix!r} "
             f"(supported: {', '.join(sorted(CLOUD_READERS))})"
         )
+    if not path.exists():
+        raise InputError(f"{path}: {why_missing(path)}")
     if not path.is_file():
-        raise InputError(f"{path}: file not found")
+        raise InputError(f"{path}: not a file")
     try:
         return reader(path)
     except InputError:
         raise
-    except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - parsers of damaged files raise anything
+        raise InputError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
 
 
 def read_cloud(path: str | Path, stamp: float | None = None) -> Scan:

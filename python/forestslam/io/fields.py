@@ -29,6 +29,8 @@ TIME_NAMES = ("time", "t", "timestamp", "offset_time", "time_offset", "gps_time"
 TIME_NAMES += ("scalar_gpstime",)
 ABSOLUTE_TIME_S = 1e6  # larger per-point times are absolute (seconds since some epoch)
 ABSOLUTE_NS = 1e14  # larger float times are nanoseconds since the epoch
+MAX_EPOCH_S = 4.1e9  # year 2100: larger absolute times are garbage, kept as they are so that
+# forestslam.io.checks drops the field (they must not become the scan's stamp)
 
 
 def _find(names: tuple[str, ...], available: dict[str, str]) -> str | None:
@@ -43,12 +45,27 @@ def _first_component(values: np.ndarray) -> np.ndarray:
     return values.reshape(values.shape[0], -1)[:, 0] if values.ndim > 1 else values
 
 
+def _beyond_any_epoch(values: np.ndarray) -> bool:
+    """Whether per-point times exceed any absolute time, read as seconds or nanoseconds."""
+    if len(values) == 0:
+        return False
+    if values.dtype.kind in "iu":
+        return float(values.max()) * 1e-9 > MAX_EPOCH_S or float(values.min()) < -MAX_EPOCH_S
+    with np.errstate(invalid="ignore"):
+        biggest = float(np.nanmax(np.abs(values.astype(np.float64)), initial=0.0))
+    seconds = biggest * 1e-9 if biggest > ABSOLUTE_NS else biggest
+    return seconds > MAX_EPOCH_S
+
+
 def relative_time(values: np.ndarray, stamp: float | None) -> tuple[np.ndarray, float]:
     """Per-point times (any dtype, see module doc) -> (seconds relative to stamp, stamp).
 
     A stamp of None or 0 (drivers that leave header.stamp empty) is replaced by the earliest
     absolute point time."""
     unknown = stamp is None or stamp == 0.0
+    if _beyond_any_epoch(values):
+        with np.errstate(invalid="ignore", over="ignore"):
+            return values.astype(np.float64), 0.0 if stamp is None else stamp
     if values.dtype.kind in "iu":
         ns = values.astype(np.int64)
         if len(ns) and np.abs(ns).max() > ABSOLUTE_TIME_S * 1e9:

@@ -4,6 +4,12 @@
 records from the start: every complete chunk is read, the cut last chunk as far as its bytes go
 (uncompressed, lz4 and zstd streams all allow it), and
 every complete message is kept; what follows the last complete message is reported as lost.
+
+A damaged record mid-file (an unknown opcode, a length that does not lead to the next record)
+does not end the walk: it resumes at the next chunk listed by the summary's chunk indexes
+(when the end of the file survived) or found by its compression name (lz4, zstd). Each
+skipped byte range is reported with the messages it held, counted from the message-index
+records that follow it.
 """
 
 from __future__ import annotations
@@ -15,11 +21,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from forestslam.errors import InputError
+from forestslam.io.salvage import Loss, count_losses
 
 log = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_DATA_END = 0x07, 0x08, 0x0F
+_OPS = range(0x01, 0x10)  # every opcode the MCAP specification defines
+_COMPRESSED_CHUNK = (b"\x03\x00\x00\x00lz4", b"\x04\x00\x00\x00zstd")  # at chunk body + 28
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 
 
@@ -53,10 +63,20 @@ class McapIndex:
     reason: str = ""
     bad_chunks: list[str] = field(default_factory=list)
     schemas: dict[int, str] = field(default_factory=dict)
+    losses: list[Loss] = field(default_factory=list)  # byte ranges lost mid-file
+
+    @property
+    def tail_bytes(self) -> int:
+        """Bytes lost at the end (a cut or killed recording)."""
+        return max(self.size - self.end_of_data, 0) if self.damaged else 0
 
     @property
     def lost_bytes(self) -> int:
-        return max(self.size - self.end_of_data, 0) if self.damaged else 0
+        return self.tail_bytes + sum(loss.end - loss.start for loss in self.losses)
+
+    def lost_messages(self, channels: set[int]) -> int:
+        """Messages of these channels the damaged ranges mid-file are known to have held."""
+        return sum(n for loss in self.losses for c, n in (loss.lost or {}).items() if c in channels)
 
 
 def _string(buf, pos: int) -> tuple[str, int]:
@@ -137,7 +157,8 @@ def build_index(path: Path) -> McapIndex:
         if f.read(len(MAGIC)) != MAGIC:
             raise InputError(f"{path}: not an MCAP file (no MCAP magic)")
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as blob:
-            index = _walk(blob)
+            index = _Walk(blob).run()
+    count_losses(index.losses)
     index.entries = [e for e in index.entries if e[1] in index.channels]
     index.entries.sort(key=lambda e: e[0])
     for e in index.entries:
@@ -147,50 +168,179 @@ def build_index(path: Path) -> McapIndex:
     return index
 
 
-def _walk(blob) -> McapIndex:
-    index = McapIndex(size=len(blob), end_of_data=len(MAGIC))
+def _record(buf, pos: int) -> tuple[int, int, int] | None:
+    """(opcode, body start, body end) of a complete record with a defined opcode at `pos`."""
+    if pos < 0 or pos + 9 > len(buf) or buf[pos] not in _OPS:
+        return None
+    body = pos + 9
+    end = body + _U64.unpack_from(buf, pos + 1)[0]
+    return (buf[pos], body, end) if end <= len(buf) else None
+
+
+def _chunk_layout(buf, pos: int) -> tuple[str, int, int] | None:
+    """(compression, records start, records end = chunk end) of a sound chunk at `pos`: its
+    two length fields (the record's and the records') agree, or the records' one leads to a
+    sound record (the record's length is damaged). None otherwise."""
+    if pos < 0 or pos + 9 + 40 > len(buf) or buf[pos] != OP_CHUNK:
+        return None
     try:
-        for op, body, end in _records(blob, len(MAGIC)):
-            cut = end > len(blob)
-            if op == OP_FOOTER and not cut:  # a complete file: only the closing magic follows
-                index.end_of_data = len(blob)
+        compression, at = _string(buf, pos + 9 + 28)
+        (size,) = _U64.unpack_from(buf, at)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        return None
+    if compression not in ("", "lz4", "zstd"):
+        return None
+    end = at + 8 + size
+    if end == pos + 9 + _U64.unpack_from(buf, pos + 1)[0] and end <= len(buf):
+        return compression, at + 8, end
+    sound_next = end == len(buf) - len(MAGIC) or _record(buf, end) is not None
+    return (compression, at + 8, end) if end < len(buf) and sound_next else None
+
+
+def _summary_offsets(buf) -> list[int]:
+    """Offsets of the chunks and message-index records the summary's chunk indexes list
+    (empty when the end of the file is damaged or missing)."""
+    footer = len(buf) - len(MAGIC) - 9 - 20
+    if footer < len(MAGIC) or buf[footer] != OP_FOOTER or buf[len(buf) - len(MAGIC) :] != MAGIC:
+        return []
+    (start,) = _U64.unpack_from(buf, footer + 9)
+    offsets, pos = [], start
+    while len(MAGIC) <= pos < footer and (rec := _record(buf, pos)) is not None:
+        op, body, end = rec
+        if op == OP_CHUNK_INDEX and end - body >= 36:
+            offsets.append(_U64.unpack_from(buf, body + 16)[0])
+            (n,) = _U32.unpack_from(buf, body + 32)
+            for at in range(body + 36, min(body + 36 + n, end) - 9, 10):
+                offsets.append(_U64.unpack_from(buf, at + 2)[0])
+        pos = end
+    return sorted(offsets)
+
+
+class _Walk:
+    """One pass over the records, resuming after damage at the next known chunk."""
+
+    def __init__(self, blob) -> None:
+        self.blob, self.index = blob, McapIndex(size=len(blob), end_of_data=len(MAGIC))
+        self.listed = _summary_offsets(blob)
+        self.owner: Loss | None = None  # what the message-index records that follow describe
+
+    def _next_anchor(self, start: int) -> int | None:
+        """The first sound chunk or message index at or after `start` the summary lists, or
+        the first sound compressed chunk (found by its compression name)."""
+        blob, found = self.blob, []
+        for p in self.listed:
+            rec = _record(blob, p) if p >= start else None
+            if rec and (rec[0] == OP_MESSAGE_INDEX or _chunk_layout(blob, p)):
+                found.append(p)
                 break
-            if op == OP_CHUNK:
-                header = struct.unpack_from("<QQQI", blob, body)
-                compression, pos = _string(blob, body + 28)
-                (size,) = _U64.unpack_from(blob, pos)
-                data_start = pos + 8
-                partial = cut or data_start + size > len(blob)
-                present = min(data_start + size, len(blob)) - data_start
-                index.chunks.append(_Chunk(data_start, present, compression, partial))
-                chunk_id = len(index.chunks) - 1
-                try:
-                    raw = decompress(blob[data_start : data_start + present], compression, partial)
-                    used, problem = _inner(index, chunk_id, raw)
-                    if not problem and not partial and used < len(raw):
-                        problem = f"records end at byte {used} of {header[2]}"
-                except Exception as exc:  # noqa: BLE001 - lz4/zstd raise several types
-                    raw, used, problem = b"", 0, f"chunk does not decompress ({exc})"
-                if partial:
-                    share = used / len(raw) if raw else 0.0
-                    index.end_of_data = data_start + int(present * share)
-                    index.damaged, index.reason = True, "the last chunk is incomplete"
-                    break
-                if problem:
-                    index.bad_chunks.append(f"chunk at byte {body - 9}: {problem}")
-            elif not cut:
-                _one(index, -1, blob, op, body, end)
-            if cut:
-                index.damaged, index.reason = True, "a record runs past the end of the file"
+        for name in _COMPRESSED_CHUNK:
+            hit = blob.find(name, start + 9 + 28)
+            while hit >= 0 and _chunk_layout(blob, hit - 9 - 28) is None:
+                hit = blob.find(name, hit + 1)
+            if hit >= 0:
+                found.append(hit - 9 - 28)
+        return min(found, default=None)
+
+    def run(self) -> McapIndex:
+        pos, size = len(MAGIC), len(self.blob)
+        while pos < size:
+            if size - pos == len(MAGIC) and self.blob[pos:] == MAGIC:
+                self.index.end_of_data = size
                 break
-            index.end_of_data = end
-        else:
-            if index.end_of_data < len(blob):
-                index.damaged, index.reason = True, "the file ends inside a record header"
-    except (ValueError, struct.error, UnicodeDecodeError) as exc:
-        index.damaged = True
-        index.reason = f"unreadable record after byte {index.end_of_data} ({exc})"
-    return index
+            rec = _record(self.blob, pos)
+            layout = _chunk_layout(self.blob, pos)
+            if layout is None and (rec is None or rec[0] == OP_CHUNK):
+                pos = self._skip(pos)
+                continue
+            try:
+                if layout is not None:
+                    end = self._chunk(pos, layout)
+                elif rec[0] == OP_MESSAGE_INDEX:
+                    end = self._message_index(rec[1], rec[2])
+                else:
+                    _one(self.index, -1, self.blob, *rec)
+                    self.owner, end = None, rec[2]
+            except (ValueError, struct.error, UnicodeDecodeError):
+                pos = self._skip(pos)
+                continue
+            self.index.end_of_data = pos = end
+        return self.index
+
+    def _skip(self, pos: int) -> int:
+        """Resume after an unreadable record at `pos`; returns where (the end when none)."""
+        resume = self._next_anchor(pos + 1)
+        if resume is None:
+            self._cut(pos)
+            return len(self.blob)
+        loss = Loss(pos, resume, "unreadable record")
+        self.index.losses.append(loss)
+        self.owner = loss
+        self.index.end_of_data = resume
+        return resume
+
+    def _cut(self, pos: int) -> None:
+        """The file ends inside the record at `pos` (a killed writer), or past damage there."""
+        blob, index = self.blob, self.index
+        index.end_of_data, index.damaged = pos, True
+        index.reason = f"unreadable record at byte {pos}"
+        if pos + 9 > len(blob):
+            index.reason = "the file ends inside a record header"
+        elif blob[pos] == OP_CHUNK:
+            self._cut_chunk(pos)
+        elif blob[pos] in _OPS:
+            index.reason = "a record runs past the end of the file"
+
+    def _cut_chunk(self, pos: int) -> None:
+        """Read the chunk at `pos` as far as its bytes go (a writer killed mid-chunk)."""
+        blob, index = self.blob, self.index
+        try:
+            compression, at = _string(blob, pos + 9 + 28)
+            (size,) = _U64.unpack_from(blob, at)
+        except (ValueError, struct.error, UnicodeDecodeError):
+            return
+        data_start = at + 8
+        present = max(min(data_start + size, len(blob)) - data_start, 0)
+        index.chunks.append(_Chunk(data_start, present, compression, True))
+        try:
+            raw = decompress(blob[data_start : data_start + present], compression, True)
+            used, _ = _inner(index, len(index.chunks) - 1, raw)
+        except Exception:  # noqa: BLE001 - lz4/zstd raise several types
+            raw, used = b"", 0
+        share = used / len(raw) if raw else 0.0
+        index.end_of_data = data_start + int(present * share)
+        index.reason = "the last chunk is incomplete"
+
+    def _chunk(self, pos: int, layout: tuple[str, int, int]) -> int:
+        """Index one sound chunk; returns its end."""
+        compression, data_start, data_end = layout
+        end = data_end
+        self.index.chunks.append(_Chunk(data_start, data_end - data_start, compression, False))
+        before = len(self.index.entries)
+        try:
+            raw = decompress(self.blob[data_start:data_end], compression, False)
+            used, problem = _inner(self.index, len(self.index.chunks) - 1, raw)
+            if not problem and used < len(raw):
+                problem = f"records end at byte {used} of {len(raw)}"
+        except Exception as exc:  # noqa: BLE001 - lz4/zstd raise several types
+            problem = f"chunk does not decompress ({exc})"
+        loss = Loss(pos, end, f"damaged chunk ({problem})")
+        loss.found = [(e[1], e[0]) for e in self.index.entries[before:]]
+        self.owner = loss
+        if problem:
+            self.index.bad_chunks.append(f"chunk at byte {pos}: {problem}")
+            self.index.losses.append(loss)
+        return end
+
+    def _message_index(self, body: int, end: int) -> int:
+        """Note the messages a message-index record lists for the chunk before; its end."""
+        if self.owner is None or end - body < 6:
+            return end
+        (cid,) = _U16.unpack_from(self.blob, body)
+        (n,) = _U32.unpack_from(self.blob, body + 2)
+        if body + 6 + n <= end and n % 16 == 0:
+            times = struct.iter_unpack("<QQ", self.blob[body + 6 : body + 6 + n])
+            self.owner.listed += [(cid, t) for t, _offset in times]
+        return end
 
 
 class McapSalvageReader:

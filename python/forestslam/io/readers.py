@@ -24,7 +24,8 @@ import numpy as np
 
 from forestslam.errors import InputError
 from forestslam.io.bags import BAG_SUFFIXES, Ros1BagSource, Ros2BagSource
-from forestslam.io.clouds import CLOUD_READERS, read_cloud_array
+from forestslam.io.checks import check_scan
+from forestslam.io.clouds import CLOUD_READERS, read_cloud_array, why_missing
 from forestslam.io.fields import scan_from_structured
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, ScanSource, TopicInfo
@@ -133,8 +134,10 @@ class CloudFilesSource:
                 self.stats.warnings.append(f"{exc}: skipped")
                 log.warning("%s: skipped", exc)
                 continue
-            self.stats.scans += 1
-            yield scan
+            scan = check_scan(scan, self.stats, str(self.path))
+            if scan is not None:
+                self.stats.scans += 1
+                yield scan
 
 
 # The explicit registry: format name -> (does it handle this path?, how to open it).
@@ -173,7 +176,7 @@ def open_source(
     factory byte, cut at velodyne_decoder's default azimuth)."""
     path = Path(path)
     if not path.exists():
-        raise InputError(f"{path}: file not found")
+        raise InputError(f"{path}: {why_missing(path)}")
     for _name, (handles, factory) in READERS.items():
         if handles(path):
             source = factory(path, topic, rate_hz, packets or PacketConfig())

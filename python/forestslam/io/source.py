@@ -22,9 +22,12 @@ class ReadStats:
     """Counters a reader keeps while yielding scans; the pipeline runner reports them.
 
     messages: messages (or files) read on the chosen topic; scans: scans yielded;
-    skipped: corrupt messages/files skipped (each one logged); lost_bytes: bytes at the end of
-    a damaged bag that could not be read (truncated recording); damaged_chunks: ROS1 chunks
-    skipped mid-bag; warnings: one line per problem.
+    skipped: corrupt or lost messages/files (each one logged); lost_bytes: bytes of a damaged
+    bag that could not be read (mid-file and at the end; where: `warnings`); damaged_chunks:
+    damaged chunks or records skipped mid-file (each a byte range in `warnings`); degraded:
+    scans per kind of problem found in decoded scans (see forestslam.io.checks: empty_scans
+    skipped, time_ignored, ring_ignored, implausible_range);
+    warnings: one line per problem (per kind for `degraded`).
     """
 
     messages: int = 0
@@ -32,6 +35,7 @@ class ReadStats:
     skipped: int = 0
     lost_bytes: int = 0
     damaged_chunks: int = 0
+    degraded: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -41,6 +45,7 @@ class ReadStats:
             "skipped": self.skipped,
             "lost_bytes": self.lost_bytes,
             "damaged_chunks": self.damaged_chunks,
+            "degraded": dict(self.degraded),
             "warnings": list(self.warnings),
         }
 

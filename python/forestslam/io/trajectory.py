@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,21 +29,50 @@ def write_tum(path: str | Path, stamps: np.ndarray, poses: np.ndarray) -> None:
     atomic_write_text(path, "".join(line + "\n" for line in lines))
 
 
-def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a TUM file -> stamps (N,), poses (N,4,4). Comment lines (#) are skipped."""
-    path = Path(path)
+def _rows(path: Path, columns: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """The finite numbers of a text pose file, (N, columns), and each row's line number (N,).
+    Blank lines and # comments are skipped; any other bad line is an InputError naming it."""
     if not path.is_file():
-        raise InputError(f"{path}: trajectory file not found")
+        raise InputError(f"{path}: {kind} file not found")
     try:
-        with warnings.catch_warnings():  # an empty file is an empty trajectory
-            warnings.simplefilter("ignore", UserWarning)
-            data = np.loadtxt(path, comments="#", ndmin=2)
-    except ValueError as exc:
-        raise InputError(f"{path}: not a TUM trajectory ({exc})") from None
-    if data.size == 0:
+        text = path.read_text(encoding="utf-8")
+    except (UnicodeDecodeError, OSError) as exc:
+        raise InputError(f"{path}: not a {kind} text file ({exc})") from None
+    rows, numbers = [], []
+    for n, line in enumerate(text.splitlines(), start=1):
+        fields = line.split("#", 1)[0].split()
+        if not fields:
+            continue
+        if len(fields) != columns:
+            raise InputError(
+                f"{path} line {n}: {kind} lines need {columns} numbers, found {len(fields)}"
+            )
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            raise InputError(f"{path} line {n}: not a number in {line.strip()[:80]!r}") from None
+        if not np.isfinite(values).all():
+            raise InputError(f"{path} line {n}: non-finite value in {line.strip()[:80]!r}")
+        rows.append(values)
+        numbers.append(n)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, columns), np.asarray(numbers)
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM file -> stamps (N,), poses (N,4,4). Comment lines (#) are skipped; a line
+    that is not 8 finite numbers, or a quaternion of (almost) zero norm, is an InputError
+    naming the line."""
+    path = Path(path)
+    data, lines = _rows(path, 8, "TUM trajectory")
+    if len(data) == 0:
         return np.zeros(0), np.zeros((0, 4, 4))
-    if data.shape[1] != 8:
-        raise InputError(f"{path}: TUM lines need 8 columns, found {data.shape[1]}")
+    norm = np.linalg.norm(data[:, 4:8], axis=1)
+    bad = np.flatnonzero(norm < 1e-6)
+    if len(bad):
+        raise InputError(
+            f"{path} line {lines[bad[0]]}: quaternion (qx qy qz qw) of norm "
+            f"{norm[bad[0]]:.3g} is no rotation ({len(bad)} such lines)"
+        )
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     poses[:, :3, :3] = Rotation.from_quat(data[:, 4:8]).as_matrix()
     poses[:, :3, 3] = data[:, 1:4]
@@ -59,19 +87,9 @@ def write_kitti(path: str | Path, poses: np.ndarray) -> None:
 
 
 def read_kitti(path: str | Path) -> np.ndarray:
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: pose file not found")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            data = np.loadtxt(path, ndmin=2)
-    except ValueError as exc:
-        raise InputError(f"{path}: not a KITTI pose file ({exc})") from None
-    if data.size == 0:
-        return np.zeros((0, 4, 4))
-    if data.shape[1] != 12:
-        raise InputError(f"{path}: KITTI pose lines need 12 numbers, found {data.shape[1]}")
+    """Read KITTI poses -> (N,4,4); a line that is not 12 finite numbers is an InputError
+    naming the line."""
+    data, _ = _rows(Path(path), 12, "KITTI pose")
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     poses[:, :3, :4] = data.reshape(-1, 3, 4)
     return poses

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.io.checks import check_scan
 from forestslam.io.scan import Scan
 from forestslam.io.source import ReadStats, TopicInfo
 
@@ -228,13 +229,15 @@ class PcapSource:
             scan = stream.push(stamp, payload)
             if scan is not None:
                 k += 1
-                if k > start:
-                    yield self._count_scan(scan)
+                if k > start and (scan := self._count_scan(scan)) is not None:
+                    yield scan
         scan = stream.finish()
-        if scan is not None and k + 1 > start:
-            yield self._count_scan(scan)
+        if scan is not None and k + 1 > start and (scan := self._count_scan(scan)) is not None:
+            yield scan
 
-    def _count_scan(self, scan: Scan) -> Scan:
+    def _count_scan(self, scan: Scan) -> Scan | None:
+        """The revolution as forestslam.io.checks lets it through (None: no usable points)."""
         self.stats.messages += 1
-        self.stats.scans += 1
+        scan = check_scan(scan, self.stats, str(self.path))
+        self.stats.scans += scan is not None
         return scan

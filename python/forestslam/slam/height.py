@@ -54,10 +54,14 @@ class HeightGraph:
         self._step_sigma.append(self.step_sigma_m + self.sigma_per_m * abs(d))
         return len(self._step_sigma) - 1
 
-    def truncate(self, n_keyframes: int) -> None:
-        """Forget keyframes from index n_keyframes on (a keyframe the caller had to drop)."""
+    def truncate(self, n_keyframes: int, n_observations: int | None = None) -> None:
+        """Forget keyframes from index n_keyframes on (a keyframe the caller had to drop), and
+        the observations from index n_observations on when given."""
         n = max(0, int(n_keyframes))
         del self._step_sigma[n:]
+        if n_observations is not None:
+            m = max(0, int(n_observations))
+            del self._kf[m:], self._lm[m:], self._z[m:]
         keep = [i for i, k in enumerate(self._kf) if k < n]
         if len(keep) != len(self._kf):
             self._kf = [self._kf[i] for i in keep]

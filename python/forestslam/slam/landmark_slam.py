@@ -16,6 +16,7 @@ graph (`forestslam.slam.height`), applied to `trajectory()` and given by `landma
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from dataclasses import dataclass, field
@@ -99,7 +100,13 @@ class LandmarkSlam:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
         params.relinearizeSkip = self.cfg.relinearize_skip
+        self._isam_params = params
         self.isam = gtsam.ISAM2(params)
+        # What iSAM2 holds after the last successful update: a failed update leaves iSAM2 with
+        # its new variables half added, so it is rebuilt from these (see _rebuild_isam).
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._estimate = gtsam.Values()
+        self.failed_updates = 0  # keyframes whose update failed and was rolled back
         # per scan
         self._stamps: list[float] = []
         self._odom: list[np.ndarray] = []  # (4,4)
@@ -189,6 +196,7 @@ class LandmarkSlam:
         """Place recognition found trees mapped twice: each pair (older, newer) of landmark
         indices is tied by a robust zero-difference factor, which closes the loop; the newer
         copy becomes an alias of the older in the tree table."""
+        before = self._snapshot()
         graph = gtsam.NonlinearFactorGraph()
         noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma_m))
         for old, new in np.asarray(pairs, dtype=np.int64).reshape(-1, 2):
@@ -196,10 +204,10 @@ class LandmarkSlam:
                 gtsam.BetweenFactorPoint2(L(int(old)), L(int(new)), gtsam.Point2(0, 0), noise)
             )
             self._lm_alias[new] = old
-        self.isam.update(graph, gtsam.Values())
+        self._update(graph, gtsam.Values(), before, "tying trees")
         for _ in range(self.cfg.extra_updates_on_loop):
             self.isam.update()
-        est = self.isam.calculateEstimate()
+        est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
         self.loop_closures += 1
@@ -220,6 +228,7 @@ class LandmarkSlam:
         (M,) and position sigmas (M,): each gets a robust position prior; `matches` {landmark:
         prior index} makes an existing tree that prior tree (counts summed, DBH fused), the
         others become new landmarks. Returns the landmark index of every prior tree."""
+        before = self._snapshot()
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         ids = np.full(len(xy), -1, dtype=np.int64)
         for lm, j in matches.items():
@@ -252,8 +261,8 @@ class LandmarkSlam:
         self._lm_last_kf = np.append(self._lm_last_kf, np.full(len(new), -1, dtype=np.int64))
         self._lm_first_kf = np.append(self._lm_first_kf, np.full(len(new), -1, dtype=np.int64))
         self._lm_alias = np.append(self._lm_alias, np.full(len(new), -1, dtype=np.int64))
-        self.isam.update(graph, values)
-        est = self.isam.calculateEstimate()
+        self._update(graph, values, before, "adding prior trees")
+        est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
         return ids
@@ -299,17 +308,16 @@ class LandmarkSlam:
         ids = np.full(len(stems_xy), -1, dtype=np.int64)
 
         if first or self._is_keyframe(stamp, o2):
+            before = self._snapshot()
             try:
                 kf = self._add_keyframe(
                     o2, stems_xy[idx], stems_dbh[idx], stems_z[idx], ids, idx, first
                 )
             except ProcessingError:  # forget this scan so the trajectory stays consistent
-                n_kf = self.n_keyframes
+                self._restore(before)
                 del self._stamps[-1], self._odom[-1]
-                del self._kf_scan[len(self._kf_est) :], self._kf_odom2[len(self._kf_est) :]
-                if self.height is not None:
-                    self.height.truncate(len(self._kf_est))
-                log.debug("keyframe %d dropped", n_kf)
+                self.failed_updates += 1
+                log.debug("keyframe %d dropped", self.n_keyframes)
                 raise
             self._scan_kf.append(kf)
             pose = self._kf_est[kf]
@@ -526,11 +534,13 @@ class LandmarkSlam:
         try:
             self.isam.update(graph, values)
         except RuntimeError as exc:  # gtsam's IndeterminateLinearSystemException and kin
+            self._rebuild_isam()
             raise ProcessingError(f"pose graph update failed at keyframe {kf}: {exc}") from exc
+        self._graph.push_back(graph)
         big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
         for _ in range(cfg.extra_updates_on_loop if big else 0):
             self.isam.update()
-        est = self.isam.calculateEstimate()
+        est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         if self.n_landmarks:
             self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
@@ -541,6 +551,44 @@ class LandmarkSlam:
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
         return kf
+
+    def _snapshot(self) -> dict:
+        """What adding a keyframe changes before its iSAM2 update (to undo a failed one)."""
+        return {
+            "lm": {k: v.copy() for k, v in vars(self).items() if k.startswith("_lm_")},
+            "tentative": copy.deepcopy(self._tentative),
+            "counts": (self.loop_closures, self.n_landmark_factors),
+            "keyframes": self.n_keyframes,
+            "height_obs": None if self.height is None else self.height.n_observations,
+        }
+
+    def _restore(self, before: dict) -> None:
+        for name, value in before["lm"].items():
+            setattr(self, name, value)
+        self._tentative = before["tentative"]
+        self.loop_closures, self.n_landmark_factors = before["counts"]
+        n = before["keyframes"]
+        del self._kf_scan[n:], self._kf_odom2[n:]
+        if self.height is not None:
+            self.height.truncate(n, before["height_obs"])
+
+    def _update(self, graph, values, before: dict, what: str) -> None:
+        """iSAM2 update with new factors and values; a failure restores `before`, rebuilds
+        iSAM2 as it was, counts it and raises ProcessingError."""
+        try:
+            self.isam.update(graph, values)
+        except RuntimeError as exc:  # gtsam's IndeterminateLinearSystemException and kin
+            self._restore(before)
+            self._rebuild_isam()
+            self.failed_updates += 1
+            raise ProcessingError(f"pose graph update failed {what}: {exc}") from exc
+        self._graph.push_back(graph)
+
+    def _rebuild_isam(self) -> None:
+        """A fresh iSAM2 holding the factors and estimate of the last successful update."""
+        self.isam = gtsam.ISAM2(self._isam_params)
+        if self._graph.size():
+            self.isam.update(self._graph, self._estimate)
 
     def _update_tentatives(
         self, kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, unmatched, graph, values
