@@ -45,6 +45,7 @@ class RunSummary:
     keyframes: int = 0
     trees: int = 0
     loop_closures: int = 0
+    failed_updates: int = 0  # back-end updates that failed and were rolled back
     icp_accepted: int = 0
     icp_rejected: int = 0
     wall_s: float = 0.0
@@ -64,6 +65,7 @@ class RunSummary:
             "keyframes": self.keyframes,
             "trees": self.trees,
             "loop_closures": self.loop_closures,
+            "failed_updates": self.failed_updates,
             "icp_accepted": self.icp_accepted,
             "icp_rejected": self.icp_rejected,
             "wall_s": round(self.wall_s, 3),
@@ -594,6 +596,7 @@ def _finish(pipe: Pipeline, summary: RunSummary) -> None:
     if pipe.slam is not None:
         summary.keyframes = pipe.slam.n_keyframes
         summary.loop_closures = pipe.slam.loop_closures
+        summary.failed_updates = pipe.slam.failed_updates
     if pipe.refiner is not None:
         summary.icp_accepted = pipe.refiner.accepted
         summary.icp_rejected = pipe.refiner.rejected

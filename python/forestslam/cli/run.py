@@ -90,5 +90,9 @@ def register(app: typer.Typer) -> None:
             f"{s.trees} trees, {s.keyframes} keyframes, {s.degraded_scans} degraded, "
             f"{s.failed_scans} failed, {rs.get('skipped', 0)} corrupt messages skipped"
             + (f", {rs['lost_bytes']} bytes lost" if rs.get("lost_bytes") else "")
+            + "".join(
+                f", {n} {kind.replace('_', ' ')}" for kind, n in rs.get("degraded", {}).items()
+            )
+            + (f", {s.loop_closures} loop closures" if s.loop_closures else "")
             + f" -> {s.out_dir}"
         )
