@@ -2,6 +2,7 @@
 and world building, for the named scenarios.
 
     python bench/sim_bench.py [--scenarios sample vlp16-loop ...] [--scans 60] [--rounds 3]
+        [--style a|b]
 
 CPU time (time.process_time) is printed beside wall time: on a shared machine wall time also
 counts other processes. The scans are synthesized `--rounds` times: the best round is the
@@ -25,9 +26,9 @@ from forestslam.sim.simulate import scan_at
 from forestslam.sim.world import build_world
 
 
-def bench(name: str, n_scans: int, rounds: int) -> dict:
+def bench(name: str, n_scans: int, rounds: int, style: str | None = None) -> dict:
     try:
-        cfg = load_scenario(name)
+        cfg = load_scenario(name) if style is None else load_scenario(name, style=style)
         c0, w0 = time.process_time(), time.perf_counter()
         world = build_world(cfg)
     except InputError as exc:
@@ -87,9 +88,10 @@ def main() -> None:
     )
     ap.add_argument("--scans", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--style", default=None, help="World style a | b (default: the scenario's).")
     args = ap.parse_args()
     load_before = os.getloadavg()[0]
-    rows = [r for r in (bench(s, args.scans, args.rounds) for s in args.scenarios) if r]
+    rows = [r for r in (bench(s, args.scans, args.rounds, args.style) for s in args.scenarios) if r]
     header = (
         f"{'scenario':<12} {'sensor':<7} {'rays':>7} {'pts/scan':>8} {'scans/s cpu':>11} "
         f"{'(median)':>8} {'ms/scan':>8} {'(wall)':>7} {'cast ms':>8} {'bag ms':>7} "

@@ -45,7 +45,7 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
     const IndexVector group = IndexVector::Zero(360);
     const Eigen::VectorXd t0 = Eigen::VectorXd::Zero(1);
     ScanModel model;
-    model.intensity_noise_rel = 0.0;
+    model.materials[kGround] = {40.0, 0.0, 0.0, 1.0};  // no noise: 40 |cos incidence|
     const PoseRows pose = poseRow(Eigen::Matrix3d::Identity(), {0, 0, 1.5});
     const SynthesizedScan s = synthesizeScan(scene, t0, pose, t0, group, dirs, model, 1, 2);
     ASSERT_EQ(s.ray.size(), 360);
@@ -55,10 +55,10 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
         EXPECT_NEAR(s.points.row(k).norm(), range, 1e-9);
         EXPECT_NEAR(s.points(k, 2), -1.5, 1e-9);
         EXPECT_EQ(s.surface[k], kGround);
-        // Ground model: 100 * 0.25 * (0.5 + 0.5 cos), cos against the vertical = sin(20 deg).
+        // Lambertian ground inside the reference range, cos against the vertical = sin(20 deg),
+        // rounded as a driver reports it.
         const double cos_inc = std::sin(20.0 * M_PI / 180.0);
-        const float expected = static_cast<float>(100.0 * 0.25 * (0.5 + 0.5 * cos_inc));
-        EXPECT_NEAR(s.intensity[k], expected, 1e-4);
+        EXPECT_EQ(s.intensity[k], std::round(40.0 * cos_inc));
     }
 }
 

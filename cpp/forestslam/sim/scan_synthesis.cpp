@@ -37,14 +37,35 @@ constexpr uint64_t kDropoutSalt = 11, kRangeSalt = 13, kIntensitySalt = 17;
 
 }  // namespace
 
-float returnIntensity(uint8_t surface, double cos_incidence, double noise, const ScanModel &model) {
-    const bool leafy = surface == kFoliage || surface == kShrub;
-    // Foliage returns above the threshold about 95 % of the time (1.55 +- 0.21 relative).
-    const double base = leafy ? 1.55 : (surface == kGround ? 0.25 : 0.35);
-    const double incidence = leafy ? 1.0 : 0.5 + 0.5 * cos_incidence;
-    const double spread = leafy ? 0.21 : model.intensity_noise_rel;
-    const double value = model.intensity_scale * base * incidence * (1.0 + spread * noise);
-    return static_cast<float>(std::clamp(value, 0.0, 255.0));
+float returnIntensity(uint8_t surface, int32_t object, double range, double cos_incidence,
+                      double noise, const ScanModel &model) {
+    const Material &m = model.materials[surface < kSurfaceCount ? surface : uint8_t{0}];
+    // One reflectance draw per object (a tree's bark, a crown clump, a log), fixed for the run.
+    const double object_noise = normalQuantile(hashUniform(
+        mixKey(model.object_seed, surface), static_cast<uint64_t>(static_cast<int64_t>(object))));
+    double value = m.median * std::exp(m.sigma_object * object_noise + m.sigma_return * noise);
+    value *= std::pow(std::clamp(cos_incidence, 0.0, 1.0), m.incidence_exponent);
+    if (model.range_exponent != 0.0 && range > model.reference_range_m)
+        value *= std::pow(model.reference_range_m / range, model.range_exponent);
+    if (range < model.near_range_m) value *= 0.5 + 0.5 * range / model.near_range_m;
+    return static_cast<float>(std::round(std::clamp(value, 0.0, 255.0)));
+}
+
+double dropoutProbability(double range, double cos_incidence, const ScanModel &model) {
+    double keep = 1.0 - model.dropout_rate;
+    if (cos_incidence < model.grazing_cos) keep *= std::max(cos_incidence, 0.0) / model.grazing_cos;
+    const double far = model.far_fraction * model.range_max_m;
+    if (range > far && model.range_max_m > far)
+        keep *= std::max(0.0, (model.range_max_m - range) / (model.range_max_m - far));
+    return 1.0 - keep;
+}
+
+double rangeSigma(double range, double cos_incidence, const ScanModel &model) {
+    if (model.beam_divergence_rad <= 0.0) return model.range_noise_m;
+    // tan(incidence) capped at 10 (84 deg): beyond, the return is mostly lost anyway.
+    const double c = std::clamp(cos_incidence, 0.0995, 1.0);
+    const double footprint = 0.5 * model.beam_divergence_rad * range * std::sqrt(1.0 - c * c) / c;
+    return std::sqrt(model.range_noise_m * model.range_noise_m + footprint * footprint);
 }
 
 SynthesizedScan synthesizeScan(const ForestScene &scene,
@@ -168,15 +189,15 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
             const Eigen::Index i = rows[q];
             if (!hit.valid() || hit.t < model.range_min_m) continue;
             const uint64_t key = mixKey(noise_seed, static_cast<uint64_t>(i));
-            if (model.dropout_rate > 0.0 && hashUniform(key, kDropoutSalt) < model.dropout_rate)
-                continue;
-            const double range =
-                hit.t + model.range_noise_m * normalQuantile(hashUniform(key, kRangeSalt));
+            const double p_lost = dropoutProbability(hit.t, hit.cos_incidence, model);
+            if (p_lost > 0.0 && hashUniform(key, kDropoutSalt) < p_lost) continue;
+            const double range = hit.t + rangeSigma(hit.t, hit.cos_incidence, model) *
+                                             normalQuantile(hashUniform(key, kRangeSalt));
             const double intensity_noise = normalQuantile(hashUniform(key, kIntensitySalt));
             out.ray[kept] = i;
             out.points.row(kept) = (range / norms[q]) * local_dirs.row(i);
-            out.intensity[kept] =
-                returnIntensity(hit.surface, hit.cos_incidence, intensity_noise, model);
+            out.intensity[kept] = returnIntensity(hit.surface, hit.object, hit.t, hit.cos_incidence,
+                                                  intensity_noise, model);
             out.surface[kept] = hit.surface;
             out.object[kept] = hit.object;
             ++kept;
