@@ -18,7 +18,7 @@ constexpr double kWeightSum = 2.9;
 constexpr int kLowLobes[3] = {2, 3, 5};
 constexpr double kLobeWeights[3] = {1.0, 0.7, 0.5};
 constexpr double kLobeWeightSum = 2.2;
-constexpr double kLobeDrift = 0.25;  // rad/m
+constexpr double kLobeDrift = kOmega / 4;  // rad/m; exp(i omega h) is then its 4th power
 
 struct Complex {
     double re, im;
@@ -29,11 +29,11 @@ inline Complex mul(Complex a, Complex b) {
 
 // Bark noise n at (azimuth, h) with z = exp(i azimuth), and its partial derivatives: the same
 // sum as Stem::barkNoise, by products of unit complex numbers.
-inline void barkNoiseAt(const StemCoeffs &c, Complex z, double h, double &n, double &dn_daz,
+// w1 = exp(i omega h).
+inline void barkNoiseAt(const StemCoeffs &c, Complex z, Complex w1, double &n, double &dn_daz,
                         double &dn_dh) {
     const Complex z2 = mul(z, z), z4 = mul(z2, z2), z8 = mul(z4, z4), z16 = mul(z8, z8);
     const Complex z9 = mul(z8, z), z17 = mul(z16, z), z31 = mul(mul(z17, z8), mul(z4, z2));
-    const Complex w1{std::cos(kOmega * h), std::sin(kOmega * h)};
     const Complex w2 = mul(w1, w1), w4 = mul(w2, w2), w8 = mul(w4, w4);
     const Complex zs[4] = {z4, z9, z17, z31}, ws[4] = {w1, w2, w4, w8};
     n = dn_daz = dn_dh = 0.0;
@@ -151,10 +151,13 @@ SectionRadius sectionRadius(const Stem &stem, const StemCoeffs &c, double cos_ph
     }
     // Low lobes 2, 3, 5 drifting by kLobeDrift rad/m.
     double m = 0.0, dm_dphi = 0.0, dm_dh = 0.0;
+    // One cos/sin for the lobes' drift and the bark's vertical phase (its 4th power).
+    Complex drift{1.0, 0.0};
+    if (stem.irregularity > 0.0 || stem.bark_amp > 0.0)
+        drift = {std::cos(kLobeDrift * h), std::sin(kLobeDrift * h)};
     if (stem.irregularity > 0.0) {
         const Complex z{cos_phi, sin_phi};
         const Complex z2 = mul(z, z), z3 = mul(z2, z), z5 = mul(z3, z2);
-        const Complex drift{std::cos(kLobeDrift * h), std::sin(kLobeDrift * h)};
         const Complex zs[3] = {z2, z3, z5};
         for (int k = 0; k < 3; ++k) {
             const Complex e = mul(mul(zs[k], drift), Complex{c.lobe_re[k], c.lobe_im[k]});
@@ -181,7 +184,8 @@ SectionRadius sectionRadius(const Stem &stem, const StemCoeffs &c, double cos_ph
     if (stem.bark_amp > 0.0) {
         const double eps = stem.bark_amp / (0.5 * (stem.semi_a + stem.semi_b));
         double n, dn_daz, dn_dh;
-        barkNoiseAt(c, Complex{cos_phi, sin_phi}, h, n, dn_daz, dn_dh);
+        const Complex d2 = mul(drift, drift);
+        barkNoiseAt(c, Complex{cos_phi, sin_phi}, mul(d2, d2), n, dn_daz, dn_dh);
         out.r += eps * n;
         out.dr_dphi += eps * dn_daz;
         out.dr_dh += eps * dn_dh;
