@@ -138,3 +138,46 @@ TEST(ScanSynthesis, BadInputsThrow) {
                   .ray.size(),
               0);
 }
+
+TEST(ScanSynthesis, MaterialIntensityFallsOffWithRangeAndIncidenceOnly) {
+    ScanModel model;
+    model.materials[kStem] = {40.0, 0.0, 0.0, 1.0};
+    model.materials[kFoliage] = {120.0, 0.0, 0.0, 0.0};
+    model.reference_range_m = 5.0;
+    model.range_exponent = 0.5;
+    model.near_range_m = 2.0;
+    // Reference range, normal incidence: the median; oblique: times cos; foliage ignores it.
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 0.0, model), 40.0f);
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 0.5, 0.0, model), 20.0f);
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 4.0, 0.5, 0.0, model), 120.0f);
+    // Beyond the reference: (5 / r)^0.5; near range: down to half at 0 m.
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 20.0, 1.0, 0.0, model), 60.0f);
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 1.0, 1.0, 0.0, model), 90.0f);
+    // Log-normal noise per return and per object, deterministic, clamped to 255.
+    model.materials[kStem] = {40.0, 0.5, 0.3, 1.0};
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 1.0, model),
+              returnIntensity(kStem, 3, 4.0, 1.0, 1.0, model));
+    double sum = 0.0;
+    for (int obj = 0; obj < 4000; ++obj)
+        sum += std::log(std::max(1.0f, returnIntensity(kStem, obj, 4.0, 1.0, 0.0, model)) / 40.0);
+    EXPECT_NEAR(sum / 4000, 0.0, 0.02);  // median 40 over objects
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 20.0, model), 255.0f);
+}
+
+TEST(ScanSynthesis, DropoutAndRangeNoiseGrowAtGrazingIncidenceAndLongRange) {
+    ScanModel model;
+    model.range_max_m = 100.0;
+    model.range_noise_m = 0.02;
+    model.beam_divergence_rad = 0.002;
+    model.dropout_rate = 0.1;
+    model.grazing_cos = 0.2;
+    model.far_fraction = 0.8;
+    EXPECT_NEAR(dropoutProbability(10.0, 1.0, model), 0.1, 1e-12);
+    EXPECT_NEAR(dropoutProbability(10.0, 0.1, model), 1.0 - 0.9 * 0.5, 1e-12);
+    EXPECT_NEAR(dropoutProbability(90.0, 1.0, model), 1.0 - 0.9 * 0.5, 1e-12);
+    EXPECT_NEAR(dropoutProbability(100.0, 1.0, model), 1.0, 1e-12);
+    EXPECT_NEAR(rangeSigma(10.0, 1.0, model), 0.02, 1e-12);
+    const double c = 0.5, fp = 0.5 * 0.002 * 10.0 * std::sqrt(1 - c * c) / c;
+    EXPECT_NEAR(rangeSigma(10.0, c, model), std::hypot(0.02, fp), 1e-12);
+    EXPECT_NEAR(rangeSigma(10.0, 0.0, model), rangeSigma(10.0, 0.0995, model), 1e-12);
+}
