@@ -4,7 +4,7 @@ can be printed on two worlds that do not share the project's modelling choices.
 A style fills in the keys a scenario leaves unset; keys the scenario (or an override) sets win.
 `a` is the configuration defaults: round-ish stems (ellipse, 2-3-5 lobes, 3 mm bark, light flare
 and sweep), crowns of a few large clumps, bright foliage with a weak range fall-off. `b`: polygonal
-stems (7-14 sides) with up to 10 % ovality, 5 mm bark, strong root flare reaching breast height on
+stems (9-16 sides) with up to 10 % ovality, 5 mm bark, strong root flare reaching breast height on
 some trees, more lean and sweep; many small dense leaf clumps lower on the stem; darker, more
 spread intensities with a steeper range fall-off.
 """
@@ -23,7 +23,7 @@ STYLES: dict[str, dict[str, Any]] = {
             "max_ellipticity": 0.053,
             "bark_amplitude_m": 0.005,
             "irregularity": [0.01, 0.05],
-            "polygon_sides": [7, 14],
+            "polygon_sides": [9, 16],
             "flare": [0.2, 0.6],
             "flare_height_m": [0.8, 2.0],
             "max_sweep_m_per_m": 0.012,
