@@ -150,7 +150,8 @@ def main() -> None:
             print(
                 f"  {t['scenario']:<12} style {t['style']} {t['trees']:>4d} trees: "
                 f"area-equivalent {t['area-equivalent - tape mm']:+.2f} mm, circle fit "
-                f"{t['circle fit - tape mm']:+.2f} mm (5th pct {t['circle fit - tape mm (p5)']:+.2f})"
+                f"{t['circle fit - tape mm']:+.2f} mm "
+                f"(5th pct {t['circle fit - tape mm (p5)']:+.2f})"
             )
     for r in rows:
         if r["sensor"] == "vlp16":
