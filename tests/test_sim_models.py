@@ -170,3 +170,31 @@ def test_same_seed_same_bytes_for_both_styles():
         s1, s2 = scan_at(build_world(cfg), 3), scan_at(build_world(cfg), 3)
         assert s1.points.tobytes() == s2.points.tobytes()
         assert s1.intensity.tobytes() == s2.intensity.tobytes()
+
+
+def test_cli_style_option(tmp_path):
+    """`forestslam simulate --style b` writes a style-b world (recorded in scenario.yaml); an
+    unknown style is one readable line and a non-zero exit."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(root / "python"), env.get("PYTHONPATH", "")])
+
+    def cli(*args):
+        cmd = [sys.executable, "-m", "forestslam.cli.main", "simulate", *args]
+        return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=120)
+
+    out = tmp_path / "b"
+    done = cli("--scenario", "sample", "--style", "b", "--max-scans", "1", "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    doc = yaml.safe_load((out / "truth" / "scenario.yaml").read_text())
+    assert doc["style"] == "b" and doc["stems"]["polygon_sides"] == [9, 16]
+    assert doc["derived"]["sim_model_version"] >= 2
+    bad = cli("--scenario", "sample", "--style", "z", "--out", str(tmp_path / "z"))
+    assert bad.returncode != 0 and "style" in bad.stderr and "Traceback" not in bad.stderr
