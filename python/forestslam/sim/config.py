@@ -116,8 +116,8 @@ class IntensityConfig:
     ground: MaterialConfig = field(default_factory=lambda: MaterialConfig(30.0, 0.3, 0.1, 0.5))
     bark: MaterialConfig = field(default_factory=lambda: MaterialConfig(45.0, 0.3, 0.15, 1.0))
     branch: MaterialConfig = field(default_factory=lambda: MaterialConfig(55.0, 0.3, 0.15, 1.0))
-    foliage: MaterialConfig = field(default_factory=lambda: MaterialConfig(140.0, 0.3, 0.1, 0.0))
-    shrub: MaterialConfig = field(default_factory=lambda: MaterialConfig(120.0, 0.3, 0.1, 0.0))
+    foliage: MaterialConfig = field(default_factory=lambda: MaterialConfig(170.0, 0.3, 0.1, 0.0))
+    shrub: MaterialConfig = field(default_factory=lambda: MaterialConfig(150.0, 0.3, 0.1, 0.0))
     deadwood: MaterialConfig = field(default_factory=lambda: MaterialConfig(70.0, 0.3, 0.15, 1.0))
     reference_range_m: float = 5.0
     range_exponent: float = 0.25  # intensity * (reference / range)^exponent beyond the reference
