@@ -198,3 +198,15 @@ def test_cli_style_option(tmp_path):
     assert doc["derived"]["sim_model_version"] >= 2
     bad = cli("--scenario", "sample", "--style", "z", "--out", str(tmp_path / "z"))
     assert bad.returncode != 0 and "style" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_truth_scenario_of_the_previous_simulator_still_loads(tmp_path):
+    """truth/scenario.yaml written by simulator model 1 (with sensor.intensity_noise_rel) still
+    loads: evaluating old simulated runs rebuilds their terrain from it."""
+    import yaml
+
+    doc = {"name": "old", "seed": 7, "sensor": {"profile": "vlp16", "intensity_noise_rel": 0.12}}
+    f = tmp_path / "scenario.yaml"
+    f.write_text(yaml.safe_dump(doc))
+    cfg = load_scenario(f)
+    assert cfg.sensor.profile == "vlp16" and cfg.seed == 7

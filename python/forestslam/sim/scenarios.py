@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,8 @@ from forestslam.config_utils import from_dict, to_dict
 from forestslam.errors import InputError
 from forestslam.sim.config import SimConfig
 from forestslam.sim.styles import apply_style
+
+log = logging.getLogger(__name__)
 
 # Short override names (CLI flags, simulate(**overrides)) -> dotted config keys.
 ALIASES = {
@@ -64,6 +67,10 @@ def scenario_dict(name_or_path: str | Path | None) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise InputError(f"{source}: a scenario must be a mapping")
     data.pop("derived", None)  # written by the simulator into truth/scenario.yaml
+    sensor = data.get("sensor")
+    if isinstance(sensor, dict) and sensor.pop("intensity_noise_rel", None) is not None:
+        # truth/scenario.yaml of simulator model 1: intensity is per material now (intensity.*).
+        log.warning("%s: sensor.intensity_noise_rel is obsolete and ignored", source)
     return data
 
 
