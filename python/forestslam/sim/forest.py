@@ -115,6 +115,68 @@ def _check(cfg: StemConfig) -> None:
         raise InputError(f"stems: need {'; '.join(bad)}")
 
 
+def _draw_trees(stand: Stand, cfg: StemConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Per-tree random shape parameters (this order of draws fixes the worlds of a seed)."""
+    n = len(stand)
+    d: dict[str, np.ndarray] = {}
+    d["e"] = rng.uniform(0.0, cfg.max_ellipticity, n)
+    d["angle"] = rng.uniform(0.0, np.pi, n)
+    lean = np.radians(cfg.max_lean_deg) * np.sqrt(rng.uniform(0.0, 1.0, n))
+    lean_dir = rng.uniform(0.0, 2 * np.pi, n)
+    d["shear"] = np.tan(lean)[:, None] * np.column_stack([np.cos(lean_dir), np.sin(lean_dir)])
+    bow_dir = rng.uniform(0.0, 2 * np.pi, n)
+    bow = rng.uniform(0.0, cfg.max_sweep_m_per_m, n) * stand.height
+    d["bow"] = bow[:, None] * np.column_stack([np.cos(bow_dir), np.sin(bow_dir)])
+    lo, hi = cfg.polygon_sides
+    d["sides"] = rng.integers(lo, hi + 1, n) if hi > 0 else np.zeros(n, dtype=np.int64)
+    d["poly_angle"] = rng.uniform(0.0, 2 * np.pi, n)
+    d["irregularity"] = rng.uniform(*cfg.irregularity, n)
+    d["flare"] = rng.uniform(*cfg.flare, n)
+    d["flare_h"] = rng.uniform(*cfg.flare_height_m, n)
+    return d
+
+
+def _segment_rows(axes: TreeAxes, d: dict, cfg: StemConfig, r: np.ndarray):
+    """Stem rows (K,18), each tree a chain of straight segments along its bowed axis, and the
+    row of each tree holding breast height."""
+    height = axes.height
+    # Relative taper: radius loses taper/2 per metre, but keeps >= 25 % of r_bh at the top.
+    k = (cfg.taper_m_per_m / 2.0) / r
+    k = np.minimum(k, 0.75 / np.maximum(height - BREAST_HEIGHT_M, 0.5))
+    bark = np.minimum(cfg.bark_amplitude_m, 0.1 * r)
+    e = d["e"]
+    rows, bh_row = [], np.zeros(len(height), dtype=np.int64)
+    for i in range(len(height)):
+        h = _knots(cfg, height[i])
+        off = axes.offset(np.full(len(h), i), h)
+        slope = np.diff(off, axis=0) / np.diff(h)[:, None]
+        vbase = axes.base[i, :2] + off[:-1] - slope * h[:-1, None]
+        bh_row[i] = len(rows) + int(np.searchsorted(h, BREAST_HEIGHT_M) - 1)
+        shape = [bark[i], i, d["flare"][i], d["flare_h"][i], d["sides"][i]]
+        shape += [d["poly_angle"][i], d["irregularity"][i]]
+        for j in range(len(h) - 1):
+            rows.append(
+                [*vbase[j], axes.base[i, 2], *slope[j], r[i] * (1 + e[i]), r[i] * (1 - e[i])]
+                + [d["angle"][i], k[i], h[j], h[j + 1]]
+                + shape
+            )
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 18), bh_row
+
+
+def _match_girth(stems: np.ndarray, bh_row: np.ndarray, target: np.ndarray, seed: int):
+    """Scale each tree's semi-axes so that its tape DBH at 1.3 m is `target`; returns that DBH
+    as measured on the final sections."""
+    if len(bh_row) == 0:
+        return np.zeros(0)
+    at_bh = np.full(len(bh_row), BREAST_HEIGHT_M)
+    tree = stems[:, 12].astype(np.int64)
+    dbh = girth_dbh(section_points(stems[bh_row], seed, at_bh))
+    for _ in range(2):  # the bark does not scale with the semi-axes: twice is < 0.01 mm
+        stems[:, 5:7] *= (target / dbh)[tree, None]
+        dbh = girth_dbh(section_points(stems[bh_row], seed, at_bh))
+    return dbh
+
+
 def build_stems(stand: Stand, terrain: Terrain, cfg: StemConfig, rng: np.random.Generator, seed=0):
     """Stem segments (K,18), the truth table and the tree axes. The semi-axes are scaled so
     that the tape DBH of the actual section at 1.3 m equals the stand's DBH (to < 0.01 mm); the
@@ -122,53 +184,12 @@ def build_stems(stand: Stand, terrain: Terrain, cfg: StemConfig, rng: np.random.
     _check(cfg)
     n = len(stand)
     r = stand.dbh / 2.0
-    e = rng.uniform(0.0, cfg.max_ellipticity, n)
-    angle = rng.uniform(0.0, np.pi, n)
-    lean = np.radians(cfg.max_lean_deg) * np.sqrt(rng.uniform(0.0, 1.0, n))
-    lean_dir = rng.uniform(0.0, 2 * np.pi, n)
-    shear = np.tan(lean)[:, None] * np.column_stack([np.cos(lean_dir), np.sin(lean_dir)])
-    height = stand.height
-    bow_dir = rng.uniform(0.0, 2 * np.pi, n)
-    bow = (rng.uniform(0.0, cfg.max_sweep_m_per_m, n) * height)[:, None] * np.column_stack(
-        [np.cos(bow_dir), np.sin(bow_dir)]
-    )
-    lo, hi = cfg.polygon_sides
-    sides = rng.integers(lo, hi + 1, n) if hi > 0 else np.zeros(n, dtype=np.int64)
-    poly_angle = rng.uniform(0.0, 2 * np.pi, n)
-    irregularity = rng.uniform(*cfg.irregularity, n)
-    flare = rng.uniform(*cfg.flare, n)
-    flare_h = rng.uniform(*cfg.flare_height_m, n)
-    axes = TreeAxes(np.zeros((n, 3)), shear, bow, height.astype(float), r.copy())
-    idx = np.arange(n)
-    axes.base[:, :2] = stand.xy - axes.offset(idx, np.full(n, BREAST_HEIGHT_M))
+    d = _draw_trees(stand, cfg, rng)
+    axes = TreeAxes(np.zeros((n, 3)), d["shear"], d["bow"], stand.height.astype(float), r.copy())
+    axes.base[:, :2] = stand.xy - axes.offset(np.arange(n), np.full(n, BREAST_HEIGHT_M))
     axes.base[:, 2] = terrain.height_at(axes.base[:, :2])
-    # Relative taper: radius loses taper/2 per metre, but keeps >= 25 % of r_bh at the top.
-    k = (cfg.taper_m_per_m / 2.0) / r
-    k = np.minimum(k, 0.75 / np.maximum(height - BREAST_HEIGHT_M, 0.5))
-    bark = np.minimum(cfg.bark_amplitude_m, 0.1 * r)
-    rows, bh_row = [], np.zeros(n, dtype=np.int64)
-    for i in range(n):
-        h = _knots(cfg, height[i])
-        off = axes.offset(np.full(len(h), i), h)
-        slope = np.diff(off, axis=0) / np.diff(h)[:, None]
-        vbase = axes.base[i, :2] + off[:-1] - slope * h[:-1, None]
-        bh_row[i] = len(rows) + int(np.searchsorted(h, BREAST_HEIGHT_M) - 1)
-        for j in range(len(h) - 1):
-            rows.append(
-                [*vbase[j], axes.base[i, 2], *slope[j], r[i] * (1 + e[i]), r[i] * (1 - e[i])]
-                + [angle[i], k[i], h[j], h[j + 1], bark[i], i, flare[i], flare_h[i]]
-                + [sides[i], poly_angle[i], irregularity[i]]
-            )
-    stems = np.asarray(rows, dtype=np.float64).reshape(-1, 18)
-    if n:
-        at_bh = np.full(n, BREAST_HEIGHT_M)
-        tree = stems[:, 12].astype(np.int64)
-        dbh = girth_dbh(section_points(stems[bh_row], seed, at_bh))
-        for _ in range(2):  # the bark does not scale with the semi-axes: twice is < 0.01 mm
-            stems[:, 5:7] *= (stand.dbh / dbh)[tree, None]
-            dbh = girth_dbh(section_points(stems[bh_row], seed, at_bh))
-    else:
-        dbh = np.zeros(0)
+    stems, bh_row = _segment_rows(axes, d, cfg, r)
+    dbh = _match_girth(stems, bh_row, stand.dbh, seed)
     axes.radius_bh = dbh / 2.0
     trees = {
         "id": np.arange(n, dtype=np.int64),
@@ -176,7 +197,7 @@ def build_stems(stand: Stand, terrain: Terrain, cfg: StemConfig, rng: np.random.
         "y": stand.xy[:, 1].copy(),
         "z_ground": axes.base[:, 2].copy(),
         "dbh_m": dbh,
-        "height_m": height.copy(),
+        "height_m": stand.height.copy(),
     }
     return stems, trees, axes
 
