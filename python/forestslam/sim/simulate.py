@@ -24,8 +24,8 @@ log = logging.getLogger(__name__)
 FORMATS = {"bag": ".bag", "mcap": ".mcap"}
 # Version of the simulator's world and sensor models: caches of simulated sequences key on it.
 # 2: shaped stems (polygon, lobes, flare, sweep), girth truth DBH, material intensity, sensor
-# noise table, world styles.
-MODEL_VERSION = 2
+# noise table, world styles. 3: style a foliage and shrubs brighter (170, 150).
+MODEL_VERSION = 3
 
 
 def scan_at(world: World, k: int, labels: bool = False):
