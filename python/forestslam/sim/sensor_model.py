@@ -29,8 +29,9 @@ class SensorNoise:
     far_fraction: float
 
 
-# Data-sheet accuracies (VLP-16 +-3 cm, HDL-32E +-2 cm, OS1 +-1.5-5 cm, RS-M1 +-5 cm, phase TLS
-# about 2 mm) and beam divergences.
+# Standard deviations at normal incidence after the data sheets' accuracies (VLP-16 +-3 cm,
+# HDL-32E +-2 cm, OS1 +-1.5-5 cm, RS-M1 +-5 cm, phase TLS about 2 mm), vertical beam divergences
+# (mrad), base dropout rates, grazing cosines and far fractions.
 SENSOR_NOISE: dict[str, SensorNoise] = {
     "vlp16": SensorNoise(0.03, 1.5, 0.02, 0.1, 0.7),
     "hdl32": SensorNoise(0.02, 1.5, 0.02, 0.1, 0.7),
