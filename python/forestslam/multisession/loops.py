@@ -1,14 +1,14 @@
 """Loop closure and relocalization by place recognition, inside one run.
 
-Re-association under the odometry's prediction closes a loop only while the drift is smaller
-than its search radius. Past that, the SLAM maps the same trees a second time. Every
-`every_keyframes` keyframes, the trees first mapped in the recent view (within the last
-`window_keyframes` keyframes, near the machine: the candidates for second copies; trees the
-SLAM re-found are not asked again) are localized by the Delaunay-star localizer among the trees not
-seen for `min_age_keyframes` keyframes (and prior-map trees never seen): when its acceptance
-test holds and the place disagrees with the graph by more than `min_correction_m`, each matched
-pair (older copy, newer copy) is tied by a robust factor. A rejected query adds nothing, and a
-correction beyond `max_correction_m` (more than drift can explain) is refused.
+Re-association under the odometry's prediction re-finds trees only while the pose error is within
+its search radius: past that (a long excursion's drift, or a loss: a jump of the odometry, a gap
+in the recording) the SLAM maps the same trees a second time. The symptom is checked every
+`every_keyframes` keyframes: near the machine there are trees mapped earlier that the SLAM has
+not re-found lately, and trees it has just mapped. Then the newly mapped trees are localized by
+the Delaunay-star localizer among all trees mapped earlier (and prior-map trees); when its
+acceptance test holds and the place disagrees with the graph by more than `min_correction_m`,
+each matched pair (older copy, newer copy) is tied by a robust factor. A rejected query adds
+nothing, and a correction beyond `max_correction_m` is refused.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Annotated
 
 import numpy as np
 
-from forestslam.config_utils import NonNegativeInt, Positive, PositiveInt, Range
+from forestslam.config_utils import Positive, PositiveInt, Range
 
 log = logging.getLogger(__name__)
 
@@ -29,8 +29,7 @@ log = logging.getLogger(__name__)
 class PlaceRecognitionConfig:
     enabled: bool = True
     every_keyframes: PositiveInt = 5
-    window_keyframes: PositiveInt = 12
-    min_age_keyframes: NonNegativeInt = 40
+    window_keyframes: PositiveInt = 12  # "just mapped" / "re-found lately": within this many
     radius_m: Positive = 20.0
     min_query_trees: Annotated[int, Range(ge=3)] = 6
     min_correction_m: Positive = 0.3
@@ -47,7 +46,7 @@ class PlaceRecognition:
     def step(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
         """At a keyframe: query and, when a loop is verified, tie the trees. True on a closure."""
         c = self.cfg
-        if not c.enabled or keyframe % c.every_keyframes or keyframe < c.min_age_keyframes:
+        if not c.enabled or keyframe % c.every_keyframes or keyframe < c.window_keyframes:
             return False
         from forestslam.localization import build_map, localize
 
@@ -55,9 +54,11 @@ class PlaceRecognition:
         first, last = slam.landmark_keyframes()
         alive = slam.aliases() < 0
         near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
-        recent = alive & near & (first >= keyframe - c.window_keyframes)
-        old = alive & (last < keyframe - c.min_age_keyframes)  # includes never-seen (-1)
-        if recent.sum() < c.min_query_trees or old.sum() < 3:
+        lately = keyframe - c.window_keyframes
+        recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
+        old = alive & (first < lately)  # mapped earlier (prior-map trees never seen: -1)
+        lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
+        if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
             return False
         self.stats["queries"] += 1
         q_ids, m_ids = np.flatnonzero(recent), np.flatnonzero(old)
