@@ -7,7 +7,7 @@ import sys
 
 import typer
 
-from forestslam.cli import detect, evaluate, info, localize, run, simulate, tls_register
+from forestslam.cli import batch, detect, evaluate, info, localize, run, simulate, tls_register
 
 app = typer.Typer(
     name="forestslam",
@@ -17,7 +17,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-for command_module in (info, simulate, detect, run, evaluate, localize, tls_register):
+for command_module in (info, simulate, detect, run, evaluate, localize, tls_register, batch):
     command_module.register(app)
 
 
