@@ -27,15 +27,15 @@ def register(app: typer.Typer) -> None:
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress lines."),
     ) -> None:
         import logging
+        import os
         import sys
-
-        import distributed  # noqa: F401  (its import sets its loggers' levels: override after)
 
         from forestslam.batch import load_manifest, run_batch
         from forestslam.errors import ProcessingError
 
         if not logging.getLogger().isEnabledFor(logging.DEBUG):  # Dask's chatter only with -v
-            logging.getLogger("distributed").setLevel(logging.WARNING)
+            # read when distributed is imported, here and in the worker processes it starts
+            os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
         recordings = load_manifest(manifest)
         try:
             result = run_batch(
