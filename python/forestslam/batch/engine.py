@@ -164,6 +164,7 @@ def _row(future, rec: Recording) -> dict:
             "for memory)",
         )
     except Exception as exc:  # the task's own error after Dask's retry, or a cancelled task
+        log.debug("%s: its task raised", rec.name, exc_info=exc)  # the worker's traceback, -v
         return failed_row(rec.name, one_line(exc))
 
 
