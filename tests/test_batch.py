@@ -81,40 +81,53 @@ def test_local_cluster_three_recordings_and_a_corrupt_one(sequence, tmp_path):
     assert read_summary(out)["first"] == rows["first"]
 
 
-def test_resume_after_an_interruption(sequence, tmp_path):
-    """Ctrl-C while the second recording runs; the next call keeps the first, redoes the rest."""
-    bag = sequence / "sequence.bag"
-    path = manifest(
-        tmp_path,
+CLI = [sys.executable, "-c", "from forestslam.cli.main import main; main()", "batch"]
+
+
+def start_batch(path: Path, out: Path, interrupt: bool) -> subprocess.Popen:
+    """`forestslam batch` with one worker in its own session (so the test can kill all of it)."""
+    # Ctrl-C as a KeyboardInterrupt even where the test runs with SIGINT ignored (a background job)
+    prefix = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    cmd = [*CLI, str(path), "--out", str(out), "--workers", "1"]
+    if interrupt:
+        cmd[2] = prefix + cmd[2]
+    return subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def wait_until_started(proc: subprocess.Popen, run_dir: Path) -> None:
+    deadline = time.monotonic() + 120
+    while not (run_dir / "run.yaml").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.02)
+
+
+def three_recordings(folder: Path, bag: Path) -> Path:
+    return manifest(
+        folder,
         [
             f"name: one, input: {bag}, sensor: vlp16, max_scans: 10",
-            f"name: two, input: {bag}, sensor: vlp16, max_scans: 40",  # runs at Ctrl-C
+            f"name: two, input: {bag}, sensor: vlp16, max_scans: 40",
             f"name: three, input: {bag}, sensor: vlp16, max_scans: 10",
         ],
     )
-    out = tmp_path / "out"
-    # Ctrl-C as a KeyboardInterrupt even where the test runs with SIGINT ignored (a background job)
-    main = (
-        "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-        "from forestslam.cli.main import main; sys.argv[0] = 'forestslam'; main()"
-    )
-    cmd = [sys.executable, "-c", main, "batch", str(path), "--out", str(out), "--workers", "1"]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+
+
+def test_resume_after_an_interruption(sequence, tmp_path):
+    """The whole batch killed while the second recording runs (kill -9, power loss): the next
+    call keeps the first and redoes the second (left `status: running`) and the third."""
+    path, out = three_recordings(tmp_path, sequence / "sequence.bag"), tmp_path / "out"
+    proc = start_batch(path, out, interrupt=False)
     try:
-        deadline = time.monotonic() + 120
-        while not (out / "two" / "run.yaml").exists():  # `one` finished, `two` started
-            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 130
+        wait_until_started(proc, out / "two")  # one worker: `one` is finished
+        os.killpg(proc.pid, signal.SIGKILL)  # the client, its scheduler and its worker at once
     finally:
         if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
     assert (out / "one" / "batch.json").is_file()
     assert not (out / "two" / "batch.json").exists()
-    assert "status: complete" not in (out / "two" / "run.yaml").read_text()
-    assert not (out / "summary.csv").exists()  # the summary is written when the batch ends
+    assert "status: running" in (out / "two" / "run.yaml").read_text()
+    assert not (out / "three").exists() and not (out / "summary.csv").exists()
     kept = (out / "one" / "batch.json").stat().st_mtime_ns
 
     result = run_batch(load_manifest(path), out, workers=2, progress=False)
@@ -122,21 +135,32 @@ def test_resume_after_an_interruption(sequence, tmp_path):
     assert (out / "one" / "batch.json").stat().st_mtime_ns == kept
     rows = read_summary(out)
     assert [int(rows[n]["scans"]) for n in ("one", "two", "three")] == [10, 40, 10]
+    assert "status: complete" in (out / "two" / "run.yaml").read_text()
 
     forced = run_batch(load_manifest(path), out, workers=2, force=True, progress=False)
     assert forced.skipped == 0 and not forced.failed
     assert (out / "one" / "batch.json").stat().st_mtime_ns > kept
 
 
+def test_ctrl_c_stops_the_batch_with_status_130(sequence, tmp_path):
+    path, out = three_recordings(tmp_path, sequence / "sequence.bag"), tmp_path / "out"
+    proc = start_batch(path, out, interrupt=True)
+    try:
+        wait_until_started(proc, out / "two")
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert "forestslam: interrupted; the same command resumes the batch" in proc.stderr.read()
+    assert (out / "one" / "batch.json").is_file() and not (out / "summary.csv").exists()
+
+
 def test_cli_exit_code_and_error_line(tmp_path):
     path = manifest(tmp_path, ["name: a, input: a.bag, sensor: vlp16, colour: red"])
-    env = dict(os.environ)
     proc = subprocess.run(
-        [sys.executable, "-m", "forestslam.cli.main", "batch", str(path), "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
+        [*CLI, str(path), "--out", str(tmp_path)], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 1
     assert proc.stderr.strip().splitlines()[-1].startswith("forestslam: error: ")
