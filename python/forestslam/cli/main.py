@@ -14,7 +14,17 @@ import threading
 
 import typer
 
-from forestslam.cli import detect, evaluate, info, localize, merge, run, simulate, tls_register
+from forestslam.cli import (
+    batch,
+    detect,
+    evaluate,
+    info,
+    localize,
+    merge,
+    run,
+    simulate,
+    tls_register,
+)
 
 app = typer.Typer(
     name="forestslam",
@@ -24,7 +34,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-for command_module in (info, simulate, detect, run, evaluate, localize, tls_register, merge):
+COMMANDS = (info, simulate, detect, run, evaluate, localize, tls_register, merge, batch)
+for command_module in COMMANDS:
     command_module.register(app)
 
 _debug = False
