@@ -45,6 +45,7 @@ struct IcpConfig {
     // (rotations scaled by degeneracy_length_m so that they are compared as metres of arc).
     double degeneracy_threshold = 2e-3;
     double degeneracy_length_m = 10.0;
+    int normal_k = 10;  // PlaneTarget normals from this many nearest neighbours
 };
 
 // The residual of one correspondence and its Jacobian with respect to the left perturbation

@@ -1,4 +1,6 @@
-"""Odometry parameters. Lengths in metres, angles in degrees where the name says so."""
+"""Odometry parameters. Lengths in metres, angles in degrees where the name says so. The C++
+struct forestslam::odometry::OdometryConfig holds the same fields with the same defaults
+(tests/test_config_parity.py)."""
 
 from __future__ import annotations
 
@@ -41,5 +43,8 @@ class OdometryConfig:
     max_correction_deg: float = 15.0
     max_speed_mps: float = 5.0  # the velocity prior is clamped to these
     max_turn_rate_dps: float = 90.0
+    # A longer gap between scans (or a stamp jumping back) restarts the motion model: no
+    # prediction is multiplied by the gap; a warning names the gap and the scan.
+    max_stamp_gap_s: float = 1.0
     fpfh_max_points: int = 6000  # FPFH baseline: whole scan, voxelised, at most this many
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
