@@ -242,6 +242,14 @@ py::dict stemsDict(const pc::Detection &det) {
 }
 
 void defineMotionModel(py::module_ &m) {
+    m.def(
+        "twist_to_pose", [](const Vector6d &xi) { return od::twistToPose(xi).matrix(); },
+        py::arg("twist"),
+        "(4,4) pose of a twist (6,) = (translation, rotation vector); the translation as is.");
+    m.def(
+        "pose_to_twist", [](const Eigen::Matrix4d &T) { return od::poseToTwist(Pose3(T)); },
+        py::arg("T"),
+        "Twist (6,) = (translation, rotation vector) of a (4,4) pose; inverse of twist_to_pose.");
     py::class_<od::StampCheck>(m, "StampCheck",
                                "restarted: the velocity was forgotten (gap "
                                "above max_gap_s or time not advancing); gap_s.")
