@@ -72,6 +72,18 @@ TEST(MotionModel, JumpBackRestarts) {
     EXPECT_TRUE(m.beginScan(10.1).restarted);  // the same time again
 }
 
+TEST(MotionModel, UntrustedPosesAreNotKept) {
+    ConstantVelocityModel m;
+    m.update(0.0, Pose3::Identity());
+    m.update(0.1, planar(0.1, 0, 0));                           // 1 m/s
+    m.update(0.2, planar(5.0, 0, 0), false);                    // a doubtful registration
+    EXPECT_NEAR(m.predict(0.3).translation().x(), 0.3, 1e-12);  // from the trusted one
+    m.update(0.3, planar(0.3, 0, 0));
+    EXPECT_NEAR(m.twist()(0), 1.0, 1e-12);  // kept, not estimated across the doubtful pose
+    m.update(0.4, planar(0.35, 0, 0));
+    EXPECT_NEAR(m.twist()(0), 0.5, 1e-9);
+}
+
 TEST(MotionModel, DeskewNeedsOneTimePerPoint) {
     ConstantVelocityModel m;
     m.update(0.0, Pose3::Identity());

@@ -51,14 +51,19 @@ Points3 ConstantVelocityModel::deskew(const Eigen::Ref<const Points3> &points,
     return deskewPoints(points, times, twist_);
 }
 
-void ConstantVelocityModel::update(double t, const Pose3 &T_world_sensor) {
+void ConstantVelocityModel::update(double t, const Pose3 &T_world_sensor, bool trusted) {
+    if (!trusted) {
+        previous_trusted_ = false;
+        return;
+    }
     const double dt = t - t_;
-    if (initialised_ && !restarted_ && dt > 0.0)
+    if (initialised_ && !restarted_ && previous_trusted_ && dt > 0.0)
         twist_ = clamped(poseToTwist(T_.inverse() * T_world_sensor) / dt);
     T_ = T_world_sensor;
     t_ = t;
     initialised_ = true;
     restarted_ = false;
+    previous_trusted_ = true;
 }
 
 void ConstantVelocityModel::reset() { *this = ConstantVelocityModel(config_); }

@@ -40,7 +40,10 @@ class ConstantVelocityModel {
     Points3 deskew(const Eigen::Ref<const Points3> &points,
                    const Eigen::Ref<const Eigen::VectorXd> &times) const;
     // The registered pose at time t; the velocity from the previous pose unless just restarted.
-    void update(double t, const Pose3 &T_world_sensor);
+    // An untrusted pose (a registration the caller doubts) is not kept: predictions go on from
+    // the last trusted one, and the next trusted pose keeps the velocity rather than estimating
+    // it across the doubtful one.
+    void update(double t, const Pose3 &T_world_sensor, bool trusted = true);
     void reset();
 
     bool initialised() const { return initialised_; }
@@ -55,6 +58,7 @@ class ConstantVelocityModel {
     MotionModelConfig config_;
     bool initialised_ = false;
     bool restarted_ = false;
+    bool previous_trusted_ = true;
     Pose3 T_ = Pose3::Identity();
     double t_ = 0.0;
     Vector6d twist_ = Vector6d::Zero();

@@ -259,7 +259,7 @@ void defineMotionModel(py::module_ &m) {
         m, "ConstantVelocityModel",
         "Constant-velocity motion model: begin_scan(t) once per scan (restarts on a long gap or a "
         "jump back), predict(t) -> T_world_sensor (4,4), deskew(points (N,3), times (N,) s "
-        "relative to t), update(t, T_world_sensor) after registration.")
+        "relative to t), update(t, T_world_sensor, trusted=True) after registration.")
         .def(py::init<const od::MotionModelConfig &>(), py::arg("config") = od::MotionModelConfig())
         .def("begin_scan", &od::ConstantVelocityModel::beginScan, py::arg("t"))
         .def(
@@ -269,10 +269,12 @@ void defineMotionModel(py::module_ &m) {
         .def("deskew", &od::ConstantVelocityModel::deskew, py::arg("points"), py::arg("times"))
         .def(
             "update",
-            [](od::ConstantVelocityModel &mm, double t, const Eigen::Matrix4d &T) {
-                mm.update(t, Pose3(T));
+            [](od::ConstantVelocityModel &mm, double t, const Eigen::Matrix4d &T, bool trusted) {
+                mm.update(t, Pose3(T), trusted);
             },
-            py::arg("t"), py::arg("T_world_sensor"))
+            py::arg("t"), py::arg("T_world_sensor"), py::arg("trusted") = true,
+            "An untrusted pose is not kept (predictions from the last trusted one) and the next "
+            "trusted pose does not estimate the velocity across it.")
         .def("reset", &od::ConstantVelocityModel::reset)
         .def_property_readonly("initialised", &od::ConstantVelocityModel::initialised)
         .def_property_readonly("twist", &od::ConstantVelocityModel::twist,
