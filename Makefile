@@ -3,7 +3,7 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 VPY := $(VENV)/bin/python
-APT_PACKAGES := g++ make python3-dev python3-venv libpcl-dev libceres-dev libeigen3-dev libgtest-dev
+APT_PACKAGES := g++ make python3-dev python3-venv libpcl-dev libceres-dev libeigen3-dev libgtest-dev libyaml-cpp-dev
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 BUILD_DIR := build/py
 SOURCES := $(shell find cpp python -type f \( -name '*.cpp' -o -name '*.hpp' -o -name '*.py' \

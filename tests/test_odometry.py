@@ -112,8 +112,43 @@ def test_scans_without_stems_fall_back_to_degraded_icp():
     assert all(s.degraded for s in steps[1:])
     assert all(len(s.stems) == 0 for s in steps)
     assert all(np.isfinite(s.T_world_sensor).all() for s in steps)
-    with pytest.raises(InputError):
-        odo.step(Scan(0.7, np.zeros((0, 3))))  # stamp not increasing
+    again = odo.step(Scan(0.7, np.zeros((0, 3))))  # stamp not advancing: a restart, no error
+    assert again.motion_restarted and np.isfinite(again.T_world_sensor).all()
+
+
+def _shifted(world, shift_from: int, shift_s: float) -> list[Scan]:
+    """The sample scans with every stamp from scan `shift_from` on moved by shift_s seconds
+    (a paused recording, or a clock that jumps back): the platform did not move meanwhile."""
+    from forestslam.sim.simulate import scan_at
+
+    scans = []
+    for k in range(len(world.stamps)):
+        s = scan_at(world, k)
+        stamp = s.stamp + (shift_s if k >= shift_from else 0.0)
+        scans.append(Scan(stamp, s.points, s.intensity, s.ring, s.time))
+    return scans
+
+
+@pytest.mark.parametrize("shift_s", [120.0, -50.0])
+def test_stamp_gap_or_jump_back_restarts_the_motion_model(sample_world, shift_s, caplog):
+    """Issue 19, 3: the constant-velocity prediction was multiplied by a 120 s gap (a jump of
+    tens of metres, kept as the pose); a stamp jumping back raised on every later scan."""
+    from forestslam.odometry import Odometry
+
+    odo = Odometry(sample_world.profile)
+    with caplog.at_level("WARNING", logger="forestslam.odometry"):
+        steps = [odo.step(scan) for scan in _shifted(sample_world, 12, shift_s)]
+    assert [s.motion_restarted for s in steps].count(True) == 1 and steps[12].motion_restarted
+    warned = [r.getMessage() for r in caplog.records if "motion model restarts" in r.getMessage()]
+    gap = steps[12].stamp - steps[11].stamp
+    assert len(warned) == 1 and f"{gap:+.1f} s" in warned[0] and "scan 12" in warned[0]
+    _, gt = truth(sample_world)
+    step_t, step_yaw, _ = relative_errors(steps, gt)
+    # The two steps after the restart go without velocity (no deskew of a moving sweep): a few
+    # centimetres, against tens of metres when the gap multiplied the prediction.
+    restart = step_t[11:13]
+    assert restart.max() < 0.15, restart
+    assert np.delete(step_t, [11, 12]).max() < 0.08 and np.median(step_yaw) < 0.2
 
 
 def test_bad_config_is_an_input_error():

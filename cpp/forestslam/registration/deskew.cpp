@@ -1,13 +1,17 @@
 #include "forestslam/registration/deskew.hpp"
 
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 namespace forestslam {
 
 Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
                      const Eigen::Ref<const Eigen::VectorXd> &times, const Vector6d &twist_per_s) {
+    if (times.size() != points.rows())
+        throw std::invalid_argument("deskewPoints: " + std::to_string(times.size()) +
+                                    " times for " + std::to_string(points.rows()) + " points");
     Points3 out = points;
-    if (times.size() != points.rows()) return out;
     const Eigen::Vector3d v = twist_per_s.head<3>();
     const Eigen::Vector3d w = twist_per_s.tail<3>();
     const double speed = w.norm();

@@ -86,6 +86,87 @@ Eigen::Vector3d logSO3(const Eigen::Matrix3d &R) {
     return aa.angle() * aa.axis();
 }
 
+// Huber-weighted Gauss-Newton system of the correspondences within max_d of the pose T.
+struct NormalEquations {
+    Matrix6d H = Matrix6d::Zero();
+    Vector6d b = Vector6d::Zero();
+    int used = 0;
+    double sse = 0.0;
+};
+
+NormalEquations linearise(const PlaneTarget &target, const Points3 &source, const Pose3 &T,
+                          double max_d, const IcpConfig &config) {
+    const Points3 &tp = target.points();
+    const Points3 &tn = target.normals();
+    const double max_d2 = max_d * max_d;
+    NormalEquations eq;
+    Eigen::Matrix<double, 1, 6> J;
+    for (Eigen::Index i = 0; i < source.rows(); ++i) {
+        const Eigen::Vector3d p = source.row(i).transpose();
+        double d2 = 0.0;
+        const int j = target.nearest(T * p, max_d, d2);
+        if (j < 0 || d2 > max_d2 || std::isnan(tn(j, 0))) continue;
+        const double r =
+            pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
+        const double a = std::abs(r);
+        const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
+        eq.H.noalias() += w * J.transpose() * J;
+        eq.b.noalias() += w * r * J.transpose();
+        eq.sse += w * r * r;
+        ++eq.used;
+    }
+    return eq;
+}
+
+// The pose increment (left perturbation), the prior towards T_prior included.
+Vector6d solveStep(const NormalEquations &eq, const Pose3 &T, const Matrix6d &prior_information,
+                   const Pose3 &T_prior) {
+    Matrix6d A = eq.H;
+    Vector6d g = eq.b;
+    if (!prior_information.isZero()) {
+        const Pose3 E = T * T_prior.inverse();
+        Vector6d e;
+        e.head<3>() = E.translation();
+        e.tail<3>() = logSO3(E.linear());
+        A += prior_information;
+        g += prior_information * e;
+    }
+    return A.ldlt().solve(-g);
+}
+
+// Per-iteration factor that brings the correspondence distance from max_d down to the final
+// one in shrink_iterations (at most half of the iterations).
+double shrinkFactor(const IcpConfig &config, double max_d) {
+    if (config.max_iterations <= 1) return 1.0;
+    const int steps = std::max(1, std::min(config.shrink_iterations, config.max_iterations / 2));
+    return std::pow(config.final_correspondence_m / max_d, 1.0 / steps);
+}
+
+// Degeneracy: eigenvalues of the per-correspondence information with rotations in metres.
+bool isDegenerate(const NormalEquations &eq, const IcpConfig &config) {
+    Matrix6d S = Matrix6d::Identity();
+    S.bottomRightCorner<3, 3>() *= 1.0 / config.degeneracy_length_m;
+    const Matrix6d Hn = S * eq.H * S / eq.used;
+    Eigen::SelfAdjointEigenSolver<Matrix6d> eig(Hn);
+    return !(eig.eigenvalues()(0) > config.degeneracy_threshold);
+}
+
+// (H + prior)^-1 with H scaled by the residual variance; directions without information get
+// kUnobservedVariance.
+Matrix6d covarianceOf(const NormalEquations &eq, const Matrix6d &prior_information) {
+    const double sigma2 = eq.sse / std::max(1, eq.used - 6);
+    const Matrix6d info = eq.H / std::max(sigma2, 1e-8) + prior_information;
+    Eigen::SelfAdjointEigenSolver<Matrix6d> eig(info);
+    if (eig.eigenvalues()(0) > 1e-12) return info.inverse();
+    Matrix6d cov = Matrix6d::Zero();
+    for (int k = 0; k < 6; ++k) {
+        const double l = eig.eigenvalues()(k);
+        const double v = l > 1e-12 ? 1.0 / l : kUnobservedVariance;
+        cov += v * eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
+    }
+    return cov;
+}
+
 }  // namespace
 
 RegistrationResult icpPointToPlane(const PlaneTarget &target,
@@ -98,54 +179,16 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     const Points3 source = finiteRows(source_in);
     if (target.size() < 3 || source.rows() == 0) return result;
 
-    const Points3 &tp = target.points();
-    const Points3 &tn = target.normals();
     Pose3 T = T_init;
     double max_d = std::max(config.max_correspondence_m, config.final_correspondence_m);
-    const double shrink =
-        config.max_iterations > 1
-            ? std::pow(
-                  config.final_correspondence_m / max_d,
-                  1.0 / std::max(1, std::min(config.shrink_iterations, config.max_iterations / 2)))
-            : 1.0;
-    Matrix6d H = Matrix6d::Zero();
-    int used = 0;
-    double sse = 0.0;
+    const double shrink = shrinkFactor(config, max_d);
+    NormalEquations eq;
     bool converged = false;
     int it = 0;
     for (; it < config.max_iterations; ++it) {
-        H.setZero();
-        Vector6d b = Vector6d::Zero();
-        used = 0;
-        sse = 0.0;
-        const double max_d2 = max_d * max_d;
-        Eigen::Matrix<double, 1, 6> J;
-        for (Eigen::Index i = 0; i < source.rows(); ++i) {
-            const Eigen::Vector3d p = source.row(i).transpose();
-            double d2 = 0.0;
-            const int j = target.nearest(T * p, max_d, d2);
-            if (j < 0 || d2 > max_d2 || std::isnan(tn(j, 0))) continue;
-            const double r =
-                pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
-            const double a = std::abs(r);
-            const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
-            H.noalias() += w * J.transpose() * J;
-            b.noalias() += w * r * J.transpose();
-            sse += w * r * r;
-            ++used;
-        }
-        if (used < config.min_correspondences) break;
-        Matrix6d A = H;
-        Vector6d g = b;
-        if (!prior_information.isZero()) {
-            const Pose3 E = T * T_prior.inverse();
-            Vector6d e;
-            e.head<3>() = E.translation();
-            e.tail<3>() = logSO3(E.linear());
-            A += prior_information;
-            g += prior_information * e;
-        }
-        const Vector6d delta = A.ldlt().solve(-g);
+        eq = linearise(target, source, T, max_d, config);
+        if (eq.used < config.min_correspondences) break;
+        const Vector6d delta = solveStep(eq, T, prior_information, T_prior);
         if (!delta.allFinite()) break;
         T = expSE3(delta) * T;
         max_d = std::max(config.final_correspondence_m, max_d * shrink);
@@ -158,34 +201,13 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
         }
     }
     result.iterations = it;
-    result.inliers = used;
+    result.inliers = eq.used;
     result.T_target_source = T.matrix();
-    if (used < config.min_correspondences) return result;
+    if (eq.used < config.min_correspondences) return result;
     result.converged = converged;
-    result.rmse = std::sqrt(sse / used);
-
-    // Degeneracy: eigenvalues of the per-correspondence information with rotations in metres.
-    Matrix6d S = Matrix6d::Identity();
-    S.bottomRightCorner<3, 3>() *= 1.0 / config.degeneracy_length_m;
-    const Matrix6d Hn = S * H * S / used;
-    Eigen::SelfAdjointEigenSolver<Matrix6d> eig(Hn);
-    result.degenerate = !(eig.eigenvalues()(0) > config.degeneracy_threshold);
-    // Covariance: (H + prior)^-1 scaled by the residual variance.
-    const double sigma2 = sse / std::max(1, used - 6);
-    Matrix6d info = H / std::max(sigma2, 1e-8) + prior_information;
-    Eigen::SelfAdjointEigenSolver<Matrix6d> eig_info(info);
-    if (eig_info.eigenvalues()(0) > 1e-12) {
-        result.covariance = info.inverse();
-    } else {
-        // Invert on the observed subspace only; unobserved directions get kUnobservedVariance.
-        Matrix6d cov = Matrix6d::Zero();
-        for (int k = 0; k < 6; ++k) {
-            const double l = eig_info.eigenvalues()(k);
-            const double v = l > 1e-12 ? 1.0 / l : kUnobservedVariance;
-            cov += v * eig_info.eigenvectors().col(k) * eig_info.eigenvectors().col(k).transpose();
-        }
-        result.covariance = cov;
-    }
+    result.rmse = std::sqrt(eq.sse / eq.used);
+    result.degenerate = isDegenerate(eq, config);
+    result.covariance = covarianceOf(eq, prior_information);
     return result;
 }
 

@@ -1,4 +1,6 @@
-"""Odometry parameters. Lengths in metres, angles in degrees where the name says so."""
+"""Odometry parameters. Lengths in metres, angles in degrees where the name says so. The C++
+struct forestslam::odometry::OdometryConfig holds the same fields with the same defaults
+(tests/test_config_parity.py)."""
 
 from __future__ import annotations
 
@@ -45,5 +47,8 @@ class OdometryConfig:
     max_correction_deg: Positive = 15.0
     max_speed_mps: Positive = 5.0  # the velocity prior is clamped to these
     max_turn_rate_dps: Positive = 90.0
+    # A longer gap between scans (or a stamp jumping back) restarts the motion model: no
+    # prediction is multiplied by the gap; a warning names the gap and the scan.
+    max_stamp_gap_s: Positive = 1.0
     fpfh_max_points: PositiveInt = 6000  # FPFH baseline: whole scan, voxelised, at most this many
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)

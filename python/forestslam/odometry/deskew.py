@@ -4,23 +4,24 @@ small SE(3) helpers the odometry needs (numpy, vectorised)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from forestslam.errors import InputError
 
 
 def se3_log(T: np.ndarray) -> np.ndarray:
     """Twist (6,) = (translation (3,), rotation vector (3,)) of a (4,4) pose. The translation is
-    taken as is (not the SE(3) V^-1 t): exact for the small per-scan motions it is used on."""
-    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])
+    taken as is (not the SE(3) V^-1 t): exact for the small per-scan motions it is used on.
+    The C++ motion model's own function (forestslam::odometry::poseToTwist)."""
+    from forestslam import _core
+
+    return np.asarray(_core.pose_to_twist(np.asarray(T, dtype=np.float64)))
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """(4,4) pose of a twist from se3_log."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(xi[3:]).as_matrix()
-    T[:3, 3] = xi[:3]
-    return T
+    """(4,4) pose of a twist from se3_log (forestslam::odometry::twistToPose)."""
+    from forestslam import _core
+
+    return np.asarray(_core.twist_to_pose(np.asarray(xi, dtype=np.float64).reshape(6)))
 
 
 def deskew_points(points: np.ndarray, times: np.ndarray, twist_per_s: np.ndarray) -> np.ndarray:

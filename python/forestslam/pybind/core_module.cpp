@@ -12,5 +12,6 @@ PYBIND11_MODULE(_core, m) {
     forestslam::python::define_features(m);
     forestslam::python::define_registration(m);
     forestslam::python::define_localization(m);
+    forestslam::python::define_odometry(m);
     forestslam::python::define_tls(m);
 }

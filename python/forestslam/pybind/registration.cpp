@@ -79,7 +79,8 @@ void define_registration(py::module_ &m) {
         .def_readwrite("rotation_tolerance_rad", &IcpConfig::rotation_tolerance_rad)
         .def_readwrite("min_correspondences", &IcpConfig::min_correspondences)
         .def_readwrite("degeneracy_threshold", &IcpConfig::degeneracy_threshold)
-        .def_readwrite("degeneracy_length_m", &IcpConfig::degeneracy_length_m);
+        .def_readwrite("degeneracy_length_m", &IcpConfig::degeneracy_length_m)
+        .def_readwrite("normal_k", &IcpConfig::normal_k);
 
     py::class_<FpfhConfig>(m, "FpfhConfig")
         .def(py::init<>())

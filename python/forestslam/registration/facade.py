@@ -1,8 +1,8 @@
-"""Python facade over forestslam._core registration: validates shapes, converts configs."""
+"""Python facade over forestslam._core registration: validates shapes; configs cross into C++
+through forestslam.odometry.bridge (the typed C++ structs, defaults kept in C++)."""
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -31,16 +31,14 @@ def _pose(T: Any, name: str) -> np.ndarray:
     return T
 
 
-def _to_core(config: Any, core_cls: Any, skip: tuple[str, ...] = ()) -> Any:
-    out = core_cls()
-    for f in dataclasses.fields(config):
-        if f.name not in skip:
-            setattr(out, f.name, getattr(config, f.name))
-    return out
+def _to_core(config: Any, core_cls: Any, where: str) -> Any:
+    from forestslam.odometry.bridge import fill_core
+
+    return fill_core(config, core_cls(), where)
 
 
 def core_icp_config(config: IcpConfig) -> Any:
-    return _to_core(config, _core().IcpConfig, skip=("normal_k",))
+    return _to_core(config, _core().IcpConfig, "icp")
 
 
 def match_trees(
@@ -80,7 +78,7 @@ def register_shapes(
     if len(sc) != len(sm) or len(tc) != len(tm):
         raise InputError("one 3x3 covariance per stem mean is required")
     p = np.ascontiguousarray(pairs, dtype=np.int32).reshape(-1, 2)
-    cfg = _to_core(config or ShapeConfig(), _core().ShapeRegistrationConfig)
+    cfg = _to_core(config or ShapeConfig(), _core().ShapeRegistrationConfig, "shape")
     return _core().register_shapes(sm, sc, tm, tc, p, _pose(T_init, "T_init"), cfg)
 
 
@@ -115,7 +113,7 @@ def register_fpfh(
     icp: IcpConfig | None = None,
 ) -> Any:
     """FPFH + RANSAC + point-to-plane ICP of source (N,3) onto target (M,3)."""
-    cfg = _to_core(config or FpfhConfig(), _core().FpfhConfig)
+    cfg = _to_core(config or FpfhConfig(), _core().FpfhConfig, "fpfh")
     cfg.icp = core_icp_config(icp or IcpConfig())
     T0 = np.eye(4) if T_init is None else _pose(T_init, "T_init")
     return _core().register_fpfh(_points(source, "source"), _points(target, "target"), T0, cfg)

@@ -1,0 +1,353 @@
+// Odometry bindings: the tree odometry, its motion model and every option struct it takes
+// (perception's included), each as a typed class: config crosses into C++ one way.
+#include <pybind11/eigen.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <optional>
+
+#include "bindings.hpp"
+#include "forestslam/odometry/motion_model.hpp"
+#include "forestslam/odometry/tree_odometry.hpp"
+
+namespace py = pybind11;
+
+namespace forestslam::python {
+namespace {
+
+namespace pc = forestslam::perception;
+namespace od = forestslam::odometry;
+
+#define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
+
+void definePerceptionOptions(py::module_ &m) {
+    py::class_<pc::SensorGeometry> g(m, "SensorGeometry", "What perception needs of a sensor.");
+    g.def(py::init<>());
+    FS_FIELD(g, pc::SensorGeometry, has_range_image);
+    FS_FIELD(g, pc::SensorGeometry, image_rows);
+    FS_FIELD(g, pc::SensorGeometry, image_cols);
+    FS_FIELD(g, pc::SensorGeometry, horizontal_fov_rad);
+    FS_FIELD(g, pc::SensorGeometry, vertical_angles_rad);
+    FS_FIELD(g, pc::SensorGeometry, theta_v_rad);
+    FS_FIELD(g, pc::SensorGeometry, azimuth_step_rad);
+
+    py::class_<pc::GroundOptions> gr(m, "GroundOptions");
+    gr.def(py::init<>());
+    FS_FIELD(gr, pc::GroundOptions, cell_size_m);
+    FS_FIELD(gr, pc::GroundOptions, max_window_cells);
+    FS_FIELD(gr, pc::GroundOptions, slope);
+    FS_FIELD(gr, pc::GroundOptions, initial_distance_m);
+    FS_FIELD(gr, pc::GroundOptions, max_distance_m);
+    FS_FIELD(gr, pc::GroundOptions, base);
+    FS_FIELD(gr, pc::GroundOptions, exponential);
+    FS_FIELD(gr, pc::GroundOptions, cell_height_m);
+    FS_FIELD(gr, pc::GroundOptions, min_component_cells);
+    FS_FIELD(gr, pc::GroundOptions, max_range_m);
+
+    py::class_<pc::NormalFilterOptions> f(m, "NormalFilterOptions");
+    f.def(py::init<>());
+    FS_FIELD(f, pc::NormalFilterOptions, adaptive);
+    FS_FIELD(f, pc::NormalFilterOptions, ring_min_m);
+    FS_FIELD(f, pc::NormalFilterOptions, ring_max_m);
+    FS_FIELD(f, pc::NormalFilterOptions, rings);
+    FS_FIELD(f, pc::NormalFilterOptions, radius_scale);
+    FS_FIELD(f, pc::NormalFilterOptions, min_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, fixed_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_normal_angle_rad);
+    FS_FIELD(f, pc::NormalFilterOptions, min_neighbours);
+    FS_FIELD(f, pc::NormalFilterOptions, max_neighbours);
+    FS_FIELD(f, pc::NormalFilterOptions, min_height_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_height_m);
+    FS_FIELD(f, pc::NormalFilterOptions, voxel_m);
+    FS_FIELD(f, pc::NormalFilterOptions, map_voxel_m);
+
+    py::class_<pc::SegmentationOptions> s(m, "SegmentationOptions");
+    s.def(py::init<>());
+    FS_FIELD(s, pc::SegmentationOptions, block_cols);
+    FS_FIELD(s, pc::SegmentationOptions, beta_min_rad);
+    FS_FIELD(s, pc::SegmentationOptions, max_neighbour_gap_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_pixel_gap);
+    FS_FIELD(s, pc::SegmentationOptions, max_gap_m);
+    FS_FIELD(s, pc::SegmentationOptions, min_votes);
+    FS_FIELD(s, pc::SegmentationOptions, euclidean_tolerance_m);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_k);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_neighbours);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_max_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, map_dbscan_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, min_points);
+    FS_FIELD(s, pc::SegmentationOptions, min_length_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_axis_angle_rad);
+    FS_FIELD(s, pc::SegmentationOptions, min_sv_ratio);
+    FS_FIELD(s, pc::SegmentationOptions, max_width_m);
+    FS_FIELD(s, pc::SegmentationOptions, merge_xy_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_range_m);
+    FS_FIELD(s, pc::SegmentationOptions, ground_search_m);
+
+    py::class_<pc::DiameterOptions> d(m, "DiameterOptions");
+    d.def(py::init<>());
+    FS_FIELD(d, pc::DiameterOptions, band_low_m);
+    FS_FIELD(d, pc::DiameterOptions, band_high_m);
+    FS_FIELD(d, pc::DiameterOptions, band_max_half_m);
+    FS_FIELD(d, pc::DiameterOptions, min_band_points);
+    FS_FIELD(d, pc::DiameterOptions, min_radius_m);
+    FS_FIELD(d, pc::DiameterOptions, max_radius_m);
+    FS_FIELD(d, pc::DiameterOptions, inlier_threshold_m);
+    FS_FIELD(d, pc::DiameterOptions, min_arc_coverage);
+    FS_FIELD(d, pc::DiameterOptions, map_min_arc_coverage);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_iterations);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_max_points);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_normal_weight);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_section_low_m);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_section_high_m);
+    FS_FIELD(d, pc::DiameterOptions, max_lean_rad);
+    FS_FIELD(d, pc::DiameterOptions, silhouette);
+    FS_FIELD(d, pc::DiameterOptions, fit_all);
+
+    py::class_<pc::PerceptionOptions> p(m, "PerceptionOptions",
+                                        "intensity_threshold NaN: no intensity filter.");
+    p.def(py::init<>());
+    FS_FIELD(p, pc::PerceptionOptions, intensity_threshold);
+    FS_FIELD(p, pc::PerceptionOptions, ground_voxel_m);
+    FS_FIELD(p, pc::PerceptionOptions, ground);
+    FS_FIELD(p, pc::PerceptionOptions, filter);
+    FS_FIELD(p, pc::PerceptionOptions, segmentation);
+    FS_FIELD(p, pc::PerceptionOptions, diameter);
+}
+
+void defineOdometryConfig(py::module_ &m) {
+    py::class_<od::MotionModelConfig> mm(m, "MotionModelConfig");
+    mm.def(py::init<>());
+    FS_FIELD(mm, od::MotionModelConfig, max_gap_s);
+    FS_FIELD(mm, od::MotionModelConfig, max_speed_mps);
+    FS_FIELD(mm, od::MotionModelConfig, max_turn_rate_dps);
+
+    py::class_<od::TreeMatchConfig> t(m, "TreeMatchConfig");
+    t.def(py::init<>());
+    FS_FIELD(t, od::TreeMatchConfig, gate_m);
+    FS_FIELD(t, od::TreeMatchConfig, ratio);
+
+    py::class_<od::RegistrationConfig> r(m, "RegistrationConfig");
+    r.def(py::init<>());
+    FS_FIELD(r, od::RegistrationConfig, trees);
+    FS_FIELD(r, od::RegistrationConfig, shape);
+    FS_FIELD(r, od::RegistrationConfig, icp);
+    FS_FIELD(r, od::RegistrationConfig, fpfh);
+
+    py::class_<od::OdometryConfig> c(m, "OdometryConfig");
+    c.def(py::init<>());
+    FS_FIELD(c, od::OdometryConfig, method);
+    FS_FIELD(c, od::OdometryConfig, mode);
+    FS_FIELD(c, od::OdometryConfig, deskew);
+    FS_FIELD(c, od::OdometryConfig, min_stems);
+    FS_FIELD(c, od::OdometryConfig, source_voxel_m);
+    FS_FIELD(c, od::OdometryConfig, max_source_points);
+    FS_FIELD(c, od::OdometryConfig, keyframe_distance_m);
+    FS_FIELD(c, od::OdometryConfig, keyframe_yaw_deg);
+    FS_FIELD(c, od::OdometryConfig, local_map_keyframes);
+    FS_FIELD(c, od::OdometryConfig, local_map_radius_m);
+    FS_FIELD(c, od::OdometryConfig, map_voxel_m);
+    FS_FIELD(c, od::OdometryConfig, stem_merge_m);
+    FS_FIELD(c, od::OdometryConfig, prior_sigma_m);
+    FS_FIELD(c, od::OdometryConfig, prior_sigma_deg);
+    FS_FIELD(c, od::OdometryConfig, max_correction_m);
+    FS_FIELD(c, od::OdometryConfig, max_correction_deg);
+    FS_FIELD(c, od::OdometryConfig, max_speed_mps);
+    FS_FIELD(c, od::OdometryConfig, max_turn_rate_dps);
+    FS_FIELD(c, od::OdometryConfig, max_stamp_gap_s);
+    FS_FIELD(c, od::OdometryConfig, fpfh_max_points);
+    FS_FIELD(c, od::OdometryConfig, registration);
+    m.def("validate_odometry_config", &od::validate, py::arg("config"),
+          "ValueError naming the field when a value is out of range or unknown.");
+
+    py::class_<od::OdometrySensor> s(m, "OdometrySensor",
+                                     "kind (spinning, solid_state, tls, map), geometry "
+                                     "(SensorGeometry), intensity_threshold (NaN: none).");
+    s.def(py::init<>());
+    FS_FIELD(s, od::OdometrySensor, geometry);
+    FS_FIELD(s, od::OdometrySensor, kind);
+    FS_FIELD(s, od::OdometrySensor, intensity_threshold);
+}
+
+py::dict fitDict(const pc::DiameterFit &f) {
+    py::dict d;
+    d["valid"] = f.valid;
+    d["radius"] = f.radius;
+    d["centre"] = f.centre;
+    d["axis"] = f.axis;
+    d["inliers"] = f.inliers;
+    d["rms_m"] = f.rms_m;
+    d["arc_coverage"] = f.arc_coverage;
+    d["score"] = f.score;
+    return d;
+}
+
+const char *diameterMethod(int method) {
+    static const char *names[] = {"none", "circle", "cylinder", "silhouette"};
+    return method >= 0 && method <= 3 ? names[method] : "none";
+}
+
+// The stems of a detection in the layout of forestslam.perception.Stems.
+py::dict stemsDict(const pc::Detection &det) {
+    const auto k = static_cast<Eigen::Index>(det.stems.size());
+    Points2 xy(k, 2);
+    Eigen::VectorXd z(k), dbh(k), base(k);
+    Points3 mean(k, 3), axis(k, 3);
+    Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
+    py::list points, diameters;
+    for (Eigen::Index i = 0; i < k; ++i) {
+        const pc::Stem &s = det.stems[static_cast<size_t>(i)];
+        xy.row(i) = s.breast.head<2>().transpose();
+        z(i) = s.breast.z();
+        dbh(i) = s.diameter.dbh;
+        base(i) = s.base_z;
+        mean.row(i) = s.shape.mean.transpose();
+        axis.row(i) = s.shape.axis.transpose();
+        Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cov.row(i).data()) = s.shape.cov;
+        points.append(py::cast(s.points));
+        py::dict dd;
+        dd["circle"] = fitDict(s.diameter.circle);
+        dd["cylinder"] = fitDict(s.diameter.cylinder);
+        dd["silhouette"] = fitDict(s.diameter.silhouette);
+        dd["method"] = diameterMethod(s.diameter.method);
+        dd["dbh"] = s.diameter.dbh;
+        dd["centre"] = s.diameter.centre;
+        dd["band_points"] = s.diameter.band_points;
+        diameters.append(dd);
+    }
+    py::dict counts;
+    counts["input"] = det.input_points;
+    counts["after_intensity"] = det.after_intensity;
+    counts["finite"] = det.finite_points;
+    counts["ground"] = det.ground_points;
+    counts["filtered"] = det.filtered_points;
+    counts["coarse_clusters"] = det.coarse_clusters;
+    counts["refined_clusters"] = det.refined_clusters;
+    py::dict d;
+    d["xy"] = xy;
+    d["z"] = z;
+    d["dbh"] = dbh;
+    d["base_z"] = base;
+    d["mean"] = mean;
+    d["cov"] = cov;
+    d["axis"] = axis;
+    d["points"] = points;
+    d["diameters"] = diameters;
+    d["ground"] = det.ground;
+    d["timing"] = det.timing_ms;
+    d["cpu_ms"] = det.cpu_ms;
+    d["counts"] = counts;
+    return d;
+}
+
+void defineMotionModel(py::module_ &m) {
+    m.def(
+        "twist_to_pose", [](const Vector6d &xi) { return od::twistToPose(xi).matrix(); },
+        py::arg("twist"),
+        "(4,4) pose of a twist (6,) = (translation, rotation vector); the translation as is.");
+    m.def(
+        "pose_to_twist", [](const Eigen::Matrix4d &T) { return od::poseToTwist(Pose3(T)); },
+        py::arg("T"),
+        "Twist (6,) = (translation, rotation vector) of a (4,4) pose; inverse of twist_to_pose.");
+    py::class_<od::StampCheck>(m, "StampCheck",
+                               "restarted: the velocity was forgotten (gap "
+                               "above max_gap_s or time not advancing); gap_s.")
+        .def_readonly("restarted", &od::StampCheck::restarted)
+        .def_readonly("gap_s", &od::StampCheck::gap_s);
+    py::class_<od::ConstantVelocityModel>(
+        m, "ConstantVelocityModel",
+        "Constant-velocity motion model: begin_scan(t) once per scan (restarts on a long gap or a "
+        "jump back), predict(t) -> T_world_sensor (4,4), deskew(points (N,3), times (N,) s "
+        "relative to t), update(t, T_world_sensor, trusted=True) after registration.")
+        .def(py::init<const od::MotionModelConfig &>(), py::arg("config") = od::MotionModelConfig())
+        .def("begin_scan", &od::ConstantVelocityModel::beginScan, py::arg("t"))
+        .def(
+            "predict",
+            [](const od::ConstantVelocityModel &mm, double t) { return mm.predict(t).matrix(); },
+            py::arg("t"))
+        .def("deskew", &od::ConstantVelocityModel::deskew, py::arg("points"), py::arg("times"))
+        .def(
+            "update",
+            [](od::ConstantVelocityModel &mm, double t, const Eigen::Matrix4d &T, bool trusted) {
+                mm.update(t, Pose3(T), trusted);
+            },
+            py::arg("t"), py::arg("T_world_sensor"), py::arg("trusted") = true,
+            "An untrusted pose is not kept (predictions from the last trusted one) and the next "
+            "trusted pose does not estimate the velocity across it.")
+        .def("reset", &od::ConstantVelocityModel::reset)
+        .def_property_readonly("initialised", &od::ConstantVelocityModel::initialised)
+        .def_property_readonly("twist", &od::ConstantVelocityModel::twist,
+                               "body-frame velocity (6,) per second (translation, rotation)")
+        .def_property_readonly(
+            "pose", [](const od::ConstantVelocityModel &mm) { return mm.pose().matrix(); })
+        .def_property_readonly("time", &od::ConstantVelocityModel::time);
+}
+
+void defineTreeOdometry(py::module_ &m) {
+    py::class_<od::OdometryResult>(
+        m, "OdometryResult",
+        "One scan's odometry: stamp, T_world_sensor (4,4) at the stamp, covariance (3,3) x y yaw "
+        "and covariance6 (6,6) (None without a registration), body frame; degraded, method, "
+        "matched_stems, stems (dict in the layout of perception.Stems), stamp_check, "
+        "perception_error, timing (wall ms) and cpu_ms (process CPU ms) per stage.")
+        .def_readonly("stamp", &od::OdometryResult::stamp)
+        .def_readonly("T_world_sensor", &od::OdometryResult::T_world_sensor)
+        .def_readonly("covariance", &od::OdometryResult::covariance)
+        .def_property_readonly("covariance6",
+                               [](const od::OdometryResult &r) -> std::optional<Matrix6d> {
+                                   if (!r.has_covariance6) return std::nullopt;
+                                   return r.covariance6;
+                               })
+        .def_readonly("degraded", &od::OdometryResult::degraded)
+        .def_readonly("method", &od::OdometryResult::method)
+        .def_readonly("matched_stems", &od::OdometryResult::matched_stems)
+        .def_property_readonly("stems",
+                               [](const od::OdometryResult &r) { return stemsDict(r.detection); })
+        .def_readonly("stamp_check", &od::OdometryResult::stamp_check)
+        .def_readonly("perception_error", &od::OdometryResult::perception_error)
+        .def_readonly("timing", &od::OdometryResult::timing_ms)
+        .def_readonly("cpu_ms", &od::OdometryResult::cpu_ms);
+
+    py::class_<od::TreeOdometry>(m, "TreeOdometry",
+                                 "Per-scan tree odometry (deskew, perception, tree matching, "
+                                 "shape-to-shape, ICP, local map) with its motion model.")
+        .def(py::init<const od::OdometrySensor &, const od::OdometryConfig &,
+                      const pc::PerceptionOptions &>(),
+             py::arg("sensor"), py::arg("config") = od::OdometryConfig(),
+             py::arg("perception") = pc::PerceptionOptions())
+        .def(
+            "register_scan",
+            [](od::TreeOdometry &odo, double stamp, const Eigen::Ref<const Points3> &points,
+               std::optional<Eigen::VectorXd> intensity, std::optional<Eigen::VectorXi> ring,
+               std::optional<Eigen::VectorXd> time) {
+                od::LidarScan scan;
+                scan.stamp = stamp;
+                scan.points = points;
+                if (intensity) scan.intensity = std::move(*intensity);
+                if (ring) scan.ring = std::move(*ring);
+                if (time) scan.time = std::move(*time);
+                py::gil_scoped_release release;
+                return odo.registerScan(scan);
+            },
+            py::arg("stamp"), py::arg("points"), py::arg("intensity") = py::none(),
+            py::arg("ring") = py::none(), py::arg("time") = py::none(),
+            "Register one scan: points (N,3) float64, intensity (N,), ring (N,) int, time (N,) s "
+            "after the stamp, each optional -> OdometryResult.")
+        .def_property_readonly("scans", &od::TreeOdometry::scans)
+        .def_property_readonly("motion_model", &od::TreeOdometry::motionModel,
+                               py::return_value_policy::reference_internal)
+        .def_property_readonly("local_map_keyframes",
+                               [](const od::TreeOdometry &o) { return o.localMap().keyframes(); });
+}
+
+}  // namespace
+
+void define_odometry(py::module_ &m) {
+    definePerceptionOptions(m);
+    defineOdometryConfig(m);
+    defineMotionModel(m);
+    defineTreeOdometry(m);
+}
+
+}  // namespace forestslam::python
