@@ -89,13 +89,13 @@ struct Hypotheses {
     int best = 0;  // highest consensus so far
 
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid,
-             double gate) {
+             double gate, LocalizationStage stage) {
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
         const uint64_t h = cellKey3(qx, qy, qa);
         if (!seen.insert(h).second) return;
-        list.push_back({pose, consensus(local, pose, grid, gate)});
+        list.push_back({pose, consensus(local, pose, grid, gate), stage});
         best = std::max(best, list.back().score);
     }
 };
@@ -126,6 +126,17 @@ std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const
 }
 
 }  // namespace
+
+const char *stageName(LocalizationStage stage) {
+    switch (stage) {
+        case LocalizationStage::Star:
+            return "star";
+        case LocalizationStage::Triangle:
+            return "triangle";
+        default:
+            return "";
+    }
+}
 
 Eigen::Matrix3d GlobalLocalization::transform() const {
     Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
@@ -175,6 +186,7 @@ TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance
         sides.row(t) = triangleSides(xy_, triplets_[t]).transpose();
     triangle_index_ = KdTree(std::move(sides));
     grid_ = PointGrid(xy_, 1.0);
+    density_ = DensityGrid(xy_);
 }
 
 GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
@@ -243,12 +255,12 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     mp[k] = xy_.row(ms.vertices[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star);
             }
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 = decide(res, hyps.list, local, tri.used_points, cfg);
+    GlobalLocalization stage1 = decide(res, hyps.list, local, scoring, tri.used_points, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
             stage1.reason = res.query_stars == 0 ? "no interior triangles in the local trunks"
@@ -292,34 +304,60 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     mp[k] = xy_.row(mt[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, tol, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle);
             }
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 = decide(res, hyps.list, local, tri.used_points, cfg);
+    GlobalLocalization stage2 = decide(res, hyps.list, local, scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     return stage2;
 }
 
+double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
+                               double gate) const {
+    double sum = 0;
+    for (Eigen::Index i = 0; i < local.rows(); ++i) {
+        const Eigen::Vector2d q = apply(pose, local.row(i).transpose());
+        sum += chanceRate(density_.at(q.x(), q.y()), gate);
+    }
+    return sum;
+}
+
 GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                                   const Points2 &local, const std::vector<int> &local_rows,
+                                   const Points2 &local, const Points2 &scoring,
+                                   const std::vector<int> &local_rows,
                                    const GlobalLocalizerConfig &cfg) const {
     GlobalLocalization res = base;
     if (hyps.empty()) {
         res.reason = "no hypothesis";
         return res;
     }
-    std::sort(hyps.begin(), hyps.end(),
-              [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
+    // Stable: among equal scores the star hypotheses (found first) win.
+    std::stable_sort(hyps.begin(), hyps.end(),
+                     [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
     const Hypothesis &best = hyps.front();
+    const int searched = static_cast<int>(hyps.size());
+    auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
+    res.stage = best.stage;
     res.second_inliers = 0;
+    res.runner_up = RunnerUp{};
     for (const Hypothesis &h : hyps) {
         const bool distinct =
             (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
             std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
         if (distinct) {
             res.second_inliers = h.score;
+            RunnerUp &r = res.runner_up;
+            r.exists = true;
+            r.x = h.pose[0];
+            r.y = h.pose[1];
+            r.yaw = wrapAngle(h.pose[2]);
+            r.inliers = h.score;
+            r.significance = chanceEvidence(h.score, static_cast<int>(scoring.rows()),
+                                            expectedChance(scoring, h.pose, cfg.inlier_gate_m),
+                                            seeds(h.stage), searched)
+                                 .significance;
             break;
         }
     }
@@ -369,17 +407,22 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
     if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
 
-    const int best_score = std::max(best.score, 1);
-    res.rejected = true;
-    if (n < cfg.min_inliers) {
-        res.reason = "too few inliers";
-    } else if (n < cfg.min_inlier_fraction * res.local_trunks) {
+    const ChanceEvidence evidence =
+        chanceEvidence(n, res.local_trunks, expectedChance(local, pose, cfg.inlier_gate_m),
+                       seeds(best.stage), searched);
+    res.significance = evidence.significance;
+    res.expected_chance_inliers = evidence.expected;
+    AcceptanceConfig acfg;
+    acfg.min_significance = cfg.min_significance;
+    acfg.ambiguity_ratio = cfg.ambiguity_ratio;
+    acfg.min_inliers = cfg.min_inliers;
+    const AcceptanceVerdict verdict =
+        judge(evidence, double(res.second_inliers) / std::max(best.score, 1), acfg);
+    res.rejected = !verdict.accepted;
+    res.reason = verdict.reason;
+    if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {
+        res.rejected = true;
         res.reason = "inlier fraction too low";
-    } else if (res.second_inliers >= cfg.ambiguity_ratio * best_score) {
-        res.reason = "ambiguous: second-best hypothesis nearly as good";
-    } else {
-        res.rejected = false;
-        res.reason.clear();
     }
     return res;
 }

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "forestslam/common/types.hpp"
+#include "forestslam/localization/acceptance.hpp"
 #include "forestslam/localization/delaunay.hpp"
 #include "forestslam/localization/feature_index.hpp"
 #include "forestslam/localization/triangle_star.hpp"
@@ -23,22 +24,38 @@ struct GlobalLocalizerConfig {
     int min_inliers = 6;               // fewer: rejected
     double min_inlier_fraction = 0.25;    // of the local trunks
     double ambiguity_ratio = 0.8;         // rejected when second-best >= ratio * best
+    double min_significance = 2.3;  // -log10 of the search-corrected chance probability (0.005)
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
     double min_sigma_m = 0.02;            // floor of the residual sigma in the covariance
     double duplicate_tolerance_m = 0.01;  // local trunks closer than this are one trunk
     bool skip_hull_stars = false;         // drop query stars with a vertex on the local hull
-    bool triangle_fallback = true;        // single-triangle matching when no star hypothesis wins
+    // Single-triangle matching when no star hypothesis wins; its answers carry stage Triangle
+    // and pass the same significance test (seeded by 3 points instead of 6).
+    bool triangle_fallback = true;
     int candidates_per_triangle = 16;     // k nearest map triangles per local triangle (fallback)
     int triangle_neighbours = 5;          // local triangles: each trunk with 2 of its k nearest
     int max_query_trunks = 100;    // hypotheses scored on this many trunks nearest the origin
     int max_fallback_trunks = 40;  // fallback triangles from this many nearest trunks
 };
 
+enum class LocalizationStage { None, Star, Triangle };
+const char *stageName(LocalizationStage stage);  // "", "star", "triangle"
+
 struct Hypothesis {
     Eigen::Vector3d pose;  // x, y, yaw of T_map_local
     int score = 0;         // consensus: local trunks within the gate of a map trunk
+    LocalizationStage stage = LocalizationStage::Star;
+};
+
+// The best hypothesis distinct from the answer (further than distinct_translation_m or
+// distinct_yaw_rad), scored on the same trunks.
+struct RunnerUp {
+    bool exists = false;
+    double x = 0, y = 0, yaw = 0;
+    int inliers = 0;            // consensus on the scoring trunks
+    double significance = 0.0;  // same test as the answer's
 };
 
 struct GlobalLocalization {
@@ -48,7 +65,15 @@ struct GlobalLocalization {
     double x = 0, y = 0, yaw = 0;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity() * 1e6;  // x, y, yaw
     int inliers = 0;
-    int second_inliers = 0;  // consensus of the best distinct alternative
+    int second_inliers = 0;  // consensus of the best distinct alternative (= runner_up.inliers)
+    // Which matcher produced the answer (None: no hypothesis).
+    LocalizationStage stage = LocalizationStage::None;
+    // -log10 of the probability that the inliers arise by chance at the map's local density,
+    // corrected for the number of hypotheses searched (see acceptance.hpp); >= min_significance
+    // to be accepted.
+    double significance = 0.0;
+    double expected_chance_inliers = 0.0;  // chance inliers expected beyond the seed points
+    RunnerUp runner_up;
     int hypotheses = 0;      // verified distinct-by-hash hypotheses
     int query_stars = 0;
     int local_trunks = 0;  // usable (finite, de-duplicated) local trunks
@@ -76,8 +101,11 @@ class TreeMap {
 
   private:
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                              const Points2 &local, const std::vector<int> &local_rows,
+                              const Points2 &local, const Points2 &scoring,
+                              const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
+    // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
+    double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 
     Points2 xy_;
     Triangulation tri_;
@@ -86,6 +114,7 @@ class TreeMap {
     std::vector<std::array<int, 3>> triplets_;  // nearest-neighbour triangles (fallback)
     KdTree triangle_index_;                     // their side lengths, ccw from the shortest
     PointGrid grid_;
+    DensityGrid density_;
 };
 
 }  // namespace forestslam

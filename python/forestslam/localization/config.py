@@ -17,13 +17,20 @@ class LocalizationConfig:
     min_inliers: int = 6  # fewer: rejected
     min_inlier_fraction: float = 0.25  # of the local trunks; fewer: rejected
     ambiguity_ratio: float = 0.8  # rejected when the second-best distinct pose scores this much
+    # Calibrated acceptance: -log10 of the probability that the inliers arise by chance at the
+    # map's local trunk density (Poisson tail, corrected for the hypotheses searched): 2.3 is a
+    # chance probability of 0.005, the target rate of accepted absent places (the test is
+    # conservative: measured rates are lower, see bench/localize_bench.py).
+    min_significance: float = 2.3
     distinct_translation_m: float = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: float = 5.0
     refine_iterations: int = 5  # least-squares refinement rounds over all inliers
     min_sigma_m: float = 0.02  # floor of the residual sigma used for the covariance
     duplicate_tolerance_m: float = 0.01  # local trunks closer than this are one trunk
     skip_hull_stars: bool = False  # drop local stars touching the local convex hull
-    triangle_fallback: bool = True  # single-triangle matching when no star hypothesis is accepted
+    # Single-triangle matching when no star hypothesis is accepted; its answers are marked
+    # stage "triangle" and held to the same significance test.
+    triangle_fallback: bool = True
     candidates_per_triangle: int = 16  # k nearest map triangles per local triangle (fallback)
     triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
     max_query_trunks: int = 100  # hypotheses scored on this many trunks nearest the origin

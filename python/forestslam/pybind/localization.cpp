@@ -75,6 +75,7 @@ void define_localization(py::module_ &m) {
         .def_readwrite("min_inliers", &GlobalLocalizerConfig::min_inliers)
         .def_readwrite("min_inlier_fraction", &GlobalLocalizerConfig::min_inlier_fraction)
         .def_readwrite("ambiguity_ratio", &GlobalLocalizerConfig::ambiguity_ratio)
+        .def_readwrite("min_significance", &GlobalLocalizerConfig::min_significance)
         .def_readwrite("distinct_translation_m", &GlobalLocalizerConfig::distinct_translation_m)
         .def_readwrite("distinct_yaw_rad", &GlobalLocalizerConfig::distinct_yaw_rad)
         .def_readwrite("refine_iterations", &GlobalLocalizerConfig::refine_iterations)
@@ -87,6 +88,26 @@ void define_localization(py::module_ &m) {
         .def_readwrite("max_query_trunks", &GlobalLocalizerConfig::max_query_trunks)
         .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks);
 
+    py::class_<RunnerUp>(m, "RunnerUp")
+        .def_readonly("exists", &RunnerUp::exists)
+        .def_readonly("x", &RunnerUp::x)
+        .def_readonly("y", &RunnerUp::y)
+        .def_readonly("yaw", &RunnerUp::yaw)
+        .def_readonly("inliers", &RunnerUp::inliers)
+        .def_readonly("significance", &RunnerUp::significance);
+
+    m.def("poisson_tail_log10", &poissonTailLog10, py::arg("mu"), py::arg("k"),
+          "-log10 P(X >= k) for X ~ Poisson(mu).");
+    m.def(
+        "chance_significance",
+        [](int inliers, int trials, double expected, int seed_points, int hypotheses) {
+            return chanceEvidence(inliers, trials, expected, seed_points, hypotheses).significance;
+        },
+        py::arg("inliers"), py::arg("trials"), py::arg("expected"), py::arg("seed_points"),
+        py::arg("hypotheses"),
+        "-log10(hypotheses * P(chance inliers >= inliers - seeds)) with the chance inliers "
+        "Poisson around `expected` (summed over `trials` trunks, seeds removed pro rata).");
+
     py::class_<GlobalLocalization>(m, "GlobalLocalization")
         .def_readonly("rejected", &GlobalLocalization::rejected)
         .def_readonly("reason", &GlobalLocalization::reason)
@@ -96,6 +117,12 @@ void define_localization(py::module_ &m) {
         .def_readonly("covariance", &GlobalLocalization::covariance, "(3,3) over x, y, yaw")
         .def_readonly("inliers", &GlobalLocalization::inliers)
         .def_readonly("second_inliers", &GlobalLocalization::second_inliers)
+        .def_property_readonly(
+            "stage", [](const GlobalLocalization &r) { return std::string(stageName(r.stage)); },
+            "'star', 'triangle' or '' (no hypothesis)")
+        .def_readonly("significance", &GlobalLocalization::significance)
+        .def_readonly("expected_chance_inliers", &GlobalLocalization::expected_chance_inliers)
+        .def_readonly("runner_up", &GlobalLocalization::runner_up)
         .def_readonly("hypotheses", &GlobalLocalization::hypotheses)
         .def_readonly("query_stars", &GlobalLocalization::query_stars)
         .def_readonly("local_trunks", &GlobalLocalization::local_trunks)
