@@ -45,17 +45,17 @@ double chanceRate(double density, double gate_m);
 
 struct AcceptanceConfig {
     double min_significance = 2.3;  // accept when the corrected chance probability < 0.005
-    double ambiguity_ratio = 0.8;  // reject when a distinct runner-up scores this much of the best
-    int min_inliers = 6;           // absolute floor
+    double ambiguity_ratio = 0.8;   // reject when a distinct runner-up scores this much of the best
+    int min_inliers = 6;            // absolute floor
 };
 
 // One hypothesis as the test sees it.
 struct ChanceEvidence {
-    int inliers = 0;           // local trunks within the gate under the pose
-    int seed_points = 0;       // points the pose was fitted to (inliers by construction)
-    double expected = 0.0;     // sum of p_i over the local trunks tested
-    int trials = 0;            // local trunks tested
-    double significance = 0.0; // -log10(hypotheses * P(chance inliers >= inliers - seeds))
+    int inliers = 0;            // local trunks within the gate under the pose
+    int seed_points = 0;        // points the pose was fitted to (inliers by construction)
+    double expected = 0.0;      // sum of p_i over the local trunks tested
+    int trials = 0;             // local trunks tested
+    double significance = 0.0;  // -log10(hypotheses * P(chance inliers >= inliers - seeds))
 };
 
 // Evidence of `inliers` among `trials` local trunks whose chance rates sum to `expected`, the

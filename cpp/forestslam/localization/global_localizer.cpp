@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <tuple>
 #include <unordered_set>
 
 #include "forestslam/common/voxel_key.hpp"
@@ -12,6 +13,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr int kMapTriangleNeighbours = 8;  // map triangles: each trunk with 2 of its 8 nearest
 constexpr double kMaxTriangleEdge = 30.0;  // metres
+constexpr int kMinStarsBeforeExit = 30;    // query stars tried before a decisive early exit
 
 double wrapAngle(double a) {
     a = std::fmod(a + kPi, 2 * kPi);
@@ -86,10 +88,12 @@ struct Hypotheses {
     std::vector<Hypothesis> list;
     std::unordered_set<uint64_t> seen;
 
-    int best = 0;  // highest consensus so far
+    int best = 0;      // highest consensus so far
+    int verified = 0;  // every verified correspondence, duplicates included (the search size)
 
-    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid,
-             double gate, LocalizationStage stage) {
+    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
+             LocalizationStage stage) {
+        ++verified;
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
@@ -234,13 +238,38 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     std::vector<Eigen::Vector2d> lp(6), mp(6);
     Eigen::Vector3d pose;
     const StarSet lstars = buildStars(tri, local_in);
-    Star star;
-    for (const Star &canon : lstars.stars) {
-        if (cfg.skip_hull_stars) {
-            bool hull = false;
-            for (int v : canon.vertices) hull = hull || on_hull[v];
-            if (hull) continue;
+    // Bounded work on large local sets: only stars among the scoring trunks, nearest first;
+    // stop once a pose explains most trunks (after min_stars_before_exit stars, so that a
+    // close runner-up still has its chance to be found).
+    std::vector<bool> near(local_in.rows(), false);
+    for (int r : near_rows) near[r] = true;
+    // Order key independent of the input row order: farthest vertex, then the vertices' spread.
+    auto reach2 = [&](const Star &s) {
+        double m = 0, sum = 0, sx = 0;
+        for (int v : s.vertices) {
+            m = std::max(m, local_in.row(v).squaredNorm());
+            sum += local_in.row(v).squaredNorm();
+            sx += local_in(v, 0);
         }
+        return std::make_tuple(m, sum, sx);
+    };
+    std::vector<std::pair<std::tuple<double, double, double>, int>> order;
+    for (size_t i = 0; i < lstars.stars.size(); ++i) {
+        const Star &s = lstars.stars[i];
+        bool inside = true, hull = false;
+        for (int v : s.vertices) {
+            inside = inside && near[v];
+            hull = hull || on_hull[v];
+        }
+        if (!inside || (cfg.skip_hull_stars && hull)) continue;
+        order.emplace_back(reach2(s), static_cast<int>(i));
+    }
+    std::sort(order.begin(), order.end());
+    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
+    Star star;
+    for (const auto &[reach, si] : order) {
+        const Star &canon = lstars.stars[si];
+        if (res.query_stars >= kMinStarsBeforeExit && hyps.best >= decisive) break;
         ++res.query_stars;
         for (int r : rotationsToTry(tri, local_in, canon.centre, cfg)) {
             makeStar(tri, local_in, lstars.descriptors, canon.centre, r, star);
@@ -260,7 +289,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 = decide(res, hyps.list, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage1 =
+        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
             stage1.reason = res.query_stars == 0 ? "no interior triangles in the local trunks"
@@ -282,13 +312,15 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         neighbourTriangles(local_in, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
     // Nearest triangles first (most completely observed); stop once a pose explains most trunks
     // (RANSAC-style early exit: bounded time on large local sets).
+    // Key independent of the input row order (ties broken by the vertices' spread).
     auto reach = [&](const std::array<int, 3> &t) {
-        return std::max({local_in.row(t[0]).squaredNorm(), local_in.row(t[1]).squaredNorm(),
-                         local_in.row(t[2]).squaredNorm()});
+        const double a = local_in.row(t[0]).squaredNorm(), b = local_in.row(t[1]).squaredNorm(),
+                     c = local_in.row(t[2]).squaredNorm();
+        return std::make_tuple(std::max({a, b, c}), a + b + c,
+                               local_in(t[0], 0) + local_in(t[1], 0) + local_in(t[2], 0));
     };
     std::sort(ltris.begin(), ltris.end(),
               [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
-    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
     for (const auto &t : ltris) {
         if (hyps.best >= decisive) break;
         const Eigen::Vector3d s0 = triangleSides(local_in, t);
@@ -309,7 +341,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 = decide(res, hyps.list, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage2 =
+        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     return stage2;
 }
@@ -325,7 +358,7 @@ double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose
 }
 
 GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                                   const Points2 &local, const Points2 &scoring,
+                                   int searched, const Points2 &local, const Points2 &scoring,
                                    const std::vector<int> &local_rows,
                                    const GlobalLocalizerConfig &cfg) const {
     GlobalLocalization res = base;
@@ -337,7 +370,6 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     std::stable_sort(hyps.begin(), hyps.end(),
                      [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
     const Hypothesis &best = hyps.front();
-    const int searched = static_cast<int>(hyps.size());
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
     res.stage = best.stage;
     res.second_inliers = 0;

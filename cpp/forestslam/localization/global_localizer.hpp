@@ -22,9 +22,9 @@ struct GlobalLocalizerConfig {
     double edge_tolerance_m = 0.35;    // |local - map| for the nine star edges
     double inlier_gate_m = 0.5;        // local trunk within this of a map trunk: consensus
     int min_inliers = 6;               // fewer: rejected
-    double min_inlier_fraction = 0.25;    // of the local trunks
-    double ambiguity_ratio = 0.8;         // rejected when second-best >= ratio * best
-    double min_significance = 2.3;  // -log10 of the search-corrected chance probability (0.005)
+    double min_inlier_fraction = 0.25;  // of the local trunks
+    double ambiguity_ratio = 0.8;       // rejected when second-best >= ratio * best
+    double min_significance = 2.3;      // -log10 of the search-corrected chance probability (0.005)
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
@@ -34,10 +34,10 @@ struct GlobalLocalizerConfig {
     // Single-triangle matching when no star hypothesis wins; its answers carry stage Triangle
     // and pass the same significance test (seeded by 3 points instead of 6).
     bool triangle_fallback = true;
-    int candidates_per_triangle = 16;     // k nearest map triangles per local triangle (fallback)
-    int triangle_neighbours = 5;          // local triangles: each trunk with 2 of its k nearest
-    int max_query_trunks = 100;    // hypotheses scored on this many trunks nearest the origin
-    int max_fallback_trunks = 40;  // fallback triangles from this many nearest trunks
+    int candidates_per_triangle = 16;  // k nearest map triangles per local triangle (fallback)
+    int triangle_neighbours = 5;       // local triangles: each trunk with 2 of its k nearest
+    int max_query_trunks = 100;        // hypotheses scored on this many trunks nearest the origin
+    int max_fallback_trunks = 40;      // fallback triangles from this many nearest trunks
 };
 
 enum class LocalizationStage { None, Star, Triangle };
@@ -74,7 +74,7 @@ struct GlobalLocalization {
     double significance = 0.0;
     double expected_chance_inliers = 0.0;  // chance inliers expected beyond the seed points
     RunnerUp runner_up;
-    int hypotheses = 0;      // verified distinct-by-hash hypotheses
+    int hypotheses = 0;  // verified distinct-by-hash hypotheses
     int query_stars = 0;
     int local_trunks = 0;  // usable (finite, de-duplicated) local trunks
     double rms_m = 0;
@@ -100,8 +100,9 @@ class TreeMap {
     const StarSet &stars() const { return stars_; }
 
   private:
+    // searched: verified correspondences (the multiple-testing count of the acceptance test).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                              const Points2 &local, const Points2 &scoring,
+                              int searched, const Points2 &local, const Points2 &scoring,
                               const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).

@@ -20,16 +20,25 @@ log = logging.getLogger(__name__)
 
 
 def table_map_xy(
-    table: TreeTable, merge_radius_m: float = 0.3, min_frames: int = 2, frame_step: int = 5
+    table: TreeTable,
+    merge_radius_m: float = 0.3,
+    min_frames: int = 2,
+    keyframe_distance_m: float = 5.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(M,2) world positions and (M,) DBH of the trees of a table (every ``frame_step``-th frame;
-    a tree is in many consecutive frames' local maps). Detections closer than
-    ``merge_radius_m`` are one tree; trees in fewer than ``min_frames`` frames are dropped."""
+    """(M,2) world positions and (M,) DBH of the trees of a table. A frame's table is the local
+    map around its pose, so frames at least ``keyframe_distance_m`` apart suffice (each tree
+    is still in several). Detections closer than ``merge_radius_m`` are one tree; trees in
+    fewer than ``min_frames`` of those frames (transient false trees) are dropped."""
     from forestslam.localization.localize import merge_close
 
     if table.poses is None:
         raise InputError("a tree table needs its trajectory (trajectory.txt/.tum) to be a map")
-    frames = table.frames[:: max(1, frame_step)]
+    frames, last = [], None
+    for k in table.frames:
+        p = table.poses[int(k)][:2, 3]
+        if last is None or np.hypot(*(p - last)) >= keyframe_distance_m:
+            frames.append(int(k))
+            last = p
     parts, dbhs, ids = [], [], []
     for k in frames:
         rows = table.rows(int(k))
