@@ -147,8 +147,9 @@ def test_bad_tables_are_input_errors(tmp_path):
 
 def test_table_as_map_and_as_queries(tmp_path, world):
     """Session A's tables give the map, session B's tilted frames are localized in it (CLI)."""
-    from forestslam.cli.main import app
     from typer.testing import CliRunner
+
+    from forestslam.cli.main import app
 
     map_root = write_layout(tmp_path / "a", world, frame_poses(12, seed=7), seed=8)
     query_poses = frame_poses(4, seed=9)

@@ -115,3 +115,24 @@ def test_decision_invariant_to_trunk_order(forest):
         assert a.significance == pytest.approx(b.significance, abs=1e-9)
         if a.accepted:
             assert (a.x, a.y, a.yaw) == pytest.approx((b.x, b.y, b.yaw), abs=1e-9)
+
+
+def test_paper_matcher_finds_a_present_place_and_rejects_an_absent_one(forest):
+    xy, tree_map = forest
+    paper = LocalizationConfig(matcher="paper")
+    truth = (100.0, 90.0, 1.2)
+    local = observe(xy, truth, 25.0, noise=0.03, miss=0.05, outliers=0, seed=8)
+    loc = localize(tree_map, local, paper)
+    assert loc.accepted and loc.stage == "star" and loc.matched_triangles >= 2
+    assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.1
+    other = stand(800, 200.0, seed=77)
+    absent = observe(other, truth, 25.0, noise=0.03, miss=0.05, outliers=0, seed=8)
+    assert localize(tree_map, absent, paper).rejected
+    assert paper.trunk_height_offset_m == 2.0 and LocalizationConfig().trunk_height_offset_m == 1.0
+
+
+def test_unknown_matcher_is_an_input_error():
+    from forestslam.errors import InputError
+
+    with pytest.raises(InputError, match="matcher"):
+        LocalizationConfig(matcher="icp")

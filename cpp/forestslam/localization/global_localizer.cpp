@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <tuple>
 #include <unordered_set>
 
@@ -90,10 +91,12 @@ struct Hypotheses {
 
     int best = 0;      // highest consensus so far
     int verified = 0;  // every verified correspondence, duplicates included (the search size)
+    std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
              LocalizationStage stage) {
         ++verified;
+        matches.push_back(pose);
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
@@ -222,6 +225,9 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         return res;
     }
 
+    if (cfg.matcher == Matcher::Paper)
+        return localizePaper(res, local_in, tri, local, scoring, cfg);
+
     std::vector<bool> on_hull(local_in.rows(), false);
     for (size_t t = 0; t < tri.size(); ++t)
         for (int k = 0; k < 3; ++k)
@@ -291,6 +297,7 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     res.hypotheses = static_cast<int>(hyps.list.size());
     GlobalLocalization stage1 =
         decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
             stage1.reason = res.query_stars == 0 ? "no interior triangles in the local trunks"
@@ -321,8 +328,11 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     };
     std::sort(ltris.begin(), ltris.end(),
               [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
+    // Bounded time where nothing matches (an absent place in a dense map verifies thousands of
+    // chance triangle matches): at most max_fallback_matches, nearest triangles first.
+    const int budget = hyps.verified + std::max(0, cfg.max_fallback_matches);
     for (const auto &t : ltris) {
-        if (hyps.best >= decisive) break;
+        if (hyps.best >= decisive || hyps.verified >= budget) break;
         const Eigen::Vector3d s0 = triangleSides(local_in, t);
         for (int r = 0; r < 3; ++r) {
             const Eigen::Vector3d e = triangleSides(local_in, t, r);
@@ -344,7 +354,111 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     GlobalLocalization stage2 =
         decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
+    stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
+}
+
+GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
+                                          const Eigen::Ref<const Points2> &local,
+                                          const Triangulation &tri, const Points2 &usable,
+                                          const Points2 &scoring,
+                                          const GlobalLocalizerConfig &cfg) const {
+    std::vector<bool> on_hull(local.rows(), false);
+    for (size_t t = 0; t < tri.size(); ++t)
+        for (int k = 0; k < 3; ++k)
+            if (tri.neighbours[t][k] < 0) {
+                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
+                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
+            }
+    // Eq. 4's accumulator: (beta, Dx, Dy) bin -> votes and the sum of the voting poses.
+    struct Bin {
+        int votes = 0;
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        double c = 0, s = 0;  // summed rotation (angles average on the circle)
+    };
+    std::unordered_map<uint64_t, Bin> bins;
+    std::vector<Eigen::Vector3d> matches;
+    const StarSet lstars = buildStars(tri, local);
+    std::vector<int> idx;
+    std::vector<double> dist;
+    Eigen::Matrix<double, 6, 2> L, M;
+    for (const Star &star : lstars.stars) {
+        bool peripheral = false;
+        for (int v : star.vertices) peripheral = peripheral || on_hull[v];
+        if (peripheral || stars_.stars.empty()) continue;
+        ++res.query_stars;
+        index_.knn(embedFeature(star.feature), cfg.candidates_per_star, cfg.max_feature_distance_m,
+                   idx, dist);
+        for (int m : idx) {
+            const Star &ms = stars_.stars[m];
+            for (int k = 0; k < 6; ++k) {  // Eq. 2: vertices correspond in canonical order
+                L.row(k) = local.row(star.vertices[k]);
+                M.row(k) = xy_.row(ms.vertices[k]);
+            }
+            const Eigen::Vector2d lc = L.colwise().mean(), mc = M.colwise().mean();
+            // Eq. 3: candidate angles between corresponding centre edges; the one with the
+            // smallest squared vertex residual wins.
+            double best_cost = std::numeric_limits<double>::infinity();
+            Eigen::Vector3d pose;
+            for (int e = 0; e < 3; ++e) {
+                const Eigen::Vector2d dl = L.row((e + 1) % 3) - L.row(e);
+                const Eigen::Vector2d dm = M.row((e + 1) % 3) - M.row(e);
+                const double beta =
+                    wrapAngle(std::atan2(dm.y(), dm.x()) - std::atan2(dl.y(), dl.x()));
+                const Eigen::Vector3d cand(0, 0, beta);
+                const Eigen::Vector2d d = mc - apply(cand, lc);  // D = centroid difference
+                double cost = 0;
+                for (int k = 0; k < 6; ++k)
+                    cost += (apply(cand, L.row(k).transpose()) + d - M.row(k).transpose())
+                                .squaredNorm();
+                if (cost < best_cost) {
+                    best_cost = cost;
+                    pose = {d.x(), d.y(), beta};
+                }
+            }
+            matches.push_back(pose);
+            const uint64_t key =
+                cellKey3(static_cast<int64_t>(std::floor(pose[2] / cfg.paper_angle_bin_rad)),
+                         static_cast<int64_t>(std::floor(pose[0] / cfg.paper_translation_bin_m)),
+                         static_cast<int64_t>(std::floor(pose[1] / cfg.paper_translation_bin_m)));
+            Bin &b = bins[key];
+            ++b.votes;
+            b.sum.head<2>() += pose.head<2>();
+            b.c += std::cos(pose[2]);
+            b.s += std::sin(pose[2]);
+        }
+    }
+    // Every bin is a hypothesis scored by its votes (matched triangles); decide() refines the
+    // fullest and applies the acceptance test, the runner-up being the next distinct bin.
+    std::vector<Hypothesis> hyps;
+    hyps.reserve(bins.size());
+    for (const auto &[key, b] : bins) {
+        const Eigen::Vector3d pose(b.sum.x() / b.votes, b.sum.y() / b.votes, std::atan2(b.s, b.c));
+        hyps.push_back({pose, b.votes, LocalizationStage::Star});
+    }
+    // Deterministic order before the stable sort by votes (the map's bin order is not).
+    std::sort(hyps.begin(), hyps.end(), [](const Hypothesis &a, const Hypothesis &b) {
+        return std::make_tuple(a.pose[0], a.pose[1], a.pose[2]) <
+               std::make_tuple(b.pose[0], b.pose[1], b.pose[2]);
+    });
+    res.hypotheses = static_cast<int>(hyps.size());
+    const int searched = static_cast<int>(matches.size());
+    GlobalLocalization out = decide(res, hyps, searched, usable, scoring, tri.used_points, cfg);
+    out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
+    if (out.rejected && hyps.empty())
+        out.reason = res.query_stars == 0 ? "no interior non-peripheral triangle star"
+                                          : "no matching triangle star in the map";
+    return out;
+}
+
+int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
+                      const GlobalLocalizerConfig &cfg) const {
+    if (res.stage == LocalizationStage::None) return 0;
+    int n = 0;
+    for (const auto &p : matches)
+        n += (p.head<2>() - Eigen::Vector2d(res.x, res.y)).norm() <= cfg.distinct_translation_m &&
+             std::abs(wrapAngle(p[2] - res.yaw)) <= cfg.distinct_yaw_rad;
+    return n;
 }
 
 double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
@@ -374,22 +488,24 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     res.stage = best.stage;
     res.second_inliers = 0;
     res.runner_up = RunnerUp{};
+    int runner_score = 0;  // the runner-up's score in the matcher's own units
     for (const Hypothesis &h : hyps) {
         const bool distinct =
             (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
             std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
         if (distinct) {
-            res.second_inliers = h.score;
+            runner_score = h.score;
             RunnerUp &r = res.runner_up;
             r.exists = true;
             r.x = h.pose[0];
             r.y = h.pose[1];
             r.yaw = wrapAngle(h.pose[2]);
-            r.inliers = h.score;
-            r.significance = chanceEvidence(h.score, static_cast<int>(scoring.rows()),
+            r.inliers = consensus(scoring, h.pose, grid_, cfg.inlier_gate_m);
+            r.significance = chanceEvidence(r.inliers, static_cast<int>(scoring.rows()),
                                             expectedChance(scoring, h.pose, cfg.inlier_gate_m),
                                             seeds(h.stage), searched)
                                  .significance;
+            res.second_inliers = r.inliers;
             break;
         }
     }
@@ -449,7 +565,7 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     acfg.ambiguity_ratio = cfg.ambiguity_ratio;
     acfg.min_inliers = cfg.min_inliers;
     const AcceptanceVerdict verdict =
-        judge(evidence, double(res.second_inliers) / std::max(best.score, 1), acfg);
+        judge(evidence, double(runner_score) / std::max(best.score, 1), acfg);
     res.rejected = !verdict.accepted;
     res.reason = verdict.reason;
     if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {

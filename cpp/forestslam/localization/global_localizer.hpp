@@ -15,7 +15,12 @@
 
 namespace forestslam {
 
+// Default: stars verified by edge lengths and the side test, least-squares pose per star match,
+// consensus scoring. Paper: Li et al. as written (see localizePaper).
+enum class Matcher { Default, Paper };
+
 struct GlobalLocalizerConfig {
+    Matcher matcher = Matcher::Default;
     int candidates_per_star = 8;          // k nearest map stars per query star
     double max_feature_distance_m = 1.5;  // in the embedded (sqrt) feature space
     double rotation_ambiguity = 0.15;  // also try starting edges this much longer than the shortest
@@ -38,6 +43,10 @@ struct GlobalLocalizerConfig {
     int triangle_neighbours = 5;       // local triangles: each trunk with 2 of its k nearest
     int max_query_trunks = 100;        // hypotheses scored on this many trunks nearest the origin
     int max_fallback_trunks = 40;      // fallback triangles from this many nearest trunks
+    int max_fallback_matches = 500;    // verified triangle matches at most (time bound)
+    // Paper matcher: bins of the (beta, Dx, Dy) vote of Eq. 4.
+    double paper_angle_bin_rad = 0.0349;  // 2 deg
+    double paper_translation_bin_m = 0.5;
 };
 
 enum class LocalizationStage { None, Star, Triangle };
@@ -76,6 +85,9 @@ struct GlobalLocalization {
     RunnerUp runner_up;
     int hypotheses = 0;  // verified distinct-by-hash hypotheses
     int query_stars = 0;
+    // Star (triangle) matches whose pose agrees with the answer (within the distinct
+    // thresholds): Li et al.'s "matched triangles".
+    int matched_triangles = 0;
     int local_trunks = 0;  // usable (finite, de-duplicated) local trunks
     double rms_m = 0;
     std::vector<std::pair<int, int>> matches;  // (local row, map row) inlier pairs
@@ -100,11 +112,23 @@ class TreeMap {
     const StarSet &stars() const { return stars_; }
 
   private:
+    // Li et al. as written: interior local stars with no vertex on the local hull, matched to
+    // map stars by feature distance; vertices in canonical order (Eq. 2); the rotation is the
+    // candidate angle between corresponding centre edges minimizing the squared vertex
+    // residuals (Eq. 3); every match votes in (beta, Dx, Dy) and the fullest bin wins (Eq. 4).
+    // Then the same refinement and acceptance test as the default matcher.
+    GlobalLocalization localizePaper(GlobalLocalization res, const Eigen::Ref<const Points2> &local,
+                                     const Triangulation &tri, const Points2 &usable,
+                                     const Points2 &scoring,
+                                     const GlobalLocalizerConfig &cfg) const;
     // searched: verified correspondences (the multiple-testing count of the acceptance test).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                               int searched, const Points2 &local, const Points2 &scoring,
                               const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
+    // Verified matches whose pose agrees with the answer (within the distinct thresholds).
+    int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
+                 const GlobalLocalizerConfig &cfg) const;
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
     double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 

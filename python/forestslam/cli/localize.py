@@ -58,7 +58,12 @@ def register(app: typer.Typer) -> None:
         from forestslam.localization import load_map
         from forestslam.localization.runner import run_localization
 
-        tree_map = load_map(map_path)
+        loc_config = None
+        if config is not None:
+            from forestslam.config import load_config
+
+            loc_config = load_config(config).localization
+        tree_map = load_map(map_path, loc_config)
         if save_map is not None:
             print(f"map saved to {tree_map.save(save_map)}")
         if is_tree_table(input_path):

@@ -4,10 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+MATCHERS = ("default", "paper")
+
 
 @dataclass
 class LocalizationConfig:
     """Star matching, verification and acceptance of a query; aggregation of frames (CLI)."""
+
+    # "default": stars verified by edge lengths and the side test, a pose per match, consensus;
+    # "paper": Li et al. as written (Eq. 2-4, no peripheral stars, t_h = 2 m in trunk
+    # extraction). Both end in the same refinement and acceptance test.
+    matcher: str = "default"
 
     candidates_per_star: int = 8  # k nearest map stars per local star
     max_feature_distance_m: float = 1.5  # in the sqrt feature space (sqrt area, perimeter)
@@ -35,8 +42,22 @@ class LocalizationConfig:
     triangle_neighbours: int = 5  # fallback triangles: each local trunk with 2 of its k nearest
     max_query_trunks: int = 100  # hypotheses scored on this many trunks nearest the origin
     max_fallback_trunks: int = 40  # fallback triangles only from this many nearest trunks
+    max_fallback_matches: int = 500  # verified fallback triangle matches at most (time bound)
     # Aggregation of several scans into one query (CLI / aggregate_stems).
     merge_radius_m: float = 0.3  # detections of one trunk from several frames are merged
     keyframe_distance_m: float = 0.0  # frames of a query this far apart; 0 = consecutive scans
     min_observations: int = 1  # with >= 3 frames, trunks seen fewer times are dropped
     max_range_m: float = 25.0  # detections further from their sensor are dropped
+
+    def __post_init__(self) -> None:
+        from forestslam.errors import InputError
+
+        if self.matcher not in MATCHERS:
+            raise InputError(
+                f"localization.matcher must be one of {MATCHERS}, not {self.matcher!r}"
+            )
+
+    @property
+    def trunk_height_offset_m(self) -> float:
+        """t_h of trunk extraction from map clouds: the paper's 2 m in paper mode."""
+        return 2.0 if self.matcher == "paper" else 1.0

@@ -49,6 +49,7 @@ class Localization:
     expected_chance_inliers: float = 0.0
     runner_up: RunnerUp = field(default_factory=RunnerUp)
     hypotheses: int = 0
+    matched_triangles: int = 0  # star matches agreeing with the answer (Li et al.'s count)
     local_trunks: int = 0
     rms_m: float = 0.0
     matches: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int32))
@@ -115,12 +116,17 @@ def _core_config(config: LocalizationConfig):
         "triangle_neighbours",
         "max_query_trunks",
         "max_fallback_trunks",
+        "max_fallback_matches",
     ):
         if hasattr(c, name):  # an older compiled core lacks the newest options
             setattr(c, name, getattr(config, name))
         else:
             log.debug("compiled core has no localization option %s; default kept", name)
     c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)
+    if hasattr(_core, "Matcher"):
+        c.matcher = getattr(_core.Matcher, config.matcher)
+    elif config.matcher != "default":
+        raise InputError("the compiled core has no paper matcher; rebuild forestslam")
     return c
 
 
@@ -162,6 +168,7 @@ def localize(
         expected_chance_inliers=getattr(r, "expected_chance_inliers", 0.0),
         runner_up=_runner_up(getattr(r, "runner_up", None)),
         hypotheses=r.hypotheses,
+        matched_triangles=getattr(r, "matched_triangles", 0),
         local_trunks=r.local_trunks,
         rms_m=r.rms_m,
         matches=np.array(r.matches),

@@ -110,7 +110,7 @@ class TreeMap:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> TreeMap:
+    def load(cls, path: str | Path, config=None) -> TreeMap:
         """A map file written by ``save``, or a tree CSV (see ``from_csv``)."""
         from forestslam.io.tree_tables import is_tree_table
 
@@ -122,7 +122,8 @@ class TreeMap:
         if path.suffix.lower() == ".csv":
             return cls.from_csv(path)
         if path.suffix.lower() in CLOUD_SUFFIXES:
-            return cls.from_cloud(path)
+            t_h = config.trunk_height_offset_m if config is not None else 1.0
+            return cls.from_cloud(path, height_offset_m=t_h)
         try:
             with np.load(path, allow_pickle=False) as data:
                 if "format" not in data or str(data["format"]) != MAP_FORMAT:
@@ -188,9 +189,10 @@ def build_map(xy: np.ndarray, dbh_m: np.ndarray | None = None) -> TreeMap:
     return TreeMap(xy, dbh_m)
 
 
-def load_map(path: str | Path) -> TreeMap:
+def load_map(path: str | Path, config=None) -> TreeMap:
     """A saved map (.npz), a tree CSV with x, y[, dbh_m], a map point cloud
     (.las/.laz/.ply/.pcd/.bin: trunks extracted by ``extract_trunks``) or another mapper's
     tree tables (a directory of TreeManagerState_<k>.csv + trajectory.txt, or a packed
-    trees.csv[.gz] with a frame column)."""
-    return TreeMap.load(path)
+    trees.csv[.gz] with a frame column). ``config`` (LocalizationConfig): t_h of the trunk
+    extraction from clouds (2 m in paper mode)."""
+    return TreeMap.load(path, config)

@@ -65,8 +65,15 @@ void define_localization(py::module_ &m) {
         "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
         "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
 
+    py::enum_<Matcher>(m, "Matcher")
+        .value("default", Matcher::Default)
+        .value("paper", Matcher::Paper);
+
     py::class_<GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
         .def(py::init<>())
+        .def_readwrite("matcher", &GlobalLocalizerConfig::matcher)
+        .def_readwrite("paper_angle_bin_rad", &GlobalLocalizerConfig::paper_angle_bin_rad)
+        .def_readwrite("paper_translation_bin_m", &GlobalLocalizerConfig::paper_translation_bin_m)
         .def_readwrite("candidates_per_star", &GlobalLocalizerConfig::candidates_per_star)
         .def_readwrite("max_feature_distance_m", &GlobalLocalizerConfig::max_feature_distance_m)
         .def_readwrite("rotation_ambiguity", &GlobalLocalizerConfig::rotation_ambiguity)
@@ -86,7 +93,8 @@ void define_localization(py::module_ &m) {
         .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle)
         .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours)
         .def_readwrite("max_query_trunks", &GlobalLocalizerConfig::max_query_trunks)
-        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks);
+        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks)
+        .def_readwrite("max_fallback_matches", &GlobalLocalizerConfig::max_fallback_matches);
 
     py::class_<RunnerUp>(m, "RunnerUp")
         .def_readonly("exists", &RunnerUp::exists)
@@ -125,6 +133,7 @@ void define_localization(py::module_ &m) {
         .def_readonly("runner_up", &GlobalLocalization::runner_up)
         .def_readonly("hypotheses", &GlobalLocalization::hypotheses)
         .def_readonly("query_stars", &GlobalLocalization::query_stars)
+        .def_readonly("matched_triangles", &GlobalLocalization::matched_triangles)
         .def_readonly("local_trunks", &GlobalLocalization::local_trunks)
         .def_readonly("rms_m", &GlobalLocalization::rms_m)
         .def_property_readonly(
