@@ -299,6 +299,9 @@ def run_treeloc(args) -> None:
         "half (V04 lies inside V03's coverage)"
     )
     config = LocalizationConfig()
+    if args.treeloc_range is not None:
+        config.max_range_m = args.treeloc_range
+    print(f"query trees within {config.max_range_m:.0f} m of the frame's pose")
     for q_name, m_name in (("v03", "v04"), ("v04", "v03")):
         qt, mt = tables[q_name], tables[m_name]
         c0 = time.process_time()
@@ -710,6 +713,9 @@ def main() -> int:
         choices=["stems", "reference", "none"],
         default="stems",
         help="levelling of the tree-table queries",
+    )
+    parser.add_argument(
+        "--treeloc-range", type=float, default=None, help="query range (default: the config's)"
     )
     parser.add_argument(
         "--sequences",
