@@ -14,13 +14,17 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = Path(
+    os.environ.get("FORESTSLAM_DATA")
+    or Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+)
 
 
 def load_stand(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -167,6 +171,293 @@ def run_simulated(args) -> None:
             )
 
 
+def run_simulated_absent(args) -> None:
+    """Queries from places that are not in the map; every acceptance is wrong.
+    a) longleaf split in halves: the map holds one half, the queries are driven in the other
+       (poses >= range + 5 m from the boundary, so no view reaches the mapped half);
+    b) spruces (a denser, different stand) queried in the whole longleaf map;
+    c) synthetic stands (uniform, 1 m minimum spacing, densities 0.01-0.05 /m^2) in longleaf."""
+    from forestslam.localization import build_map, localize
+
+    args.range = args.ranges[0]
+    xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
+    sp_xy, sp_dbh = load_stand(DATA / "stands" / "spruces.csv")
+    rng = np.random.default_rng(args.seed + 100)
+    print("\n== Absent places (simulated views; accepted = wrong) ==")
+    print(
+        f"{'case':>28} {'range m':>7} {'frames':>6} {'queries':>7} {'accepted':>8} {'triangle':>8}"
+    )
+    mid = float(np.median(xy[:, 0]))
+    whole = build_map(xy, dbh)
+    halves = {
+        "longleaf east in west half": (
+            xy[:, 0] < mid,
+            (mid + args.range + 5, float(xy[:, 0].max()) - 5),
+        ),
+        "longleaf west in east half": (
+            xy[:, 0] >= mid,
+            (float(xy[:, 0].min()) + 5, mid - args.range - 5),
+        ),
+    }
+    total = accepted_total = 0
+    for name, (in_map, (xlo, xhi)) in halves.items():
+        tree_map = build_map(xy[in_map], dbh[in_map])
+        for frames in (1, 5):
+            acc = tri = 0
+            for _ in range(args.absent_queries):
+                local, _truth = simulate_query_x(xy, dbh, rng, frames, args, xlo, xhi)
+                loc = localize(tree_map, local)
+                acc += loc.accepted
+                tri += loc.accepted and loc.stage == "triangle"
+            total += args.absent_queries
+            accepted_total += acc
+            print(
+                f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} "
+                f"{tri:>8}"
+            )
+    others = {"spruces in longleaf": (sp_xy, sp_dbh, 2.0)}
+    for density in (0.01, 0.02, 0.05):
+        sxy = random_stand(3000, density, rng)
+        others[f"uniform {density}/m2 in longleaf"] = (sxy, np.full(len(sxy), 0.3), 20.0)
+    for name, (oxy, odbh, margin) in others.items():
+        for frames in (1, 5):
+            acc = tri = 0
+            lo, hi = float(oxy.min()) + margin, float(oxy.max()) - margin
+            for _ in range(args.absent_queries):
+                local, _truth = simulate_query(oxy, odbh, rng, frames, args, lo, hi)
+                loc = localize(whole, local)
+                acc += loc.accepted
+                tri += loc.accepted and loc.stage == "triangle"
+            total += args.absent_queries
+            accepted_total += acc
+            print(
+                f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} "
+                f"{tri:>8}"
+            )
+    print(
+        f"absent places accepted: {accepted_total}/{max(total, 1)} = "
+        f"{accepted_total / max(total, 1):.2%} (target <= 0.5 %)"
+    )
+
+
+def simulate_query_x(xy, dbh, rng, frames, args, xlo, xhi):
+    """simulate_query with the path's x inside [xlo, xhi] (a strip of the stand)."""
+    ylo, yhi = float(xy[:, 1].min()) + 5, float(xy[:, 1].max()) - 5
+    for _ in range(1000):
+        local, truth = simulate_query(xy, dbh, rng, frames, args, min(xlo, ylo), max(xhi, yhi))
+        if xlo <= truth[0] <= xhi and ylo <= truth[1] <= yhi:
+            return local, truth
+    raise RuntimeError("no drivable pose in the strip")
+
+
+# TreeLoc++'s Venman (Wild-Places V) test regions (its evaluation code, WildVTestPolygons):
+# inter-session queries are the query frames inside these polygons with a map frame within 5 m.
+VENMAN_TEST_POLYGONS = [
+    [
+        (-468.0, -82.0),
+        (-468.0, 44.0),
+        (-314.0, 44.0),
+        (-305.0, 12.0),
+        (-192.0, 44.0),
+        (-192.0, -82.0),
+    ],
+    [(-78.0, -171.0), (-78.0, -215.0), (-305.0, -215.0), (-305.0, -171.0)],
+    [(-62.0, 70.0), (95.0, 70.0), (142.0, 0.0), (140.0, -142.0), (-62.0, -142.0)],
+]
+
+
+def in_polygons(xy: np.ndarray, polygons) -> np.ndarray:
+    from matplotlib.path import Path as MplPath
+
+    inside = np.zeros(len(xy), bool)
+    for poly in polygons:
+        inside |= MplPath(np.array(poly)).contains_points(xy)
+    return inside
+
+
+def run_treeloc(args) -> None:
+    """Wild-Places Venman V03/V04 tree tables (RealtimeTrees, as shipped with TreeLoc++): each
+    session's frames as queries in a map built from the other session's frames."""
+    from scipy.spatial import cKDTree
+
+    from forestslam.io.tree_tables import read_tree_table
+    from forestslam.localization import LocalizationConfig, build_map, localize
+    from forestslam.localization.tables import query_xy, table_map_xy, true_planar_pose
+
+    root = DATA / "treeloc"
+    if not (root / "wild_v03").is_dir():
+        print("\n== TreeLoc tables: skipped (../shared/data/treeloc absent) ==")
+        return
+    tables = {name: read_tree_table(root / f"wild_{name}") for name in ("v03", "v04")}
+    print("\n== Wild-Places Venman tree tables (RealtimeTrees): inter-session localization ==")
+    print(
+        "protocol (TreeLoc++ inter): query frames inside its Venman test polygons with a map "
+        "frame within 5 m; success = within 0.5 m and 5 deg of the reference pose of the "
+        f"query frame; queries levelled by their stem axes ({args.treeloc_gravity}); "
+        "absent = query frames farther than the query range + 1 m from every map tree (no "
+        "query tree can have its tree in the map), in the whole map and in the map's western "
+        "half (V04 lies inside V03's coverage)"
+    )
+    config = LocalizationConfig()
+    if args.treeloc_range is not None:
+        config.max_range_m = args.treeloc_range
+    print(f"query trees within {config.max_range_m:.0f} m of the frame's pose")
+    for q_name, m_name in (("v03", "v04"), ("v04", "v03")):
+        qt, mt = tables[q_name], tables[m_name]
+        c0 = time.process_time()
+        map_xy, map_dbh = table_map_xy(mt)
+        tree_map = build_map(map_xy, map_dbh)
+        build_s = time.process_time() - c0
+        q_pos = qt.poses[:, :2, 3]
+        m_pos = mt.poses[:, :2, 3]
+        near_map = cKDTree(m_pos).query(q_pos)[0]
+        frames = qt.frames
+        test = frames[in_polygons(q_pos[frames], VENMAN_TEST_POLYGONS) & (near_map[frames] <= 5.0)]
+        reach = config.max_range_m + 1.0
+        absent = frames[cKDTree(map_xy).query(q_pos[frames])[0] > reach]
+        rows = []
+        for kind, ks in (("test", test), ("absent", absent)):
+            for k in ks:
+                local, R = query_xy(qt, int(k), args.treeloc_gravity, config.max_range_m)
+                c0 = time.process_time()
+                loc = localize(tree_map, local, config)
+                ms = 1e3 * (time.process_time() - c0)
+                tx, ty, tyaw = true_planar_pose(qt, int(k), R)
+                rows.append(
+                    (
+                        kind,
+                        loc.accepted,
+                        loc.x - tx,
+                        loc.y - ty,
+                        math.remainder(loc.yaw - tyaw, 2 * math.pi),
+                        ms,
+                        len(local),
+                        loc.stage,
+                    )
+                )
+        test_rows = [r for r in rows if r[0] == "test"]
+        acc = [r for r in test_rows if r[1]]
+        n = len(test_rows)
+        e = np.array([[r[2], r[3], r[4]] for r in acc]).reshape(-1, 3)
+        raw = np.hypot(e[:, 0], e[:, 1])
+        ok_raw = (raw <= 0.5) & (np.degrees(np.abs(e[:, 2])) <= 5)
+        offset = np.median(e, axis=0) if len(e) else np.zeros(3)
+        r = e - offset
+        res = np.hypot(r[:, 0], r[:, 1])
+        ok = (res <= 0.5) & (np.degrees(np.abs(r[:, 2])) <= 5)
+        far = res > 5.0
+        absent_rows = [r for r in rows if r[0] == "absent"]
+        absent_acc = sum(r[1] for r in absent_rows)
+        ms = np.array([r[5] for r in rows])
+        print(
+            f"\n{q_name.upper()} queries in a {m_name.upper()} map ({len(map_xy)} trees, built in "
+            f"{build_s:.1f} s CPU): {n} test queries "
+            f"(median {np.median([r[6] for r in test_rows]):.0f} trees)"
+        )
+        print(
+            f"  accepted {len(acc)}/{n} = {len(acc) / max(n, 1):.1%}, "
+            f"triangle stage {sum(r[7] == 'triangle' for r in acc)}"
+        )
+        print(
+            f"  within 0.5 m / 5 deg of the reference: {ok_raw.sum()}/{n} = "
+            f"{ok_raw.sum() / max(n, 1):.1%}"
+        )
+        print(
+            f"  sessions' constant offset (median error): dx {offset[0]:+.2f} m, "
+            f"dy {offset[1]:+.2f} m, "
+            f"dyaw {math.degrees(offset[2]):+.2f} deg"
+        )
+        print(
+            f"  after removing it: within 0.5 m / 5 deg {ok.sum()}/{n} = "
+            f"{ok.sum() / max(n, 1):.1%}; "
+            f"error median {np.median(res) if len(res) else float('nan'):.3f} m, "
+            f"p90 {np.percentile(res, 90) if len(res) else float('nan'):.3f} m; "
+            f"wrongly accepted (> 0.5 m or 5 deg) {(~ok).sum()}, of them > 5 m off {far.sum()}"
+        )
+        print(
+            f"  absent places (query > {reach:.0f} m from every map tree): accepted "
+            f"{absent_acc}/{len(absent_rows)}"
+            f" = {absent_acc / max(len(absent_rows), 1):.2%}"
+        )
+        ms_test = np.array([r[5] for r in test_rows])
+        ms_absent = np.array([r[5] for r in absent_rows]) if absent_rows else np.zeros(1)
+        print(
+            f"  CPU per query: test median {np.median(ms_test):.2f} ms, p95 "
+            f"{np.percentile(ms_test, 95):.2f} ms; absent median {np.median(ms_absent):.2f} ms, "
+            f"p95 {np.percentile(ms_absent, 95):.2f} ms"
+        )
+        west = map_xy[:, 0] < np.median(map_xy[:, 0])
+        half = build_map(map_xy[west], map_dbh[west])
+        away = frames[cKDTree(map_xy[west]).query(q_pos[frames])[0] > reach]
+        half_acc = sum(
+            localize(
+                half, query_xy(qt, int(k), args.treeloc_gravity, config.max_range_m)[0]
+            ).accepted
+            for k in away
+        )
+        print(
+            f"  absent places in the map's western half ({west.sum()} trees; queries > "
+            f"{reach:.0f} m from all of them): accepted {half_acc}/{len(away)} = "
+            f"{half_acc / max(len(away), 1):.2%}"
+        )
+        if q_name == "v03":
+            print(
+                "  TreeLoc++ (paper / its repository, same 543 V03 queries): Recall@1 0.92; "
+                "34.4 % within 0.5 m / 5 deg"
+            )
+
+
+LI_TABLE_I = {
+    1: (54, 1.71, 0.229),
+    3: (123, 4.97, 0.888),
+    5: (140, 10.2, 0.993),
+    10: (134, 14.4, 1.0),
+}
+
+
+def run_paper_table(args) -> None:
+    """Li et al.'s Table I (aggregated frames -> trunks, matched triangles, success) for both
+    matchers on simulated views of the longleaf stand, beside the paper's rows (Lieksa harvester
+    data, trunks extracted from aggregated clouds: not the same data, so compare trends)."""
+    from forestslam.localization import LocalizationConfig, build_map, localize
+
+    xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
+    tree_map = build_map(xy, dbh)
+    args.range = args.ranges[0]
+    print("\n== Li et al. Table I: aggregated frames (simulated views, longleaf map) ==")
+    print(
+        f"{'frames':>6} | {'paper: trunks':>13} {'matched tri':>11} {'success':>7} | "
+        f"{'matcher':>8} {'trunks':>6} {'matched tri':>11} {'success':>7} {'wrong':>5} "
+        f"{'ms':>5}"
+    )
+    for frames in (1, 3, 5, 10):
+        rng = np.random.default_rng(args.seed + 1000 + frames)
+        queries = [simulate_query(xy, dbh, rng, frames, args) for _ in range(args.paper_queries)]
+        for matcher in ("paper", "default"):
+            config = LocalizationConfig(matcher=matcher)
+            tri, ok, wrong, ms = [], 0, 0, []
+            for local, truth in queries:
+                c0 = time.process_time()
+                loc = localize(tree_map, local, config)
+                ms.append(1e3 * (time.process_time() - c0))
+                tri.append(loc.matched_triangles)
+                if loc.accepted:
+                    e, d = pose_error(loc, truth)
+                    ok += e < 0.5 and d < 2
+                    wrong += not (e < 0.5 and d < 2)
+            n = len(queries)
+            paper = LI_TABLE_I[frames]
+            left = (
+                f"{frames:>6} | {paper[0]:>13} {paper[1]:>11.2f} {paper[2]:>7.1%} |"
+                if matcher == "paper"
+                else f"{'':>6} | {'':>13} {'':>11} {'':>7} |"
+            )
+            print(
+                f"{left} {matcher:>8} {np.mean([len(q[0]) for q in queries]):>6.1f} "
+                f"{np.mean(tri):>11.2f} {ok / n:>7.1%} {wrong:>5} {np.mean(ms):>5.2f}"
+            )
+
+
 def run_fortls() -> None:
     from forestslam.io import read_trees_csv
     from forestslam.localization import build_map, localize
@@ -203,9 +494,76 @@ def run_fortls() -> None:
             f"{p:>4} {int((field['plot'] == p).sum()):>5} {len(local):>4} "
             f"{'yes' if not loc.rejected else 'REJ':>6} {'right' if right else 'WRONG':>8} "
             f"{loc.inliers:>7} {math.degrees(loc.yaw):>8.2f} {off[0]:>7.2f} {off[1]:>7.2f} "
-            f"{loc.rms_m:>6.3f} {loc.time_ms:>6.2f}"
+            f"{loc.rms_m:>6.3f} {loc.time_ms:>6.2f} {loc.stage or '-':>8} "
+            f"{loc.significance:>6.1f}"
         )
     print(f"right plot found for {correct}/{len(plots)} plots")
+    run_fortls_leave_one_out(field, tls, plots)
+
+
+def fortls_layout(field: dict, plots: list[int]) -> dict[int, np.ndarray]:
+    """Centres of the field plots in one frame. The plots overlap on the ground (neighbours
+    about 20 m apart share trees: identical positions and DBH), so each plot is localized in
+    its neighbours' field trees (exact, rms ~0) and the offsets are chained from plot 1."""
+    from forestslam.localization import build_map, localize
+
+    xy = {p: np.column_stack([field["x"], field["y"]])[field["plot"] == p] for p in plots}
+    centres = {plots[0]: np.zeros(2)}
+    todo = [plots[0]]
+    while todo:
+        q = todo.pop()
+        tree_map = build_map(xy[q])
+        for p in plots:
+            if p in centres:
+                continue
+            loc = localize(tree_map, xy[p])
+            if loc.accepted and loc.rms_m < 0.01 and abs(loc.yaw) < 1e-3:
+                centres[p] = centres[q] + [loc.x, loc.y]
+                todo.append(p)
+    return centres
+
+
+def run_fortls_leave_one_out(field: dict, tls: dict, plots: list[int]) -> None:
+    """Absent places on real trees: the FORTLS stand rebuilt from its overlapping plots, minus
+    everything within 25 m of the queried plot's centre (the plot and the neighbours' trees
+    that are the same trees); the plot's TLS trees are queried in the rest. Accepted = wrong.
+    (Placing the plots 100 m apart and leaving one out does not remove the place: about half
+    of its trees are in its neighbours, where those queries are rightly found.)"""
+    from forestslam.localization import build_map, localize
+
+    centres = fortls_layout(field, plots)
+    if len(centres) < len(plots):
+        print(f"FORTLS layout: only {len(centres)} of {len(plots)} plots chained; LOPO skipped")
+        return
+    stand = np.vstack(
+        [np.column_stack([field["x"], field["y"]])[field["plot"] == p] + centres[p] for p in plots]
+    )
+    from forestslam.localization import merge_close
+
+    stand = merge_close(stand, 0.05)  # the same tree measured in two plots
+    print(f"\nFORTLS stand rebuilt from the overlapping plots: {len(stand)} distinct trees")
+    # Present: each plot's TLS trees in the whole stand (right within 3 m of its centre).
+    tree_map = build_map(stand)
+    right = 0
+    for p in plots:
+        loc = localize(tree_map, np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p])
+        right += loc.accepted and float(np.hypot(*(np.array([loc.x, loc.y]) - centres[p]))) < 3
+    print(f"present: TLS plot found in the whole stand {right}/{len(plots)}")
+    print("leave-one-plot-out (map: stand minus 25 m around the plot; accepted = wrong)")
+    print(
+        f"{'plot':>4} {'map':>4} {'accepted':>8} {'stage':>8} {'inliers':>7} {'signif':>7} reason"
+    )
+    wrong = 0
+    for p in plots:
+        keep = np.hypot(*(stand - centres[p]).T) > 25.0
+        local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
+        loc = localize(build_map(stand[keep]), local)
+        wrong += loc.accepted
+        print(
+            f"{p:>4} {int(keep.sum()):>4} {'YES' if loc.accepted else 'no':>8} "
+            f"{loc.stage or '-':>8} {loc.inliers:>7} {loc.significance:>7.2f} {loc.reason}"
+        )
+    print(f"absent plot accepted {wrong}/{len(plots)}")
 
 
 def sequence_errors(out_dir: Path, truth_dir: Path) -> tuple[int, int, list, list, int]:
@@ -284,7 +642,7 @@ def random_stand(n: int, density: float, rng: np.random.Generator) -> np.ndarray
 
 
 def run_speed(args) -> None:
-    from forestslam.localization import build_map, localize
+    from forestslam.localization import build_map
 
     rng = np.random.default_rng(args.seed)
     print("\n== Speed (one core) ==")
@@ -297,7 +655,14 @@ def run_speed(args) -> None:
             f"map build {len(xy)} trees: {build_s * 1e3:.1f} ms wall, {cpu_s * 1e3:.1f} ms CPU "
             f"({tree_map})"
         )
-    xy = random_stand(2000, 0.02, rng)
+    for n_map in (2000, 20000):
+        xy = random_stand(n_map, 0.02, rng)
+        run_speed_queries(args, rng, xy)
+
+
+def run_speed_queries(args, rng, xy) -> None:
+    from forestslam.localization import build_map, localize
+
     dbh = np.full(len(xy), 0.3)
     tree_map = build_map(xy, dbh)
     for frames in (1, 5):
@@ -314,15 +679,19 @@ def run_speed(args) -> None:
             ok += (not loc.rejected) and e < 0.5 and d < 2
         t = np.array(times)
         print(
-            f"query vs 2,000-tree map, {frames} frame(s), median {np.median(sizes):.0f} trunks: "
+            f"query vs {len(xy):,}-tree map, {frames} frame(s), median {np.median(sizes):.0f} "
+            f"trunks: "
             f"wall median {np.median(t):.2f} ms, p95 {np.percentile(t, 95):.2f} ms, "
-            f"max {t.max():.2f} ms; CPU mean {np.mean(cpu):.2f} ms (success {ok}/{len(t)})"
+            f"max {t.max():.2f} ms; CPU mean {np.mean(cpu):.2f} ms, p95 "
+            f"{np.percentile(cpu, 95):.2f} ms (success {ok}/{len(t)}; target <= 10 ms)"
         )
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=1000)
+    parser.add_argument("--absent-queries", type=int, default=200, help="per absent-place case")
+    parser.add_argument("--paper-queries", type=int, default=300, help="per row of Table I")
     parser.add_argument("--speed-queries", type=int, default=200)
     parser.add_argument(
         "--ranges", type=lambda v: [float(x) for x in v.split(",")], default=[20.0, 18.0, 15.0]
@@ -340,6 +709,15 @@ def main() -> int:
     )
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument(
+        "--treeloc-gravity",
+        choices=["stems", "reference", "none"],
+        default="stems",
+        help="levelling of the tree-table queries",
+    )
+    parser.add_argument(
+        "--treeloc-range", type=float, default=None, help="query range (default: the config's)"
+    )
+    parser.add_argument(
         "--sequences",
         nargs="*",
         default=[],
@@ -347,15 +725,25 @@ def main() -> int:
     )
     parser.add_argument("--every", type=int, default=10, help="query every K scans (sequences)")
     parser.add_argument("--work-dir", default="/tmp/localize_bench")
-    parser.add_argument("--only", choices=["sim", "fortls", "speed", "seq"], default=None)
+    parser.add_argument(
+        "--only",
+        choices=["sim", "absent", "fortls", "speed", "seq", "treeloc", "paper"],
+        default=None,
+    )
     args = parser.parse_args()
     if not (DATA / "stands" / "longleaf.csv").is_file():
         print("../shared/data absent: nothing to benchmark", file=sys.stderr)
         return 1
     if args.only in (None, "sim"):
         run_simulated(args)
+    if args.only in (None, "sim", "absent"):
+        run_simulated_absent(args)
     if args.only in (None, "fortls"):
         run_fortls()
+    if args.only in (None, "treeloc"):
+        run_treeloc(args)
+    if args.only in (None, "paper"):
+        run_paper_table(args)
     if args.only in (None, "speed"):
         run_speed(args)
     if args.only in (None, "seq") and args.sequences:

@@ -144,3 +144,35 @@ TEST(GlobalLocalizer, DegenerateQueriesAreRejectedNotThrown) {
     const forestslam::TreeMap empty(Points2(0, 2));
     EXPECT_TRUE(empty.localize(observe(map, {60, 60, 0}, 20, 0, 0, 0, 1)).rejected);
 }
+
+TEST(GlobalLocalizer, ReportsStageSignificanceAndRunnerUp) {
+    const Points2 map = stand(600, 150, 3);
+    const forestslam::TreeMap tree_map(map);
+    const Eigen::Vector3d truth(70, 80, 0.7);
+    const auto res = tree_map.localize(observe(map, truth, 20, 0.05, 0.1, 2, 4));
+    ASSERT_FALSE(res.rejected) << res.reason;
+    EXPECT_EQ(res.stage, forestslam::LocalizationStage::Star);
+    EXPECT_STREQ(forestslam::stageName(res.stage), "star");
+    EXPECT_GE(res.significance, forestslam::GlobalLocalizerConfig().min_significance);
+    EXPECT_LT(res.expected_chance_inliers, 0.25 * res.inliers);
+    if (res.runner_up.exists) {
+        EXPECT_LT(res.runner_up.significance, res.significance);
+        EXPECT_EQ(res.runner_up.inliers, res.second_inliers);
+    }
+    // No fallback: nothing is ever answered by the triangle stage.
+    forestslam::GlobalLocalizerConfig no_fallback;
+    no_fallback.triangle_fallback = false;
+    const auto small = tree_map.localize(observe(map, truth, 8, 0.03, 0.3, 1, 5), no_fallback);
+    EXPECT_NE(small.stage, forestslam::LocalizationStage::Triangle);
+}
+
+TEST(GlobalLocalizer, AbsentPlacesAreNotSignificant) {
+    const Points2 map = stand(600, 150, 3);
+    const Points2 other = stand(600, 150, 77);
+    const forestslam::TreeMap tree_map(map);
+    for (int q = 0; q < 10; ++q) {
+        const Eigen::Vector3d pose(30 + 9 * q, 75, 0.6 * q);
+        const auto res = tree_map.localize(observe(other, pose, 20, 0.05, 0.1, 2, 10 + q));
+        EXPECT_TRUE(res.rejected) << "query " << q << " significance " << res.significance;
+    }
+}

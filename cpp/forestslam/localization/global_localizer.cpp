@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <tuple>
 #include <unordered_set>
 
 #include "forestslam/common/voxel_key.hpp"
@@ -12,6 +14,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr int kMapTriangleNeighbours = 8;  // map triangles: each trunk with 2 of its 8 nearest
 constexpr double kMaxTriangleEdge = 30.0;  // metres
+constexpr int kMinStarsBeforeExit = 30;    // query stars tried before a decisive early exit
 
 double wrapAngle(double a) {
     a = std::fmod(a + kPi, 2 * kPi);
@@ -86,16 +89,20 @@ struct Hypotheses {
     std::vector<Hypothesis> list;
     std::unordered_set<uint64_t> seen;
 
-    int best = 0;  // highest consensus so far
+    int best = 0;      // highest consensus so far
+    int verified = 0;  // every verified correspondence, duplicates included (the search size)
+    std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
-    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid,
-             double gate) {
+    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
+             LocalizationStage stage) {
+        ++verified;
+        matches.push_back(pose);
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
         const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
         const uint64_t h = cellKey3(qx, qy, qa);
         if (!seen.insert(h).second) return;
-        list.push_back({pose, consensus(local, pose, grid, gate)});
+        list.push_back({pose, consensus(local, pose, grid, gate), stage});
         best = std::max(best, list.back().score);
     }
 };
@@ -126,6 +133,17 @@ std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const
 }
 
 }  // namespace
+
+const char *stageName(LocalizationStage stage) {
+    switch (stage) {
+        case LocalizationStage::Star:
+            return "star";
+        case LocalizationStage::Triangle:
+            return "triangle";
+        default:
+            return "";
+    }
+}
 
 Eigen::Matrix3d GlobalLocalization::transform() const {
     Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
@@ -175,6 +193,7 @@ TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance
         sides.row(t) = triangleSides(xy_, triplets_[t]).transpose();
     triangle_index_ = KdTree(std::move(sides));
     grid_ = PointGrid(xy_, 1.0);
+    density_ = DensityGrid(xy_);
 }
 
 GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
@@ -206,6 +225,9 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         return res;
     }
 
+    if (cfg.matcher == Matcher::Paper)
+        return localizePaper(res, local_in, tri, local, scoring, cfg);
+
     std::vector<bool> on_hull(local_in.rows(), false);
     for (size_t t = 0; t < tri.size(); ++t)
         for (int k = 0; k < 3; ++k)
@@ -222,13 +244,38 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     std::vector<Eigen::Vector2d> lp(6), mp(6);
     Eigen::Vector3d pose;
     const StarSet lstars = buildStars(tri, local_in);
-    Star star;
-    for (const Star &canon : lstars.stars) {
-        if (cfg.skip_hull_stars) {
-            bool hull = false;
-            for (int v : canon.vertices) hull = hull || on_hull[v];
-            if (hull) continue;
+    // Bounded work on large local sets: only stars among the scoring trunks, nearest first;
+    // stop once a pose explains most trunks (after min_stars_before_exit stars, so that a
+    // close runner-up still has its chance to be found).
+    std::vector<bool> near(local_in.rows(), false);
+    for (int r : near_rows) near[r] = true;
+    // Order key independent of the input row order: farthest vertex, then the vertices' spread.
+    auto reach2 = [&](const Star &s) {
+        double m = 0, sum = 0, sx = 0;
+        for (int v : s.vertices) {
+            m = std::max(m, local_in.row(v).squaredNorm());
+            sum += local_in.row(v).squaredNorm();
+            sx += local_in(v, 0);
         }
+        return std::make_tuple(m, sum, sx);
+    };
+    std::vector<std::pair<std::tuple<double, double, double>, int>> order;
+    for (size_t i = 0; i < lstars.stars.size(); ++i) {
+        const Star &s = lstars.stars[i];
+        bool inside = true, hull = false;
+        for (int v : s.vertices) {
+            inside = inside && near[v];
+            hull = hull || on_hull[v];
+        }
+        if (!inside || (cfg.skip_hull_stars && hull)) continue;
+        order.emplace_back(reach2(s), static_cast<int>(i));
+    }
+    std::sort(order.begin(), order.end());
+    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
+    Star star;
+    for (const auto &[reach, si] : order) {
+        const Star &canon = lstars.stars[si];
+        if (res.query_stars >= kMinStarsBeforeExit && hyps.best >= decisive) break;
         ++res.query_stars;
         for (int r : rotationsToTry(tri, local_in, canon.centre, cfg)) {
             makeStar(tri, local_in, lstars.descriptors, canon.centre, r, star);
@@ -243,12 +290,14 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     mp[k] = xy_.row(ms.vertices[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star);
             }
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 = decide(res, hyps.list, local, tri.used_points, cfg);
+    GlobalLocalization stage1 =
+        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
             stage1.reason = res.query_stars == 0 ? "no interior triangles in the local trunks"
@@ -270,15 +319,20 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         neighbourTriangles(local_in, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
     // Nearest triangles first (most completely observed); stop once a pose explains most trunks
     // (RANSAC-style early exit: bounded time on large local sets).
+    // Key independent of the input row order (ties broken by the vertices' spread).
     auto reach = [&](const std::array<int, 3> &t) {
-        return std::max({local_in.row(t[0]).squaredNorm(), local_in.row(t[1]).squaredNorm(),
-                         local_in.row(t[2]).squaredNorm()});
+        const double a = local_in.row(t[0]).squaredNorm(), b = local_in.row(t[1]).squaredNorm(),
+                     c = local_in.row(t[2]).squaredNorm();
+        return std::make_tuple(std::max({a, b, c}), a + b + c,
+                               local_in(t[0], 0) + local_in(t[1], 0) + local_in(t[2], 0));
     };
     std::sort(ltris.begin(), ltris.end(),
               [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
-    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
+    // Bounded time where nothing matches (an absent place in a dense map verifies thousands of
+    // chance triangle matches): at most max_fallback_matches, nearest triangles first.
+    const int budget = hyps.verified + std::max(0, cfg.max_fallback_matches);
     for (const auto &t : ltris) {
-        if (hyps.best >= decisive) break;
+        if (hyps.best >= decisive || hyps.verified >= budget) break;
         const Eigen::Vector3d s0 = triangleSides(local_in, t);
         for (int r = 0; r < 3; ++r) {
             const Eigen::Vector3d e = triangleSides(local_in, t, r);
@@ -292,34 +346,166 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                     mp[k] = xy_.row(mt[k]).transpose();
                 }
                 if (fitConsistent(lp, mp, tol, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle);
             }
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 = decide(res, hyps.list, local, tri.used_points, cfg);
+    GlobalLocalization stage2 =
+        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
+    stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
 }
 
+GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
+                                          const Eigen::Ref<const Points2> &local,
+                                          const Triangulation &tri, const Points2 &usable,
+                                          const Points2 &scoring,
+                                          const GlobalLocalizerConfig &cfg) const {
+    std::vector<bool> on_hull(local.rows(), false);
+    for (size_t t = 0; t < tri.size(); ++t)
+        for (int k = 0; k < 3; ++k)
+            if (tri.neighbours[t][k] < 0) {
+                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
+                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
+            }
+    // Eq. 4's accumulator: (beta, Dx, Dy) bin -> votes and the sum of the voting poses.
+    struct Bin {
+        int votes = 0;
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        double c = 0, s = 0;  // summed rotation (angles average on the circle)
+    };
+    std::unordered_map<uint64_t, Bin> bins;
+    std::vector<Eigen::Vector3d> matches;
+    const StarSet lstars = buildStars(tri, local);
+    std::vector<int> idx;
+    std::vector<double> dist;
+    Eigen::Matrix<double, 6, 2> L, M;
+    for (const Star &star : lstars.stars) {
+        bool peripheral = false;
+        for (int v : star.vertices) peripheral = peripheral || on_hull[v];
+        if (peripheral || stars_.stars.empty()) continue;
+        ++res.query_stars;
+        index_.knn(embedFeature(star.feature), cfg.candidates_per_star, cfg.max_feature_distance_m,
+                   idx, dist);
+        for (int m : idx) {
+            const Star &ms = stars_.stars[m];
+            for (int k = 0; k < 6; ++k) {  // Eq. 2: vertices correspond in canonical order
+                L.row(k) = local.row(star.vertices[k]);
+                M.row(k) = xy_.row(ms.vertices[k]);
+            }
+            const Eigen::Vector2d lc = L.colwise().mean(), mc = M.colwise().mean();
+            // Eq. 3: candidate angles between corresponding centre edges; the one with the
+            // smallest squared vertex residual wins.
+            double best_cost = std::numeric_limits<double>::infinity();
+            Eigen::Vector3d pose;
+            for (int e = 0; e < 3; ++e) {
+                const Eigen::Vector2d dl = L.row((e + 1) % 3) - L.row(e);
+                const Eigen::Vector2d dm = M.row((e + 1) % 3) - M.row(e);
+                const double beta =
+                    wrapAngle(std::atan2(dm.y(), dm.x()) - std::atan2(dl.y(), dl.x()));
+                const Eigen::Vector3d cand(0, 0, beta);
+                const Eigen::Vector2d d = mc - apply(cand, lc);  // D = centroid difference
+                double cost = 0;
+                for (int k = 0; k < 6; ++k)
+                    cost += (apply(cand, L.row(k).transpose()) + d - M.row(k).transpose())
+                                .squaredNorm();
+                if (cost < best_cost) {
+                    best_cost = cost;
+                    pose = {d.x(), d.y(), beta};
+                }
+            }
+            matches.push_back(pose);
+            const uint64_t key =
+                cellKey3(static_cast<int64_t>(std::floor(pose[2] / cfg.paper_angle_bin_rad)),
+                         static_cast<int64_t>(std::floor(pose[0] / cfg.paper_translation_bin_m)),
+                         static_cast<int64_t>(std::floor(pose[1] / cfg.paper_translation_bin_m)));
+            Bin &b = bins[key];
+            ++b.votes;
+            b.sum.head<2>() += pose.head<2>();
+            b.c += std::cos(pose[2]);
+            b.s += std::sin(pose[2]);
+        }
+    }
+    // Every bin is a hypothesis scored by its votes (matched triangles); decide() refines the
+    // fullest and applies the acceptance test, the runner-up being the next distinct bin.
+    std::vector<Hypothesis> hyps;
+    hyps.reserve(bins.size());
+    for (const auto &[key, b] : bins) {
+        const Eigen::Vector3d pose(b.sum.x() / b.votes, b.sum.y() / b.votes, std::atan2(b.s, b.c));
+        hyps.push_back({pose, b.votes, LocalizationStage::Star});
+    }
+    // Deterministic order before the stable sort by votes (the map's bin order is not).
+    std::sort(hyps.begin(), hyps.end(), [](const Hypothesis &a, const Hypothesis &b) {
+        return std::make_tuple(a.pose[0], a.pose[1], a.pose[2]) <
+               std::make_tuple(b.pose[0], b.pose[1], b.pose[2]);
+    });
+    res.hypotheses = static_cast<int>(hyps.size());
+    const int searched = static_cast<int>(matches.size());
+    GlobalLocalization out = decide(res, hyps, searched, usable, scoring, tri.used_points, cfg);
+    out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
+    if (out.rejected && hyps.empty())
+        out.reason = res.query_stars == 0 ? "no interior non-peripheral triangle star"
+                                          : "no matching triangle star in the map";
+    return out;
+}
+
+int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
+                      const GlobalLocalizerConfig &cfg) const {
+    if (res.stage == LocalizationStage::None) return 0;
+    int n = 0;
+    for (const auto &p : matches)
+        n += (p.head<2>() - Eigen::Vector2d(res.x, res.y)).norm() <= cfg.distinct_translation_m &&
+             std::abs(wrapAngle(p[2] - res.yaw)) <= cfg.distinct_yaw_rad;
+    return n;
+}
+
+double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
+                               double gate) const {
+    double sum = 0;
+    for (Eigen::Index i = 0; i < local.rows(); ++i) {
+        const Eigen::Vector2d q = apply(pose, local.row(i).transpose());
+        sum += chanceRate(density_.at(q.x(), q.y()), gate);
+    }
+    return sum;
+}
+
 GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                                   const Points2 &local, const std::vector<int> &local_rows,
+                                   int searched, const Points2 &local, const Points2 &scoring,
+                                   const std::vector<int> &local_rows,
                                    const GlobalLocalizerConfig &cfg) const {
     GlobalLocalization res = base;
     if (hyps.empty()) {
         res.reason = "no hypothesis";
         return res;
     }
-    std::sort(hyps.begin(), hyps.end(),
-              [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
+    // Stable: among equal scores the star hypotheses (found first) win.
+    std::stable_sort(hyps.begin(), hyps.end(),
+                     [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
     const Hypothesis &best = hyps.front();
+    auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
+    res.stage = best.stage;
     res.second_inliers = 0;
+    res.runner_up = RunnerUp{};
+    int runner_score = 0;  // the runner-up's score in the matcher's own units
     for (const Hypothesis &h : hyps) {
         const bool distinct =
             (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
             std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
         if (distinct) {
-            res.second_inliers = h.score;
+            runner_score = h.score;
+            RunnerUp &r = res.runner_up;
+            r.exists = true;
+            r.x = h.pose[0];
+            r.y = h.pose[1];
+            r.yaw = wrapAngle(h.pose[2]);
+            r.inliers = consensus(scoring, h.pose, grid_, cfg.inlier_gate_m);
+            r.significance = chanceEvidence(r.inliers, static_cast<int>(scoring.rows()),
+                                            expectedChance(scoring, h.pose, cfg.inlier_gate_m),
+                                            seeds(h.stage), searched)
+                                 .significance;
+            res.second_inliers = r.inliers;
             break;
         }
     }
@@ -369,17 +555,30 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
     if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
 
-    const int best_score = std::max(best.score, 1);
-    res.rejected = true;
-    if (n < cfg.min_inliers) {
-        res.reason = "too few inliers";
-    } else if (n < cfg.min_inlier_fraction * res.local_trunks) {
+    // The test is made at the hypothesis' own pose, fixed by its seed points: the refinement
+    // above moves the pose to gather inliers, which chance alignments in a dense map also
+    // gain (a 200-trunk view of an absent place in a 0.25 trunks/m^2 map: 50-90 inliers after
+    // refinement against 25-45 expected). The best of the searched hypotheses is corrected for
+    // by the search count.
+    // Inliers one-to-one (two detections of a split stem near one map trunk are one).
+    const int best_consensus =
+        static_cast<int>(associate(scoring, best.pose, grid_, cfg.inlier_gate_m).size());
+    const ChanceEvidence evidence = chanceEvidence(
+        best_consensus, static_cast<int>(scoring.rows()),
+        expectedChance(scoring, best.pose, cfg.inlier_gate_m), seeds(best.stage), searched);
+    res.significance = evidence.significance;
+    res.expected_chance_inliers = evidence.expected;
+    AcceptanceConfig acfg;
+    acfg.min_significance = cfg.min_significance;
+    acfg.ambiguity_ratio = cfg.ambiguity_ratio;
+    acfg.min_inliers = cfg.min_inliers;
+    const AcceptanceVerdict verdict =
+        judge(evidence, double(runner_score) / std::max(best.score, 1), acfg);
+    res.rejected = !verdict.accepted;
+    res.reason = verdict.reason;
+    if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {
+        res.rejected = true;
         res.reason = "inlier fraction too low";
-    } else if (res.second_inliers >= cfg.ambiguity_ratio * best_score) {
-        res.reason = "ambiguous: second-best hypothesis nearly as good";
-    } else {
-        res.rejected = false;
-        res.reason.clear();
     }
     return res;
 }

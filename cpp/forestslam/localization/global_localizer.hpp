@@ -8,37 +8,63 @@
 #include <vector>
 
 #include "forestslam/common/types.hpp"
+#include "forestslam/localization/acceptance.hpp"
 #include "forestslam/localization/delaunay.hpp"
 #include "forestslam/localization/feature_index.hpp"
 #include "forestslam/localization/triangle_star.hpp"
 
 namespace forestslam {
 
+// Default: stars verified by edge lengths and the side test, least-squares pose per star match,
+// consensus scoring. Paper: Li et al. as written (see localizePaper).
+enum class Matcher { Default, Paper };
+
 struct GlobalLocalizerConfig {
+    Matcher matcher = Matcher::Default;
     int candidates_per_star = 8;          // k nearest map stars per query star
     double max_feature_distance_m = 1.5;  // in the embedded (sqrt) feature space
     double rotation_ambiguity = 0.15;  // also try starting edges this much longer than the shortest
     double edge_tolerance_m = 0.35;    // |local - map| for the nine star edges
     double inlier_gate_m = 0.5;        // local trunk within this of a map trunk: consensus
     int min_inliers = 6;               // fewer: rejected
-    double min_inlier_fraction = 0.25;    // of the local trunks
-    double ambiguity_ratio = 0.8;         // rejected when second-best >= ratio * best
+    double min_inlier_fraction = 0.25;  // of the local trunks
+    double ambiguity_ratio = 0.8;       // rejected when second-best >= ratio * best
+    double min_significance = 2.3;      // -log10 of the search-corrected chance probability (0.005)
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
     double min_sigma_m = 0.02;            // floor of the residual sigma in the covariance
     double duplicate_tolerance_m = 0.01;  // local trunks closer than this are one trunk
     bool skip_hull_stars = false;         // drop query stars with a vertex on the local hull
-    bool triangle_fallback = true;        // single-triangle matching when no star hypothesis wins
-    int candidates_per_triangle = 16;     // k nearest map triangles per local triangle (fallback)
-    int triangle_neighbours = 5;          // local triangles: each trunk with 2 of its k nearest
-    int max_query_trunks = 100;    // hypotheses scored on this many trunks nearest the origin
-    int max_fallback_trunks = 40;  // fallback triangles from this many nearest trunks
+    // Single-triangle matching when no star hypothesis wins; its answers carry stage Triangle
+    // and pass the same significance test (seeded by 3 points instead of 6).
+    bool triangle_fallback = true;
+    int candidates_per_triangle = 16;  // k nearest map triangles per local triangle (fallback)
+    int triangle_neighbours = 5;       // local triangles: each trunk with 2 of its k nearest
+    int max_query_trunks = 100;        // hypotheses scored on this many trunks nearest the origin
+    int max_fallback_trunks = 40;      // fallback triangles from this many nearest trunks
+    int max_fallback_matches = 500;    // verified triangle matches at most (time bound)
+    // Paper matcher: bins of the (beta, Dx, Dy) vote of Eq. 4.
+    double paper_angle_bin_rad = 0.0349;  // 2 deg
+    double paper_translation_bin_m = 0.5;
 };
+
+enum class LocalizationStage { None, Star, Triangle };
+const char *stageName(LocalizationStage stage);  // "", "star", "triangle"
 
 struct Hypothesis {
     Eigen::Vector3d pose;  // x, y, yaw of T_map_local
     int score = 0;         // consensus: local trunks within the gate of a map trunk
+    LocalizationStage stage = LocalizationStage::Star;
+};
+
+// The best hypothesis distinct from the answer (further than distinct_translation_m or
+// distinct_yaw_rad), scored on the same trunks.
+struct RunnerUp {
+    bool exists = false;
+    double x = 0, y = 0, yaw = 0;
+    int inliers = 0;            // consensus on the scoring trunks
+    double significance = 0.0;  // same test as the answer's
 };
 
 struct GlobalLocalization {
@@ -48,9 +74,20 @@ struct GlobalLocalization {
     double x = 0, y = 0, yaw = 0;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity() * 1e6;  // x, y, yaw
     int inliers = 0;
-    int second_inliers = 0;  // consensus of the best distinct alternative
-    int hypotheses = 0;      // verified distinct-by-hash hypotheses
+    int second_inliers = 0;  // consensus of the best distinct alternative (= runner_up.inliers)
+    // Which matcher produced the answer (None: no hypothesis).
+    LocalizationStage stage = LocalizationStage::None;
+    // -log10 of the probability that the inliers arise by chance at the map's local density,
+    // corrected for the number of hypotheses searched (see acceptance.hpp); >= min_significance
+    // to be accepted.
+    double significance = 0.0;
+    double expected_chance_inliers = 0.0;  // chance inliers expected beyond the seed points
+    RunnerUp runner_up;
+    int hypotheses = 0;  // verified distinct-by-hash hypotheses
     int query_stars = 0;
+    // Star (triangle) matches whose pose agrees with the answer (within the distinct
+    // thresholds): Li et al.'s "matched triangles".
+    int matched_triangles = 0;
     int local_trunks = 0;  // usable (finite, de-duplicated) local trunks
     double rms_m = 0;
     std::vector<std::pair<int, int>> matches;  // (local row, map row) inlier pairs
@@ -75,9 +112,25 @@ class TreeMap {
     const StarSet &stars() const { return stars_; }
 
   private:
+    // Li et al. as written: interior local stars with no vertex on the local hull, matched to
+    // map stars by feature distance; vertices in canonical order (Eq. 2); the rotation is the
+    // candidate angle between corresponding centre edges minimizing the squared vertex
+    // residuals (Eq. 3); every match votes in (beta, Dx, Dy) and the fullest bin wins (Eq. 4).
+    // Then the same refinement and acceptance test as the default matcher.
+    GlobalLocalization localizePaper(GlobalLocalization res, const Eigen::Ref<const Points2> &local,
+                                     const Triangulation &tri, const Points2 &usable,
+                                     const Points2 &scoring,
+                                     const GlobalLocalizerConfig &cfg) const;
+    // searched: verified correspondences (the multiple-testing count of the acceptance test).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                              const Points2 &local, const std::vector<int> &local_rows,
+                              int searched, const Points2 &local, const Points2 &scoring,
+                              const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
+    // Verified matches whose pose agrees with the answer (within the distinct thresholds).
+    int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
+                 const GlobalLocalizerConfig &cfg) const;
+    // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
+    double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 
     Points2 xy_;
     Triangulation tri_;
@@ -86,6 +139,7 @@ class TreeMap {
     std::vector<std::array<int, 3>> triplets_;  // nearest-neighbour triangles (fallback)
     KdTree triangle_index_;                     // their side lengths, ccw from the shortest
     PointGrid grid_;
+    DensityGrid density_;
 };
 
 }  // namespace forestslam

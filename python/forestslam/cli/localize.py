@@ -3,26 +3,36 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
+
+Gravity = Literal["stems", "reference", "none"]  # how a tree table's frames are levelled
 
 
 def register(app: typer.Typer) -> None:
     @app.command(
         "localize",
-        help="Find the sensor pose in a prior tree map (saved map .npz or tree CSV with x,y"
-        "[,dbh_m]) by Delaunay triangle stars: a query every K scans from the last N scans "
-        "(aggregated with odometry). Writes OUT/localization.json (every query) and "
-        "OUT/localization.tum (accepted queries: sensor pose in the map frame).",
+        help="Find the sensor pose in a prior tree map (saved map .npz, tree CSV with x,y"
+        "[,dbh_m], map cloud or another mapper's tree tables) by Delaunay triangle stars: a "
+        "query every K scans from the last N scans (aggregated with odometry), or every K-th "
+        "frame of a tree table (TreeManagerState_<k>.csv + trajectory.txt, or a packed "
+        "trees.csv[.gz]; levelled by the stems' axes). Writes OUT/localization.json (every "
+        "query) and OUT/localization.tum (accepted queries: pose in the map frame).",
     )
     def _command(
-        input_path: Path = typer.Argument(..., metavar="INPUT", help="Bag, folder or cloud file."),
+        input_path: Path = typer.Argument(
+            ..., metavar="INPUT", help="Bag, folder, cloud file or tree table (dir or file)."
+        ),
         map_path: Path = typer.Option(
             ...,
             "--map",
-            help="Map file (.npz), tree CSV (x,y[,dbh_m]) or map cloud (.laz/.ply...).",
+            help="Map file (.npz), tree CSV (x,y[,dbh_m]), map cloud (.laz/.ply...) or tree "
+            "table with its trajectory.",
         ),
-        sensor: str = typer.Option(..., "--sensor", help="Sensor profile name or YAML file."),
+        sensor: str | None = typer.Option(
+            None, "--sensor", help="Sensor profile name or YAML file (not for tree tables)."
+        ),
         out: Path = typer.Option(..., "--out", help="Output directory."),
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
@@ -42,13 +52,46 @@ def register(app: typer.Typer) -> None:
         overwrite: bool = typer.Option(
             False, "--overwrite", help="Replace the outputs of another command in OUT."
         ),
+        gravity: Gravity = typer.Option(
+            "stems",
+            "--gravity",
+            help="Tree tables: level each frame by its stems' axes (stems), the table's "
+            "trajectory (reference) or not at all (none).",
+        ),
     ) -> None:
+        from forestslam.errors import InputError
+        from forestslam.io.tree_tables import is_tree_table
         from forestslam.localization import load_map
         from forestslam.localization.runner import run_localization
 
-        tree_map = load_map(map_path)
+        loc_config = None
+        if config is not None:
+            from forestslam.config import load_config
+
+            loc_config = load_config(config).localization
+        tree_map = load_map(map_path, loc_config)
         if save_map is not None:
             print(f"map saved to {tree_map.save(save_map)}")
+        if is_tree_table(input_path):
+            from forestslam.localization.tables import run_table_localization
+
+            r = run_table_localization(
+                input_path,
+                tree_map,
+                out,
+                every=every,
+                config_path=config,
+                gravity=gravity,
+                start=start,
+                max_queries=max_scans,
+            )
+            print(
+                f"{len(r.queries)} tree-table queries, {r.accepted} accepted, median "
+                f"{r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+            )
+            return
+        if sensor is None:
+            raise InputError("--sensor is needed for a bag, folder or cloud input")
         r = run_localization(
             input_path,
             tree_map,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Literal
 
 from forestslam.config_utils import (
     Fraction,
@@ -14,10 +14,17 @@ from forestslam.config_utils import (
     Range,
 )
 
+MATCHERS = ("default", "paper")  # the choices of `matcher`
+
 
 @dataclass
 class LocalizationConfig:
     """Star matching, verification and acceptance of a query; aggregation of frames (CLI)."""
+
+    # "default": stars verified by edge lengths and the side test, a pose per match, consensus;
+    # "paper": Li et al. as written (Eq. 2-4, no peripheral stars, t_h = 2 m in trunk
+    # extraction). Both end in the same refinement and acceptance test.
+    matcher: Literal["default", "paper"] = "default"
 
     candidates_per_star: PositiveInt = 8  # k nearest map stars per local star
     max_feature_distance_m: Positive = 1.5  # in the sqrt feature space (sqrt area, perimeter)
@@ -28,13 +35,20 @@ class LocalizationConfig:
     min_inlier_fraction: Fraction = 0.25  # of the local trunks; fewer: rejected
     # rejected when the second-best distinct pose scores this much
     ambiguity_ratio: NonNegative = 0.8
+    # Calibrated acceptance: -log10 of the probability that the inliers arise by chance at the
+    # map's local trunk density (Poisson tail, corrected for the hypotheses searched): 2.3 is a
+    # chance probability of 0.005, the target rate of accepted absent places (the test is
+    # conservative: measured rates are lower, see bench/localize_bench.py).
+    min_significance: NonNegative = 2.3
     distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: NonNegative = 5.0
     refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers
     min_sigma_m: Positive = 0.02  # floor of the residual sigma used for the covariance
     duplicate_tolerance_m: NonNegative = 0.01  # local trunks closer than this are one trunk
     skip_hull_stars: bool = False  # drop local stars touching the local convex hull
-    triangle_fallback: bool = True  # single-triangle matching when no star hypothesis is accepted
+    # Single-triangle matching when no star hypothesis is accepted; its answers are marked
+    # stage "triangle" and held to the same significance test.
+    triangle_fallback: bool = True
     # k nearest map triangles per local triangle (fallback)
     candidates_per_triangle: PositiveInt = 16
     # fallback triangles: each local trunk with 2 of its k nearest
@@ -43,9 +57,16 @@ class LocalizationConfig:
     max_query_trunks: Annotated[int, Range(ge=3)] = 100
     # fallback triangles only from this many nearest trunks
     max_fallback_trunks: Annotated[int, Range(ge=3)] = 40
+    # verified fallback triangle matches at most (time bound)
+    max_fallback_matches: PositiveInt = 500
     # Aggregation of several scans into one query (CLI / aggregate_stems).
     merge_radius_m: NonNegative = 0.3  # detections of one trunk from several frames are merged
     # frames of a query this far apart; 0 = consecutive scans
     keyframe_distance_m: NonNegative = 0.0
     min_observations: PositiveInt = 1  # with >= 3 frames, trunks seen fewer times are dropped
     max_range_m: Positive = 25.0  # detections further from their sensor are dropped
+
+    @property
+    def trunk_height_offset_m(self) -> float:
+        """t_h of trunk extraction from map clouds: the paper's 2 m in paper mode."""
+        return 2.0 if self.matcher == "paper" else 1.0

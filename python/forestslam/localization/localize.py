@@ -15,6 +15,21 @@ from forestslam.localization.tree_map import TreeMap
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class RunnerUp:
+    """The best hypothesis distinct from the answer (scored on the same trunks)."""
+
+    x: float = math.nan
+    y: float = math.nan
+    yaw: float = math.nan
+    inliers: int = 0
+    significance: float = 0.0  # same test as the answer's (-log10 chance probability)
+
+    @property
+    def exists(self) -> bool:
+        return math.isfinite(self.x)
+
+
 @dataclass
 class Localization:
     """Pose of the local frame in the map frame: ``map = R(yaw) @ local + (x, y)``."""
@@ -27,7 +42,14 @@ class Localization:
     rejected: bool
     reason: str = ""  # why it was rejected ("" when accepted)
     second_inliers: int = 0  # consensus of the best distinct alternative pose
+    stage: str = ""  # matcher of the answer: "star", "triangle" (fallback) or "" (none)
+    # -log10 of the probability that the inliers arise by chance at the map's local trunk
+    # density, corrected for the hypotheses searched; accepted only >= min_significance.
+    significance: float = 0.0
+    expected_chance_inliers: float = 0.0
+    runner_up: RunnerUp = field(default_factory=RunnerUp)
     hypotheses: int = 0
+    matched_triangles: int = 0  # star matches agreeing with the answer (Li et al.'s count)
     local_trunks: int = 0
     rms_m: float = 0.0
     matches: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int32))
@@ -53,6 +75,16 @@ class Localization:
             "yaw": self.yaw,
             "inliers": self.inliers,
             "second_inliers": self.second_inliers,
+            "stage": self.stage,
+            "significance": self.significance,
+            "expected_chance_inliers": self.expected_chance_inliers,
+            "runner_up": {
+                "x": self.runner_up.x if self.runner_up.exists else None,
+                "y": self.runner_up.y if self.runner_up.exists else None,
+                "yaw": self.runner_up.yaw if self.runner_up.exists else None,
+                "inliers": self.runner_up.inliers,
+                "significance": self.runner_up.significance,
+            },
             "local_trunks": self.local_trunks,
             "rms_m": self.rms_m,
             "reason": self.reason,
@@ -73,6 +105,7 @@ def _core_config(config: LocalizationConfig):
         "min_inliers",
         "min_inlier_fraction",
         "ambiguity_ratio",
+        "min_significance",
         "distinct_translation_m",
         "refine_iterations",
         "min_sigma_m",
@@ -83,13 +116,24 @@ def _core_config(config: LocalizationConfig):
         "triangle_neighbours",
         "max_query_trunks",
         "max_fallback_trunks",
+        "max_fallback_matches",
     ):
         if hasattr(c, name):  # an older compiled core lacks the newest options
             setattr(c, name, getattr(config, name))
         else:
             log.debug("compiled core has no localization option %s; default kept", name)
     c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)
+    if hasattr(_core, "Matcher"):
+        c.matcher = getattr(_core.Matcher, config.matcher)
+    elif config.matcher != "default":
+        raise InputError("the compiled core has no paper matcher; rebuild forestslam")
     return c
+
+
+def _runner_up(r) -> RunnerUp:
+    if r is None or not r.exists:
+        return RunnerUp()
+    return RunnerUp(r.x, r.y, r.yaw, r.inliers, r.significance)
 
 
 def localize(
@@ -119,17 +163,25 @@ def localize(
         rejected=r.rejected,
         reason=r.reason,
         second_inliers=r.second_inliers,
+        stage=getattr(r, "stage", ""),
+        significance=getattr(r, "significance", 0.0),
+        expected_chance_inliers=getattr(r, "expected_chance_inliers", 0.0),
+        runner_up=_runner_up(getattr(r, "runner_up", None)),
         hypotheses=r.hypotheses,
+        matched_triangles=getattr(r, "matched_triangles", 0),
         local_trunks=r.local_trunks,
         rms_m=r.rms_m,
         matches=np.array(r.matches),
         time_ms=ms,
     )
     log.debug(
-        "localize: %d trunks -> %s (%d inliers, second %d, %d hypotheses, %.2f ms)",
+        "localize: %d trunks -> %s (%s, %d inliers, significance %.1f, second %d, "
+        "%d hypotheses, %.2f ms)",
         r.local_trunks,
         "rejected: " + r.reason if r.rejected else "accepted",
+        result.stage or "-",
         r.inliers,
+        result.significance,
         r.second_inliers,
         r.hypotheses,
         ms,

@@ -110,15 +110,20 @@ class TreeMap:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> TreeMap:
+    def load(cls, path: str | Path, config=None) -> TreeMap:
         """A map file written by ``save``, or a tree CSV (see ``from_csv``)."""
+        from forestslam.io.tree_tables import is_tree_table
+
         path = Path(path)
+        if path.exists() and is_tree_table(path):
+            return cls.from_tree_table(path)
         if not path.is_file():
             raise InputError(f"{path}: map file not found")
         if path.suffix.lower() == ".csv":
             return cls.from_csv(path)
         if path.suffix.lower() in CLOUD_SUFFIXES:
-            return cls.from_cloud(path)
+            t_h = config.trunk_height_offset_m if config is not None else 1.0
+            return cls.from_cloud(path, height_offset_m=t_h)
         try:
             with np.load(path, allow_pickle=False) as data:
                 if "format" not in data or str(data["format"]) != MAP_FORMAT:
@@ -156,6 +161,18 @@ class TreeMap:
         return cls(xy, dbh, ids)
 
     @classmethod
+    def from_tree_table(cls, path: str | Path) -> TreeMap:
+        """Trees of another mapper's per-frame tables (RealtimeTrees / TreeLoc layout, or the
+        packed ``trees.csv.gz`` with a ``frame`` column) moved into the world frame by the
+        table's trajectory and merged across frames."""
+        from forestslam.io.tree_tables import read_tree_table
+        from forestslam.localization.tables import table_map_xy
+
+        xy, dbh = table_map_xy(read_tree_table(path))
+        log.info("%s: %d trees from the tree table", path, len(xy))
+        return cls(xy, dbh)
+
+    @classmethod
     def from_cloud(cls, path: str | Path, **options) -> TreeMap:
         """Trunks extracted from a map point cloud (Li et al. Algorithm 1; options as for
         ``forestslam.localization.extract_trunks``), e.g. an accumulated harvester map."""
@@ -172,7 +189,10 @@ def build_map(xy: np.ndarray, dbh_m: np.ndarray | None = None) -> TreeMap:
     return TreeMap(xy, dbh_m)
 
 
-def load_map(path: str | Path) -> TreeMap:
-    """A saved map (.npz), a tree CSV with x, y[, dbh_m], or a map point cloud
-    (.las/.laz/.ply/.pcd/.bin: trunks extracted by ``extract_trunks``)."""
-    return TreeMap.load(path)
+def load_map(path: str | Path, config=None) -> TreeMap:
+    """A saved map (.npz), a tree CSV with x, y[, dbh_m], a map point cloud
+    (.las/.laz/.ply/.pcd/.bin: trunks extracted by ``extract_trunks``) or another mapper's
+    tree tables (a directory of TreeManagerState_<k>.csv + trajectory.txt, or a packed
+    trees.csv[.gz] with a frame column). ``config`` (LocalizationConfig): t_h of the trunk
+    extraction from clouds (2 m in paper mode)."""
+    return TreeMap.load(path, config)

@@ -65,8 +65,15 @@ void define_localization(py::module_ &m) {
         "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
         "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
 
+    py::enum_<Matcher>(m, "Matcher")
+        .value("default", Matcher::Default)
+        .value("paper", Matcher::Paper);
+
     py::class_<GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
         .def(py::init<>())
+        .def_readwrite("matcher", &GlobalLocalizerConfig::matcher)
+        .def_readwrite("paper_angle_bin_rad", &GlobalLocalizerConfig::paper_angle_bin_rad)
+        .def_readwrite("paper_translation_bin_m", &GlobalLocalizerConfig::paper_translation_bin_m)
         .def_readwrite("candidates_per_star", &GlobalLocalizerConfig::candidates_per_star)
         .def_readwrite("max_feature_distance_m", &GlobalLocalizerConfig::max_feature_distance_m)
         .def_readwrite("rotation_ambiguity", &GlobalLocalizerConfig::rotation_ambiguity)
@@ -75,6 +82,7 @@ void define_localization(py::module_ &m) {
         .def_readwrite("min_inliers", &GlobalLocalizerConfig::min_inliers)
         .def_readwrite("min_inlier_fraction", &GlobalLocalizerConfig::min_inlier_fraction)
         .def_readwrite("ambiguity_ratio", &GlobalLocalizerConfig::ambiguity_ratio)
+        .def_readwrite("min_significance", &GlobalLocalizerConfig::min_significance)
         .def_readwrite("distinct_translation_m", &GlobalLocalizerConfig::distinct_translation_m)
         .def_readwrite("distinct_yaw_rad", &GlobalLocalizerConfig::distinct_yaw_rad)
         .def_readwrite("refine_iterations", &GlobalLocalizerConfig::refine_iterations)
@@ -85,7 +93,28 @@ void define_localization(py::module_ &m) {
         .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle)
         .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours)
         .def_readwrite("max_query_trunks", &GlobalLocalizerConfig::max_query_trunks)
-        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks);
+        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks)
+        .def_readwrite("max_fallback_matches", &GlobalLocalizerConfig::max_fallback_matches);
+
+    py::class_<RunnerUp>(m, "RunnerUp")
+        .def_readonly("exists", &RunnerUp::exists)
+        .def_readonly("x", &RunnerUp::x)
+        .def_readonly("y", &RunnerUp::y)
+        .def_readonly("yaw", &RunnerUp::yaw)
+        .def_readonly("inliers", &RunnerUp::inliers)
+        .def_readonly("significance", &RunnerUp::significance);
+
+    m.def("poisson_tail_log10", &poissonTailLog10, py::arg("mu"), py::arg("k"),
+          "-log10 P(X >= k) for X ~ Poisson(mu).");
+    m.def(
+        "chance_significance",
+        [](int inliers, int trials, double expected, int seed_points, int hypotheses) {
+            return chanceEvidence(inliers, trials, expected, seed_points, hypotheses).significance;
+        },
+        py::arg("inliers"), py::arg("trials"), py::arg("expected"), py::arg("seed_points"),
+        py::arg("hypotheses"),
+        "-log10(hypotheses * P(chance inliers >= inliers - seeds)) with the chance inliers "
+        "Poisson around `expected` (summed over `trials` trunks, seeds removed pro rata).");
 
     py::class_<GlobalLocalization>(m, "GlobalLocalization")
         .def_readonly("rejected", &GlobalLocalization::rejected)
@@ -96,8 +125,15 @@ void define_localization(py::module_ &m) {
         .def_readonly("covariance", &GlobalLocalization::covariance, "(3,3) over x, y, yaw")
         .def_readonly("inliers", &GlobalLocalization::inliers)
         .def_readonly("second_inliers", &GlobalLocalization::second_inliers)
+        .def_property_readonly(
+            "stage", [](const GlobalLocalization &r) { return std::string(stageName(r.stage)); },
+            "'star', 'triangle' or '' (no hypothesis)")
+        .def_readonly("significance", &GlobalLocalization::significance)
+        .def_readonly("expected_chance_inliers", &GlobalLocalization::expected_chance_inliers)
+        .def_readonly("runner_up", &GlobalLocalization::runner_up)
         .def_readonly("hypotheses", &GlobalLocalization::hypotheses)
         .def_readonly("query_stars", &GlobalLocalization::query_stars)
+        .def_readonly("matched_triangles", &GlobalLocalization::matched_triangles)
         .def_readonly("local_trunks", &GlobalLocalization::local_trunks)
         .def_readonly("rms_m", &GlobalLocalization::rms_m)
         .def_property_readonly(

@@ -1,0 +1,86 @@
+#include "forestslam/localization/acceptance.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace forestslam {
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kLn10 = 2.302585092994046;
+}  // namespace
+
+DensityGrid::DensityGrid(const Eigen::Ref<const Points2> &xy, double cell_m, int half_window)
+    : cell_(cell_m > 0 ? cell_m : 4.0) {
+    const int w = std::max(0, half_window);
+    window_area_ = std::pow((2 * w + 1) * cell_, 2);
+    std::unordered_map<uint64_t, int> occupied;
+    std::vector<std::pair<int64_t, int64_t>> cells;
+    for (Eigen::Index i = 0; i < xy.rows(); ++i) {
+        if (!std::isfinite(xy(i, 0)) || !std::isfinite(xy(i, 1))) continue;
+        const auto ix = static_cast<int64_t>(std::floor(xy(i, 0) / cell_));
+        const auto iy = static_cast<int64_t>(std::floor(xy(i, 1) / cell_));
+        if (occupied[key(ix, iy)]++ == 0) cells.emplace_back(ix, iy);
+    }
+    for (const auto &[ix, iy] : cells) {
+        const int n = occupied[key(ix, iy)];
+        for (int64_t dx = -w; dx <= w; ++dx)
+            for (int64_t dy = -w; dy <= w; ++dy) counts_[key(ix + dx, iy + dy)] += n;
+    }
+}
+
+double DensityGrid::at(double x, double y) const {
+    if (!std::isfinite(x) || !std::isfinite(y)) return 0.0;
+    const auto it = counts_.find(key(static_cast<int64_t>(std::floor(x / cell_)),
+                                     static_cast<int64_t>(std::floor(y / cell_))));
+    return it == counts_.end() ? 0.0 : it->second / window_area_;
+}
+
+double chanceRate(double density, double gate_m) {
+    return 1.0 - std::exp(-std::max(0.0, density) * kPi * gate_m * gate_m);
+}
+
+double poissonTailLog10(double mu, int k) {
+    if (k <= 0) return 0.0;
+    if (mu <= 0) return 300.0;  // no chance at all: as significant as representable
+    // P(X >= k) = sum_{j>=k} e^-mu mu^j / j!, summed from the first term in log space.
+    const double log_first = -mu + k * std::log(mu) - std::lgamma(k + 1.0);
+    double sum = 0.0, term = 1.0;
+    for (int j = k; j < k + 1000; ++j) {
+        sum += term;
+        term *= mu / (j + 1);
+        if (term < 1e-16 * sum) break;
+    }
+    return std::max(0.0, -(log_first + std::log(sum)) / kLn10);
+}
+
+ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
+                              int hypotheses) {
+    ChanceEvidence e;
+    e.inliers = inliers;
+    e.trials = trials;
+    e.seed_points = std::min(seed_points, std::min(inliers, trials));
+    // The seed trunks are inliers by construction: only the others are evidence.
+    const double per_trunk = trials > 0 ? expected / trials : 0.0;
+    e.expected = per_trunk * (trials - e.seed_points);
+    const double tail = poissonTailLog10(e.expected, inliers - e.seed_points);
+    e.significance = tail - std::log10(std::max(1, hypotheses));
+    return e;
+}
+
+AcceptanceVerdict judge(const ChanceEvidence &best, double runner_up_fraction,
+                        const AcceptanceConfig &config) {
+    AcceptanceVerdict v;
+    if (best.inliers < config.min_inliers) {
+        v.reason = "too few inliers";
+    } else if (best.significance < config.min_significance) {
+        v.reason = "not significant: inliers explained by chance at this map density";
+    } else if (runner_up_fraction >= config.ambiguity_ratio) {
+        v.reason = "ambiguous: second-best hypothesis nearly as good";
+    } else {
+        v.accepted = true;
+    }
+    return v;
+}
+
+}  // namespace forestslam

@@ -1,0 +1,161 @@
+"""Tree tables of other mappers (RealtimeTrees / TreeLoc layout) as a map source and as queries.
+
+A map: every frame's trees moved into the world frame by the table's reference trajectory,
+detections of one tree from many frames merged. A query: one frame's trees, levelled (by the
+reference gravity when asked, otherwise by the frame's own stem axes) and projected to the plane;
+the local frame of the query is the levelled frame of pose k.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from forestslam.errors import InputError
+from forestslam.io.tree_tables import TreeTable, level_rotation
+
+log = logging.getLogger(__name__)
+
+
+def table_map_xy(
+    table: TreeTable,
+    merge_radius_m: float = 0.3,
+    min_frames: int = 2,
+    keyframe_distance_m: float = 5.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(M,2) world positions and (M,) DBH of the trees of a table. A frame's table is the local
+    map around its pose, so frames at least ``keyframe_distance_m`` apart suffice (each tree
+    is still in several). Detections closer than ``merge_radius_m`` are one tree; trees in
+    fewer than ``min_frames`` of those frames (transient false trees) are dropped."""
+    from forestslam.localization.localize import merge_close
+
+    if table.poses is None:
+        raise InputError("a tree table needs its trajectory (trajectory.txt/.tum) to be a map")
+    frames, last = [], None
+    for k in table.frames:
+        p = table.poses[int(k)][:2, 3]
+        if last is None or np.hypot(*(p - last)) >= keyframe_distance_m:
+            frames.append(int(k))
+            last = p
+    parts, dbhs, ids = [], [], []
+    for k in frames:
+        rows = table.rows(int(k))
+        T = table.poses[int(k)]
+        parts.append(table.xyz[rows] @ T[:3, :3].T + T[:3, 3])
+        dbhs.append(table.dbh_m[rows])
+        ids.append(np.full(len(rows), k))
+    if not parts:
+        raise InputError("tree table holds no trees")
+    xy = np.concatenate(parts)[:, :2]
+    centres, labels = merge_close(xy, merge_radius_m, return_labels=True)
+    frame_of = np.concatenate(ids)
+    seen = np.zeros(len(centres))
+    pairs = np.unique(np.column_stack([labels, frame_of]), axis=0)
+    np.add.at(seen, pairs[:, 0], 1)
+    dbh_all = np.concatenate(dbhs)
+    dbh = np.full(len(centres), np.nan)
+    ok = np.isfinite(dbh_all)
+    if ok.any():
+        sums = np.bincount(labels[ok], dbh_all[ok], minlength=len(centres))
+        counts = np.bincount(labels[ok], minlength=len(centres))
+        dbh = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+    keep = seen >= min(min_frames, len(frames))
+    log.info("tree table map: %d trees from %d frames", keep.sum(), len(frames))
+    return centres[keep], dbh[keep]
+
+
+def reference_level(T_world_frame: np.ndarray) -> np.ndarray:
+    """R_level_frame from a reference pose: the rotation that removes its roll and pitch."""
+    R = np.asarray(T_world_frame, dtype=np.float64)[:3, :3]
+    yaw = math.atan2(R[1, 0], R[0, 0])
+    c, s = math.cos(yaw), math.sin(yaw)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    return Rz.T @ R
+
+
+def query_xy(
+    table: TreeTable, k: int, gravity: str = "stems", max_range_m: float = 40.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Levelled (K,2) trees of frame k and R_level_frame (3,3). ``gravity``: "stems" (the
+    frame's stem axes; identity when fewer than 3 are known), "reference" (the table's
+    trajectory) or "none"."""
+    rows = table.rows(int(k))
+    xyz = table.xyz[rows]
+    if gravity == "reference":
+        if table.poses is None:
+            raise InputError("gravity 'reference' needs the table's trajectory")
+        R = reference_level(table.poses[int(k)])
+    elif gravity == "stems":
+        R = level_rotation(table.axis[rows])
+        R = np.eye(3) if R is None else R
+    elif gravity == "none":
+        R = np.eye(3)
+    else:
+        raise InputError(f"gravity must be stems, reference or none, not {gravity!r}")
+    xy = (xyz @ R.T)[:, :2]
+    return xy[np.hypot(xy[:, 0], xy[:, 1]) <= max_range_m], R
+
+
+def true_planar_pose(table: TreeTable, k: int, R_level: np.ndarray) -> tuple[float, float, float]:
+    """Reference (x, y, yaw) of the levelled frame of pose k in the world frame."""
+    T = table.poses[int(k)]
+    M = T[:3, :3] @ R_level.T
+    return float(T[0, 3]), float(T[1, 3]), math.atan2(M[1, 0], M[0, 0])
+
+
+def run_table_localization(
+    trees_path,
+    tree_map,
+    out_dir,
+    every: int = 1,
+    config_path=None,
+    gravity: str = "stems",
+    start: int = 0,
+    max_queries: int | None = None,
+):
+    """Localize every ``every``-th frame of a tree table in ``tree_map``; writes
+    ``localization.json`` and ``localization.tum`` like ``run_localization`` (the pose written
+    is the levelled frame of pose k in the map frame; ``stamp`` from the table's trajectory,
+    else the frame index)."""
+    import time
+    from pathlib import Path
+
+    from forestslam.io.tree_tables import read_tree_table
+    from forestslam.localization.config import LocalizationConfig
+    from forestslam.localization.localize import localize
+    from forestslam.localization.runner import LocalizationRun, _query_record, _write_outputs
+    from forestslam.localization.tree_map import TreeMap, load_map
+
+    if every < 1:
+        raise InputError(f"--every must be >= 1 (got {every})")
+    cfg = LocalizationConfig()
+    if config_path is not None:
+        from forestslam.config import load_config
+
+        cfg = load_config(config_path).localization
+    table = read_tree_table(trees_path)
+    tree_map = tree_map if isinstance(tree_map, TreeMap) else load_map(tree_map)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    run = LocalizationRun(out)
+    meta = {
+        "input": str(trees_path),
+        "map_trees": len(tree_map),
+        "every": every,
+        "gravity": gravity,
+        "frame": "pose of the levelled frame k in the map frame (planar x, y, yaw)",
+    }
+    t0 = time.perf_counter()
+    for i, k in enumerate(table.frames[start::every]):
+        if max_queries is not None and i >= max_queries:
+            break
+        local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
+        loc = localize(tree_map, local, cfg)
+        stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
+        run.scans += 1
+        run.queries.append(_query_record(stamp, int(k), len(local), loc))
+    run.wall_s = time.perf_counter() - t0
+    _write_outputs(run, meta)
+    return run

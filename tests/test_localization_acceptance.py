@@ -1,0 +1,138 @@
+"""Calibrated acceptance of global localization: absent places rejected, stage and runner-up
+reported, decisions independent of the trunk order."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_localization import observe, stand, yaw_error
+
+from forestslam.localization import LocalizationConfig, build_map, localize
+
+
+@pytest.fixture(scope="module")
+def forest():
+    xy = stand(800, 200.0, seed=1)
+    return xy, build_map(xy)
+
+
+def test_poisson_tail_matches_scipy():
+    from scipy.stats import poisson
+
+    from forestslam import _core
+
+    for mu, k in [(0.1, 1), (0.5, 4), (2.0, 10), (7.5, 12), (0.02, 9)]:
+        expected = -math.log10(poisson.sf(k - 1, mu))
+        assert _core.poisson_tail_log10(mu, k) == pytest.approx(expected, rel=1e-6)
+    assert _core.poisson_tail_log10(3.0, 0) == 0.0
+
+
+def test_significance_is_corrected_for_seeds_and_search():
+    from forestslam import _core
+
+    base = _core.chance_significance(12, 20, 1.0, 6, 1)
+    assert _core.chance_significance(12, 20, 1.0, 6, 100) == pytest.approx(base - 2.0)
+    # The 6 seed points are inliers by construction: 6 inliers of a star carry no evidence.
+    assert _core.chance_significance(6, 20, 1.0, 6, 1) == pytest.approx(0.0)
+    # A denser map (more chance inliers expected) makes the same count less significant.
+    assert _core.chance_significance(12, 20, 3.0, 6, 1) < base
+
+
+def test_absent_places_are_rejected(forest):
+    """Views of three other stands (sparser, same, denser) driven through the map's extent:
+    none may be accepted (fixed seeds)."""
+    _, tree_map = forest
+    accepted = 0
+    for s, (n, spacing) in enumerate([(400, 2.0), (800, 2.0), (1600, 1.5)]):
+        other = stand(n, 200.0, seed=100 + s, spacing=spacing)
+        for q in range(12):
+            pose = (30.0 + 12 * q, 40.0 + 10 * s, 0.5 * q)
+            for frames_radius in (15.0, 25.0):
+                local = observe(other, pose, frames_radius, 0.05, 0.1, 2, seed=10 * q + s)
+                loc = localize(tree_map, local)
+                accepted += loc.accepted
+                assert loc.significance < 2.3 or loc.rejected
+    assert accepted == 0
+
+
+def test_present_place_is_significant_and_reports_the_star_stage(forest):
+    xy, tree_map = forest
+    truth = (120.0, 80.0, -2.0)
+    local = observe(xy, truth, 20.0, noise=0.05, miss=0.15, outliers=3, seed=4)
+    loc = localize(tree_map, local)
+    assert loc.accepted and loc.stage == "star"
+    assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.1
+    assert yaw_error(loc.yaw, truth[2]) < math.radians(0.5)
+    assert loc.significance >= LocalizationConfig().min_significance
+    assert 0 < loc.expected_chance_inliers < 2
+    # The runner-up, when there is one, is distinct and much weaker.
+    if loc.runner_up.exists:
+        d = math.hypot(loc.runner_up.x - loc.x, loc.runner_up.y - loc.y)
+        assert d > 1.0 or yaw_error(loc.runner_up.yaw, loc.yaw) > math.radians(5)
+        assert loc.runner_up.inliers < 0.8 * loc.inliers
+        assert loc.runner_up.significance < loc.significance
+    d = loc.to_dict()
+    assert d["stage"] == "star" and "runner_up" in d and d["significance"] == loc.significance
+
+
+def test_triangle_fallback_answers_are_marked_and_optional(forest):
+    """Small views (too few trunks for an unbroken star) are answered by the fallback: marked
+    'triangle', held to the same significance, absent when the fallback is off."""
+    xy, tree_map = forest
+    rng = np.random.default_rng(3)
+    stages = []
+    for q in range(40):
+        truth = (rng.uniform(40, 160), rng.uniform(40, 160), rng.uniform(-3, 3))
+        local = observe(xy, truth, 9.0, noise=0.03, miss=0.3, outliers=1, seed=200 + q)
+        on = localize(tree_map, local)
+        off = localize(tree_map, local, LocalizationConfig(triangle_fallback=False))
+        assert off.stage != "triangle"
+        if on.accepted:
+            assert on.stage in ("star", "triangle")
+            assert on.significance >= LocalizationConfig().min_significance
+            assert math.hypot(on.x - truth[0], on.y - truth[1]) < 0.5
+            stages.append(on.stage)
+    assert "triangle" in stages
+
+
+def test_no_hypothesis_has_no_stage(forest):
+    loc = localize(forest[1], np.array([[0.0, 0.0], [3.0, 0.0], [0.0, 4.0]]) + 1e4)
+    assert loc.rejected and loc.stage in ("", "triangle", "star")
+    loc = localize(forest[1], np.zeros((0, 2)))
+    assert loc.stage == "" and loc.significance == 0.0
+
+
+def test_decision_invariant_to_trunk_order(forest):
+    xy, tree_map = forest
+    other = stand(800, 200.0, seed=55)
+    for source, pose in ((xy, (70.0, 60.0, 0.9)), (other, (100.0, 100.0, 0.3))):
+        local = observe(source, pose, 20.0, noise=0.05, miss=0.15, outliers=3, seed=5)
+        perm = np.random.default_rng(9).permutation(len(local))
+        a, b = localize(tree_map, local), localize(tree_map, local[perm])
+        assert a.accepted == b.accepted and a.stage == b.stage
+        assert a.significance == pytest.approx(b.significance, abs=1e-9)
+        if a.accepted:
+            assert (a.x, a.y, a.yaw) == pytest.approx((b.x, b.y, b.yaw), abs=1e-9)
+
+
+def test_paper_matcher_finds_a_present_place_and_rejects_an_absent_one(forest):
+    xy, tree_map = forest
+    paper = LocalizationConfig(matcher="paper")
+    truth = (100.0, 90.0, 1.2)
+    local = observe(xy, truth, 25.0, noise=0.03, miss=0.05, outliers=0, seed=8)
+    loc = localize(tree_map, local, paper)
+    assert loc.accepted and loc.stage == "star" and loc.matched_triangles >= 2
+    assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.1
+    other = stand(800, 200.0, seed=77)
+    absent = observe(other, truth, 25.0, noise=0.03, miss=0.05, outliers=0, seed=8)
+    assert localize(tree_map, absent, paper).rejected
+    assert paper.trunk_height_offset_m == 2.0 and LocalizationConfig().trunk_height_offset_m == 1.0
+
+
+def test_unknown_matcher_is_an_input_error():
+    from forestslam.errors import InputError
+
+    with pytest.raises(InputError, match="matcher"):
+        LocalizationConfig(matcher="icp")
