@@ -30,7 +30,7 @@ app = typer.Typer(
     name="forestslam",
     help="LiDAR SLAM, tree mapping and localization for forest machines.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,  # --install-completion: commands, options and choices in the shell
     pretty_exceptions_enable=False,
 )
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
 
@@ -34,12 +35,14 @@ def register(app: typer.Typer) -> None:
         speed: float = typer.Option(None, "--speed", help="Speed (m/s)."),
         height_m: float = typer.Option(None, "--height-m", help="Sensor height above terrain (m)."),
         seed: int = typer.Option(None, "--seed", help="Random seed (same seed, same bytes)."),
-        style: str = typer.Option(
+        style: Literal["a", "b"] | None = typer.Option(
             None,
             "--style",
             help="World style a | b: stem, crown and intensity models (see the README).",
         ),
-        fmt: str = typer.Option(None, "--format", help="bag (ROS1) or mcap (ROS2)."),
+        fmt: Literal["bag", "mcap"] | None = typer.Option(
+            None, "--format", help="bag (ROS1) or mcap (ROS2)."
+        ),
         max_scans: int = typer.Option(None, "--max-scans", help="Stop after this many scans."),
         preview: bool = typer.Option(False, "--preview", help="Also write preview.png."),
         set_: list[str] = typer.Option(
