@@ -74,6 +74,14 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Vector3d &up, const DiameterOptions &options,
                               const SilhouetteSensor *sensor = nullptr);
 
+// Where a stem's breast height (1.3 m above its base) came from.
+enum class BreastHeightSource {
+    Ground = 0,       // local ground under the stem
+    LowestPoint = 1,  // no ground: the stem's lowest point is taken as its base
+    Slice = 2,        // no ground and the stem is shorter than the band: its middle height
+    Explicit = 3,     // given by the user (PerceptionOptions::breast_height_z)
+};
+
 struct Stem {
     int id = 0;
     Points3 points;
@@ -81,6 +89,7 @@ struct Stem {
     ClusterShape shape;
     double base_z = kNaN;       // local ground height under the stem
     bool ground_found = false;  // false: base_z is the stem's lowest point
+    BreastHeightSource breast_source = BreastHeightSource::Ground;
     Eigen::Vector3d breast = Eigen::Vector3d::Constant(kNaN);  // centre at 1.3 m
     StemDiameter diameter;
 };

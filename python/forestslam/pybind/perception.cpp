@@ -127,6 +127,10 @@ pc::PerceptionOptions perceptionOptions(const py::dict &d) {
     if (d.contains("intensity_threshold") && !d["intensity_threshold"].is_none())
         o.intensity_threshold = d["intensity_threshold"].cast<double>();
     FS_GET(d, o, ground_voxel_m);
+    if (d.contains("breast_height_z") && !d["breast_height_z"].is_none())
+        o.breast_height_z = d["breast_height_z"].cast<double>();
+    FS_GET(d, o, slice_voxel_m);
+    FS_GET(d, o, slice_min_inlier_ratio);
     o.ground = groundOptions(sub(d, "ground"));
     o.filter = filterOptions(sub(d, "filter"));
     o.segmentation = segmentationOptions(sub(d, "segmentation"));
@@ -191,7 +195,7 @@ py::dict detectionDict(const pc::Detection &det) {
     Eigen::VectorXd z(k), dbh(k), base(k);
     Points3 mean(k, 3), axis(k, 3);
     Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
-    Eigen::VectorXi ground_found(k);
+    Eigen::VectorXi ground_found(k), breast_source(k);
     py::list pts, diam;
     for (Eigen::Index i = 0; i < k; ++i) {
         const pc::Stem &s = det.stems[static_cast<size_t>(i)];
@@ -204,6 +208,7 @@ py::dict detectionDict(const pc::Detection &det) {
         for (int r = 0; r < 3; ++r)
             for (int c = 0; c < 3; ++c) cov(i, 3 * r + c) = s.shape.cov(r, c);
         ground_found(i) = s.ground_found ? 1 : 0;
+        breast_source(i) = static_cast<int>(s.breast_source);
         pts.append(py::cast(s.points));
         diam.append(diameterDict(s.diameter));
     }
@@ -216,6 +221,7 @@ py::dict detectionDict(const pc::Detection &det) {
     d["cov"] = cov;
     d["axis"] = axis;
     d["ground_found"] = ground_found;
+    d["breast_source"] = breast_source;
     d["points"] = pts;
     d["diameters"] = diam;
     d["ground"] = det.ground;
