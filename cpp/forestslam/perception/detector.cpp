@@ -256,8 +256,10 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
             st.breast_source = BreastHeightSource::LowestPoint;
         }
         st.base_z = base;
+        const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
-                                       use_silhouette ? &silhouette : nullptr);
+                                       use_silhouette ? &silhouette : nullptr,
+                                       scan_centred ? &sensor_origin : nullptr);
         if (st.diameter.centre.allFinite()) {
             st.breast = st.diameter.centre;
         } else {

@@ -68,11 +68,13 @@ struct StemDiameter {
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
 // With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
 // lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
-// circle and cylinder by quality.
+// circle and cylinder by quality. With `view_origin` (where every point was seen from: the
+// sensor of a single scan) the band circle is fitted under range noise (fitCircleRays).
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &options,
-                              const SilhouetteSensor *sensor = nullptr);
+                              const SilhouetteSensor *sensor = nullptr,
+                              const Eigen::Vector3d *view_origin = nullptr);
 
 // Where a stem's breast height (1.3 m above its base) came from.
 enum class BreastHeightSource {

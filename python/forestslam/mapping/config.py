@@ -18,6 +18,9 @@ class MappingConfig:
     circle_inlier_m: float = 0.03
     dbh_max_rms_m: float = 0.03
     dbh_min_arc_coverage: float = 0.2
+    # Spread of band points across their beams (beam footprint, bark, pose jitter between the
+    # scans of a window) for the range-model circle fit; the range spread is estimated.
+    dbh_lateral_sigma_m: float = 0.01
     dbh_max_points_per_window: int = 4000  # random subsample beyond this (bounded memory)
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: int = 3

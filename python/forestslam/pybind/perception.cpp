@@ -5,6 +5,7 @@
 
 #include <limits>
 #include <optional>
+#include <stdexcept>
 
 #include "bindings.hpp"
 #include "forestslam/common/circle_fit.hpp"
@@ -243,6 +244,33 @@ py::dict detectionDict(const pc::Detection &det) {
 }  // namespace
 
 void define_perception(py::module_ &m) {
+    m.def(
+        "fit_circle_rays",
+        [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
+           double inlier_threshold_m, double min_radius_m, double max_radius_m,
+           double lateral_sigma_m, std::uint32_t seed) {
+            if (origins.rows() != xy.rows())
+                throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
+            CircleFitOptions o;
+            o.inlier_threshold_m = inlier_threshold_m;
+            o.min_radius_m = min_radius_m;
+            o.max_radius_m = max_radius_m;
+            o.lateral_sigma_m = lateral_sigma_m;
+            o.seed = seed;
+            CircleFit f;
+            {
+                py::gil_scoped_release release;
+                f = fitCircleRays(xy, origins, o);
+            }
+            return circleDict(f);
+        },
+        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = 0.03,
+        py::arg("min_radius_m") = 0.0,
+        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
+        py::arg("lateral_sigma_m") = 0.005, py::arg("seed") = 42,
+        "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
+        "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
+        "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
     m.def(
         "fit_circle",
         [](const Eigen::Ref<const Points2> &xy, double inlier_threshold_m, double min_radius_m,
