@@ -1,6 +1,6 @@
 """DBH bench (issue 15): where a DBH bias comes from, stage by stage and factor by factor.
 
-Stem worlds from bench/dbh_stems.py (not forestslam.sim): two styles, `round` (analytic
+Stem worlds from forestslam.perception.synthetic_stems (not forestslam.sim): two styles, `round` (analytic
 cylinders, flat intensity: what the project's simulator shows) and `rough` (irregular 7-14-gons
 with 5 mm bark noise, 0-10 % ovality, a Lambertian intensity model whose unknown gain lets the
 profile's threshold cut into the bark). A sensor drives a 40 m lane at 1 m/s, 10 Hz, with
@@ -25,18 +25,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dbh_stems import ROUGH, ROUND, StemStyle, make_world, scan_stems  # noqa: E402
-
-from forestslam.mapping.config import MappingConfig  # noqa: E402
-from forestslam.mapping.tree_map import TreeMap, fit_band_circle  # noqa: E402
-from forestslam.perception import PerceptionConfig, detect, estimate_diameter  # noqa: E402
+from forestslam.mapping.config import MappingConfig
+from forestslam.mapping.tree_map import TreeMap, fit_band_circle
+from forestslam.perception import PerceptionConfig, detect, estimate_diameter
+from forestslam.perception.synthetic_stems import (
+    ROUGH,
+    ROUND,
+    StemStyle,
+    make_world,
+    scan_stems,
+)
 
 LANE_M = 40.0
 RANGE_M = 15.0

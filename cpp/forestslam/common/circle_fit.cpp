@@ -358,15 +358,20 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
         sr = std::max(1.4826 * res[res.size() / 2], st);
     }
     if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return fit;
-    // A refinement that wandered off the points is not trusted.
-    if ((x.head<2>() - fit.centre).norm() > 2.0 * opt.inlier_threshold_m + 0.5 * fit.radius)
+    // A refinement that wandered off the points is not trusted: the range model moves a
+    // sound circle by about the range noise, and keeps most of its inliers.
+    const double moved = std::max(2.0 * opt.inlier_threshold_m, 0.25 * fit.radius);
+    if ((x.head<2>() - fit.centre).norm() > moved || std::abs(x(2) - fit.radius) > moved)
         return fit;
-    fit.centre = x.head<2>();
-    fit.radius = x(2);
-    fit.inlier_indices =
-        inliersOf(xy, finiteIndices(xy), fit.centre, fit.radius, opt.inlier_threshold_m);
-    finish(xy, opt, fit);
-    return fit;
+    CircleFit out = fit;
+    out.centre = x.head<2>();
+    out.radius = x(2);
+    out.inlier_indices =
+        inliersOf(xy, finiteIndices(xy), out.centre, out.radius, opt.inlier_threshold_m);
+    if (out.inlier_indices.size() < 0.8 * static_cast<double>(fit.inlier_indices.size()))
+        return fit;
+    finish(xy, opt, out);
+    return out;
 }
 
 }  // namespace forestslam

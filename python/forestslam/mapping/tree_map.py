@@ -11,8 +11,8 @@ fit of the one-sided arcs a window sees shrinks the stem (-2 cm DBH at 3 cm rang
 bench/dbh_bench.py); the range model does not. Moving past a stem shows it from several
 sides, so a window covers much more arc than one scan. Measurements that pass the quality
 gates are fused by a weighted mean (weight: inliers x arc coverage^2) after dropping outliers
-beyond 3 MADs of the median; dbh_std_m is their weighted standard deviation (NaN with one measurement). Trees without any accepted
-window fall back to the median of the per-scan DBH from perception.
+beyond 3 MADs of the median; dbh_std_m is their weighted standard deviation (NaN with one
+measurement). Trees without any accepted window fall back to the median of the per-scan DBH from perception.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Stem worlds for the DBH bench (bench/dbh_bench.py), independent of forestslam.sim.
+"""Stem worlds for DBH tests and bench/dbh_bench.py, independent of forestslam.sim.
 
 Stems are vertical prisms over a cross-section polygon: round (a 256-gon), or polygonal
 (7-14 sides) with bark roughness on the vertices, ovality 0-10 % at a random orientation. Each
