@@ -98,7 +98,7 @@ def test_points_are_in_the_sensor_frame_at_their_own_time():
     own = np.einsum("nij,nj->ni", poses[:, :3, :3], scan.points[g]) + poses[:, :3, 3]
     start = world.trajectory.poses(world.stamps[2:3])[0]
     at_start = scan.points[g] @ start[:3, :3].T + start[:3, 3]
-    sigma = world.profile.range_noise_m
+    sigma = world.noise.range_noise_m  # the simulated sensor's, not the profile's nominal one
     ground_z = world.terrain.height_at(own[:, :2])
     assert np.abs(own[:, 2] - ground_z).max() < 6 * sigma
     assert abs(np.mean(own[:, 2] - ground_z)) < 0.2 * sigma

@@ -195,3 +195,127 @@ TEST(RayPrimitives, FoliageTransmissionFollowsBeerLambert) {
         EXPECT_EQ(a.t, b.t);
     }
 }
+
+namespace {
+
+// A leaning, tapered, elliptical, polygonal, lobed, flared, rough stem.
+Stem shapedStem() {
+    Stem s = verticalStem(1.0, -2.0, 0.15);
+    s.semi_a = 0.16;
+    s.semi_b = 0.14;
+    s.angle = 0.4;
+    s.taper = 0.02;
+    s.shear = {0.03, -0.02};
+    s.bark_amp = 0.004;
+    s.sides = 9;
+    s.poly_angle = 0.3;
+    s.irregularity = 0.04;
+    s.flare_amp = 0.4;
+    s.flare_height = 1.6;
+    for (int k = 0; k < 4; ++k) s.phase[k] = 0.7 + 1.3 * k;
+    for (int k = 0; k < 3; ++k) s.lobe_phase[k] = 0.2 + 2.1 * k;
+    return s;
+}
+
+// The stem's own radial function at a world point: rho (normalised) minus r(phi, h).
+double surfaceGap(const Stem &s, const Eigen::Vector3d &p) {
+    const StemCoeffs c(s);
+    const double h = p.z() - s.base.z();
+    const double qx = p.x() - s.base.x() - s.shear.x() * h;
+    const double qy = p.y() - s.base.y() - s.shear.y() * h;
+    const double u = (c.cos_angle * qx + c.sin_angle * qy) / s.semi_a;
+    const double v = (-c.sin_angle * qx + c.cos_angle * qy) / s.semi_b;
+    const double rho = std::hypot(u, v);
+    return rho - sectionRadius(s, c, u / rho, v / rho, h).r;
+}
+
+}  // namespace
+
+TEST(RayPrimitives, ShapedStemHitsLieOnTheModelledSurface) {
+    // Polygon x lobes x flare x taper + bark: every hit is on the surface rho = r(phi, h), and
+    // no ray that misses passes through it (its closest approach stays outside).
+    const Stem s = shapedStem();
+    const StemCoeffs coeffs(s);
+    int hits = 0;
+    for (int i = 0; i < 600; ++i) {
+        const double az = 2 * M_PI * i / 600.0, el = -0.5 + 1.0 * (i % 19) / 18.0;
+        const double h_aim = 0.05 + 0.01 * i;  // through the flare and above it
+        const Eigen::Vector3d centre(1.0 + 0.03 * h_aim, -2.0 - 0.02 * h_aim, h_aim);
+        const Eigen::Vector3d dir(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az),
+                                  std::sin(el));
+        const Eigen::Vector3d offset(0, 0.05 * (i % 7 - 3), 0);
+        const Ray ray = makeRay(centre - 4.0 * dir + offset, dir);
+        Hit hit;
+        if (!intersectStem(s, coeffs, ray, kInf, hit)) continue;
+        ++hits;
+        const Eigen::Vector3d p = ray.origin + hit.t * ray.dir;
+        EXPECT_NEAR(surfaceGap(s, p), 0.0, 1e-8) << "ray " << i;
+        EXPECT_GE(hit.cos_incidence, 0.0);
+        EXPECT_LE(hit.cos_incidence, 1.0);
+        // Just before the hit the ray is outside.
+        EXPECT_GT(surfaceGap(s, ray.origin + (hit.t - 1e-4) * ray.dir), 0.0) << "ray " << i;
+    }
+    EXPECT_GT(hits, 450);
+}
+
+TEST(RayPrimitives, PolygonKeepsTheCirclesGirthAndFlareWidensTheBase) {
+    Stem s = verticalStem(0.0, 0.0, 0.2);
+    s.sides = 7;
+    const StemCoeffs c(s);
+    // Perimeter of the polygonal section = 2 pi r (the polygon is scaled to the circle's girth).
+    const int n = 7 * 4000;
+    const Eigen::MatrixX2d xy = stemSection(s, kBreastHeight, n);
+    double perimeter = 0.0;
+    for (int k = 0; k < n; ++k) perimeter += (xy.row((k + 1) % n) - xy.row(k)).norm();
+    EXPECT_NEAR(perimeter, 2 * M_PI * 0.2, 1e-6);
+    // Vertices at the circumradius, mid-sides at the apothem.
+    EXPECT_NEAR(sectionRadius(s, c, 1.0, 0.0, 1.3).r, M_PI / (7 * std::sin(M_PI / 7)), 1e-12);
+    const double mid = M_PI / 7;
+    EXPECT_NEAR(sectionRadius(s, c, std::cos(mid), std::sin(mid), 1.3).r, M_PI / 7 / std::tan(mid),
+                1e-12);
+    s.sides = 0;
+    s.flare_amp = 0.5;
+    s.flare_height = 1.0;
+    const StemCoeffs f(s);
+    EXPECT_NEAR(sectionRadius(s, f, 1, 0, 0.0).r, 1.5, 1e-12);
+    EXPECT_NEAR(sectionRadius(s, f, 1, 0, -0.2).r, 1.5, 1e-12);  // buried: no more flare
+    EXPECT_NEAR(sectionRadius(s, f, 1, 0, 0.5).r, 1.0 + 0.5 * 0.125, 1e-12);
+    EXPECT_NEAR(sectionRadius(s, f, 1, 0, 1.0).r, 1.0, 1e-12);
+}
+
+TEST(RayPrimitives, SweptStemSegmentsLeaveNoGapAtTheirJoint) {
+    // Two segments of one bowed stem meeting at h = 2 m (axis kink). Steep rays aimed at the
+    // surface just above (rising rays) or just below (falling rays) the joint enter the
+    // envelope of the other segment first: each must still hit where it was aimed (or earlier,
+    // on a lobe), never pass through.
+    Stem lower = shapedStem(), upper = shapedStem();
+    lower.flare_amp = upper.flare_amp = 0.0;
+    lower.h_bottom = -0.3;
+    lower.height = 2.0;
+    upper.h_bottom = 2.0;
+    upper.height = 8.0;
+    upper.shear = {-0.02, 0.01};
+    // Same axis point at h = 2: base + shear * 2 equal.
+    upper.base.head<2>() = lower.base.head<2>() + 2.0 * (lower.shear - upper.shear);
+    int hits = 0;
+    for (int i = 0; i < 720; ++i) {
+        const bool rising = i % 2 == 0;
+        const Stem &aimed = rising ? upper : lower;
+        const double h = rising ? 2.002 : 1.998, el = rising ? 1.0 : -1.0;
+        const Eigen::MatrixX2d xy = stemSection(aimed, h, 720);
+        const Eigen::Vector2d centre = aimed.base.head<2>() + h * aimed.shear;
+        const Eigen::Vector2d out = (xy.row(i).transpose() - centre).normalized();
+        const Eigen::Vector3d target(xy(i, 0), xy(i, 1), h);
+        const Eigen::Vector3d dir = Eigen::Vector3d(-out.x(), -out.y(), std::tan(el)).normalized();
+        const Ray ray = makeRay(target - 0.5 * dir, dir);
+        Hit a, b;
+        const bool ha = intersectStem(lower, ray, kInf, a), hb = intersectStem(upper, ray, kInf, b);
+        ASSERT_TRUE(ha || hb) << "ray " << i;
+        const bool first_a = ha && (!hb || a.t < b.t);
+        const Hit &hit = first_a ? a : b;
+        EXPECT_LE(hit.t, 0.5 + 1e-7) << "ray " << i;
+        EXPECT_NEAR(surfaceGap(first_a ? lower : upper, ray.origin + hit.t * ray.dir), 0.0, 1e-8);
+        ++hits;
+    }
+    EXPECT_EQ(hits, 720);
+}

@@ -45,7 +45,7 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
     const IndexVector group = IndexVector::Zero(360);
     const Eigen::VectorXd t0 = Eigen::VectorXd::Zero(1);
     ScanModel model;
-    model.intensity_noise_rel = 0.0;
+    model.materials[kGround] = {40.0, 0.0, 0.0, 1.0};  // no noise: 40 |cos incidence|
     const PoseRows pose = poseRow(Eigen::Matrix3d::Identity(), {0, 0, 1.5});
     const SynthesizedScan s = synthesizeScan(scene, t0, pose, t0, group, dirs, model, 1, 2);
     ASSERT_EQ(s.ray.size(), 360);
@@ -55,10 +55,10 @@ TEST(ScanSynthesis, StaticSensorSeesGroundAtExactRangesWithModelIntensity) {
         EXPECT_NEAR(s.points.row(k).norm(), range, 1e-9);
         EXPECT_NEAR(s.points(k, 2), -1.5, 1e-9);
         EXPECT_EQ(s.surface[k], kGround);
-        // Ground model: 100 * 0.25 * (0.5 + 0.5 cos), cos against the vertical = sin(20 deg).
+        // Lambertian ground inside the reference range, cos against the vertical = sin(20 deg),
+        // rounded as a driver reports it.
         const double cos_inc = std::sin(20.0 * M_PI / 180.0);
-        const float expected = static_cast<float>(100.0 * 0.25 * (0.5 + 0.5 * cos_inc));
-        EXPECT_NEAR(s.intensity[k], expected, 1e-4);
+        EXPECT_EQ(s.intensity[k], std::round(40.0 * cos_inc));
     }
 }
 
@@ -137,4 +137,47 @@ TEST(ScanSynthesis, BadInputsThrow) {
     EXPECT_EQ(synthesizeScan(scene, t0, pose, t0, IndexVector(), Points3(0, 3), ScanModel(), 0, 0)
                   .ray.size(),
               0);
+}
+
+TEST(ScanSynthesis, MaterialIntensityFallsOffWithRangeAndIncidenceOnly) {
+    ScanModel model;
+    model.materials[kStem] = {40.0, 0.0, 0.0, 1.0};
+    model.materials[kFoliage] = {120.0, 0.0, 0.0, 0.0};
+    model.reference_range_m = 5.0;
+    model.range_exponent = 0.5;
+    model.near_range_m = 2.0;
+    // Reference range, normal incidence: the median; oblique: times cos; foliage ignores it.
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 0.0, model), 40.0f);
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 0.5, 0.0, model), 20.0f);
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 4.0, 0.5, 0.0, model), 120.0f);
+    // Beyond the reference: (5 / r)^0.5; near range: down to half at 0 m.
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 20.0, 1.0, 0.0, model), 60.0f);
+    EXPECT_EQ(returnIntensity(kFoliage, 3, 1.0, 1.0, 0.0, model), 90.0f);
+    // Log-normal noise per return and per object, deterministic, clamped to 255.
+    model.materials[kStem] = {40.0, 0.5, 0.3, 1.0};
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 1.0, model),
+              returnIntensity(kStem, 3, 4.0, 1.0, 1.0, model));
+    double sum = 0.0;
+    for (int obj = 0; obj < 4000; ++obj)
+        sum += std::log(std::max(1.0f, returnIntensity(kStem, obj, 4.0, 1.0, 0.0, model)) / 40.0);
+    EXPECT_NEAR(sum / 4000, 0.0, 0.02);  // median 40 over objects
+    EXPECT_EQ(returnIntensity(kStem, 3, 4.0, 1.0, 20.0, model), 255.0f);
+}
+
+TEST(ScanSynthesis, DropoutAndRangeNoiseGrowAtGrazingIncidenceAndLongRange) {
+    ScanModel model;
+    model.range_max_m = 100.0;
+    model.range_noise_m = 0.02;
+    model.beam_divergence_rad = 0.002;
+    model.dropout_rate = 0.1;
+    model.grazing_cos = 0.2;
+    model.far_fraction = 0.8;
+    EXPECT_NEAR(dropoutProbability(10.0, 1.0, model), 0.1, 1e-12);
+    EXPECT_NEAR(dropoutProbability(10.0, 0.1, model), 1.0 - 0.9 * 0.5, 1e-12);
+    EXPECT_NEAR(dropoutProbability(90.0, 1.0, model), 1.0 - 0.9 * 0.5, 1e-12);
+    EXPECT_NEAR(dropoutProbability(100.0, 1.0, model), 1.0, 1e-12);
+    EXPECT_NEAR(rangeSigma(10.0, 1.0, model), 0.02, 1e-12);
+    const double c = 0.5, fp = 0.5 * 0.002 * 10.0 * std::sqrt(1 - c * c) / c;
+    EXPECT_NEAR(rangeSigma(10.0, c, model), std::hypot(0.02, fp), 1e-12);
+    EXPECT_NEAR(rangeSigma(10.0, 0.0, model), rangeSigma(10.0, 0.0995, model), 1e-12);
 }

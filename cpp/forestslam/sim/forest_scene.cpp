@@ -175,8 +175,18 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         stem_coeffs_.emplace_back(s);
         if (!(s.semi_a > 0 && s.semi_b > 0))
             throw std::invalid_argument("stem semi-axes must be > 0");
-        const double r =
-            std::max(s.semi_a, s.semi_b) * std::max(s.radiusScale(s.h_bottom), 1.0) + s.bark_amp;
+        if (s.sides != 0 && s.sides < 3)
+            throw std::invalid_argument("a polygonal stem needs at least 3 sides (0: smooth)");
+        if (!(s.irregularity >= 0.0 && s.irregularity < 0.5 && s.flare_amp >= 0.0 &&
+              s.flare_height > 0.0 && s.bark_amp >= 0.0))
+            throw std::invalid_argument(
+                "stem irregularity must be in [0, 0.5), flare and bark >= 0, flare height > 0");
+        // Largest radius over the stem (segment): shape factor, taper and flare at their most,
+        // plus the bark in normalised units.
+        const double scale = std::max(s.radiusScale(s.h_bottom), s.radiusScale(s.height));
+        const double eps = s.bark_amp / (0.5 * (s.semi_a + s.semi_b));
+        const double r = std::max(s.semi_a, s.semi_b) *
+                         (stem_coeffs_.back().q_max * (scale + s.flare(s.h_bottom)) + eps);
         const double xa = s.base.x() + s.shear.x() * s.h_bottom,
                      xb = s.base.x() + s.shear.x() * s.height;
         const double ya = s.base.y() + s.shear.y() * s.h_bottom,
@@ -299,6 +309,8 @@ bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit
             break;
     }
     hit.object = static_cast<int32_t>(index);
+    if ((code & ~kIndexMask) == kStemCode && stems_[index].tree >= 0)
+        hit.object = stems_[index].tree;
     return true;
 }
 

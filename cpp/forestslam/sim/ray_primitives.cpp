@@ -14,6 +14,11 @@ constexpr int kOctaves[4] = {1, 2, 4, 8};
 constexpr double kOmega = 0.9;  // rad/m
 constexpr double kWeights[4] = {1.0, 0.8, 0.6, 0.5};
 constexpr double kWeightSum = 2.9;
+// Low lobes of the section's shape (Stem::irregularity), drifting slowly with height.
+constexpr int kLowLobes[3] = {2, 3, 5};
+constexpr double kLobeWeights[3] = {1.0, 0.7, 0.5};
+constexpr double kLobeWeightSum = 2.2;
+constexpr double kLobeDrift = kOmega / 4;  // rad/m; exp(i omega h) is then its 4th power
 
 struct Complex {
     double re, im;
@@ -24,11 +29,11 @@ inline Complex mul(Complex a, Complex b) {
 
 // Bark noise n at (azimuth, h) with z = exp(i azimuth), and its partial derivatives: the same
 // sum as Stem::barkNoise, by products of unit complex numbers.
-inline void barkNoiseAt(const StemCoeffs &c, Complex z, double h, double &n, double &dn_daz,
+// w1 = exp(i omega h).
+inline void barkNoiseAt(const StemCoeffs &c, Complex z, Complex w1, double &n, double &dn_daz,
                         double &dn_dh) {
     const Complex z2 = mul(z, z), z4 = mul(z2, z2), z8 = mul(z4, z4), z16 = mul(z8, z8);
     const Complex z9 = mul(z8, z), z17 = mul(z16, z), z31 = mul(mul(z17, z8), mul(z4, z2));
-    const Complex w1{std::cos(kOmega * h), std::sin(kOmega * h)};
     const Complex w2 = mul(w1, w1), w4 = mul(w2, w2), w8 = mul(w4, w4);
     const Complex zs[4] = {z4, z9, z17, z31}, ws[4] = {w1, w2, w4, w8};
     n = dn_daz = dn_dh = 0.0;
@@ -98,6 +103,12 @@ double Stem::barkNoise(double azimuth, double h) const {
     return s / kWeightSum;
 }
 
+double Stem::flare(double h) const {
+    if (flare_amp <= 0.0 || h >= flare_height) return 0.0;
+    const double x = 1.0 - std::max(h, 0.0) / flare_height;
+    return flare_amp * x * x * x;
+}
+
 StemCoeffs::StemCoeffs(const Stem &stem)
     : cos_angle(std::cos(stem.angle)),
       sin_angle(std::sin(stem.angle)),
@@ -107,6 +118,94 @@ StemCoeffs::StemCoeffs(const Stem &stem)
         phase_re[k] = std::cos(stem.phase[k]);
         phase_im[k] = std::sin(stem.phase[k]);
     }
+    for (int k = 0; k < 3; ++k) {
+        lobe_re[k] = std::cos(stem.lobe_phase[k]);
+        lobe_im[k] = std::sin(stem.lobe_phase[k]);
+    }
+    double p_min = 1.0, p_max = 1.0;
+    if (stem.sides >= 3) {
+        // Circumradius c with perimeter 2 n c sin(pi / n) = 2 pi: the polygon's girth is the
+        // unit circle's.
+        const double half = M_PI / stem.sides;
+        const double circum = M_PI / (stem.sides * std::sin(half));
+        poly_apothem = circum * std::cos(half);
+        poly_sector = 2.0 * half;
+        p_min = poly_apothem;
+        p_max = circum;
+    }
+    q_min = p_min * (1.0 - stem.irregularity);
+    q_max = p_max * (1.0 + stem.irregularity);
+}
+
+SectionRadius sectionRadius(const Stem &stem, const StemCoeffs &c, double cos_phi, double sin_phi,
+                            double h) {
+    // Polygon factor p(phi) and its derivative.
+    double p = 1.0, dp = 0.0;
+    if (c.poly_sector > 0.0) {
+        const double local = std::atan2(sin_phi, cos_phi) - stem.poly_angle;
+        const double w = local - c.poly_sector * std::floor(local / c.poly_sector);
+        const double off = w - 0.5 * c.poly_sector;
+        const double co = std::cos(off);
+        p = c.poly_apothem / co;
+        dp = p * std::sin(off) / co;
+    }
+    // Low lobes 2, 3, 5 drifting by kLobeDrift rad/m.
+    double m = 0.0, dm_dphi = 0.0, dm_dh = 0.0;
+    // One cos/sin for the lobes' drift and the bark's vertical phase (its 4th power).
+    Complex drift{1.0, 0.0};
+    if (stem.irregularity > 0.0 || stem.bark_amp > 0.0)
+        drift = {std::cos(kLobeDrift * h), std::sin(kLobeDrift * h)};
+    if (stem.irregularity > 0.0) {
+        const Complex z{cos_phi, sin_phi};
+        const Complex z2 = mul(z, z), z3 = mul(z2, z), z5 = mul(z3, z2);
+        const Complex zs[3] = {z2, z3, z5};
+        for (int k = 0; k < 3; ++k) {
+            const Complex e = mul(mul(zs[k], drift), Complex{c.lobe_re[k], c.lobe_im[k]});
+            m += kLobeWeights[k] * e.im;
+            dm_dphi += kLobeWeights[k] * kLowLobes[k] * e.re;
+            dm_dh += kLobeWeights[k] * kLobeDrift * e.re;
+        }
+        m *= 1.0 / kLobeWeightSum;
+        dm_dphi *= 1.0 / kLobeWeightSum;
+        dm_dh *= 1.0 / kLobeWeightSum;
+    }
+    const double irr = stem.irregularity;
+    const double q = p * (1.0 + irr * m);
+    const double dq_dphi = dp * (1.0 + irr * m) + p * irr * dm_dphi;
+    const double dq_dh = p * irr * dm_dh;
+    // Taper and flare.
+    const double scale = stem.radiusScale(h) + stem.flare(h);
+    double dscale_dh = -stem.taper;
+    if (stem.flare_amp > 0.0 && h > 0.0 && h < stem.flare_height) {
+        const double x = 1.0 - h / stem.flare_height;
+        dscale_dh -= 3.0 * stem.flare_amp * x * x / stem.flare_height;
+    }
+    SectionRadius out{scale * q, scale * dq_dphi, dscale_dh * q + scale * dq_dh};
+    if (stem.bark_amp > 0.0) {
+        const double eps = stem.bark_amp / (0.5 * (stem.semi_a + stem.semi_b));
+        double n, dn_daz, dn_dh;
+        const Complex d2 = mul(drift, drift);
+        barkNoiseAt(c, Complex{cos_phi, sin_phi}, mul(d2, d2), n, dn_daz, dn_dh);
+        out.r += eps * n;
+        out.dr_dphi += eps * dn_daz;
+        out.dr_dh += eps * dn_dh;
+    }
+    return out;
+}
+
+Eigen::MatrixX2d stemSection(const Stem &stem, double h, int n) {
+    const StemCoeffs c(stem);
+    Eigen::MatrixX2d xy(std::max(n, 0), 2);
+    const double cx = stem.base.x() + stem.shear.x() * h, cy = stem.base.y() + stem.shear.y() * h;
+    for (int k = 0; k < n; ++k) {
+        const double phi = 2.0 * M_PI * k / n;
+        const double cp = std::cos(phi), sp = std::sin(phi);
+        const double r = sectionRadius(stem, c, cp, sp, h).r;
+        const double u = r * cp * stem.semi_a, v = r * sp * stem.semi_b;
+        xy(k, 0) = cx + c.cos_angle * u - c.sin_angle * v;
+        xy(k, 1) = cy + c.sin_angle * u + c.cos_angle * v;
+    }
+    return xy;
 }
 
 bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
@@ -129,33 +228,52 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
     const double t_lo = ray.t_min;
     if (t_lo > t_max) return false;
 
-    const double aq = du * du + dv * dv - k * k * dh * dh;
+    const double duv = du * du + dv * dv;
     const double bq_uv = 2.0 * (u0 * du + v0 * dv);
     const double cq_uv = u0 * u0 + v0 * v0;
-    // Entry into the envelope whose section scale is c - k (h - 1.3), up to t_hi.
-    auto entry = [&](double c, double t_hi) {
-        const double C0 = c + k * kBreastHeight - k * h0, K = k * dh;
+    // Where the ray enters the slab h_bottom <= h <= height (-inf: starts in it or runs along
+    // it; +inf: never in it).
+    double t_slab = -kInf;
+    if (dh > 0.0)
+        t_slab = (stem.h_bottom - h0) / dh;
+    else if (dh < 0.0)
+        t_slab = (stem.height - h0) / dh;
+    else if (h0 < stem.h_bottom || h0 > stem.height)
+        t_slab = kInf;
+    // First t in [t_lo, t_hi] where the ray is inside the cone rho <= c - kk (h - 1.3): through
+    // its side, or (caps = true: the cone closed by the slab's planes, for brackets) where the
+    // ray enters the slab already inside it.
+    auto entry = [&](double c, double kk, double t_hi, bool caps) {
+        const double C0 = c + kk * kBreastHeight - kk * h0, K = kk * dh;
+        const double aq = duv - K * K, bq = bq_uv + 2.0 * C0 * K, cq = cq_uv - C0 * C0;
         auto ok = [&](double t) {
             const double h = h0 + t * dh;
             return h >= stem.h_bottom && h <= stem.height && C0 - K * t > 0.0;
         };
-        return enteringRoot(aq, bq_uv + 2.0 * C0 * K, cq_uv - C0 * C0, t_lo, t_hi, ok);
+        const double t_side = enteringRoot(aq, bq, cq, t_lo, t_hi, ok);
+        if (caps && t_slab > t_lo && t_slab < std::min(t_side, t_hi) &&
+            (aq * t_slab + bq) * t_slab + cq <= 0.0 && C0 - K * t_slab > 0.0)
+            return t_slab;
+        return t_side;
     };
-    const double r_mean = 0.5 * (stem.semi_a + stem.semi_b);
-    const double eps = stem.bark_amp / r_mean;
     double t_hit;
-    if (eps <= 0.0) {
-        t_hit = entry(1.0, t_max);
+    if (!stem.shaped()) {
+        t_hit = entry(1.0, k, t_max, false);
         if (t_hit == kInf) return false;
     } else {
-        const double t_out = entry(1.0 + eps, t_max);
+        // Envelopes of the surface over this stem (segment): the flare is largest at its bottom.
+        const double eps = stem.bark_amp / (0.5 * (stem.semi_a + stem.semi_b));
+        const double f_max = stem.flare(stem.h_bottom);
+        const double c_out = coeffs.q_max * (1.0 + f_max) + eps, k_out = coeffs.q_max * k;
+        const double c_in = coeffs.q_min - eps, k_in = coeffs.q_min * k;
+        const double t_out = entry(c_out, k_out, t_max, true);
         if (t_out == kInf) return false;
         // Past the outer envelope's entry the root is solved over the ray's whole range, not up
         // to t_max: the hit is then the same whatever the caller's current best (casts do not
         // depend on the order in which primitives are tested), and compared with t_max at the
         // end.
         const double t_far = std::max(ray.t_max, t_max);
-        // g(t) = rho - (s(h) + eps n): > 0 outside the bark surface, < 0 inside; dg = dg/dt.
+        // g(t) = rho - r(phi, h): > 0 outside the surface, < 0 inside; dg = dg/dt.
         auto g = [&](double t, double &dg) {
             const double u = u0 + t * du, v = v0 + t * dv, h = h0 + t * dh;
             const double rho = std::sqrt(u * u + v * v);
@@ -163,16 +281,16 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
                 dg = 0.0;
                 return -1.0;
             }
-            double n, dn_daz, dn_dh;
-            barkNoiseAt(coeffs, Complex{u / rho, v / rho}, h, n, dn_daz, dn_dh);
-            const double daz_dt = (u * dv - v * du) / (rho * rho);
-            dg = (u * du + v * dv) / rho + k * dh - eps * (dn_daz * daz_dt + dn_dh * dh);
-            return rho - (stem.radiusScale(h) + eps * n);
+            const double inv = 1.0 / rho;
+            const SectionRadius s = sectionRadius(stem, coeffs, u * inv, v * inv, h);
+            const double dphi_dt = (u * dv - v * du) * inv * inv;
+            dg = (u * du + v * dv) * inv - s.dr_dphi * dphi_dt - s.dr_dh * dh;
+            return rho - s.r;
         };
-        double t_in = entry(1.0 - eps, t_far);
+        double t_in = c_in > 0.0 ? entry(c_in, k_in, t_far, true) : kInf;
         if (t_in == kInf) {
-            // Grazing ray: bracket at its closest approach to the axis, if that is inside.
-            const double duv = du * du + dv * dv;
+            // Grazing ray: bracket at its closest approach to the axis inside the slab, if that
+            // is inside the surface.
             if (duv < 1e-18) return false;
             t_in = std::min(std::max(-(u0 * du + v0 * dv) / duv, t_out), t_far);
             const double h = h0 + t_in * dh;
@@ -180,12 +298,12 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
             if (h < stem.h_bottom || h > stem.height || g(t_in, dg) > 0.0) return false;
         }
         // Newton on the bracket g(lo) >= 0 >= g(hi) (the envelopes' entries), bisecting when a
-        // step leaves it; starts at the smooth section's entry, a bark amplitude from the root.
+        // step leaves it; starts at the entry of the middle envelope.
         double lo = t_out, hi = t_in;
-        double t = entry(1.0, t_far);
+        double t = entry(0.5 * (c_out + c_in), 0.5 * (k_out + k_in), t_far, true);
         if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
         t_hit = hi;
-        for (int it = 0; it < 40; ++it) {
+        for (int it = 0; it < 60; ++it) {
             double dg;
             const double gt = g(t, dg);
             if (std::abs(gt) < 1e-9) {  // 1e-9 of the radius: sub-nanometre
@@ -202,9 +320,18 @@ bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, d
         const double h = h0 + t_hit * dh;
         if (h < stem.h_bottom || h > stem.height || t_hit > t_max || t_hit < t_lo) return false;
     }
-    // Normal of the smooth section (horizontal), for the incidence angle.
+    // Normal of the section (horizontal) at the hit, for the incidence angle: in (u, v) it is
+    // e_rho - (dr/dphi / rho) e_phi, mapped to the world by the section's axes.
     const double u = u0 + t_hit * du, v = v0 + t_hit * dv;
-    const double gx = u / stem.semi_a, gy = v / stem.semi_b;
+    const double rho = std::sqrt(u * u + v * v);
+    double nu = u, nv = v;
+    if (stem.shaped() && rho > 0.0) {
+        const double cp = u / rho, sp = v / rho;
+        const double slope = sectionRadius(stem, coeffs, cp, sp, h0 + t_hit * dh).dr_dphi / rho;
+        nu = cp + slope * sp;
+        nv = sp - slope * cp;
+    }
+    const double gx = nu * ia, gy = nv * ib;
     const double nx = ca * gx - sa * gy, ny = sa * gx + ca * gy;
     const double nn = std::sqrt(nx * nx + ny * ny);
     hit.t = t_hit;

@@ -35,16 +35,81 @@ double normalQuantile(double p) {
 
 constexpr uint64_t kDropoutSalt = 11, kRangeSalt = 13, kIntensitySalt = 17;
 
+// One reflectance draw per object (a tree's bark, a crown clump, a log), fixed for the run.
+double objectReflectanceNoise(uint8_t surface, int32_t object, const ScanModel &model) {
+    return normalQuantile(hashUniform(mixKey(model.object_seed, surface),
+                                      static_cast<uint64_t>(static_cast<int64_t>(object))));
+}
+
+// Range fall-off of the intensity (reference / range)^exponent beyond the reference range and
+// the near-range loss, the fall-off tabulated every 0.25 m and interpolated linearly (relative
+// error below 1e-4; no pow per return).
+class RangeGain {
+  public:
+    explicit RangeGain(const ScanModel &model) : model_(model) {
+        if (model.range_exponent == 0.0) return;
+        const double span = std::max(model.range_max_m - model.reference_range_m, 0.0);
+        table_.resize(static_cast<size_t>(std::ceil(span / kStep)) + 2);
+        for (size_t k = 0; k < table_.size(); ++k)
+            table_[k] = std::pow(model.reference_range_m / (model.reference_range_m + k * kStep),
+                                 model.range_exponent);
+    }
+    double operator()(double range) const {
+        double gain = 1.0;
+        if (!table_.empty() && range > model_.reference_range_m) {
+            const double x = std::min((range - model_.reference_range_m) / kStep,
+                                      static_cast<double>(table_.size() - 1));
+            const size_t k = std::min(static_cast<size_t>(x), table_.size() - 2);
+            gain = table_[k] + (x - k) * (table_[k + 1] - table_[k]);
+        }
+        if (range < model_.near_range_m) gain *= 0.5 + 0.5 * range / model_.near_range_m;
+        return gain;
+    }
+
+  private:
+    static constexpr double kStep = 0.25;
+    const ScanModel &model_;
+    std::vector<double> table_;
+};
+
+float intensityOf(uint8_t surface, double object_noise, double range_gain, double cos_incidence,
+                  double noise, const ScanModel &model) {
+    const Material &m = model.materials[surface < kSurfaceCount ? surface : uint8_t{0}];
+    double value = m.median * std::exp(m.sigma_object * object_noise + m.sigma_return * noise);
+    const double c = std::clamp(cos_incidence, 0.0, 1.0);
+    if (m.incidence_exponent == 1.0)
+        value *= c;
+    else if (m.incidence_exponent == 0.5)
+        value *= std::sqrt(c);
+    else if (m.incidence_exponent != 0.0)
+        value *= std::pow(c, m.incidence_exponent);
+    value *= range_gain;
+    return static_cast<float>(std::round(std::clamp(value, 0.0, 255.0)));
+}
+
 }  // namespace
 
-float returnIntensity(uint8_t surface, double cos_incidence, double noise, const ScanModel &model) {
-    const bool leafy = surface == kFoliage || surface == kShrub;
-    // Foliage returns above the threshold about 95 % of the time (1.55 +- 0.21 relative).
-    const double base = leafy ? 1.55 : (surface == kGround ? 0.25 : 0.35);
-    const double incidence = leafy ? 1.0 : 0.5 + 0.5 * cos_incidence;
-    const double spread = leafy ? 0.21 : model.intensity_noise_rel;
-    const double value = model.intensity_scale * base * incidence * (1.0 + spread * noise);
-    return static_cast<float>(std::clamp(value, 0.0, 255.0));
+float returnIntensity(uint8_t surface, int32_t object, double range, double cos_incidence,
+                      double noise, const ScanModel &model) {
+    return intensityOf(surface, objectReflectanceNoise(surface, object, model),
+                       RangeGain(model)(range), cos_incidence, noise, model);
+}
+
+double dropoutProbability(double range, double cos_incidence, const ScanModel &model) {
+    double keep = 1.0 - model.dropout_rate;
+    if (cos_incidence < model.grazing_cos) keep *= std::max(cos_incidence, 0.0) / model.grazing_cos;
+    const double far = model.far_fraction * model.range_max_m;
+    if (range > far && model.range_max_m > far)
+        keep *= std::max(0.0, (model.range_max_m - range) / (model.range_max_m - far));
+    return 1.0 - keep;
+}
+
+double rangeSigma(double range, double cos_incidence, const ScanModel &model) {
+    if (model.beam_divergence_rad <= 0.0) return model.range_noise_m;
+    // tan(incidence) capped at 10 (84 deg): beyond, the return is mostly lost anyway.
+    const double c = std::clamp(cos_incidence, 0.0995, 1.0);
+    const double footprint = 0.5 * model.beam_divergence_rad * range * std::sqrt(1.0 - c * c) / c;
+    return std::sqrt(model.range_noise_m * model.range_noise_m + footprint * footprint);
 }
 
 SynthesizedScan synthesizeScan(const ForestScene &scene,
@@ -133,6 +198,19 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
     // station's millions of rays), ending at a group boundary when one comes soon, cast together
     // so that rays sharing a pose share their grid walk (ForestScene::castBatch: same hits as one
     // by one, wherever a chunk ends).
+    const RangeGain range_gain(model);
+    // Per-object reflectance draws, made once per object seen in this scan.
+    std::vector<double> object_noise[kSurfaceCount];
+    auto objectNoise = [&](uint8_t surface, int32_t object) {
+        if (surface >= kSurfaceCount || object < 0)
+            return objectReflectanceNoise(surface, object, model);
+        std::vector<double> &cache = object_noise[surface];
+        if (static_cast<size_t>(object) >= cache.size())
+            cache.resize(static_cast<size_t>(object) + 1, std::nan(""));
+        double &v = cache[static_cast<size_t>(object)];
+        if (std::isnan(v)) v = objectReflectanceNoise(surface, object, model);
+        return v;
+    };
     constexpr Eigen::Index kChunk = 2048, kChunkSlack = 256;
     std::vector<Ray> rays;
     std::vector<Eigen::Index> rows;
@@ -168,15 +246,16 @@ SynthesizedScan synthesizeScan(const ForestScene &scene,
             const Eigen::Index i = rows[q];
             if (!hit.valid() || hit.t < model.range_min_m) continue;
             const uint64_t key = mixKey(noise_seed, static_cast<uint64_t>(i));
-            if (model.dropout_rate > 0.0 && hashUniform(key, kDropoutSalt) < model.dropout_rate)
-                continue;
-            const double range =
-                hit.t + model.range_noise_m * normalQuantile(hashUniform(key, kRangeSalt));
+            const double p_lost = dropoutProbability(hit.t, hit.cos_incidence, model);
+            if (p_lost > 0.0 && hashUniform(key, kDropoutSalt) < p_lost) continue;
+            const double range = hit.t + rangeSigma(hit.t, hit.cos_incidence, model) *
+                                             normalQuantile(hashUniform(key, kRangeSalt));
             const double intensity_noise = normalQuantile(hashUniform(key, kIntensitySalt));
             out.ray[kept] = i;
             out.points.row(kept) = (range / norms[q]) * local_dirs.row(i);
             out.intensity[kept] =
-                returnIntensity(hit.surface, hit.cos_incidence, intensity_noise, model);
+                intensityOf(hit.surface, objectNoise(hit.surface, hit.object), range_gain(hit.t),
+                            hit.cos_incidence, intensity_noise, model);
             out.surface[kept] = hit.surface;
             out.object[kept] = hit.object;
             ++kept;

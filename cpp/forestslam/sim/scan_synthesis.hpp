@@ -11,19 +11,52 @@
 
 namespace forestslam::sim {
 
-// The sensor's measurement model (from its profile).
+// How one material returns the beam: its intensity at normal incidence and the reference range
+// is log-normal around `median` (one draw per object with sigma_object, one per return with
+// sigma_return), scaled by |cos incidence|^incidence_exponent.
+struct Material {
+    double median = 50.0;
+    double sigma_return = 0.25;
+    double sigma_object = 0.1;
+    double incidence_exponent = 1.0;
+};
+constexpr int kSurfaceCount = 7;  // Surface values 0..6
+
+// The sensor's measurement model. Intensity is in the sensor's own units (0..255) from the
+// materials, the range and the incidence; it knows nothing of any downstream threshold.
 struct ScanModel {
     double range_min_m = 0.0;
     double range_max_m = 100.0;
-    double range_noise_m = 0.0;         // standard deviation of the range, m
-    double dropout_rate = 0.0;          // probability that a return is lost
-    double intensity_scale = 100.0;     // the profile's intensity threshold (100 without one)
-    double intensity_noise_rel = 0.12;  // relative noise of wood and ground intensity
+    // Range noise: standard deviation range_noise_m at normal incidence, plus (in quadrature)
+    // the spread of the beam footprint over an inclined surface, 0.5 divergence range tan(inc)
+    // (tan capped at 10).
+    double range_noise_m = 0.0;
+    double beam_divergence_rad = 0.0;
+    // Dropouts: dropout_rate everywhere; below |cos incidence| = grazing_cos the loss grows
+    // linearly to 1 at grazing; beyond far_fraction * range_max_m it grows linearly to 1 at
+    // range_max_m.
+    double dropout_rate = 0.0;
+    double grazing_cos = 0.0;
+    double far_fraction = 1.0;
+    Material materials[kSurfaceCount];
+    // Range fall-off: intensity times (reference_range_m / range)^range_exponent beyond the
+    // reference, and falling linearly to half at 0 m below near_range_m (receiver optics).
+    double reference_range_m = 5.0;
+    double range_exponent = 0.0;
+    double near_range_m = 0.0;
+    uint64_t object_seed = 0;  // per-object reflectance draws (constant over a run)
 };
 
-// Intensity of a return (before noise): foliage and shrubs well above the threshold, bark, wood
-// and ground well below it and brighter at normal incidence. noise: a standard normal draw.
-float returnIntensity(uint8_t surface, double cos_incidence, double noise, const ScanModel &model);
+// Intensity of a return: surface class, object row, range, |cos incidence|, and a standard
+// normal draw for the per-return noise. Rounded to an integer in [0, 255] as drivers report it.
+float returnIntensity(uint8_t surface, int32_t object, double range, double cos_incidence,
+                      double noise, const ScanModel &model);
+
+// Probability that a return is lost (range, |cos incidence|).
+double dropoutProbability(double range, double cos_incidence, const ScanModel &model);
+
+// Range noise standard deviation of a return.
+double rangeSigma(double range, double cos_incidence, const ScanModel &model);
 
 struct SynthesizedScan {
     Eigen::Matrix<int64_t, Eigen::Dynamic, 1> ray;  // pattern row of each return, increasing

@@ -3,6 +3,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -25,14 +26,12 @@ void requireCols(const RowMatrix &a, int cols, const char *name) {
                                     " columns");
 }
 
-sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::MatrixXd &z,
-                           const RowMatrix &stems, const RowMatrix &cylinders,
-                           const RowMatrix &foliage, uint64_t seed, double grid_cell_m) {
-    requireCols(stems, 12, "stems");
-    requireCols(cylinders, 8, "cylinders");
-    requireCols(foliage, 8, "foliage");
-    sim::Heightfield terrain;
-    if (z.size() > 0) terrain = sim::Heightfield(x0, y0, cell, z);
+// Stem rows (K,12) or (K,18): x y z_base shear_x shear_y semi_a semi_b angle taper h_bottom
+// height bark_amp [tree flare_amp flare_height sides poly_angle irregularity]. Bark and lobe
+// phases are drawn from (seed, tree), so the segments of one tree share them.
+std::vector<sim::Stem> makeStems(const RowMatrix &stems, uint64_t seed) {
+    if (stems.size() > 0 && stems.cols() != 12 && stems.cols() != 18)
+        throw std::invalid_argument("stems must have 12 or 18 columns");
     std::vector<sim::Stem> s(stems.rows());
     for (Eigen::Index i = 0; i < stems.rows(); ++i) {
         const auto r = stems.row(i);
@@ -46,10 +45,33 @@ sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::Matri
         st.h_bottom = r(9);
         st.height = r(10);
         st.bark_amp = r(11);
+        if (stems.cols() == 18) {
+            if (!(std::isfinite(r(12)) && std::isfinite(r(15))))
+                throw std::invalid_argument("stem tree id and sides must be finite");
+            st.tree = static_cast<int32_t>(std::lround(r(12)));
+            st.flare_amp = r(13);
+            st.flare_height = r(14);
+            st.sides = static_cast<int>(std::lround(r(15)));
+            st.poly_angle = r(16);
+            st.irregularity = r(17);
+        }
+        const uint64_t key = sim::mixKey(seed, static_cast<uint64_t>(st.tree >= 0 ? st.tree : i));
         for (int k = 0; k < 4; ++k)
-            st.phase[k] =
-                2.0 * M_PI * sim::hashUniform(sim::mixKey(seed, i), static_cast<uint64_t>(k));
+            st.phase[k] = 2.0 * M_PI * sim::hashUniform(key, static_cast<uint64_t>(k));
+        for (int k = 0; k < 3; ++k)
+            st.lobe_phase[k] = 2.0 * M_PI * sim::hashUniform(key, static_cast<uint64_t>(4 + k));
     }
+    return s;
+}
+
+sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::MatrixXd &z,
+                           const RowMatrix &stems, const RowMatrix &cylinders,
+                           const RowMatrix &foliage, uint64_t seed, double grid_cell_m) {
+    requireCols(cylinders, 8, "cylinders");
+    requireCols(foliage, 8, "foliage");
+    sim::Heightfield terrain;
+    if (z.size() > 0) terrain = sim::Heightfield(x0, y0, cell, z);
+    std::vector<sim::Stem> s = makeStems(stems, seed);
     std::vector<sim::Cylinder> c(cylinders.rows());
     for (Eigen::Index i = 0; i < cylinders.rows(); ++i) {
         const auto r = cylinders.row(i);
@@ -64,20 +86,59 @@ sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::Matri
                             grid_cell_m);
 }
 
+sim::ScanModel scanModel(const py::dict &d, const RowMatrix &materials) {
+    sim::ScanModel m;
+    auto get = [&](const char *key, double &value) {
+        if (d.contains(key)) value = d[key].cast<double>();
+    };
+    get("range_min_m", m.range_min_m);
+    get("range_max_m", m.range_max_m);
+    get("range_noise_m", m.range_noise_m);
+    get("beam_divergence_rad", m.beam_divergence_rad);
+    get("dropout_rate", m.dropout_rate);
+    get("grazing_cos", m.grazing_cos);
+    get("far_fraction", m.far_fraction);
+    get("reference_range_m", m.reference_range_m);
+    get("range_exponent", m.range_exponent);
+    get("near_range_m", m.near_range_m);
+    if (d.contains("object_seed")) m.object_seed = d["object_seed"].cast<uint64_t>();
+    for (auto item : d) {
+        static const char *known[] = {"range_min_m",         "range_max_m",       "range_noise_m",
+                                      "beam_divergence_rad", "dropout_rate",      "grazing_cos",
+                                      "far_fraction",        "reference_range_m", "range_exponent",
+                                      "near_range_m",        "object_seed"};
+        const std::string key = item.first.cast<std::string>();
+        if (std::find(std::begin(known), std::end(known), key) == std::end(known))
+            throw std::invalid_argument("unknown scan model key: " + key);
+    }
+    if (materials.rows() != sim::kSurfaceCount || materials.cols() != 4)
+        throw std::invalid_argument("materials must be (7,4): one row per surface class");
+    for (int i = 0; i < sim::kSurfaceCount; ++i)
+        m.materials[i] = {materials(i, 0), materials(i, 1), materials(i, 2), materials(i, 3)};
+    if (!(m.range_noise_m >= 0 && m.beam_divergence_rad >= 0 && m.dropout_rate >= 0 &&
+          m.dropout_rate < 1 && m.grazing_cos >= 0 && m.grazing_cos < 1 && m.far_fraction > 0 &&
+          m.reference_range_m > 0 && m.near_range_m >= 0))
+        throw std::invalid_argument("scan model values out of range");
+    return m;
+}
+
 }  // namespace
 
 void define_sim(py::module_ &m) {
     py::class_<sim::ForestScene>(m, "SimScene",
                                  "Forest scene for the LiDAR simulator: heightfield terrain plus "
                                  "stems, cylinders and foliage volumes in a uniform XY grid.")
-        .def(py::init(&makeScene), py::arg("x0"), py::arg("y0"), py::arg("cell"), py::arg("z"),
-             py::arg("stems"), py::arg("cylinders"), py::arg("foliage"), py::arg("seed") = 0,
-             py::arg("grid_cell_m") = 3.0,
-             "z (ny+1, nx+1) terrain vertex heights at x0 + ix*cell, y0 + iy*cell (empty: no "
-             "ground). stems (K,12): x y z_base shear_x shear_y semi_a semi_b angle taper "
-             "h_bottom height bark_amp (semi-axes at 1.3 m; radius scale 1 - taper (h - 1.3)). "
-             "cylinders (M,8): x0 y0 z0 x1 y1 z1 radius surface. foliage (F,8): cx cy cz rx ry rz "
-             "sigma surface. seed: bark phases.")
+        .def(
+            py::init(&makeScene), py::arg("x0"), py::arg("y0"), py::arg("cell"), py::arg("z"),
+            py::arg("stems"), py::arg("cylinders"), py::arg("foliage"), py::arg("seed") = 0,
+            py::arg("grid_cell_m") = 3.0,
+            "z (ny+1, nx+1) terrain vertex heights at x0 + ix*cell, y0 + iy*cell (empty: no "
+            "ground). stems (K,12) or (K,18): x y z_base shear_x shear_y semi_a semi_b angle taper "
+            "h_bottom height bark_amp [tree flare_amp flare_height sides poly_angle "
+            "irregularity] (semi-axes at 1.3 m; radius scale 1 - taper (h - 1.3); see "
+            "sim::Stem; a stem's hits report its tree id as object when tree >= 0). "
+            "cylinders (M,8): x0 y0 z0 x1 y1 z1 radius surface. foliage (F,8): cx cy cz rx ry rz "
+            "sigma surface. seed: bark and lobe phases.")
         .def(
             "cast",
             [](const sim::ForestScene &scene, const Eigen::Ref<const Points3> &origins,
@@ -102,16 +163,9 @@ void define_sim(py::module_ &m) {
                const Eigen::Ref<const sim::PoseRows> &knot_pose,
                const Eigen::Ref<const Eigen::VectorXd> &group_time,
                const Eigen::Ref<const sim::IndexVector> &group,
-               const Eigen::Ref<const Points3> &local_dirs, double range_min, double range_max,
-               double range_noise, double dropout_rate, double intensity_scale,
-               double intensity_noise_rel, uint64_t cast_seed, uint64_t noise_seed) {
-                sim::ScanModel model;
-                model.range_min_m = range_min;
-                model.range_max_m = range_max;
-                model.range_noise_m = range_noise;
-                model.dropout_rate = dropout_rate;
-                model.intensity_scale = intensity_scale;
-                model.intensity_noise_rel = intensity_noise_rel;
+               const Eigen::Ref<const Points3> &local_dirs, const py::dict &model_dict,
+               const RowMatrix &materials, uint64_t cast_seed, uint64_t noise_seed) {
+                const sim::ScanModel model = scanModel(model_dict, materials);
                 sim::SynthesizedScan r;
                 {
                     py::gil_scoped_release release;
@@ -121,14 +175,17 @@ void define_sim(py::module_ &m) {
                 return py::make_tuple(r.ray, r.points, r.intensity, r.surface, r.object);
             },
             py::arg("knot_time"), py::arg("knot_pose"), py::arg("group_time"), py::arg("group"),
-            py::arg("local_dirs"), py::arg("range_min"), py::arg("range_max"),
-            py::arg("range_noise"), py::arg("dropout_rate"), py::arg("intensity_scale"),
-            py::arg("intensity_noise_rel"), py::arg("cast_seed"), py::arg("noise_seed"),
+            py::arg("local_dirs"), py::arg("model"), py::arg("materials"), py::arg("cast_seed"),
+            py::arg("noise_seed"),
             "One scan: knot_time (M,) increasing with knot_pose (M,16) row-major T_world_sensor, "
             "interpolated to group_time (G,); ray i fires local_dirs[i] (N,3, sensor frame) from "
-            "the pose of group[i] (N,) int64. -> (ray (K,) int64 rows kept, points (K,3) sensor "
-            "frame, intensity (K,) float32, surface (K,) uint8, object (K,) int32). Dropouts, "
-            "range noise and intensity noise are drawn from noise_seed, foliage from cast_seed.")
+            "the pose of group[i] (N,) int64. model: dict of ScanModel scalars (range_min_m "
+            "range_max_m range_noise_m beam_divergence_rad dropout_rate grazing_cos far_fraction "
+            "reference_range_m range_exponent near_range_m object_seed); materials (7,4): median "
+            "sigma_return sigma_object incidence_exponent per surface class. -> (ray (K,) int64 "
+            "rows kept, points (K,3) sensor frame, intensity (K,) float32, surface (K,) uint8, "
+            "object (K,) int32). Dropouts, range and intensity noise are drawn from noise_seed, "
+            "foliage from cast_seed.")
         .def(
             "height_at",
             [](const sim::ForestScene &scene, const Eigen::Ref<const Points2> &xy) {
@@ -138,6 +195,23 @@ void define_sim(py::module_ &m) {
                 return z;
             },
             py::arg("xy"), "Terrain height at xy (N,2) -> (N,), NaN outside the heightfield.");
+    m.def(
+        "sim_stem_sections",
+        [](const RowMatrix &stems, uint64_t seed, const Eigen::VectorXd &h, int n) {
+            if (h.size() != stems.rows())
+                throw std::invalid_argument("need one height per stem row");
+            if (n < 3) throw std::invalid_argument("need n >= 3 points per section");
+            const std::vector<sim::Stem> s = makeStems(stems, seed);
+            RowMatrix out(static_cast<Eigen::Index>(s.size()) * n, 2);
+            for (size_t i = 0; i < s.size(); ++i)
+                out.middleRows(static_cast<Eigen::Index>(i) * n, n) =
+                    sim::stemSection(s[i], h[i], n);
+            return out;
+        },
+        py::arg("stems"), py::arg("seed"), py::arg("h"), py::arg("n") = 720,
+        "Horizontal sections of the stem rows (as SimScene takes them, same seed) h (K,) metres "
+        "above each row's base: (K*n, 2) world XY, n points per row at equal normalised "
+        "azimuths.");
     m.attr("SIM_SURFACES") =
         py::make_tuple("none", "ground", "stem", "branch", "foliage", "shrub", "log");
 }

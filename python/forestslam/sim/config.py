@@ -40,11 +40,23 @@ class TerrainConfig:
 
 @dataclass
 class StemConfig:
+    """Stem shapes (see sim::Stem). Ranges (lo, hi) are drawn uniformly per tree."""
+
     taper_m_per_m: float = 0.01  # stem diameter lost per metre of height
     max_lean_deg: float = 3.0
-    max_ellipticity: float = 0.08  # (a - b) / (a + b) of the section, drawn in [0, max]
+    # (a - b) / (a + b) of the section, drawn in [0, max]; ovality (d_max - d_min) / d_max is
+    # about twice that (0.04: up to 7.7 %).
+    max_ellipticity: float = 0.04
     bark_amplitude_m: float = 0.003
     buried_m: float = 0.3  # stems start below the ground so slopes show no gap
+    irregularity: tuple[float, float] = (0.0, 0.03)  # relative amplitude of 2-3-5 lobes
+    polygon_sides: tuple[int, int] = (0, 0)  # polygonal sections with this many sides (0: round)
+    flare: tuple[float, float] = (0.1, 0.35)  # root flare: relative radius added at the ground
+    flare_height_m: tuple[float, float] = (0.6, 1.2)  # the flare is gone above this height
+    # Sweep: the axis bows sideways by up to this many metres per metre of tree height (at mid
+    # height); swept stems are chains of straight segments of at most segment_m.
+    max_sweep_m_per_m: float = 0.005
+    segment_m: float = 3.5
 
 
 @dataclass
@@ -72,9 +84,44 @@ class ClutterConfig:
 
 @dataclass
 class SensorConfig:
+    """The scanner. Its measurement model (range noise, dropouts) defaults per profile to the
+    simulator's own table (forestslam.sim.sensor_model), not to the profile's nominal values the
+    pipeline reads; any value set here overrides the table."""
+
     profile: str = "vlp16"  # a shipped profile name or a profile YAML file
     mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)  # mounting tilt on the vehicle
-    intensity_noise_rel: float = 0.12
+    range_noise_m: float | None = None  # standard deviation at normal incidence
+    beam_divergence_mrad: float | None = None  # footprint spread on inclined surfaces
+    dropout_rate: float | None = None  # everywhere
+    grazing_cos: float | None = None  # below this |cos incidence| returns fade out
+    far_fraction: float | None = None  # beyond this fraction of the maximum range too
+
+
+@dataclass
+class MaterialConfig:
+    """Intensity of one material at normal incidence and the reference range: log-normal around
+    `median` (sensor units 0..255), one draw per object and one per return."""
+
+    median: float = 50.0
+    sigma_return: float = 0.25
+    sigma_object: float = 0.1
+    incidence_exponent: float = 1.0
+
+
+@dataclass
+class IntensityConfig:
+    """Per-material intensity with range fall-off and incidence dependence. Not derived from any
+    pipeline threshold: bark and foliage overlap a little, as real returns do."""
+
+    ground: MaterialConfig = field(default_factory=lambda: MaterialConfig(30.0, 0.3, 0.1, 0.5))
+    bark: MaterialConfig = field(default_factory=lambda: MaterialConfig(45.0, 0.3, 0.15, 1.0))
+    branch: MaterialConfig = field(default_factory=lambda: MaterialConfig(55.0, 0.3, 0.15, 1.0))
+    foliage: MaterialConfig = field(default_factory=lambda: MaterialConfig(140.0, 0.3, 0.1, 0.0))
+    shrub: MaterialConfig = field(default_factory=lambda: MaterialConfig(120.0, 0.3, 0.1, 0.0))
+    deadwood: MaterialConfig = field(default_factory=lambda: MaterialConfig(70.0, 0.3, 0.15, 1.0))
+    reference_range_m: float = 5.0
+    range_exponent: float = 0.25  # intensity * (reference / range)^exponent beyond the reference
+    near_range_m: float = 1.5  # below it, intensity falls linearly to half at 0 m
 
 
 @dataclass
@@ -112,10 +159,15 @@ class OutputConfig:
 class SimConfig:
     name: str = "custom"
     seed: int = 0
+    # World style: a (round-ish stems, bright crowns) or b (polygonal, flared, swept stems, dense
+    # leaf-clump crowns, another intensity model); fills the keys a scenario leaves unset (see
+    # forestslam.sim.styles). Every figure can then be printed on two independent worlds.
+    style: str = "a"
     stand: StandConfig = field(default_factory=StandConfig)
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
     stems: StemConfig = field(default_factory=StemConfig)
     clutter: ClutterConfig = field(default_factory=ClutterConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
+    intensity: IntensityConfig = field(default_factory=IntensityConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     output: OutputConfig = field(default_factory=OutputConfig)

@@ -96,35 +96,29 @@ def synthesize_scan(
     scene,
     pattern: ScanPattern,
     poses: np.ndarray,
-    profile: SensorProfile,
+    model: tuple[dict, np.ndarray],
     stamp: float,
     rng: np.random.Generator,
     cast_seed: int,
-    intensity_noise_rel: float,
     labels: bool = False,
     pose_times: np.ndarray | None = None,
 ) -> Scan | tuple[Scan, np.ndarray, np.ndarray]:
     """One scan: poses (G,4,4) T_world_sensor at pattern.group_time, or at pose_times (M,)
     (increasing, seconds since the sweep start; interpolated to the group times, rotation by
-    normalised quaternion interpolation). rng seeds the dropouts and the range and intensity
-    noise (drawn in C++, one hash per ray). Intensity: foliage and shrubs above the profile's
-    threshold about 95 % of the time, bark, wood and ground well below it, brighter at normal
-    incidence. With labels=True also the per-point surface class (N,) uint8 (see
-    forest.SURFACES) and object row (N,) int32 (the tree id for stems)."""
+    normalised quaternion interpolation). model: the measurement model (sensor_model.scan_model:
+    ranges, noise, dropouts, per-material intensity). rng seeds the dropouts and the range and
+    intensity noise (drawn in C++, one hash per ray). With labels=True also the per-point surface
+    class (N,) uint8 (see forest.SURFACES) and object (N,) int32 (the tree id for stems)."""
     knot_time = pattern.group_time if pose_times is None else np.asarray(pose_times, np.float64)
-    thr = profile.intensity_threshold if profile.intensity_threshold is not None else 100.0
+    params, materials = model
     idx, points, intensity, surface, obj = scene.synthesize(
         np.ascontiguousarray(knot_time, dtype=np.float64),
         np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 16)),
         pattern.group_time,
         pattern.group,
         pattern.dirs,
-        profile.range_min_m,
-        profile.range_max_m,
-        profile.range_noise_m,
-        profile.dropout_rate,
-        float(thr),
-        float(intensity_noise_rel),
+        params,
+        materials,
         int(cast_seed),
         int(rng.integers(0, 2**63)),
     )

@@ -11,6 +11,7 @@ import yaml
 from forestslam.config_utils import from_dict, to_dict
 from forestslam.errors import InputError
 from forestslam.sim.config import SimConfig
+from forestslam.sim.styles import apply_style
 
 # Short override names (CLI flags, simulate(**overrides)) -> dotted config keys.
 ALIASES = {
@@ -28,6 +29,7 @@ ALIASES = {
     "format": "output.format",
     "preview": "output.preview",
     "seed": "seed",
+    "style": "style",
     "name": "name",
 }
 
@@ -77,11 +79,18 @@ def _set(data: dict[str, Any], dotted: str, value: Any) -> None:
 
 def load_scenario(scenario: str | Path | SimConfig | None = None, **overrides: Any) -> SimConfig:
     """Named scenario / YAML file / SimConfig (None: defaults), then overrides: short names
-    (stand, sensor, path, length_m, speed, seed, format, preview, ...), dotted keys given as
-    `section__field` (e.g. terrain__relief_m=1.5), None values ignored."""
+    (stand, sensor, path, length_m, speed, seed, style, format, preview, ...), dotted keys given
+    as `section__field` (e.g. terrain__relief_m=1.5), None values ignored; then the world
+    style's presets fill the keys still unset (forestslam.sim.styles)."""
     if isinstance(scenario, SimConfig):
         data = to_dict(scenario)
         where = scenario.name
+        style = overrides.get("style")
+        if style is not None and str(style).lower() != scenario.style:
+            raise InputError(
+                f"{where}: a built SimConfig already has style {scenario.style!r}; give the "
+                "style with the scenario name or file instead"
+            )
     else:
         data = scenario_dict(scenario)
         where = str(scenario) if scenario is not None else "defaults"
@@ -92,4 +101,4 @@ def load_scenario(scenario: str | Path | SimConfig | None = None, **overrides: A
             continue
         dotted = ALIASES.get(key, key.replace("__", "."))
         _set(data, dotted, value)
-    return from_dict(SimConfig, data, where=where)
+    return from_dict(SimConfig, apply_style(data), where=where)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,11 +22,15 @@ from forestslam.sim.world import World, build_world
 
 log = logging.getLogger(__name__)
 FORMATS = {"bag": ".bag", "mcap": ".mcap"}
+# Version of the simulator's world and sensor models: caches of simulated sequences key on it.
+# 2: shaped stems (polygon, lobes, flare, sweep), girth truth DBH, material intensity, sensor
+# noise table, world styles.
+MODEL_VERSION = 2
 
 
 def scan_at(world: World, k: int, labels: bool = False):
     """Scan k of the run (deterministic: depends only on the scenario and k). labels=True also
-    returns the per-point surface class and object row (see synthesize_scan)."""
+    returns the per-point surface class and object (see synthesize_scan)."""
     t0 = float(world.stamps[k])
     knot_time = world.pattern.group_time[world.pattern.knot_groups]
     poses = world.trajectory.poses(t0 + knot_time)
@@ -35,11 +40,10 @@ def scan_at(world: World, k: int, labels: bool = False):
         world.scene,
         world.pattern,
         poses,
-        world.profile,
+        world.scan_model,
         stamp,
         rng,
         world.scan_seed(k),
-        world.config.sensor.intensity_noise_rel,
         labels=labels,
         pose_times=knot_time,
     )
@@ -66,6 +70,7 @@ def _derived(world: World) -> dict[str, Any]:
 
     return {
         "forestslam_version": getattr(forestslam, "__version__", "unknown"),
+        "sim_model_version": MODEL_VERSION,
         "sensor_profile": world.profile.to_dict(),
         "scans": int(len(world.stamps)),
         "duration_s": round(float(len(world.stamps) / world.profile.rate_hz), 6)
@@ -76,6 +81,9 @@ def _derived(world: World) -> dict[str, Any]:
         "stand_bounds_m": [round(float(v), 4) for v in world.stand.bounds],
         "terrain_origin_cell_m": [world.terrain.x0, world.terrain.y0, world.terrain.cell],
         "objects": world.forest.counts(),
+        "sensor_noise": dataclasses.asdict(world.noise),
+        "truth_dbh": "convex-hull girth / pi of the horizontal stem section 1.3 m above "
+        "z_ground (= mean caliper diameter over all directions)",
     }
 
 

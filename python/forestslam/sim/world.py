@@ -13,6 +13,7 @@ from forestslam.sim.config import SimConfig
 from forestslam.sim.forest import Forest, build_forest
 from forestslam.sim.motion import PlannedPath, Trajectory, plan_path
 from forestslam.sim.scanner import ScanPattern, make_pattern
+from forestslam.sim.sensor_model import SensorNoise, scan_model, sensor_noise
 from forestslam.sim.stand import Stand, load_stand
 from forestslam.sim.terrain import Terrain, make_terrain
 
@@ -31,6 +32,8 @@ class World:
     trajectory: Trajectory
     pattern: ScanPattern
     stamps: np.ndarray  # (S,) scan stamps, seconds
+    noise: SensorNoise  # range noise and dropouts of the simulated sensor
+    scan_model: tuple  # (dict, (7,4) materials) for the C++ synthesis (sensor_model.scan_model)
 
     def scan_seed(self, k: int) -> int:
         return (int(self.config.seed) * 1_000_003 + 7919 * k + 1) % (2**63)
@@ -56,6 +59,8 @@ def build_world(cfg: SimConfig) -> World:
     if profile.kind == "map":
         raise InputError("sensor 'map' is not a scanner; choose vlp16, hdl32, os1-64, rs-m1 or tls")
     seed = int(cfg.seed)
+    noise = sensor_noise(profile, cfg.sensor)
+    model = scan_model(profile, noise, cfg.intensity, object_seed=seed * 1_000_003 + 601)
     stand = load_stand(cfg.stand, seed=seed)
     path = plan_path(cfg.motion, stand)
     if profile.kind == "tls" and not path.static:
@@ -104,4 +109,6 @@ def build_world(cfg: SimConfig) -> World:
         len(stamps),
         profile.name,
     )
-    return World(cfg, profile, stand, path, terrain, forest, scene, trajectory, pattern, stamps)
+    return World(
+        cfg, profile, stand, path, terrain, forest, scene, trajectory, pattern, stamps, noise, model
+    )
