@@ -1,7 +1,7 @@
 """DBH bench (issue 15): where a DBH bias comes from, stage by stage and factor by factor.
 
-Stem worlds from forestslam.perception.synthetic_stems (not forestslam.sim): two styles, `round` (analytic
-cylinders, flat intensity: what the project's simulator shows) and `rough` (irregular 7-14-gons
+Stem worlds from forestslam.perception.synthetic_stems (not forestslam.sim): two styles, `round`
+(analytic cylinders, flat intensity: what the project's simulator showed) and `rough` (7-14-gons
 with 5 mm bark noise, 0-10 % ovality, a Lambertian intensity model whose unknown gain lets the
 profile's threshold cut into the bark). A sensor drives a 40 m lane at 1 m/s, 10 Hz, with
 perfect poses (so only DBH is measured); each scan goes through `forestslam.perception.detect`.

@@ -21,7 +21,11 @@ class MappingConfig:
     # Spread of band points across their beams (beam footprint, bark, pose jitter between the
     # scans of a window) for the range-model circle fit; the range spread is estimated.
     dbh_lateral_sigma_m: float = 0.01
-    dbh_max_points_per_window: int = 4000  # random subsample beyond this (bounded memory)
+    dbh_max_points_per_window: int = 4000
+    # Trees without an accepted window: median of the per-scan DBH when at least this many
+    # scans agree within this share of it (robust spread); else no DBH.
+    dbh_fallback_min_scans: int = 3
+    dbh_fallback_max_spread: float = 0.15  # random subsample beyond this (bounded memory)
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: int = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the

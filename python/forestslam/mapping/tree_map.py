@@ -12,7 +12,8 @@ bench/dbh_bench.py); the range model does not. Moving past a stem shows it from 
 sides, so a window covers much more arc than one scan. Measurements that pass the quality
 gates are fused by a weighted mean (weight: inliers x arc coverage^2) after dropping outliers
 beyond 3 MADs of the median; dbh_std_m is their weighted standard deviation (NaN with one
-measurement). Trees without any accepted window fall back to the median of the per-scan DBH from perception.
+measurement). Trees without any accepted window fall back to the median of the per-scan DBH
+from perception when those agree.
 """
 
 from __future__ import annotations
@@ -153,9 +154,7 @@ class TreeMap:
         if tree is None:
             return float("nan"), float("nan"), 0
         if not tree.measurements:
-            if tree.scan_dbh:
-                return float(np.median(tree.scan_dbh)), float("nan"), 0
-            return float("nan"), float("nan"), 0
+            return self._scan_fallback(tree)
         d, w = np.array(tree.measurements).T
         if len(d) >= 3:
             med = np.median(d)
@@ -165,6 +164,20 @@ class TreeMap:
         mean = float(np.average(d, weights=w))
         std = float(np.sqrt(np.average((d - mean) ** 2, weights=w))) if len(d) > 1 else np.nan
         return mean, std, len(d)
+
+    def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
+        """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
+        only when at least dbh_fallback_min_scans agree (robust spread within
+        dbh_fallback_max_spread of the median, or 2 cm); the spread is its std. Scans of a
+        far tree merged with its neighbour give 2-4x its DBH: better none than that."""
+        d = np.asarray(tree.scan_dbh)
+        if len(d) < self.cfg.dbh_fallback_min_scans:
+            return float("nan"), float("nan"), 0
+        med = float(np.median(d))
+        spread = float(1.4826 * np.median(np.abs(d - med)))
+        if spread > max(0.02, self.cfg.dbh_fallback_max_spread * med):
+            return float("nan"), float("nan"), 0
+        return med, max(spread, 0.005), 0
 
     def table(self, ids: np.ndarray, xy: np.ndarray, observations: np.ndarray) -> dict:
         """Columns for trees.csv: id,x,y,z,dbh_m,dbh_std_m,observations for the given trees
