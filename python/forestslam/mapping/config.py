@@ -18,6 +18,7 @@ class MappingConfig:
     circle_inlier_m: float = 0.03
     dbh_max_rms_m: float = 0.03
     dbh_min_arc_coverage: float = 0.2
+    dbh_min_inlier_ratio: float = 0.5  # of the window's points within circle_inlier_m
     # Spread of band points across their beams (beam footprint, bark, pose jitter between the
     # scans of a window) for the range-model circle fit; the range spread is estimated.
     dbh_lateral_sigma_m: float = 0.01

@@ -67,6 +67,10 @@ def fit_band_circle(
         return None
     if fit["arc_coverage"] < cfg.dbh_min_arc_coverage:
         return None
+    # Most of the window's points lie on its circle: a window holding two stems (a far stem
+    # associated with its neighbour) otherwise gives a circle through both.
+    if fit["inliers"] < cfg.dbh_min_inlier_ratio * len(xy):
+        return None
     return fit
 
 
