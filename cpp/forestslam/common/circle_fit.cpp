@@ -335,16 +335,32 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
     // Beams of the points near the orthogonal fit (clutter stays out), range spread first
     // from the orthogonal residuals.
     std::vector<RayPoint> pts;
-    std::vector<double> ortho;
+    std::vector<double> ortho, facing, grazing;
     for (int i :
          inliersOf(xy, finiteIndices(xy), fit.centre, fit.radius, 2.0 * opt.inlier_threshold_m)) {
         const Eigen::Vector2d o = origins.row(i).transpose(), p = xy.row(i).transpose();
-        const double range = (p - o).norm();
-        if (!o.allFinite() || !(range > 1e-6)) continue;
+        const double range = (p - o).norm(), dist = (p - fit.centre).norm();
+        if (!o.allFinite() || !(range > 1e-6) || !(dist > 0)) continue;
         pts.push_back({o, (p - o) / range, range});
-        ortho.push_back(std::abs((p - fit.centre).norm() - fit.radius));
+        const double e = std::abs(dist - fit.radius);
+        ortho.push_back(e);
+        // Beam against the surface normal: residuals of beams facing the surface show the
+        // range spread, of grazing beams the spread across the beam.
+        const double c = std::abs(pts.back().dir.dot((p - fit.centre) / dist));
+        if (c > 0.8) facing.push_back(e);
+        if (c < 0.5) grazing.push_back(e);
     }
     if (pts.size() < 3) return fit;
+    // The range model holds when the spread lies along the beams. Where it is as wide across
+    // them (bark roughness, registration jitter, dense scanners) the orthogonal fit is the
+    // unbiased one, and the range model would run large (+1 cm on such arcs).
+    auto median = [](std::vector<double> v) {
+        std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+        return v[v.size() / 2];
+    };
+    if (facing.size() >= 5 && grazing.size() >= 5 &&
+        median(facing) < opt.min_range_anisotropy * median(grazing))
+        return fit;
     const double st = std::max(opt.lateral_sigma_m, 1e-4);
     std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
                      ortho.end());
