@@ -32,7 +32,7 @@ struct CircleFitOptions {
     double lateral_sigma_m = 0.005;
     // fitCircleRays keeps the orthogonal fit unless the residuals of beams facing the surface
     // are at least this many times those of grazing beams (noise along the beam).
-    double min_range_anisotropy = 1.5;
+    double min_range_anisotropy = 1.2;
 };
 
 struct CircleFit {
