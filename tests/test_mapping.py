@@ -110,5 +110,18 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
             np.array([0.5, 0.2 + 0.01 * i]),
         )
     dbh, std, n = tm.dbh(2)
-    assert dbh == pytest.approx(0.21) and n == 0 and np.isnan(std)
+    # The scans agree: their median, their robust spread as std.
+    assert dbh == pytest.approx(0.21) and n == 0 and std == pytest.approx(1.4826 * 0.01)
     assert np.isnan(tm.dbh(5)[0])
+    # Scans that disagree (a far stem merged with its neighbour in some): no DBH.
+    for i in range(3, 6):
+        tm.add(
+            i,
+            np.eye(4),
+            np.array([2]),
+            [np.zeros((0, 3))],
+            np.zeros(1),
+            np.ones(1),
+            np.array([0.6]),
+        )
+    assert np.isnan(tm.dbh(2)[0])

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <vector>
 
 #include "forestslam/common/circle_fit.hpp"
 
@@ -122,4 +123,63 @@ TEST(CircleFit, ArcCoverageCountsOccupiedSectors) {
     p << 1, 0.01, -1, 0.01;  // two opposite sectors out of 4
     EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {0, 1}, Eigen::Vector2d::Zero(), 4), 0.5);
     EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {}, Eigen::Vector2d::Zero(), 4), 0.0);
+}
+
+namespace {
+
+// What a LiDAR at `origin` sees of a circle: beams evenly across the visible side, each point
+// off the circle along its beam by Gaussian range noise.
+void rangeNoisyView(const Eigen::Vector2d &centre, double r, const Eigen::Vector2d &origin, int n,
+                    double noise, std::mt19937 &rng, std::vector<Eigen::Vector2d> &pts,
+                    std::vector<Eigen::Vector2d> &origins) {
+    std::normal_distribution<double> g(0.0, noise);
+    const Eigen::Vector2d to = centre - origin;
+    const double d = to.norm(), half = std::asin(r / d), bearing = std::atan2(to.y(), to.x());
+    for (int i = 0; i < n; ++i) {
+        const double b = bearing - half + 2 * half * (i + 0.5) / n;
+        const Eigen::Vector2d u(std::cos(b), std::sin(b));
+        const double a = u.dot(to), q = r * r - (to.squaredNorm() - a * a);
+        if (q < 0) continue;
+        pts.push_back(origin + (a - std::sqrt(q) + g(rng)) * u);
+        origins.push_back(origin);
+    }
+}
+
+}  // namespace
+
+TEST(CircleFit, RangeNoiseOnOneSidedArcsBiasesTheOrthogonalFitNotTheRayFit) {
+    // 3 cm range noise, one view per stem from 6 m (a VLP-16 scan): the orthogonal fit shrinks
+    // the stem by about 1 cm in radius; the range model must stay within 2 mm on average.
+    std::mt19937 rng(5);
+    double bias_ortho = 0, bias_rays = 0;
+    const int trials = 20;
+    for (int t = 0; t < trials; ++t) {
+        const double r = 0.06 + 0.01 * t;
+        std::vector<Eigen::Vector2d> pts, origins;
+        rangeNoisyView({6.0, 1.0}, r, {0.0, 0.0}, 400, 0.03, rng, pts, origins);
+        Points2 xy(static_cast<Eigen::Index>(pts.size()), 2), o(xy.rows(), 2);
+        for (size_t i = 0; i < pts.size(); ++i) {
+            xy.row(static_cast<Eigen::Index>(i)) = pts[i].transpose();
+            o.row(static_cast<Eigen::Index>(i)) = origins[i].transpose();
+        }
+        const CircleFit ortho = forestslam::fitCircle(xy);
+        const CircleFit rays = forestslam::fitCircleRays(xy, o);
+        ASSERT_TRUE(ortho.valid && rays.valid);
+        bias_ortho += (ortho.radius - r) / trials;
+        bias_rays += (rays.radius - r) / trials;
+    }
+    EXPECT_LT(bias_ortho, -0.005);
+    EXPECT_LT(std::abs(bias_rays), 0.002);
+}
+
+TEST(CircleFit, RayFitWithoutUsableOriginsIsTheOrthogonalFit) {
+    const Points2 p = arc(3.0, -2.0, 0.25, 0.0, 2.0, 40, 0.0, 1);
+    const CircleFit a = forestslam::fitCircle(p);
+    const CircleFit b = forestslam::fitCircleRays(p, Points2(3, 2));  // wrong row count
+    EXPECT_DOUBLE_EQ(a.radius, b.radius);
+    // Exact points seen from one origin: the range model keeps the exact circle.
+    const Points2 o = Eigen::RowVector2d(-5.0, -2.0).replicate(p.rows(), 1);
+    const CircleFit c = forestslam::fitCircleRays(p, o);
+    ASSERT_TRUE(c.valid);
+    EXPECT_NEAR(c.radius, 0.25, 1e-4);
 }

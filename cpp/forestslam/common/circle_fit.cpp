@@ -257,4 +257,137 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions 
     return fit;
 }
 
+namespace {
+
+// Range-model residuals of one beam: (range residual / sigma_r, lateral miss / sigma_t).
+struct RayPoint {
+    Eigen::Vector2d origin, dir;  // beam origin and unit direction
+    double range;                 // measured range (in the plane)
+};
+
+Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x, double sr, double st) {
+    const Eigen::Vector2d w = x.head<2>() - p.origin;
+    const double a = p.dir.dot(w);
+    const double d2 = std::max(0.0, w.squaredNorm() - a * a);
+    const double q = x(2) * x(2) - d2;
+    if (q > 0) return Eigen::Vector2d((p.range - (a - std::sqrt(q))) / sr, 0.0);
+    return Eigen::Vector2d((p.range - a) / sr, (std::sqrt(d2) - x(2)) / st);
+}
+
+double cauchyWeight(double e2) { return 1.0 / (1.0 + e2 / (2.5 * 2.5)); }
+
+// IRLS Levenberg-Marquardt on (cx, cy, r) with central-difference Jacobians (3 parameters).
+bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iterations,
+                Eigen::Vector3d &x) {
+    double lambda = 1e-3;
+    auto cost = [&](const Eigen::Vector3d &xx, const std::vector<double> &w) {
+        double s = 0;
+        for (size_t k = 0; k < pts.size(); ++k)
+            s += w[k] * rayResidual(pts[k], xx, sr, st).squaredNorm();
+        return s;
+    };
+    std::vector<double> w(pts.size());
+    for (int it = 0; it < iterations; ++it) {
+        Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+        Eigen::Vector3d Jte = Eigen::Vector3d::Zero();
+        const double h = 1e-6;
+        for (size_t k = 0; k < pts.size(); ++k) {
+            const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st);
+            w[k] = cauchyWeight(e.squaredNorm());
+            Eigen::Matrix<double, 2, 3> J;
+            for (int j = 0; j < 3; ++j) {
+                Eigen::Vector3d xp = x, xm = x;
+                xp(j) += h, xm(j) -= h;
+                J.col(j) =
+                    (rayResidual(pts[k], xp, sr, st) - rayResidual(pts[k], xm, sr, st)) / (2 * h);
+            }
+            JtJ += w[k] * J.transpose() * J;
+            Jte += w[k] * J.transpose() * e;
+        }
+        const double before = cost(x, w);
+        bool improved = false;
+        for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
+            Eigen::Matrix3d A = JtJ;
+            A.diagonal() *= (1.0 + lambda);
+            const Eigen::Vector3d step = A.ldlt().solve(-Jte);
+            if (!step.allFinite()) return false;
+            const Eigen::Vector3d xn = x + step;
+            if (xn(2) > 0 && cost(xn, w) <= before) {
+                x = xn;
+                lambda = std::max(lambda * 0.3, 1e-9);
+                improved = true;
+                if (step.norm() < 1e-8) return true;
+            } else {
+                lambda *= 10.0;
+            }
+        }
+        if (!improved) return true;
+    }
+    return true;
+}
+
+}  // namespace
+
+CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
+                        const Eigen::Ref<const Points2> &origins, const CircleFitOptions &opt) {
+    CircleFit fit = fitCircle(xy, opt);
+    if (!fit.valid || origins.rows() != xy.rows()) return fit;
+    // Beams of the points near the orthogonal fit (clutter stays out), range spread first
+    // from the orthogonal residuals.
+    std::vector<RayPoint> pts;
+    std::vector<double> ortho, facing, grazing;
+    for (int i :
+         inliersOf(xy, finiteIndices(xy), fit.centre, fit.radius, 2.0 * opt.inlier_threshold_m)) {
+        const Eigen::Vector2d o = origins.row(i).transpose(), p = xy.row(i).transpose();
+        const double range = (p - o).norm(), dist = (p - fit.centre).norm();
+        if (!o.allFinite() || !(range > 1e-6) || !(dist > 0)) continue;
+        pts.push_back({o, (p - o) / range, range});
+        const double e = std::abs(dist - fit.radius);
+        ortho.push_back(e);
+        // Beam against the surface normal: residuals of beams facing the surface show the
+        // range spread, of grazing beams the spread across the beam.
+        const double c = std::abs(pts.back().dir.dot((p - fit.centre) / dist));
+        if (c > 0.8) facing.push_back(e);
+        if (c < 0.5) grazing.push_back(e);
+    }
+    if (pts.size() < 3) return fit;
+    // The range model holds when the spread lies along the beams. Where it is as wide across
+    // them (bark roughness, registration jitter, dense scanners) the orthogonal fit is the
+    // unbiased one, and the range model would run large (+1 cm on such arcs).
+    auto median = [](std::vector<double> v) {
+        std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+        return v[v.size() / 2];
+    };
+    if (facing.size() >= 5 && grazing.size() >= 5 &&
+        median(facing) < opt.min_range_anisotropy * median(grazing))
+        return fit;
+    const double st = std::max(opt.lateral_sigma_m, 1e-4);
+    std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
+                     ortho.end());
+    double sr = std::max(1.4826 * ortho[ortho.size() / 2], st);
+    Eigen::Vector3d x(fit.centre.x(), fit.centre.y(), fit.radius);
+    for (int round = 0; round < 3; ++round) {
+        if (!refineRays(pts, sr, st, opt.refine_iterations, x)) return fit;
+        std::vector<double> res;
+        for (const RayPoint &p : pts) res.push_back(std::abs(rayResidual(p, x, 1.0, 1.0).x()));
+        std::nth_element(res.begin(), res.begin() + static_cast<long>(res.size() / 2), res.end());
+        sr = std::max(1.4826 * res[res.size() / 2], st);
+    }
+    if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return fit;
+    // A refinement that wandered off the points is not trusted: the range model moves a
+    // sound circle by about the range noise, and keeps most of its inliers.
+    const double moved = std::max(2.0 * opt.inlier_threshold_m, 0.25 * fit.radius);
+    if ((x.head<2>() - fit.centre).norm() > moved || std::abs(x(2) - fit.radius) > moved)
+        return fit;
+    CircleFit out = fit;
+    out.centre = x.head<2>();
+    out.radius = x(2);
+    out.inlier_indices =
+        inliersOf(xy, finiteIndices(xy), out.centre, out.radius, opt.inlier_threshold_m);
+    if (out.inlier_indices.size() < 0.8 * static_cast<double>(fit.inlier_indices.size()))
+        return fit;
+    finish(xy, opt, out);
+    return out;
+}
+
 }  // namespace forestslam

@@ -6,8 +6,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <ctime>
+#include <unordered_map>
 
+#include "forestslam/common/voxel_key.hpp"
 #include "forestslam/perception/preprocess.hpp"
 #include "forestslam/perception/segmentation.hpp"
 
@@ -35,6 +38,76 @@ struct StageClock {
         cpu = c;
     }
 };
+
+double bandMiddle(const DiameterOptions &o) { return 0.5 * (o.band_low_m + o.band_high_m); }
+
+// Base height (breast height - 1.3 m) of a stem whose ground is unknown.
+double baseWithoutGround(const Points3 &p, const PerceptionOptions &opt, BreastHeightSource &src) {
+    const double lo = p.col(2).minCoeff(), hi = p.col(2).maxCoeff();
+    if (std::isfinite(opt.breast_height_z)) {
+        src = BreastHeightSource::Explicit;
+        return opt.breast_height_z - bandMiddle(opt.diameter);
+    }
+    // A stem reaching above the band stands on its lowest point; a shorter piece is a slice
+    // cut around breast height, so its middle is taken.
+    if (hi - lo >= opt.diameter.band_high_m) {
+        src = BreastHeightSource::LowestPoint;
+        return lo;
+    }
+    src = BreastHeightSource::Slice;
+    return 0.5 * (lo + hi) - bandMiddle(opt.diameter);
+}
+
+// Stems of a map cloud without ground: each 3D cluster (points thinned to slice_voxel_m) whose
+// breast-height section is a circle (valid fit, arc coverage, most band points within its
+// gate). No SVD elongation test: a breast-height slice is wider than it is tall.
+std::vector<Stem> groundlessStems(const Points3 &pts, const PerceptionOptions &opt) {
+    // Thin to slice_voxel_m; cluster one representative per coarser voxel (a quarter of the
+    // clustering tolerance: dense clouds make radius searches quadratic), then every thinned
+    // point joins its representative's cluster.
+    const SegmentationOptions &so = opt.segmentation;
+    const double fine = std::max(opt.slice_voxel_m, 1e-4);
+    const double coarse = std::max(fine, 0.25 * so.euclidean_tolerance_m);
+    std::unordered_map<std::uint64_t, char> fine_seen;
+    std::unordered_map<std::uint64_t, int> coarse_rep;
+    std::vector<int> rows, rep_rows, rep_of;  // rep_of: per thinned point, its representative
+    for (Eigen::Index i = 0; i < pts.rows(); ++i) {
+        if (!fine_seen.emplace(voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), fine), 1).second) continue;
+        const auto [it, inserted] = coarse_rep.emplace(
+            voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), coarse), static_cast<int>(rep_rows.size()));
+        if (inserted) rep_rows.push_back(static_cast<int>(i));
+        rows.push_back(static_cast<int>(i));
+        rep_of.push_back(it->second);
+    }
+    const Points3 reps = selectRows(pts, rep_rows);
+    const Clusters rep_clusters =
+        euclideanClusters(reps, so.euclidean_tolerance_m, std::max(2, so.min_points / 4));
+    std::vector<int> cluster_of(rep_rows.size(), -1);
+    for (size_t k = 0; k < rep_clusters.size(); ++k)
+        for (int r : rep_clusters[k]) cluster_of[static_cast<size_t>(r)] = static_cast<int>(k);
+    Clusters clusters(rep_clusters.size());
+    for (size_t j = 0; j < rows.size(); ++j) {
+        const int k = cluster_of[static_cast<size_t>(rep_of[j])];
+        if (k >= 0) clusters[static_cast<size_t>(k)].push_back(rows[j]);
+    }
+    DiameterOptions dopt = opt.diameter;
+    dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
+    std::vector<Stem> out;
+    for (const auto &c : clusters) {
+        if (static_cast<int>(c.size()) < so.min_points) continue;
+        Stem st;
+        st.points = selectRows(pts, c);
+        st.base_z = baseWithoutGround(st.points, opt, st.breast_source);
+        st.diameter =
+            estimateDiameter(st.points, Points3(0, 3), st.base_z, Eigen::Vector3d::UnitZ(), dopt);
+        const DiameterFit &f = st.diameter.circle;
+        if (!f.valid || f.inliers < opt.slice_min_inlier_ratio * st.diameter.band_points) continue;
+        st.shape = clusterShape(pts, c, Eigen::Vector3d::UnitZ());
+        st.breast = st.diameter.centre;
+        out.push_back(std::move(st));
+    }
+    return out;
+}
 
 }  // namespace
 
@@ -175,10 +248,18 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         // In the blind circle around the sensor: the plane of the ground seen farther out.
         if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
         st.ground_found = std::isfinite(base);
-        if (!st.ground_found) base = st.points.col(2).minCoeff();
+        if (std::isfinite(opt.breast_height_z)) {
+            base = opt.breast_height_z - bandMiddle(opt.diameter);
+            st.breast_source = BreastHeightSource::Explicit;
+        } else if (!st.ground_found) {
+            base = st.points.col(2).minCoeff();
+            st.breast_source = BreastHeightSource::LowestPoint;
+        }
         st.base_z = base;
+        const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
-                                       use_silhouette ? &silhouette : nullptr);
+                                       use_silhouette ? &silhouette : nullptr,
+                                       scan_centred ? &sensor_origin : nullptr);
         if (st.diameter.centre.allFinite()) {
             st.breast = st.diameter.centre;
         } else {
@@ -189,6 +270,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         }
         det.stems.push_back(std::move(st));
     }
+    if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(pts, opt);
     for (size_t k = 0; k < det.stems.size(); ++k) {
         Stem &st = det.stems[k];
         st.id = static_cast<int>(k);

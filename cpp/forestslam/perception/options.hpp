@@ -111,6 +111,14 @@ struct PerceptionOptions {
     SegmentationOptions segmentation;
     DiameterOptions diameter;
     double ground_voxel_m = 0.25;  // ground points returned one per voxel (for ICP / maps)
+    // Breast height (z, input frame) given by the user for every stem; NaN: from the local
+    // ground, else from the stem's lowest points (see BreastHeightSource).
+    double breast_height_z = std::numeric_limits<double>::quiet_NaN();
+    // Map clouds in which the chain finds no stem (a cropped trunk, a breast-height slice, a
+    // stem cut out of a plot, all without ground): every 3D cluster whose cross-section is a
+    // circle becomes a stem. Points are thinned to this voxel first (bounded cost).
+    double slice_voxel_m = 0.01;
+    double slice_min_inlier_ratio = 0.5;  // of the band points within the circle's inlier gate
 };
 
 }  // namespace forestslam::perception

@@ -222,7 +222,7 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &opt,
-                              const SilhouetteSensor *sensor) {
+                              const SilhouetteSensor *sensor, const Eigen::Vector3d *view_origin) {
     StemDiameter out;
     if (points.rows() < 3 || !std::isfinite(base_z)) return out;
     // Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a
@@ -244,7 +244,13 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         co.min_radius_m = opt.min_radius_m;
         co.max_radius_m = opt.max_radius_m;
         const Points2 xy = band.leftCols<2>();
-        const CircleFit cf = fitCircle(xy, co);
+        CircleFit cf;
+        if (view_origin != nullptr) {
+            const Points2 origins = view_origin->head<2>().transpose().replicate(xy.rows(), 1);
+            cf = fitCircleRays(xy, origins, co);
+        } else {
+            cf = fitCircle(xy, co);
+        }
         if (cf.valid) {
             out.circle.valid = true;
             out.circle.radius = cf.radius;
@@ -320,10 +326,12 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         }
     }
     const DiameterFit *best = nullptr;
-    if (out.circle.valid) best = &out.circle, out.method = 1;
-    // The cylinder wins only when clearly better: on partial arcs its radius runs small
-    // (measured on synthetic stems), while the band circle is the DBH definition itself.
-    if (out.cylinder.valid && (!best || out.cylinder.score > 1.25 * best->score))
+    // The band circle is the DBH definition itself; the SAC cylinder is only the fallback: on
+    // one-sided views its radius is off by several cm either way, far more on polygonal or
+    // rough stems (bench/dbh_bench.py: bias -3 cm on round, +12 to +28 cm on rough stems).
+    if (out.circle.valid)
+        best = &out.circle, out.method = 1;
+    else if (out.cylinder.valid)
         best = &out.cylinder, out.method = 2;
     if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {

@@ -68,11 +68,21 @@ struct StemDiameter {
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
 // With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
 // lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
-// circle and cylinder by quality.
+// circle and cylinder by quality. With `view_origin` (where every point was seen from: the
+// sensor of a single scan) the band circle is fitted under range noise (fitCircleRays).
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &options,
-                              const SilhouetteSensor *sensor = nullptr);
+                              const SilhouetteSensor *sensor = nullptr,
+                              const Eigen::Vector3d *view_origin = nullptr);
+
+// Where a stem's breast height (1.3 m above its base) came from.
+enum class BreastHeightSource {
+    Ground = 0,       // local ground under the stem
+    LowestPoint = 1,  // no ground: the stem's lowest point is taken as its base
+    Slice = 2,        // no ground and the stem is shorter than the band: its middle height
+    Explicit = 3,     // given by the user (PerceptionOptions::breast_height_z)
+};
 
 struct Stem {
     int id = 0;
@@ -81,6 +91,7 @@ struct Stem {
     ClusterShape shape;
     double base_z = kNaN;       // local ground height under the stem
     bool ground_found = false;  // false: base_z is the stem's lowest point
+    BreastHeightSource breast_source = BreastHeightSource::Ground;
     Eigen::Vector3d breast = Eigen::Vector3d::Constant(kNaN);  // centre at 1.3 m
     StemDiameter diameter;
 };

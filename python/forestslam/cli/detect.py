@@ -27,6 +27,13 @@ def register(app: typer.Typer) -> None:
         start: int = typer.Option(0, "--start", help="Skip this many scans first."),
         max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
         no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        breast_height_z: float | None = typer.Option(
+            None,
+            "--breast-height-z",
+            help="Breast height (z in the input frame) for every stem. Default: 1.3 m above the "
+            "local ground; without ground, above the stem's lowest point, or the middle of a "
+            "stem piece shorter than the band (a breast-height slice).",
+        ),
     ) -> None:
         import time
 
@@ -37,6 +44,7 @@ def register(app: typer.Typer) -> None:
         from forestslam.io import write_trees_csv
         from forestslam.job import Progress, ScanWindow, check_output_file
         from forestslam.perception import detect
+        from forestslam.perception.stems import BREAST_HEIGHT_SOURCES
         from forestslam.sensors import load_profile
 
         profile = load_profile(sensor)
@@ -51,10 +59,12 @@ def register(app: typer.Typer) -> None:
         bar = Progress(count, "scan", "detect", enabled=not no_progress and count != 1)
         rows: dict[str, list] = {k: [] for k in ("scan", "id", "x", "y", "z", "dbh_m")}
         n_scans, last, total_ms = 0, None, 0.0
+        sources = np.zeros(len(BREAST_HEIGHT_SOURCES), dtype=np.int64)
         for k, sc in enumerate(stream, start=window.start):
             bar.update(1)
             t0 = time.perf_counter()
-            stems = detect(sc, profile, cfg)
+            stems = detect(sc, profile, cfg, breast_height_z)
+            sources += np.bincount(stems.breast_source, minlength=len(sources))
             total_ms += (time.perf_counter() - t0) * 1e3
             n_scans += 1
             last = (k, sc, stems)
@@ -82,6 +92,11 @@ def register(app: typer.Typer) -> None:
             f"{n_trees} stems ({n_dbh} with DBH) in {n_scans} scan(s), "
             f"{total_ms / n_scans:.1f} ms per scan -> {out}"
         )
+        if n_trees:
+            used = ", ".join(
+                f"{BREAST_HEIGHT_SOURCES[i]} ({n})" for i, n in enumerate(sources) if n
+            )
+            print(f"breast height (1.3 m above the base) from: {used}")
         if png is not None and last is not None:
             from forestslam.perception.plotting import plot_detections
 

@@ -21,7 +21,15 @@ class MappingConfig:
     circle_inlier_m: Positive = 0.03
     dbh_max_rms_m: Positive = 0.03
     dbh_min_arc_coverage: Fraction = 0.2
+    dbh_min_inlier_ratio: Fraction = 0.5  # of the window's points within circle_inlier_m
+    # Spread of band points across their beams (beam footprint, bark, pose jitter between the
+    # scans of a window) for the range-model circle fit; the range spread is estimated.
+    dbh_lateral_sigma_m: Positive = 0.01
     dbh_max_points_per_window: PositiveInt = 4000  # random subsample beyond this (bounded memory)
+    # Trees without an accepted window: median of the per-scan DBH when at least this many
+    # scans agree within this share of it (robust spread); else no DBH.
+    dbh_fallback_min_scans: PositiveInt = 3
+    dbh_fallback_max_spread: Fraction = 0.15
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the

@@ -4,13 +4,16 @@ its spread and the observation count.
 DBH (the paper's 3D mapping): the stem points of the 1.15-1.45 m band above local ground of
 every scan that observed the tree are moved into the map frame with the scan's SLAM pose
 (keyframes optimised, scans between them aligned onto the tree map) and buffered; once a
-window of `dbh_window_scans` scans is full, one robust circle fit
-(`forestslam._core.fit_circle`, RANSAC + geometric fit) gives a DBH measurement with its
-quality. Moving past a stem shows it from several sides, so a window covers much more arc
-than one scan. Measurements that pass the quality gates are fused by a weighted mean (weight:
-inliers x arc coverage^2) after dropping outliers beyond 3 MADs of the median; dbh_std_m is
-their weighted standard deviation (NaN with one measurement). Trees without any accepted
-window fall back to the median of the per-scan DBH from perception.
+window of `dbh_window_scans` scans is full, one robust circle fit gives a DBH measurement with
+its quality. The fit knows where every point was seen from (the scan's sensor position,
+`forestslam._core.fit_circle_rays`): LiDAR noise lies along the beam, and an orthogonal-distance
+fit of the one-sided arcs a window sees shrinks the stem (-2 cm DBH at 3 cm range noise,
+bench/dbh_bench.py); the range model does not. Moving past a stem shows it from several
+sides, so a window covers much more arc than one scan. Measurements that pass the quality
+gates are fused by a weighted mean (weight: inliers x arc coverage^2) after dropping outliers
+beyond 3 MADs of the median; dbh_std_m is their weighted standard deviation (NaN with one
+measurement). Trees without any accepted window fall back to the median of the per-scan DBH
+from perception when those agree.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ log = logging.getLogger(__name__)
 @dataclass
 class _Tree:
     band: list = field(default_factory=list)  # (M,3) arrays, map frame
+    origins: list = field(default_factory=list)  # (M,2) sensor xy each band point was seen from
     first_scan: int = -1
     last_scan: int = -1
     n_band_scans: int = 0
@@ -37,23 +41,35 @@ class _Tree:
     z_n: int = 0
 
 
-def fit_band_circle(xy: np.ndarray, cfg: MappingConfig) -> dict | None:
-    """Robust circle fit of band points (M,2); None when no acceptable fit."""
+def fit_band_circle(
+    xy: np.ndarray, cfg: MappingConfig, origins: np.ndarray | None = None
+) -> dict | None:
+    """Robust circle fit of band points (M,2), under range noise along the beams when their
+    view origins (M,2) are given; None when no acceptable fit."""
     from forestslam import _core
 
     if len(xy) < cfg.dbh_min_points:
         return None
-    fit = _core.fit_circle(
-        np.ascontiguousarray(xy, dtype=np.float64),
+    kwargs = dict(
         inlier_threshold_m=cfg.circle_inlier_m,
         min_radius_m=cfg.dbh_min_m / 2,
         max_radius_m=cfg.dbh_max_m / 2,
     )
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    if origins is None:
+        fit = _core.fit_circle(xy, **kwargs)
+    else:
+        origins = np.ascontiguousarray(origins, dtype=np.float64)
+        fit = _core.fit_circle_rays(xy, origins, lateral_sigma_m=cfg.dbh_lateral_sigma_m, **kwargs)
     if not fit["valid"]:
         return None
     if fit["inliers"] < cfg.dbh_min_points or fit["rms_m"] > cfg.dbh_max_rms_m:
         return None
     if fit["arc_coverage"] < cfg.dbh_min_arc_coverage:
+        return None
+    # Most of the window's points lie on its circle: a window holding two stems (a far stem
+    # associated with its neighbour) otherwise gives a circle through both.
+    if fit["inliers"] < cfg.dbh_min_inlier_ratio * len(xy):
         return None
     return fit
 
@@ -104,6 +120,7 @@ class TreeMap:
             if tree.n_band_scans == 0:
                 tree.first_scan = scan_index
             tree.band.append(band @ T_odom[:3, :3].T + T_odom[:3, 3])
+            tree.origins.append(np.broadcast_to(T_odom[:2, 3], (len(band), 2)))
             tree.n_band_scans += 1
             tree.last_scan = scan_index
             if tree.n_band_scans >= self.cfg.dbh_window_scans:
@@ -119,15 +136,16 @@ class TreeMap:
                 if tree.n_band_scans >= self.cfg.dbh_min_window_scans:
                     self._fit(tree)
                 else:
-                    tree.band, tree.n_band_scans = [], 0
+                    tree.band, tree.origins, tree.n_band_scans = [], [], 0
 
     def _fit(self, tree: _Tree) -> None:
-        pts = np.concatenate(tree.band)
-        tree.band, tree.n_band_scans = [], 0
+        pts, origins = np.concatenate(tree.band), np.concatenate(tree.origins)
+        tree.band, tree.origins, tree.n_band_scans = [], [], 0
         if len(pts) > self.cfg.dbh_max_points_per_window:
-            pts = pts[self._rng.choice(len(pts), self.cfg.dbh_max_points_per_window, False)]
+            pick = self._rng.choice(len(pts), self.cfg.dbh_max_points_per_window, False)
+            pts, origins = pts[pick], origins[pick]
         self.n_fits += 1
-        fit = fit_band_circle(pts[:, :2], self.cfg)
+        fit = fit_band_circle(pts[:, :2], self.cfg, origins)
         if fit is None:
             return
         self.n_fits_accepted += 1
@@ -140,9 +158,7 @@ class TreeMap:
         if tree is None:
             return float("nan"), float("nan"), 0
         if not tree.measurements:
-            if tree.scan_dbh:
-                return float(np.median(tree.scan_dbh)), float("nan"), 0
-            return float("nan"), float("nan"), 0
+            return self._scan_fallback(tree)
         d, w = np.array(tree.measurements).T
         if len(d) >= 3:
             med = np.median(d)
@@ -152,6 +168,20 @@ class TreeMap:
         mean = float(np.average(d, weights=w))
         std = float(np.sqrt(np.average((d - mean) ** 2, weights=w))) if len(d) > 1 else np.nan
         return mean, std, len(d)
+
+    def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
+        """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
+        only when at least dbh_fallback_min_scans agree (robust spread within
+        dbh_fallback_max_spread of the median, or 2 cm); the spread is its std. Scans of a
+        far tree merged with its neighbour give 2-4x its DBH: better none than that."""
+        d = np.asarray(tree.scan_dbh)
+        if len(d) < self.cfg.dbh_fallback_min_scans:
+            return float("nan"), float("nan"), 0
+        med = float(np.median(d))
+        spread = float(1.4826 * np.median(np.abs(d - med)))
+        if spread > max(0.02, self.cfg.dbh_fallback_max_spread * med):
+            return float("nan"), float("nan"), 0
+        return med, max(spread, 0.005), 0
 
     def table(self, ids: np.ndarray, xy: np.ndarray, observations: np.ndarray) -> dict:
         """Columns for trees.csv: id,x,y,z,dbh_m,dbh_std_m,observations for the given trees

@@ -124,6 +124,12 @@ class PerceptionConfig:
 
     intensity_filter: bool = True
     ground_voxel_m: Positive = 0.25  # ground output: one point per voxel
+    # `map` clouds in which the chain finds no stem (a cropped trunk, a breast-height slice, a
+    # stem cut out of a plot, without ground): every 3D cluster whose breast-height section is
+    # a circle (at least this share of its band points within the circle's inlier gate) is a
+    # stem; points thinned to slice_voxel_m first.
+    slice_voxel_m: Positive = 0.01
+    slice_min_inlier_ratio: Fraction = 0.5
     ground: GroundConfig = field(default_factory=GroundConfig)
     filter: NormalFilterConfig = field(default_factory=NormalFilterConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)

@@ -87,8 +87,11 @@ def _as_scan(scan: Scan | np.ndarray) -> Scan:
     return scan
 
 
-def _options(profile: SensorProfile, config: PerceptionConfig, scan: Scan) -> dict:
+def _options(
+    profile: SensorProfile, config: PerceptionConfig, scan: Scan, breast_height_z: float | None
+) -> dict:
     options = dict(_memo("config", config, to_dict))  # top level copied: changed below
+    options["breast_height_z"] = breast_height_z
     threshold = profile.intensity_threshold
     use = config.intensity_filter and threshold is not None and scan.intensity is not None
     options["intensity_threshold"] = float(threshold) if use else None
@@ -113,14 +116,22 @@ def _ring(profile: SensorProfile, scan: Scan) -> np.ndarray | None:
 
 
 def detect(
-    scan: Scan | np.ndarray, sensor: str | SensorProfile, config: PerceptionConfig | None = None
+    scan: Scan | np.ndarray,
+    sensor: str | SensorProfile,
+    config: PerceptionConfig | None = None,
+    breast_height_z: float | None = None,
 ) -> Stems:
     """Stems of one scan (or one map / TLS cloud with sensor `map` / `tls`), sensor frame.
 
+    Breast height is 1.3 m above the local ground; without ground, above the stem's lowest
+    point, or the middle of a stem piece shorter than the band (a breast-height slice);
+    `breast_height_z` (input frame) overrides all of them. Stems.breast_source says which.
     Empty, all-NaN or stem-less input gives empty Stems; a malformed array or an over-large
     cloud raises InputError.
     """
     config = config or PerceptionConfig()
+    if breast_height_z is not None and not math.isfinite(breast_height_z):
+        raise InputError(f"breast height z must be a finite number, not {breast_height_z}")
     profile = load_profile(sensor)
     scan = _as_scan(scan)
     if len(scan) == 0:
@@ -134,7 +145,7 @@ def detect(
         _ring(profile, scan),
         sensor_geometry(profile),
         profile.kind != "map",
-        _options(profile, config, scan),
+        _options(profile, config, scan, breast_height_z),
     )
     k = len(result["z"])
     stems = Stems(
@@ -151,6 +162,7 @@ def detect(
         timing=dict(result["timing"]),
         cpu_ms=dict(result["cpu_ms"]),
         counts=dict(result["counts"]),
+        breast_source=np.asarray(result["breast_source"], dtype=np.int64),
     )
     log.debug("%d stems, %d ground points, %.1f ms", k, len(stems.ground), stems.timing["total"])
     return stems

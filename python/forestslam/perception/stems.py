@@ -6,6 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# Where each stem's breast height (1.3 m above its base) came from (Stems.breast_source).
+BREAST_HEIGHT_SOURCES = (
+    "ground",  # the local ground under the stem
+    "lowest point",  # no ground: the stem's lowest point is its base
+    "slice middle",  # no ground, stem shorter than the band: the middle of the slice
+    "explicit",  # given by the caller (breast_height_z)
+)
+
 
 @dataclass
 class Stems:
@@ -20,7 +28,8 @@ class Stems:
     method; the cylinder is not fitted, valid False, when an accepted silhouette decides unless
     DiameterConfig.fit_all);
     timing dict of per-stage wall-clock milliseconds; cpu_ms the same stages in CPU time of
-    the calling thread (the one-core cost); counts dict of per-stage point / cluster counts.
+    the calling thread (the one-core cost); counts dict of per-stage point / cluster counts;
+    breast_source (K,) index into BREAST_HEIGHT_SOURCES.
     """
 
     xy: np.ndarray
@@ -36,6 +45,7 @@ class Stems:
     timing: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
     cpu_ms: dict[str, float] = field(default_factory=dict)
+    breast_source: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -76,4 +86,7 @@ class Stems:
             timing=dict(self.timing),
             counts=dict(self.counts),
             cpu_ms=dict(self.cpu_ms),
+            breast_source=self.breast_source[idx]
+            if len(self.breast_source)
+            else self.breast_source,
         )

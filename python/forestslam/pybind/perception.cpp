@@ -5,6 +5,7 @@
 
 #include <limits>
 #include <optional>
+#include <stdexcept>
 
 #include "bindings.hpp"
 #include "forestslam/common/circle_fit.hpp"
@@ -127,6 +128,10 @@ pc::PerceptionOptions perceptionOptions(const py::dict &d) {
     if (d.contains("intensity_threshold") && !d["intensity_threshold"].is_none())
         o.intensity_threshold = d["intensity_threshold"].cast<double>();
     FS_GET(d, o, ground_voxel_m);
+    if (d.contains("breast_height_z") && !d["breast_height_z"].is_none())
+        o.breast_height_z = d["breast_height_z"].cast<double>();
+    FS_GET(d, o, slice_voxel_m);
+    FS_GET(d, o, slice_min_inlier_ratio);
     o.ground = groundOptions(sub(d, "ground"));
     o.filter = filterOptions(sub(d, "filter"));
     o.segmentation = segmentationOptions(sub(d, "segmentation"));
@@ -191,7 +196,7 @@ py::dict detectionDict(const pc::Detection &det) {
     Eigen::VectorXd z(k), dbh(k), base(k);
     Points3 mean(k, 3), axis(k, 3);
     Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
-    Eigen::VectorXi ground_found(k);
+    Eigen::VectorXi ground_found(k), breast_source(k);
     py::list pts, diam;
     for (Eigen::Index i = 0; i < k; ++i) {
         const pc::Stem &s = det.stems[static_cast<size_t>(i)];
@@ -204,6 +209,7 @@ py::dict detectionDict(const pc::Detection &det) {
         for (int r = 0; r < 3; ++r)
             for (int c = 0; c < 3; ++c) cov(i, 3 * r + c) = s.shape.cov(r, c);
         ground_found(i) = s.ground_found ? 1 : 0;
+        breast_source(i) = static_cast<int>(s.breast_source);
         pts.append(py::cast(s.points));
         diam.append(diameterDict(s.diameter));
     }
@@ -216,6 +222,7 @@ py::dict detectionDict(const pc::Detection &det) {
     d["cov"] = cov;
     d["axis"] = axis;
     d["ground_found"] = ground_found;
+    d["breast_source"] = breast_source;
     d["points"] = pts;
     d["diameters"] = diam;
     d["ground"] = det.ground;
@@ -237,6 +244,33 @@ py::dict detectionDict(const pc::Detection &det) {
 }  // namespace
 
 void define_perception(py::module_ &m) {
+    m.def(
+        "fit_circle_rays",
+        [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
+           double inlier_threshold_m, double min_radius_m, double max_radius_m,
+           double lateral_sigma_m, std::uint32_t seed) {
+            if (origins.rows() != xy.rows())
+                throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
+            CircleFitOptions o;
+            o.inlier_threshold_m = inlier_threshold_m;
+            o.min_radius_m = min_radius_m;
+            o.max_radius_m = max_radius_m;
+            o.lateral_sigma_m = lateral_sigma_m;
+            o.seed = seed;
+            CircleFit f;
+            {
+                py::gil_scoped_release release;
+                f = fitCircleRays(xy, origins, o);
+            }
+            return circleDict(f);
+        },
+        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = 0.03,
+        py::arg("min_radius_m") = 0.0,
+        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
+        py::arg("lateral_sigma_m") = 0.005, py::arg("seed") = 42,
+        "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
+        "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
+        "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
     m.def(
         "fit_circle",
         [](const Eigen::Ref<const Points2> &xy, double inlier_threshold_m, double min_radius_m,

@@ -1,0 +1,116 @@
+"""Known answers for each DBH stage under LiDAR range noise on one-sided views: the circle fit
+of a view (fit_circle vs fit_circle_rays), the per-scan stages of perception on stems with
+ovality, bark roughness and polygonal sections at VLP-16 sampling, and the tree map's fused
+DBH from windows of one-sided views."""
+
+import numpy as np
+import pytest
+
+from forestslam import _core
+from forestslam.mapping.config import MappingConfig
+from forestslam.mapping.tree_map import TreeMap
+from forestslam.perception import PerceptionConfig, detect
+from forestslam.perception.synthetic_stems import ROUGH, ROUND, make_world, scan_stems
+
+
+def one_sided_view(centre, r, origin, noise, rng, n=60):
+    """Points on the side of a circle facing `origin`, each off along its beam by range noise."""
+    to = np.asarray(centre) - origin
+    d = np.linalg.norm(to)
+    half = np.arcsin(r / d)
+    b = np.arctan2(to[1], to[0]) + np.linspace(-half, half, n + 2)[1:-1]
+    u = np.c_[np.cos(b), np.sin(b)]
+    a = u @ to
+    t = a - np.sqrt(np.maximum(r * r - (to @ to - a * a), 0.0))
+    return origin + (t + rng.normal(0, noise, n))[:, None] * u
+
+
+def test_range_model_circle_fit_is_unbiased_where_the_orthogonal_fit_shrinks():
+    rng = np.random.default_rng(1)
+    ortho, rays = [], []
+    for k in range(30):
+        r = 0.06 + 0.006 * k
+        p = one_sided_view((7.0, 2.0), r, np.zeros(2), 0.03, rng, n=200)
+        o = np.zeros_like(p)
+        ortho.append(2 * _core.fit_circle(p)["radius"] - 2 * r)
+        rays.append(2 * _core.fit_circle_rays(p, o)["radius"] - 2 * r)
+    assert np.mean(ortho) < -0.01  # the bias this issue is about: > 1 cm DBH at 3 cm noise
+    assert abs(np.mean(rays)) < 0.004
+
+
+@pytest.mark.parametrize("style", [ROUND, ROUGH], ids=lambda s: s.name)
+def test_per_scan_stages_on_shaped_stems(style):
+    cfg = PerceptionConfig()
+    cfg.diameter.fit_all = True
+    errors = {"silhouette": [], "circle": [], "chosen": []}
+    for seed, x in [(seed, x) for seed in (3, 4) for x in np.linspace(2.0, 18.0, 6)]:
+        world = make_world(style, seed=seed, n=25, length_m=20.0)
+        txy = np.array([[s.x, s.y] for s in world])
+        i = int(10 * x)
+        sxy = np.array([x, 0.0])
+        stems = detect(scan_stems(world, sxy, style, noise_m=0.03, seed=i, gain=1.3), "vlp16", cfg)
+        for k in range(len(stems)):
+            d = np.linalg.norm(txy - sxy - stems.mean[k, :2], axis=1)
+            j = int(np.argmin(d))
+            if d[j] > 0.5 or np.linalg.norm(txy[j] - sxy) > 15:
+                continue
+            for m in ("silhouette", "circle"):
+                if stems.diameters[k][m]["valid"]:
+                    errors[m].append(2 * stems.diameters[k][m]["radius"] - world[j].dbh)
+            errors["chosen"].append(stems.dbh[k] - world[j].dbh)
+    assert min(len(e) for e in errors.values()) >= 100
+    # Bias over the estimates within 10 cm of the truth (a stem merged with its neighbour in
+    # one scan is a segmentation matter). The band circle with the orthogonal fit: -2.1 cm.
+    err = {k: np.asarray(v)[np.abs(v) < 0.1] for k, v in errors.items()}
+    # Measured: circle -1.2 / -1.0 cm (round / rough; -2.1 cm with the orthogonal fit on
+    # round stems), silhouette -0.3 / -0.2 cm, chosen MAE 1.3 / 2.0 cm (target 2.5 cm).
+    assert abs(np.mean(err["circle"])) < 0.015
+    assert abs(np.mean(err["silhouette"])) < 0.008
+    assert np.mean(np.abs(err["chosen"])) < 0.025
+
+
+def test_tree_map_dbh_from_one_sided_windows():
+    """A sensor passes stems on one side at 1 m/s, 10 Hz, 3 cm range noise: each window sees
+    the same side; the fused DBH must not shrink."""
+    rng = np.random.default_rng(4)
+    stems = [((2.0 * i, 3.0 + (i % 3)), 0.08 + 0.03 * (i % 5)) for i in range(16)]
+    errors = {}
+    for rays in (False, True):
+        # These views have no spread across the beams (no pose jitter): say so to the fit.
+        tm = TreeMap(MappingConfig(dbh_lateral_sigma_m=0.002))
+        if not rays:  # the same windows without view origins: the orthogonal fit
+            tm._fit = _orthogonal_fit(tm)
+        for s, x in enumerate(np.arange(-5.0, 35.0, 0.1)):
+            T = np.eye(4)
+            T[0, 3] = x
+            ids, pts = [], []
+            for j, (c, r) in enumerate(stems):
+                if np.hypot(c[0] - x, c[1]) > 12:
+                    continue
+                xy = one_sided_view(c, r, np.array([x, 0.0]), 0.03, rng, n=8) - [x, 0.0]
+                ids.append(j)
+                pts.append(np.c_[xy, np.full(len(xy), 1.3)])
+            base = np.zeros(len(ids))
+            tm.add(s, T, np.array(ids), pts, base, base + 1.3, np.full(len(ids), np.nan))
+            tm.flush(s)
+        tm.flush()
+        errors[rays] = [tm.dbh(j)[0] - 2 * r for j, (_, r) in enumerate(stems)]
+    # Measured on these 2.5 m windows of 8-point views: orthogonal -5.2 cm, range model
+    # -1.9 cm (a residual bias left; some windows keep the orthogonal fit when their spread
+    # does not look beam-aligned, see fitCircleRays and the report of issue 15).
+    assert np.mean(errors[False]) < -0.03
+    assert abs(np.mean(errors[True])) < 0.02
+    assert abs(np.mean(errors[True])) < 0.4 * abs(np.mean(errors[False]))
+
+
+def _orthogonal_fit(tm):
+    from forestslam.mapping.tree_map import fit_band_circle
+
+    def fit(tree):
+        pts = np.concatenate(tree.band)
+        tree.band, tree.origins, tree.n_band_scans = [], [], 0
+        f = fit_band_circle(pts[:, :2], tm.cfg)
+        if f is not None:
+            tree.measurements.append((2 * f["radius"], f["inliers"] * f["arc_coverage"] ** 2))
+
+    return fit
