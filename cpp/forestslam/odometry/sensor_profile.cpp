@@ -14,21 +14,12 @@ namespace {
 namespace fs = std::filesystem;
 constexpr double kDeg = M_PI / 180.0;
 
-const std::set<std::string> kKeys = {"name",
-                                     "kind",
-                                     "channels",
-                                     "vertical_fov_deg",
-                                     "horizontal_fov_deg",
-                                     "azimuth_resolution_deg",
-                                     "rate_hz",
-                                     "range_min_m",
-                                     "range_max_m",
-                                     "range_noise_m",
-                                     "dropout_rate",
-                                     "image_rows",
-                                     "image_cols",
-                                     "intensity_threshold",
-                                     "vertical_angles_deg"};
+const std::set<std::string> kKeys = {
+    "name", "kind", "channels", "vertical_fov_deg", "horizontal_fov_deg", "azimuth_resolution_deg",
+    "rate_hz", "range_min_m", "range_max_m", "range_noise_m", "dropout_rate", "image_rows",
+    "image_cols", "intensity_threshold", "vertical_angles_deg",
+    // raw-packet decoding (the Python readers); not used here
+    "packet_model", "cut_angle_deg"};
 
 class ProfileReader {
   public:
