@@ -114,6 +114,8 @@ void definePerceptionOptions(py::module_ &m) {
     FS_FIELD(p, pc::PerceptionOptions, filter);
     FS_FIELD(p, pc::PerceptionOptions, segmentation);
     FS_FIELD(p, pc::PerceptionOptions, diameter);
+    FS_FIELD(p, pc::PerceptionOptions, slice_voxel_m);
+    FS_FIELD(p, pc::PerceptionOptions, slice_min_inlier_ratio);
 }
 
 void defineOdometryConfig(py::module_ &m) {
@@ -168,77 +170,6 @@ void defineOdometryConfig(py::module_ &m) {
     FS_FIELD(s, od::OdometrySensor, geometry);
     FS_FIELD(s, od::OdometrySensor, kind);
     FS_FIELD(s, od::OdometrySensor, intensity_threshold);
-}
-
-py::dict fitDict(const pc::DiameterFit &f) {
-    py::dict d;
-    d["valid"] = f.valid;
-    d["radius"] = f.radius;
-    d["centre"] = f.centre;
-    d["axis"] = f.axis;
-    d["inliers"] = f.inliers;
-    d["rms_m"] = f.rms_m;
-    d["arc_coverage"] = f.arc_coverage;
-    d["score"] = f.score;
-    return d;
-}
-
-const char *diameterMethod(int method) {
-    static const char *names[] = {"none", "circle", "cylinder", "silhouette"};
-    return method >= 0 && method <= 3 ? names[method] : "none";
-}
-
-// The stems of a detection in the layout of forestslam.perception.Stems.
-py::dict stemsDict(const pc::Detection &det) {
-    const auto k = static_cast<Eigen::Index>(det.stems.size());
-    Points2 xy(k, 2);
-    Eigen::VectorXd z(k), dbh(k), base(k);
-    Points3 mean(k, 3), axis(k, 3);
-    Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
-    py::list points, diameters;
-    for (Eigen::Index i = 0; i < k; ++i) {
-        const pc::Stem &s = det.stems[static_cast<size_t>(i)];
-        xy.row(i) = s.breast.head<2>().transpose();
-        z(i) = s.breast.z();
-        dbh(i) = s.diameter.dbh;
-        base(i) = s.base_z;
-        mean.row(i) = s.shape.mean.transpose();
-        axis.row(i) = s.shape.axis.transpose();
-        Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(cov.row(i).data()) = s.shape.cov;
-        points.append(py::cast(s.points));
-        py::dict dd;
-        dd["circle"] = fitDict(s.diameter.circle);
-        dd["cylinder"] = fitDict(s.diameter.cylinder);
-        dd["silhouette"] = fitDict(s.diameter.silhouette);
-        dd["method"] = diameterMethod(s.diameter.method);
-        dd["dbh"] = s.diameter.dbh;
-        dd["centre"] = s.diameter.centre;
-        dd["band_points"] = s.diameter.band_points;
-        diameters.append(dd);
-    }
-    py::dict counts;
-    counts["input"] = det.input_points;
-    counts["after_intensity"] = det.after_intensity;
-    counts["finite"] = det.finite_points;
-    counts["ground"] = det.ground_points;
-    counts["filtered"] = det.filtered_points;
-    counts["coarse_clusters"] = det.coarse_clusters;
-    counts["refined_clusters"] = det.refined_clusters;
-    py::dict d;
-    d["xy"] = xy;
-    d["z"] = z;
-    d["dbh"] = dbh;
-    d["base_z"] = base;
-    d["mean"] = mean;
-    d["cov"] = cov;
-    d["axis"] = axis;
-    d["points"] = points;
-    d["diameters"] = diameters;
-    d["ground"] = det.ground;
-    d["timing"] = det.timing_ms;
-    d["cpu_ms"] = det.cpu_ms;
-    d["counts"] = counts;
-    return d;
 }
 
 void defineMotionModel(py::module_ &m) {
@@ -302,8 +233,8 @@ void defineTreeOdometry(py::module_ &m) {
         .def_readonly("degraded", &od::OdometryResult::degraded)
         .def_readonly("method", &od::OdometryResult::method)
         .def_readonly("matched_stems", &od::OdometryResult::matched_stems)
-        .def_property_readonly("stems",
-                               [](const od::OdometryResult &r) { return stemsDict(r.detection); })
+        .def_property_readonly(
+            "stems", [](const od::OdometryResult &r) { return detectionDict(r.detection); })
         .def_readonly("stamp_check", &od::OdometryResult::stamp_check)
         .def_readonly("perception_error", &od::OdometryResult::perception_error)
         .def_readonly("timing", &od::OdometryResult::timing_ms)

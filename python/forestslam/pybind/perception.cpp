@@ -190,7 +190,11 @@ std::vector<int> toRows(const py::array_t<int, py::array::c_style | py::array::f
     return std::vector<int>(a.data(), a.data() + a.size());
 }
 
-py::dict detectionDict(const pc::Detection &det) {
+}  // namespace
+
+// The stems of a detection in the layout of forestslam.perception.Stems (also the odometry's).
+py::dict detectionDict(const perception::Detection &det) {
+    namespace pc = forestslam::perception;
     const auto k = static_cast<Eigen::Index>(det.stems.size());
     Points2 xy(k, 2);
     Eigen::VectorXd z(k), dbh(k), base(k);
@@ -240,8 +244,6 @@ py::dict detectionDict(const pc::Detection &det) {
     d["counts"] = counts;
     return d;
 }
-
-}  // namespace
 
 void define_perception(py::module_ &m) {
     m.def(
