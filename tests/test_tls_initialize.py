@@ -42,7 +42,7 @@ def test_walk_starts_once_tls_stems_come_into_view():
     cfg = TlsConfig()
     cfg.map.frame_max_range_m = 12.0
     # 1 m between frames (2 m/s, a frame every 0.5 s) keeps the walk short.
-    truth = [pose(-25.0 + 1.0 * k, -1.0, 0.05) for k in range(15)]
+    truth = [pose(-25.0 + 1.0 * k, -1.0, 0.05) for k in range(17)]
     frames = [mls_frame(world, T, 0.5 * k, seed=80 + k) for k, T in enumerate(truth)]
     nearest = [np.min(np.linalg.norm(trees[:, :2] - T[:2, 3], axis=1)) for T in truth]
     assert min(nearest[:3]) > cfg.map.frame_max_range_m  # no TLS stem in the first frames
