@@ -68,6 +68,12 @@ def test_products_and_coverage(world, run, tmp_path):
     assert cov["mean_merged"] > cov["mean_tls"]
     assert cov["mean_tls"] <= 0.6  # a single station sees about half of each stem
     assert summary["frames"] == 4
+    # Every frame that did not join the map is listed with its reason.
+    rows = (tmp_path / "unmerged.csv").read_text().splitlines()
+    assert rows[0] == "stamp,has_pose,reason"
+    assert len(rows) - 1 == sum(not r.accepted for r in run.frames) >= 1
+    assert all(",1," in row and row.endswith('"') for row in rows[1:])
+    assert sum(summary["unmerged"].values()) == len(rows) - 1
 
 
 def test_initial_pose_option_and_parse():

@@ -462,7 +462,8 @@ def _backfill(init: Initializer, T_latest: np.ndarray, lm_with, config: TlsConfi
         failure = trust_failure(lm, T_guess, config)
         dt, dr = _correction(T_guess, lm["T_target_source"])
         if not failure and (
-            dt > config.init.backfill_max_correction_m or dr > config.init.backfill_max_correction_deg
+            dt > config.init.backfill_max_correction_m
+            or dr > config.init.backfill_max_correction_deg
         ):
             failure = f"correction {100 * dt:.0f} cm from the odometry"
         T = np.asarray(lm["T_target_source"]) if not failure else T_guess
@@ -787,6 +788,33 @@ def register_mls_to_tls(
         initial_method=method,
         unplaced=unplaced,
     )
+
+
+def unmerged_frames(run: TlsRun) -> list[tuple[float, str]]:
+    """(stamp, reason) of every frame that did not join the map (with a pose or without),
+    in time order."""
+    rows = [(f.stamp, f.reason) for f in run.frames if not f.accepted]
+    return sorted(rows + list(run.unplaced))
+
+
+def unmerged_csv(run: TlsRun) -> str:
+    """The unmerged frames as CSV text: stamp,has_pose,reason."""
+    posed = {f.stamp for f in run.frames}
+    lines = ["stamp,has_pose,reason"]
+    for stamp, reason in unmerged_frames(run):
+        text = reason.replace('"', "'")
+        lines.append(f'{stamp:.6f},{int(stamp in posed)},"{text}"')
+    return "\n".join(lines) + "\n"
+
+
+def unmerged_summary(run: TlsRun) -> dict[str, int]:
+    """How many frames did not join the map, per reason kind (the reason up to its first
+    parenthesis or colon detail, so similar reasons count together)."""
+    out: dict[str, int] = {}
+    for _, reason in unmerged_frames(run):
+        kind = reason.split(" (")[0].split(": ")[0] if reason else "unknown"
+        out[kind] = out.get(kind, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
 def _ground_z(points: np.ndarray) -> float | None:
