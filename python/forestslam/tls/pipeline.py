@@ -14,12 +14,12 @@ times), whose stems sit on the reference's stems, that was not itself relocalize
 pose holds on the TLS reference alone (MapConfig.accept_reference_*). Frames that do not join
 still get a pose (tracking goes on through them).
 
-The first frame's pose in the TLS frame comes from `initial_pose` when given, else from a
-coarse stem alignment: stem positions of the frame (ring circle fits) are matched to those of
-the reference by pairwise spacing voting (x, y, yaw), the height from the local ground of both
-clouds; the LM then refines all 6 DoF. This needs the walk to start where the frame sees at
-least `coarse_min_stems` stems that the TLS also sees (e.g. inside the plot); frames before the
-first alignable one (up to `coarse_max_frames`) are skipped.
+The walk's pose in the TLS frame comes from `initial_pose` (the first frame's) when given, else
+from tls.initialize: the first frames are chained by NDT (corrected on their stems) into a
+local stem map, placement hypotheses come from stem constellations (triangle-star localizer
+and pairwise-spacing vote), each verified by the LM and by stem consensus; frames are tried
+until one is placed, and the frames before it are chained back from it (never merged). Every
+frame that does not join the map carries its reason (FrameRecord.reason, unmerged_csv).
 """
 
 from __future__ import annotations
