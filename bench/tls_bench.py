@@ -855,6 +855,27 @@ def plots_table(reports: dict) -> None:
     )
 
 
+def wrong_references(args) -> dict:
+    """Each plot's walk against the reference of the next plot: it must be rejected with a
+    clear error (ProcessingError), never placed (a silent wrong map)."""
+    plots = [p for p in PLOTS if args.plots == "all" or p["name"] in args.plots.split(",")]
+    out = {}
+    for plot, other in zip(plots, plots[1:] + plots[:1], strict=True):
+        if plot is other:
+            continue
+        _, mls_dir = simulate_plot(plot, args.plot_frames)
+        ref_dir, _ = simulate_plot(other, args.plot_frames)
+        scans = list(with_rings(read_scans(mls_dir / "sequence.bag"), "vlp16"))
+        key = f"{plot['name']} on {other['name']}"
+        try:
+            run = register_mls_to_tls(scans, load_reference(ref_dir / "reference.laz"))
+            out[key] = f"WRONGLY PLACED: {len(run.frames)} frames got a pose"
+        except ProcessingError as exc:
+            out[key] = f"rejected: {exc}"
+        print(f"wrong reference, {key}: {out[key]}", flush=True)
+    return out
+
+
 def run_plots(args) -> dict:
     names = None if args.plots == "all" else set(args.plots.split(","))
     reports = {}
@@ -903,6 +924,11 @@ def main() -> None:
     parser.add_argument(
         "--plot-frames", type=int, default=200, help="MLS frames simulated per plot"
     )
+    parser.add_argument(
+        "--wrong-reference",
+        action="store_true",
+        help="with --plots: each walk against another plot's reference (must be rejected)",
+    )
     parser.add_argument("--skip-sim", action="store_true")
     parser.add_argument("--skip-real", action="store_true")
     parser.add_argument(
@@ -912,7 +938,9 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
-    if args.plots:
+    if args.plots and args.wrong_reference:
+        report["wrong_reference"] = wrong_references(args)
+    elif args.plots:
         report["plots"] = run_plots(args)
         args.skip_real = args.skip_sim = True
     if not args.skip_real:

@@ -209,3 +209,25 @@ def test_moving_spinning_frames_are_deskewed(world):
     # The velocity is known from the second frame on (from still skewed frames at first).
     assert on[2] < 0.015 and np.all(on[3:] < 0.005), on
     assert np.mean(off[2:]) > 2 * np.mean(on[2:]), (on, off)
+
+
+def test_voxel_map_merges_only_points_in_new_voxels():
+    from forestslam import _core
+    from forestslam.tls.pipeline import _VoxelCloud
+
+    rng = np.random.default_rng(2)
+    base = rng.uniform(0, 1, (5000, 3))
+    cloud = _VoxelCloud(base, 0.1, _core)
+    n0 = len(cloud.points)
+    assert n0 == len(_core.voxel_downsample(base, 0.1))
+    cloud.merge(base + rng.normal(0, 0.001, base.shape))  # same voxels (mostly): ~nothing new
+    assert len(cloud.points) - n0 < 0.1 * n0
+    cloud.merge(base + [5.0, 0.0, 0.0])  # all new voxels: all kept
+    assert len(cloud.points) >= 2 * n0 - 0.1 * n0
+    cloud.merge(base + [5.0, 0.0, 0.0])  # merged again: nothing new
+    n1 = len(cloud.points)
+    cloud.merge(base + [5.0, 0.0, 0.0])
+    assert len(cloud.points) == n1
+    # One point per voxel.
+    keys = np.floor(cloud.points / 0.1).astype(np.int64)
+    assert len(np.unique(keys, axis=0)) == len(keys)

@@ -162,6 +162,56 @@ def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.
     return pts
 
 
+def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """One int64 key (N,) per point: its voxel's integer coordinates packed 21 bits each
+    (+-1e6 voxels: tens of km at centimetre voxels)."""
+    ijk = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+class _VoxelCloud:
+    """A voxelized cloud that grows: one point per voxel, the mean of what was merged into it
+    (each merge's voxel centroid counts once). Merging costs the new points only (sorted
+    voxel keys, binary search), not a re-voxelization of the whole map."""
+
+    def __init__(self, points: np.ndarray, voxel_m: float, core):
+        self.voxel_m = voxel_m
+        self.core = core
+        pts = self._down(points)
+        if voxel_m <= 0:
+            self.points, self.keys, self.count = pts, np.zeros(0, np.int64), np.zeros(0)
+            return
+        keys = _voxel_keys(pts, voxel_m)
+        order = np.argsort(keys)
+        self.points, self.keys = pts[order], keys[order]
+        self.count = np.ones(len(keys))
+
+    def _down(self, points: np.ndarray) -> np.ndarray:
+        if self.voxel_m <= 0:
+            return np.ascontiguousarray(points)
+        return self.core.voxel_downsample(np.ascontiguousarray(points), self.voxel_m)
+
+    def merge(self, points: np.ndarray) -> None:
+        new = self._down(points)
+        if self.voxel_m <= 0:
+            self.points = np.concatenate([self.points, new])
+            return
+        keys = _voxel_keys(new, self.voxel_m)
+        pos = np.clip(np.searchsorted(self.keys, keys), 0, max(len(self.keys) - 1, 0))
+        known = self.keys[pos] == keys if len(self.keys) else np.zeros(len(keys), bool)
+        # Occupied voxels: running mean (one new point per voxel per merge).
+        j = pos[known]
+        c = self.count[j]
+        self.points[j] = (self.points[j] * c[:, None] + new[known]) / (c + 1)[:, None]
+        self.count[j] = c + 1
+        # New voxels: inserted in key order.
+        keys_all = np.concatenate([self.keys, keys[~known]])
+        order = np.argsort(keys_all, kind="stable")
+        self.keys = keys_all[order]
+        self.points = np.concatenate([self.points, new[~known]])[order]
+        self.count = np.concatenate([self.count, np.ones(int((~known).sum()))])[order]
+
+
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
     target: a coarser voxel copy of the map cropped around the predicted frame (x-y disc,
@@ -171,19 +221,22 @@ class _GlobalMap:
         self.core = _core()
         self.config = config
         m = config.map
-        self.points = self.core.voxel_downsample(reference, m.voxel_m)
-        self.coarse = self._coarse(self.points)
+        self.fine = _VoxelCloud(reference, m.voxel_m, self.core)
+        coarse_m = m.target_voxel_m if m.target_voxel_m > m.voxel_m else 0.0
+        self._coarse_cloud = _VoxelCloud(self.fine.points, coarse_m, self.core)
         self.pending: list[np.ndarray] = []
         self.target = None
         self.target_centre = np.zeros(2)
         self.target_z = (0.0, 0.0)
         self.dirty = True
 
-    def _coarse(self, points: np.ndarray) -> np.ndarray:
-        m = self.config.map
-        if m.target_voxel_m > m.voxel_m:
-            return self.core.voxel_downsample(np.ascontiguousarray(points), m.target_voxel_m)
-        return points
+    @property
+    def points(self) -> np.ndarray:
+        return self.fine.points
+
+    @property
+    def coarse(self) -> np.ndarray:
+        return self._coarse_cloud.points
 
     def add(self, points_tls: np.ndarray) -> None:
         self.pending.append(self.core.voxel_downsample(points_tls, self.config.map.voxel_m))
@@ -195,15 +248,13 @@ class _GlobalMap:
             return
         new = np.concatenate(self.pending)
         self.pending.clear()
-        self.points = self.core.voxel_downsample(
-            np.concatenate([self.points, new]), self.config.map.voxel_m
-        )
-        if len(self.points) > self.config.map.max_points:
+        self.fine.merge(new)
+        if len(self.fine.points) > self.config.map.max_points:
             raise ProcessingError(
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
-        self.coarse = self._coarse(np.concatenate([self.coarse, self._coarse(new)]))
+        self._coarse_cloud.merge(new)
         self.dirty = True
 
     def target_at(self, xy: np.ndarray, z_range: tuple[float, float]):
