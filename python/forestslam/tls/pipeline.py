@@ -204,12 +204,13 @@ class _VoxelCloud:
         c = self.count[j]
         self.points[j] = (self.points[j] * c[:, None] + new[known]) / (c + 1)[:, None]
         self.count[j] = c + 1
-        # New voxels: inserted in key order.
-        keys_all = np.concatenate([self.keys, keys[~known]])
-        order = np.argsort(keys_all, kind="stable")
-        self.keys = keys_all[order]
-        self.points = np.concatenate([self.points, new[~known]])[order]
-        self.count = np.concatenate([self.count, np.ones(int((~known).sum()))])[order]
+        # New voxels: inserted in key order (one pass over the map, no re-sort).
+        order = np.argsort(keys[~known])
+        fresh_keys, fresh = keys[~known][order], new[~known][order]
+        at = np.searchsorted(self.keys, fresh_keys)
+        self.keys = np.insert(self.keys, at, fresh_keys)
+        self.points = np.insert(self.points, at, fresh, axis=0)
+        self.count = np.insert(self.count, at, 1.0)
 
 
 class _GlobalMap:
@@ -559,7 +560,10 @@ def register_mls_to_tls(
     core = _core()
     ref = _check_reference(reference)
     gmap = _GlobalMap(ref, config)
-    check_reference = _ReferenceCheck(ref, config)
+    # The reference voxelized as the map's coarse copy (before any frame joins): the target
+    # of the acceptance test and the ground heights of the placement (not the raw cloud).
+    ref_coarse = gmap.coarse.copy()
+    check_reference = _ReferenceCheck(ref_coarse, config)
     ref_stems = None
     init: Initializer | None = None
     frames: list[FrameRecord] = []
@@ -647,7 +651,7 @@ def register_mls_to_tls(
                 if ref_stems is None:
                     ref_stems = reference_stems(ref, config.features)
                     log.info("reference: %d stems", len(ref_stems[0]))
-                    init = Initializer(ref_stems[0][:, :2], ref_stems[1], ref, config)
+                    init = Initializer(ref_stems[0][:, :2], ref_stems[1], ref_coarse, config)
                 # Odometry of the frames before the placement: NDT frame to frame (the last
                 # relative motion as the guess); a failure starts a new odometry segment.
                 ndt_ok = True
