@@ -130,7 +130,7 @@ class InitConfig:
     # a frame only when it moves the chained pose by at most this much (one frame of
     # odometry is better than that; a larger move is a wrong minimum, e.g. few stems in view).
     backfill_max_correction_m: float = 0.25
-    backfill_max_correction_deg: float = 2.0
+    backfill_max_correction_deg: float = 5.0
 
 
 @dataclass
