@@ -942,6 +942,7 @@ def main() -> None:
         report["wrong_reference"] = wrong_references(args)
     elif args.plots:
         report["plots"] = run_plots(args)
+    if args.plots:
         args.skip_real = args.skip_sim = True
     if not args.skip_real:
         report["real"] = run_real(args.out)
