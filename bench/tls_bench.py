@@ -37,13 +37,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from forestslam import _core
+from forestslam.errors import ProcessingError
 from forestslam.evaluation.ground import vertical_errors
 from forestslam.io import read_cloud, read_scans, read_tum
 from forestslam.odometry.deskew import deskew_points, se3_log
 from forestslam.tls import TlsConfig, register_mls_to_tls
 from forestslam.tls.features import frame_features
 from forestslam.tls.pipeline import _frame_points_times, _lm, _sweep_lm, registered_points
-from forestslam.tls.runner import with_rings, write_products
+from forestslam.tls.runner import load_reference, with_rings, write_products
 from forestslam.tls.sweep import apply_sweep
 from forestslam.tls.trees import circumference_coverage, plot_trees
 
@@ -277,8 +278,14 @@ def sequential_baselines(run, clouds, truth_mid, ref, ref_trees, cfg) -> dict:
 
 
 def run_simulated(args, out: Path, name: str) -> dict:
-    tls_dir, mls_dir = simulated("tls-plot"), simulated(name)
-    ref = read_cloud(tls_dir / "reference.laz").points
+    return run_pair(args, out, name, simulated("tls-plot"), simulated(name))
+
+
+def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
+    """The proposed pipeline, end to end as tls-register runs it (read the reference and the
+    bag, register, write the products; timed in wall and CPU time), then the evaluation."""
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    ref = load_reference(tls_dir / "reference.laz")
     _, station = read_tum(tls_dir / "truth" / "trajectory.tum")
     T_world_tls = station[0]
     T_tls_world = np.linalg.inv(T_world_tls)
@@ -308,9 +315,15 @@ def run_simulated(args, out: Path, name: str) -> dict:
     cfg = TlsConfig()
 
     t0 = time.perf_counter()
-    run = register_mls_to_tls(scans, ref, cfg)
+    try:
+        run = register_mls_to_tls(scans, ref, cfg)
+    except ProcessingError as exc:
+        print(f"--- {name}: FAILED: {exc}")
+        return {"failed": str(exc), "frames_input": len(scans)}
     wall = time.perf_counter() - t0
-    summary = write_products(run, out / name, cfg, title=f"tls-plot + {name} (proposed)")
+    summary = write_products(run, out / name, cfg, title=f"{name} (proposed)")
+    e2e_wall, e2e_cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    load = [round(v, 2) for v in os.getloadavg()]
 
     truth_mid = {
         f.stamp: T_tls_world @ world.trajectory.poses(np.array([f.stamp - t_start + f.t_mid_s]))[0]
@@ -322,7 +335,9 @@ def run_simulated(args, out: Path, name: str) -> dict:
     tracked = (te < TRACKED_M) & (re < TRACKED_DEG)
     acc = np.array([f.accepted for f in run.frames])
     ta, ra = te[acc], re[acc]
+    start_m = float(np.linalg.norm(gt_poses[0, :2, 3] - T_world_tls[:2, 3]))
     tracking = {
+        "start_distance_m": start_m,
         "frames_input": len(scans),
         "frames_registered": len(run.frames),
         "tracked_within_10cm_1deg": int(tracked.sum()),
@@ -411,8 +426,15 @@ def run_simulated(args, out: Path, name: str) -> dict:
             np.mean([f.ms_features + f.ms_lm + f.ms_ndt + f.ms_target for f in run.frames])
         ),
         "pipeline_wall_s": wall,
-        "load_average_1_5_15": [round(v, 2) for v in os.getloadavg()],
+        "end_to_end_wall_s": e2e_wall,
+        "end_to_end_cpu_s": e2e_cpu,
+        "frames_with_pose": len(run.frames),
+        "fps_wall": len(run.frames) / e2e_wall,
+        "fps_cpu": len(run.frames) / e2e_cpu,
+        "load_average_1_5_15": load,
     }
+    report["unmerged"] = summary["unmerged"]
+    report["without_pose"] = summary["without_pose"]
     report["accepted_frames"] = summary["accepted"]
     report["fallback_frames"] = int(sum(f.fallback for f in run.frames))
     print_simulated(name, report)
@@ -430,7 +452,10 @@ def _verdict(ok: bool) -> str:
 def print_simulated(name: str, r: dict) -> None:
     """The figures the issue asks for, plainly."""
     t = r["tracking"]
-    print(f"--- {name}: tracking (proposed; pose at mid-sweep vs the true trajectory)")
+    print(
+        f"--- {name}: tracking (proposed; pose at mid-sweep vs the true trajectory); walk "
+        f"starts {t['start_distance_m']:.1f} m from the station"
+    )
     print(
         f"frames tracked within 10 cm and 1 deg: {t['tracked_within_10cm_1deg']} of "
         f"{t['frames_input']} ({100 * t['tracked_share']:.1f} %); merged (accepted) "
@@ -483,6 +508,15 @@ def print_simulated(name: str, r: dict) -> None:
         f"{_verdict(s['features_lm_ms_mean'] <= 100)}); all incl. NDT and target "
         f"{s['all_ms_mean']:.1f} ms"
     )
+    print(
+        f"tls-register end to end (read, register, write; in-process): "
+        f"{s['frames_with_pose']} frames with a pose in {s['end_to_end_wall_s']:.1f} s wall = "
+        f"{s['fps_wall']:.1f} frames/s (target >= 10: {_verdict(s['fps_wall'] >= 10)}); "
+        f"CPU {s['end_to_end_cpu_s']:.1f} s = {s['fps_cpu']:.1f} frames/s; load "
+        f"{s['load_average_1_5_15']}"
+    )
+    kinds = "; ".join(f"{n} {k}" for k, n in r["unmerged"].items()) or "none"
+    print(f"frames not merged: {kinds} (without a pose: {r['without_pose']})")
     blocks = (
         (
             "per_frame_same_initial_pose",
@@ -592,6 +626,268 @@ def run_real(out: Path) -> dict:
     }
 
 
+# --- issue 17: generated plots (--plots) -------------------------------------------------
+# Each plot: a stand (a crop of a real stand, or a generated clustered / regular one), a TLS
+# station, and a VLP-16 walk (lawnmower, loop or line) starting start_m from the station in
+# direction start_deg, walked at sensor height height_m with vibration vib_deg (roll/pitch)
+# and vib_z_m. The two scenarios keep each other's path clear so they build one world.
+PLOTS = [
+    dict(
+        name="spruce-lawn-3m",
+        stand=dict(source="spruces", crop_m=[0.0, 0.0, 55.0, 37.0]),
+        station=(28.0, 19.0),
+        path="lawnmower",
+        start_m=3.0,
+        start_deg=200.0,
+        height_m=1.2,
+        vib_deg=1.0,
+        vib_z_m=0.02,
+        seed=11,
+    ),
+    dict(
+        name="spruce-line-far",
+        stand=dict(source="spruces", crop_m=[0.0, 0.0, 55.0, 37.0]),
+        station=(28.0, 19.0),
+        path="line",
+        start_m=24.0,
+        start_deg=170.0,
+        height_m=1.0,
+        vib_deg=1.5,
+        vib_z_m=0.025,
+        seed=12,
+    ),
+    dict(
+        name="longleaf-loop-12m",
+        stand=dict(source="longleaf", crop_m=[70.0, 70.0, 130.0, 130.0]),
+        station=(100.0, 100.0),
+        path="loop",
+        start_m=12.0,
+        start_deg=60.0,
+        height_m=0.5,
+        vib_deg=0.5,
+        vib_z_m=0.01,
+        seed=13,
+    ),
+    dict(
+        name="longleaf-lawn-20m",
+        stand=dict(source="longleaf", crop_m=[70.0, 70.0, 130.0, 130.0]),
+        station=(100.0, 100.0),
+        path="lawnmower",
+        start_m=20.0,
+        start_deg=135.0,
+        height_m=1.5,
+        vib_deg=1.5,
+        vib_z_m=0.02,
+        seed=14,
+    ),
+    dict(
+        name="clustered-loop-8m",
+        stand=dict(
+            source="generated", process="clustered", size_m=[60.0, 60.0], density_per_ha=400.0
+        ),
+        station=(30.0, 30.0),
+        path="loop",
+        start_m=8.0,
+        start_deg=300.0,
+        height_m=1.0,
+        vib_deg=1.0,
+        vib_z_m=0.02,
+        seed=15,
+    ),
+    dict(
+        name="regular-line-18m",
+        stand=dict(
+            source="generated", process="regular", size_m=[60.0, 60.0], density_per_ha=300.0
+        ),
+        station=(30.0, 30.0),
+        path="line",
+        start_m=18.0,
+        start_deg=240.0,
+        height_m=0.8,
+        vib_deg=2.0,
+        vib_z_m=0.03,
+        seed=16,
+    ),
+    dict(
+        name="regular-lawn-1m",
+        stand=dict(
+            source="generated", process="regular", size_m=[60.0, 60.0], density_per_ha=450.0
+        ),
+        station=(30.0, 30.0),
+        path="lawnmower",
+        start_m=1.0,
+        start_deg=90.0,
+        height_m=1.4,
+        vib_deg=0.3,
+        vib_z_m=0.01,
+        seed=17,
+    ),
+]
+LANE_M, LANE_SPACING_M, WALK_M, SPEED_MPS = 16.0, 6.0, 120.0, 0.8
+
+
+def _start_offset(path: str, heading: float) -> np.ndarray:
+    """Where the nominal path starts relative to its centre (sim.motion's conventions)."""
+    if path == "line":
+        local = np.array([-WALK_M / 2, 0.0])
+    elif path == "loop":
+        local = np.array([WALK_M / (2 * np.pi), 0.0])
+    else:  # lawnmower with lane_length_m given
+        turn = np.pi * LANE_SPACING_M / 2
+        n = max(1, int(round((WALK_M + turn) / (LANE_M + turn))))
+        local = np.array([-LANE_M / 2, -(n - 1) / 2 * LANE_SPACING_M])
+    c, s = np.cos(heading), np.sin(heading)
+    return np.array([[c, -s], [s, c]]) @ local
+
+
+def plot_scenarios(plot: dict, folder: Path, frames: int) -> tuple[Path, Path]:
+    """Write the plot's TLS and MLS scenario YAML files -> (tls.yaml, mls.yaml)."""
+    import yaml
+
+    station = np.asarray(plot["station"], dtype=float)
+    a = np.radians(plot["start_deg"])
+    start = station + plot["start_m"] * np.array([np.cos(a), np.sin(a)])
+    # Lines head for the station; loops and lawnmowers keep their own heading.
+    heading = a + np.pi if plot["path"] == "line" else a + np.pi / 2
+    centre = start - _start_offset(plot["path"], heading)
+    common = {
+        "seed": plot["seed"],
+        "stand": plot["stand"],
+        "terrain": {"relief_m": 0.4, "relief_wavelength_m": 40.0, "roughness_m": 0.02},
+    }
+    tls_yaml, mls_yaml = folder / "tls.yaml", folder / "mls.yaml"
+    tls = {
+        **common,
+        "name": f"{plot['name']}-tls",
+        "clutter": {"keep_clear_scenario": str(mls_yaml)},
+        "sensor": {"profile": "tls"},
+        "motion": {
+            "path": "station",
+            "centre_xy": station.tolist(),
+            "sensor_height_m": 1.5,
+            "stem_clearance_m": 0.8,
+        },
+    }
+    mls = {
+        **common,
+        "name": f"{plot['name']}-mls",
+        "clutter": {"keep_clear_scenario": str(tls_yaml)},
+        "sensor": {"profile": "vlp16"},
+        "motion": {
+            "path": plot["path"],
+            "length_m": WALK_M,
+            "lane_length_m": LANE_M,
+            "lane_spacing_m": LANE_SPACING_M,
+            "speed_mps": SPEED_MPS,
+            "sensor_height_m": plot["height_m"],
+            "centre_xy": centre.tolist(),
+            "heading_deg": float(np.degrees(heading)),
+            "stem_clearance_m": 0.8,
+            "footprint_m": [0.6, 0.4],
+            "vibration_deg": plot["vib_deg"],
+            "vibration_z_m": plot["vib_z_m"],
+            "max_scans": frames,
+        },
+    }
+    folder.mkdir(parents=True, exist_ok=True)
+    tls_yaml.write_text(yaml.safe_dump(tls, sort_keys=False))
+    mls_yaml.write_text(yaml.safe_dump(mls, sort_keys=False))
+    return tls_yaml, mls_yaml
+
+
+def simulate_plot(plot: dict, frames: int) -> tuple[Path, Path]:
+    """Simulated TLS reference and MLS walk of a plot (cached) -> (tls dir, mls dir)."""
+    from forestslam.sim import simulate
+
+    folder = CACHE / "plots" / f"{plot['name']}-{frames}"
+    tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames)
+    for yaml_path, sub in ((tls_yaml, "tls"), (mls_yaml, "mls")):
+        if not (folder / sub / "truth" / "trajectory.tum").is_file():
+            simulate(yaml_path, folder / sub)
+    return folder / "tls", folder / "mls"
+
+
+def plots_table(reports: dict) -> None:
+    """One line per plot: the issue's figures and targets."""
+    print(
+        "\n=== plots: targets >= 98 % tracked, stem position <= 1.5 cm, DBH RMSE <= 1.5 cm, "
+        ">= 10 frames/s wall"
+    )
+    head = (
+        f"{'plot':20s} {'start':>6s} {'tracked':>8s} {'merged':>7s} {'pose(m)':>8s} "
+        f"{'stem':>6s} {'DBH':>6s} {'ground':>7s} {'cover':>11s} {'ms/fr':>6s} {'fps':>5s} "
+        f"{'fpsCPU':>6s} {'T7 NDT':>7s} {'T7 ICP':>7s} {'T7 prop':>7s}  verdict"
+    )
+    print(head)
+    for name, r in reports.items():
+        if "failed" in r:
+            print(f"{name:20s} FAILED: {r['failed']}")
+            continue
+        t, m, sp, c = r["tracking"], r["merged_map"], r["speed"], r["coverage"]
+        seq = r.get("sequential_whole_walk", {})
+
+        def dev(key, seq=seq):
+            v = seq.get(key, {}).get("stem_dev_mls_vs_tls_mean_m")
+            return "n/a" if v is None or not np.isfinite(v) else f"{100 * v:.2f}"
+
+        pe, de = m["stem_position_err_mean_m"], m["dbh_rmse_m"]
+        ok = {
+            "tracked": t["tracked_share"] >= 0.98,
+            "stem": pe is not None and pe <= 0.015,
+            "dbh": de is not None and de <= 0.015,
+            "fps": sp["fps_wall"] >= 10,
+        }
+        missed = [k for k, v in ok.items() if not v]
+        pose = t["accepted_trans_err_mean_m"]
+        print(
+            f"{name:20s} {t['start_distance_m']:5.1f}m {100 * t['tracked_share']:7.1f}% "
+            f"{t['accepted']:7d} {'n/a' if pose is None else f'{100 * pose:.2f}cm':>8s} "
+            f"{_cm(pe).replace(' cm', ''):>6s} {_cm(de).replace(' cm', ''):>6s} "
+            f"{_cm(m['ground_vertical_err_mean_abs_m']).replace(' cm', ''):>7s} "
+            f"{100 * c['tls_alone_mean']:4.0f}->{100 * c['merged_mean']:3.0f}% "
+            f"{sp['all_ms_mean']:6.0f} {sp['fps_wall']:5.1f} {sp['fps_cpu']:6.1f} "
+            f"{dev('ndt_only'):>7s} {dev('icp_only'):>7s} {dev('proposed'):>7s}  "
+            f"{'meets all' if not missed else 'MISSES ' + ','.join(missed)}"
+        )
+    print(
+        "(stem, DBH, ground, T7 = Shao et al. Table 7 stem deviation of the MLS-only map "
+        "from the TLS stems: cm; pose = mean error of merged frames)"
+    )
+
+
+def wrong_references(args) -> dict:
+    """Each plot's walk against the reference of the next plot: it must be rejected with a
+    clear error (ProcessingError), never placed (a silent wrong map)."""
+    plots = [p for p in PLOTS if args.plots == "all" or p["name"] in args.plots.split(",")]
+    out = {}
+    for plot, other in zip(plots, plots[1:] + plots[:1], strict=True):
+        if plot is other:
+            continue
+        _, mls_dir = simulate_plot(plot, args.plot_frames)
+        ref_dir, _ = simulate_plot(other, args.plot_frames)
+        scans = list(with_rings(read_scans(mls_dir / "sequence.bag"), "vlp16"))
+        key = f"{plot['name']} on {other['name']}"
+        try:
+            run = register_mls_to_tls(scans, load_reference(ref_dir / "reference.laz"))
+            out[key] = f"WRONGLY PLACED: {len(run.frames)} frames got a pose"
+        except ProcessingError as exc:
+            out[key] = f"rejected: {exc}"
+        print(f"wrong reference, {key}: {out[key]}", flush=True)
+    return out
+
+
+def run_plots(args) -> dict:
+    names = None if args.plots == "all" else set(args.plots.split(","))
+    reports = {}
+    for plot in PLOTS:
+        if names is not None and plot["name"] not in names:
+            continue
+        tls_dir, mls_dir = simulate_plot(plot, args.plot_frames)
+        reports[plot["name"]] = run_pair(args, args.out, plot["name"], tls_dir, mls_dir)
+    plots_table(reports)
+    return reports
+
+
 def strict_json(value):
     """A copy of value (nested dicts, lists, numbers) with NaN and infinities as None: the
     report stays valid JSON for any reader (json.dumps would write NaN)."""
@@ -618,6 +914,21 @@ def main() -> None:
         "--compare-every", type=int, default=4, help="per-frame comparison on every n-th frame"
     )
     parser.add_argument("--out", type=Path, default=ROOT / "data" / "cache" / "runs" / "tls_bench")
+    parser.add_argument(
+        "--plots",
+        nargs="?",
+        const="all",
+        default=None,
+        help="the generated plots (issue 17): all, or comma-separated names of PLOTS",
+    )
+    parser.add_argument(
+        "--plot-frames", type=int, default=200, help="MLS frames simulated per plot"
+    )
+    parser.add_argument(
+        "--wrong-reference",
+        action="store_true",
+        help="with --plots: each walk against another plot's reference (must be rejected)",
+    )
     parser.add_argument("--skip-sim", action="store_true")
     parser.add_argument("--skip-real", action="store_true")
     parser.add_argument(
@@ -627,6 +938,12 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
+    if args.plots and args.wrong_reference:
+        report["wrong_reference"] = wrong_references(args)
+    elif args.plots:
+        report["plots"] = run_plots(args)
+    if args.plots:
+        args.skip_real = args.skip_sim = True
     if not args.skip_real:
         report["real"] = run_real(args.out)
         print(json.dumps(strict_json(report["real"]), indent=1))

@@ -57,7 +57,14 @@ KNOWN_OUTPUTS: dict[str, tuple[str, ...]] = {
         "errors.png",
     ),
     "localize": ("localization.json", "localization.tum"),
-    "tls-register": ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"),
+    "tls-register": (
+        "trajectory.tum",
+        "plot.laz",
+        "trees.csv",
+        "coverage.json",
+        "unmerged.csv",
+        "plot.png",
+    ),
     "merge": (
         "trees.csv",
         "trees.geojson",

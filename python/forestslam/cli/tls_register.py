@@ -14,9 +14,10 @@ def register(app: typer.Typer) -> None:
         "stem-centre and DoG features (Shao et al. 2020) and merge them. Writes "
         "DIR/trajectory.tum (MLS poses in the TLS frame), DIR/plot.laz (merged cloud), "
         "DIR/trees.csv (id,x,y,z,dbh_m,dbh_std_m,observations), DIR/coverage.json (stem "
-        "circumference covered at breast height, TLS alone vs merged) and DIR/plot.png. "
-        "Without --initial-pose the first frame is placed by matching its stems to the "
-        "reference's (the walk must start where it sees 3+ stems the TLS also sees).",
+        "circumference covered at breast height, TLS alone vs merged), DIR/unmerged.csv "
+        "(stamp,has_pose,reason of every frame that did not join the map) and DIR/plot.png. "
+        "Without --initial-pose the walk is placed by matching the stems of its first frames "
+        "(chained by odometry) to the reference's; later frames are tried until one is placed.",
     )
     def _command(
         input: Path = typer.Argument(..., help="MLS bag (.bag/.mcap) or folder of scans."),
@@ -70,4 +71,10 @@ def register(app: typer.Typer) -> None:
                 f"stem circumference covered at breast height: TLS alone "
                 f"{summary['coverage_tls']:.0%}, merged {summary['coverage_merged']:.0%}"
             )
-        print(f"wrote {out}/trajectory.tum plot.laz trees.csv coverage.json plot.png run.yaml")
+        if summary["unmerged"]:
+            kinds = "; ".join(f"{n} {kind}" for kind, n in summary["unmerged"].items())
+            print(f"frames not merged: {kinds}")
+        print(
+            f"wrote {out}/trajectory.tum plot.laz trees.csv coverage.json unmerged.csv plot.png "
+            "run.yaml"
+        )

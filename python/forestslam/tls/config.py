@@ -5,7 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
-from forestslam.config_utils import NonNegative, NonNegativeInt, Positive, PositiveInt, Range
+from forestslam.config_utils import (
+    Fraction,
+    NonNegative,
+    NonNegativeInt,
+    Positive,
+    PositiveInt,
+    Range,
+)
 
 
 @dataclass
@@ -92,11 +99,11 @@ class RegistrationConfig:
     good_real_rms_m: Positive = 0.12
     max_correction_m: Positive = 1.5
     max_correction_deg: Positive = 15.0
-    # First-frame coarse alignment by stem positions (when no --initial-pose is given).
+    # Coarse alignment by stem positions (pairwise-spacing vote: placement hypotheses, see
+    # InitConfig, and relocalization).
     coarse_distance_tolerance_m: Positive = 0.25
     coarse_inlier_m: Positive = 0.35
     coarse_min_stems: Annotated[int, Range(ge=2)] = 3
-    coarse_max_frames: PositiveInt = 20  # frames tried for the coarse alignment before giving up
     # After this many consecutive frames that did not join the map the tracking counts as
     # lost and each frame is also placed afresh by the coarse stem alignment (then LM; kept
     # when trusted with its stems on the reference's stems).
@@ -106,6 +113,40 @@ class RegistrationConfig:
     # turn rate at the moment tracking was lost) would keep distorting every later frame by
     # its deskew and send the prediction around in circles, so tracking could never recover.
     max_velocity_age_s: Positive = 0.5
+
+
+@dataclass
+class InitConfig:
+    """Placing the walk without --initial-pose (see tls.initialize): the frames before the
+    placement are chained by NDT into a local stem map; hypotheses from stem constellations
+    are verified by the LM and by stem consensus; frames are tried until one is placed."""
+
+    min_frames: PositiveInt = 3  # frames accumulated before the first placement attempt
+    window_frames: PositiveInt = (
+        30  # the local stem map holds the stems of at most this many frames
+    )
+    merge_radius_m: NonNegative = 0.3  # detections of one stem from several frames are merged
+    min_local_stems: Annotated[int, Range(ge=3)] = (
+        4  # a placement is attempted when the local map holds this many
+    )
+    hypotheses: PositiveInt = (
+        4  # pairwise-vote hypotheses verified per attempt (plus the localizer's)
+    )
+    # Verification: local stems moved by the LM-refined pose onto a reference stem within
+    # consensus_gate_m and consensus_radius_m of its radius; the placement needs at least
+    # min_consensus_stems of them and min_consensus_fraction of the local stems that lie
+    # inside the hull of the reference's stems (outside it none is expected), and no
+    # distinct verified placement with ambiguity_ratio as many.
+    consensus_gate_m: Positive = 0.1
+    consensus_radius_m: Positive = 0.05
+    min_consensus_stems: PositiveInt = 5
+    min_consensus_fraction: Fraction = 0.4
+    ambiguity_ratio: Fraction = 0.7
+    # The frames before the placed one are chained back through the odometry; the LM refines
+    # a frame only when it moves the chained pose by at most this much (one frame of
+    # odometry is better than that; a larger move is a wrong minimum, e.g. few stems in view).
+    backfill_max_correction_m: NonNegative = 0.25
+    backfill_max_correction_deg: NonNegative = 5.0
 
 
 @dataclass
@@ -129,5 +170,6 @@ class TlsConfig:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     map: MapConfig = field(default_factory=MapConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    init: InitConfig = field(default_factory=InitConfig)
     trees: TreeConfig = field(default_factory=TreeConfig)
     frame_step: PositiveInt = 1  # process every n-th MLS frame

@@ -151,11 +151,27 @@ def coarse_stem_alignment(
     """Planar pose (x, y, yaw) mapping source stems onto destination stems, by voting over
     pairs of stems with matching spacing (and radius) and keeping the pose with most stems
     within coarse_inlier_m; None when fewer than coarse_min_stems agree. Vectorized."""
+    found = coarse_stem_hypotheses(src_xy, src_r, dst_xy, dst_r, config, 1)
+    return found[0] if found else None
+
+
+def coarse_stem_hypotheses(
+    src_xy: np.ndarray,
+    src_r: np.ndarray,
+    dst_xy: np.ndarray,
+    dst_r: np.ndarray,
+    config: RegistrationConfig,
+    count: int,
+    max_source_stems: int = 15,
+) -> list[tuple[np.ndarray, int]]:
+    """Up to count distinct planar poses ((x, y, yaw), stems within coarse_inlier_m), best
+    first, each with at least coarse_min_stems agreeing stems (see coarse_stem_alignment).
+    Poses closer than 1 m and 5 deg to a better one are the same hypothesis."""
     n, m = len(src_xy), len(dst_xy)
     if n < 2 or m < 2:
-        return None
-    # Nearest 15 source stems suffice and bound the cost.
-    order = np.argsort(np.linalg.norm(src_xy, axis=1))[:15]
+        return []
+    # The nearest source stems suffice and bound the cost.
+    order = np.argsort(np.linalg.norm(src_xy, axis=1))[:max_source_stems]
     src_xy, src_r = src_xy[order], src_r[order]
     n = len(src_xy)
     si, sj = np.triu_indices(n, 1)
@@ -171,14 +187,14 @@ def coarse_stem_alignment(
     hi = np.searchsorted(dt_sorted, ds + tol)
     counts = hi - lo
     if counts.sum() == 0:
-        return None
+        return []
     a = np.repeat(np.arange(len(ds)), counts)
     b = order_t[np.concatenate([np.arange(x, y) for x, y in zip(lo, hi, strict=True)])]
     pi, pj, qi, qj = si[a], sj[a], ti[b], tj[b]
     radius_ok = (np.abs(src_r[pi] - dst_r[qi]) < 0.08) & (np.abs(src_r[pj] - dst_r[qj]) < 0.08)
     pi, pj, qi, qj = pi[radius_ok], pj[radius_ok], qi[radius_ok], qj[radius_ok]
     if len(pi) == 0:
-        return None
+        return []
     vs = src_xy[pj] - src_xy[pi]
     vd = dst_xy[qj] - dst_xy[qi]
     yaw = np.arctan2(vd[:, 1], vd[:, 0]) - np.arctan2(vs[:, 1], vs[:, 0])
@@ -195,16 +211,27 @@ def coarse_stem_alignment(
     dist = dist.reshape(px.shape)
     inl = dist < config.coarse_inlier_m
     score = inl.sum(axis=1) - np.where(inl, dist, 0.0).sum(axis=1) / config.coarse_inlier_m * 0.5
-    best = int(np.argmax(score))
-    n_in = int(inl[best].sum())
-    if n_in < config.coarse_min_stems:
-        return None
-    # Refine on the inlier pairs.
-    moved = np.stack([px[best], py[best]], axis=1)
-    _, nn = tree.query(moved)
-    mask = inl[best]
-    r, t = _rigid2d(src_xy[mask], dst_xy[nn[mask]])
-    return np.array([t[0], t[1], np.arctan2(r[1, 0], r[0, 0])]), n_in
+    out: list[tuple[np.ndarray, int]] = []
+    for best in np.argsort(-score, kind="stable")[:300]:  # duplicates of a pose abound
+        n_in = int(inl[best].sum())
+        if len(out) >= count:
+            break
+        if n_in < config.coarse_min_stems:
+            continue
+        # Refine on the inlier pairs.
+        moved = np.stack([px[best], py[best]], axis=1)
+        _, nn = tree.query(moved)
+        mask = inl[best]
+        r, t = _rigid2d(src_xy[mask], dst_xy[nn[mask]])
+        pose = np.array([t[0], t[1], np.arctan2(r[1, 0], r[0, 0])])
+        if not any(_same_pose(pose, p) for p, _ in out):
+            out.append((pose, n_in))
+    return out
+
+
+def _same_pose(a: np.ndarray, b: np.ndarray) -> bool:
+    dyaw = abs((a[2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
+    return bool(np.hypot(a[0] - b[0], a[1] - b[1]) < 1.0 and dyaw < np.radians(5.0))
 
 
 def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:

@@ -14,12 +14,12 @@ times), whose stems sit on the reference's stems, that was not itself relocalize
 pose holds on the TLS reference alone (MapConfig.accept_reference_*). Frames that do not join
 still get a pose (tracking goes on through them).
 
-The first frame's pose in the TLS frame comes from `initial_pose` when given, else from a
-coarse stem alignment: stem positions of the frame (ring circle fits) are matched to those of
-the reference by pairwise spacing voting (x, y, yaw), the height from the local ground of both
-clouds; the LM then refines all 6 DoF. This needs the walk to start where the frame sees at
-least `coarse_min_stems` stems that the TLS also sees (e.g. inside the plot); frames before the
-first alignable one (up to `coarse_max_frames`) are skipped.
+The walk's pose in the TLS frame comes from `initial_pose` (the first frame's) when given, else
+from tls.initialize: the first frames are chained by NDT (corrected on their stems) into a
+local stem map, placement hypotheses come from stem constellations (triangle-star localizer
+and pairwise-spacing vote), each verified by the LM and by stem consensus; frames are tried
+until one is placed, and the frames before it are chained back from it (never merged). Every
+frame that does not join the map carries its reason (FrameRecord.reason, unmerged_csv).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from forestslam.tls.features import (
     planar_pose,
     reference_stems,
 )
+from forestslam.tls.initialize import Initializer, PendingFrame
 from forestslam.tls.sweep import apply_sweep, feature_times, sweep_pose
 
 log = logging.getLogger(__name__)
@@ -83,6 +84,8 @@ class FrameRecord:
     # In-sweep motion (K,6) estimated by the LM (see tls.sweep.apply_sweep; empty: rigid),
     # applied to the points (deskewed to t_mid_s) after deskew_twist.
     sweep: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    # Why the frame did not join the map ("" when it did, see _unmerged_reason).
+    reason: str = ""
 
 
 @dataclass
@@ -95,6 +98,8 @@ class TlsRun:
     reference: np.ndarray
     frame_centres: list[np.ndarray] = field(default_factory=list)
     initial_method: str = ""
+    # Frames that got no pose: (stamp, reason).
+    unplaced: list[tuple[float, str]] = field(default_factory=list)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -157,6 +162,57 @@ def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.
     return pts
 
 
+def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """One int64 key (N,) per point: its voxel's integer coordinates packed 21 bits each
+    (+-1e6 voxels: tens of km at centimetre voxels)."""
+    ijk = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+class _VoxelCloud:
+    """A voxelized cloud that grows: one point per voxel, the mean of what was merged into it
+    (each merge's voxel centroid counts once). Merging costs the new points only (sorted
+    voxel keys, binary search), not a re-voxelization of the whole map."""
+
+    def __init__(self, points: np.ndarray, voxel_m: float, core):
+        self.voxel_m = voxel_m
+        self.core = core
+        pts = self._down(points)
+        if voxel_m <= 0:
+            self.points, self.keys, self.count = pts, np.zeros(0, np.int64), np.zeros(0)
+            return
+        keys = _voxel_keys(pts, voxel_m)
+        order = np.argsort(keys)
+        self.points, self.keys = pts[order], keys[order]
+        self.count = np.ones(len(keys))
+
+    def _down(self, points: np.ndarray) -> np.ndarray:
+        if self.voxel_m <= 0:
+            return np.ascontiguousarray(points)
+        return self.core.voxel_downsample(np.ascontiguousarray(points), self.voxel_m)
+
+    def merge(self, points: np.ndarray) -> None:
+        new = self._down(points)
+        if self.voxel_m <= 0:
+            self.points = np.concatenate([self.points, new])
+            return
+        keys = _voxel_keys(new, self.voxel_m)
+        pos = np.clip(np.searchsorted(self.keys, keys), 0, max(len(self.keys) - 1, 0))
+        known = self.keys[pos] == keys if len(self.keys) else np.zeros(len(keys), bool)
+        # Occupied voxels: running mean (one new point per voxel per merge).
+        j = pos[known]
+        c = self.count[j]
+        self.points[j] = (self.points[j] * c[:, None] + new[known]) / (c + 1)[:, None]
+        self.count[j] = c + 1
+        # New voxels: inserted in key order (one pass over the map, no re-sort).
+        order = np.argsort(keys[~known])
+        fresh_keys, fresh = keys[~known][order], new[~known][order]
+        at = np.searchsorted(self.keys, fresh_keys)
+        self.keys = np.insert(self.keys, at, fresh_keys)
+        self.points = np.insert(self.points, at, fresh, axis=0)
+        self.count = np.insert(self.count, at, 1.0)
+
+
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
     target: a coarser voxel copy of the map cropped around the predicted frame (x-y disc,
@@ -166,19 +222,22 @@ class _GlobalMap:
         self.core = _core()
         self.config = config
         m = config.map
-        self.points = self.core.voxel_downsample(reference, m.voxel_m)
-        self.coarse = self._coarse(self.points)
+        self.fine = _VoxelCloud(reference, m.voxel_m, self.core)
+        coarse_m = m.target_voxel_m if m.target_voxel_m > m.voxel_m else 0.0
+        self._coarse_cloud = _VoxelCloud(self.fine.points, coarse_m, self.core)
         self.pending: list[np.ndarray] = []
         self.target = None
         self.target_centre = np.zeros(2)
         self.target_z = (0.0, 0.0)
         self.dirty = True
 
-    def _coarse(self, points: np.ndarray) -> np.ndarray:
-        m = self.config.map
-        if m.target_voxel_m > m.voxel_m:
-            return self.core.voxel_downsample(np.ascontiguousarray(points), m.target_voxel_m)
-        return points
+    @property
+    def points(self) -> np.ndarray:
+        return self.fine.points
+
+    @property
+    def coarse(self) -> np.ndarray:
+        return self._coarse_cloud.points
 
     def add(self, points_tls: np.ndarray) -> None:
         self.pending.append(self.core.voxel_downsample(points_tls, self.config.map.voxel_m))
@@ -190,15 +249,13 @@ class _GlobalMap:
             return
         new = np.concatenate(self.pending)
         self.pending.clear()
-        self.points = self.core.voxel_downsample(
-            np.concatenate([self.points, new]), self.config.map.voxel_m
-        )
-        if len(self.points) > self.config.map.max_points:
+        self.fine.merge(new)
+        if len(self.fine.points) > self.config.map.max_points:
             raise ProcessingError(
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
-        self.coarse = self._coarse(np.concatenate([self.coarse, self._coarse(new)]))
+        self._coarse_cloud.merge(new)
         self.dirty = True
 
     def target_at(self, xy: np.ndarray, z_range: tuple[float, float]):
@@ -238,17 +295,25 @@ def _correction(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3])), float(np.degrees(np.arccos(c)))
 
 
-def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
+def trust_failure(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> str:
+    """Why an LM result is not trusted ("" when it is): not converged, degenerate, real
+    residuals too high, or (T_pred given) a correction too large for the motion model."""
     reg = config.registration
-    if not lm["converged"] or lm["degenerate"]:
-        return False
+    if not lm["converged"]:
+        return "LM did not converge"
+    if lm["degenerate"]:
+        return "LM degenerate"
     if lm["real_inliers"] > 0 and lm["real_rms_m"] > reg.good_real_rms_m:
-        return False
+        return f"real-feature residual {100 * lm['real_rms_m']:.1f} cm"
     if T_pred is not None:
         dt, dr = _correction(T_pred, lm["T_target_source"])
         if dt > reg.max_correction_m or dr > reg.max_correction_deg:
-            return False
-    return True
+            return f"correction {dt:.2f} m / {dr:.1f} deg from the prediction"
+    return ""
+
+
+def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
+    return not trust_failure(lm, T_pred, config)
 
 
 def _lm(core, target, feats, T_init, config: TlsConfig, **options) -> dict:
@@ -381,6 +446,103 @@ def _stems_on_reference(feats, T: np.ndarray, ref_stems, config: TlsConfig) -> b
     return int(hit.sum()) >= need
 
 
+def _unmerged_reason(
+    good: bool,
+    failure: str,
+    stems_agree: bool,
+    lm: dict,
+    on_reference: bool,
+    relocalized: bool,
+    swept: bool,
+    accepted: bool,
+    ref_dt: float,
+    ref_dr: float,
+) -> str:
+    """Why a registered frame did not join the map ("" when it did)."""
+    if accepted:
+        return ""
+    if not good:
+        return f"not trusted: {failure}"
+    if not stems_agree:
+        return (
+            f"stem pairs too few or loose ({lm['virtual_inliers']} pairs, "
+            f"{100 * lm['virtual_rms_m']:.1f} cm RMS)"
+        )
+    if not on_reference:
+        return "its stems are not on the reference's stems"
+    if relocalized:
+        return "relocalized after tracking loss (placed afresh, not merged)"
+    if not swept:
+        return "in-sweep motion not estimated"
+    return f"moved {100 * ref_dt:.1f} cm / {ref_dr:.2f} deg on the reference alone"
+
+
+def _record(stamp, T_stamp, lm, ms, reason: str = "", **fields) -> FrameRecord:
+    return FrameRecord(
+        stamp=float(stamp),
+        T_tls_sensor=np.asarray(T_stamp),
+        accepted=not reason,
+        converged=bool(lm["converged"]),
+        degenerate=bool(lm["degenerate"]),
+        virtual_inliers=int(lm["virtual_inliers"]),
+        virtual_rms_m=float(lm["virtual_rms_m"]),
+        real_inliers=int(lm["real_inliers"]),
+        real_rms_m=float(lm["real_rms_m"]),
+        ms_features=ms["features"],
+        ms_lm=ms["lm"],
+        ms_ndt=ms["ndt"],
+        ms_target=ms["target"],
+        reason=reason,
+        **fields,
+    )
+
+
+def _backfill(init: Initializer, T_latest: np.ndarray, lm_with, config: TlsConfig):
+    """Records of the frames before the placed one (same odometry segment), in time order:
+    chained back through the NDT odometry from the placed pose, each refined by the LM
+    against the map when trusted. Never merged. Also (T_tls_mid, mid-sweep time) of the frame
+    just before the placed one when its LM was trusted (a velocity for the placed frame), else
+    None."""
+    pending = [f for f in init.pending[:-1] if f.segment == init.pending[-1].segment]
+    T_next, L_next, t_next = T_latest, init.pending[-1].T_local, None
+    out, seed = [], None
+    for f in reversed(pending):
+        T_guess = T_next @ np.linalg.inv(L_next) @ f.T_local
+        t0 = time.process_time()
+        lm = lm_with(T_guess, f.feats, f.z_points)
+        f.ms["lm"] += (time.process_time() - t0) * 1e3
+        failure = trust_failure(lm, T_guess, config)
+        dt, dr = _correction(T_guess, lm["T_target_source"])
+        if not failure and (
+            dt > config.init.backfill_max_correction_m
+            or dr > config.init.backfill_max_correction_deg
+        ):
+            failure = f"correction {100 * dt:.0f} cm from the odometry"
+        T = np.asarray(lm["T_target_source"]) if not failure else T_guess
+        t_ref = f.stamp + f.t_mid_s
+        twist = np.zeros(6)
+        if t_next is not None and t_next > t_ref:
+            twist = se3_log(np.linalg.inv(T) @ T_next) / (t_next - t_ref)
+        reason = "before the walk was placed (pose chained back by odometry" + (
+            ", LM refined)" if not failure else f"; LM: {failure})"
+        )
+        out.append(
+            _record(
+                f.stamp,
+                T @ se3_exp(-twist * f.t_mid_s),
+                lm,
+                f.ms,
+                reason,
+                t_mid_s=f.t_mid_s,
+                T_tls_mid=T,
+            )
+        )
+        if t_next is None and not failure:
+            seed = (T, t_ref)
+        T_next, L_next, t_next = T, f.T_local, t_ref
+    return out[::-1], seed
+
+
 def register_mls_to_tls(
     scans: Iterable[Scan],
     reference: np.ndarray,
@@ -389,16 +551,23 @@ def register_mls_to_tls(
     on_frame: Callable[[FrameRecord], None] | None = None,
 ) -> TlsRun:
     """Register MLS scans (sensor frame, ring when available) onto a TLS reference (R,3).
-    initial_pose (4,4) T_tls_sensor of the first frame, or None for the coarse stem alignment.
-    Raises InputError for an unusable reference or no frames, ProcessingError when the first
-    frames cannot be placed in the reference (mismatched data)."""
+    initial_pose (4,4) T_tls_sensor of the first frame, or None to place the walk by its
+    stems (see tls.initialize; every frame is tried until one is placed).
+    Raises InputError for an unusable reference or no frames, ProcessingError when no frame
+    of the walk can be placed in the reference (mismatched data) or the given initial pose
+    does not register."""
     config = config or TlsConfig()
     core = _core()
     ref = _check_reference(reference)
     gmap = _GlobalMap(ref, config)
-    check_reference = _ReferenceCheck(ref, config)
+    # The reference voxelized as the map's coarse copy (before any frame joins): the target
+    # of the acceptance test and the ground heights of the placement (not the raw cloud).
+    ref_coarse = gmap.coarse.copy()
+    check_reference = _ReferenceCheck(ref_coarse, config)
     ref_stems = None
+    init: Initializer | None = None
     frames: list[FrameRecord] = []
+    unplaced: list[tuple[float, str]] = []
     centres: list[np.ndarray] = []
     # Previous frame (pose and points, trusted or not), whether it was trusted, and the
     # per-frame velocity from the last pair of consecutive trusted frames.
@@ -408,6 +577,8 @@ def register_mls_to_tls(
     T_prev = None
     prev_points = None
     prev_good = False
+    # Before the placement: the NDT odometry of the pending frames (local frame).
+    T_local, rel_local = np.eye(4), np.eye(4)
     # Velocity: body-frame twist (6,) per second (translation, rotation vector) between the
     # mid-sweep frames of the last two consecutive frames; t_prev the previous mid-sweep time.
     twist = np.zeros(6)
@@ -415,6 +586,18 @@ def register_mls_to_tls(
     t_prev = None
     seen = 0
     method = "given" if initial_pose is not None else "stems"
+
+    def lm_with(T_start: np.ndarray, feats, z_points, ms=None, **options) -> dict:
+        """LM of features from T_start against the map target cropped around it."""
+        t0 = time.process_time()
+        target, _ = gmap.target_at(T_start[:2, 3], _z_range(z_points, T_start))
+        t1 = time.process_time()
+        result = _lm(core, target, feats, T_start, config, **options)
+        if ms is not None:
+            ms["target"] += (t1 - t0) * 1e3
+            ms["lm"] += (time.process_time() - t1) * 1e3
+        return result
+
     for index, scan in enumerate(scans):
         if index % max(1, config.frame_step):
             continue
@@ -424,6 +607,7 @@ def register_mls_to_tls(
             log.warning(
                 "frame %d at %.3f has %d usable points: skipped", index, scan.stamp, len(points)
             )
+            unplaced.append((float(scan.stamp), f"no pose: {len(points)} usable points"))
             continue
         # Spinning scans are deskewed to, and registered at, the middle of their sweep: a
         # velocity error then distorts the frame symmetrically; the pose at the stamp is
@@ -441,13 +625,7 @@ def register_mls_to_tls(
 
         def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms, **options) -> dict:
             """LM of this frame from T_start against the map target cropped around it."""
-            t0 = time.process_time()
-            target, _ = gmap.target_at(T_start[:2, 3], _z_range(points, T_start))
-            t1 = time.process_time()
-            result = _lm(core, target, feats, T_start, config, **options)
-            ms["target"] += (t1 - t0) * 1e3
-            ms["lm"] += (time.process_time() - t1) * 1e3
-            return result
+            return lm_with(T_start, feats, points, ms, **options)
 
         def ndt_from_previous(
             V: np.ndarray, points=points, ms=ms, prev_points=prev_points, T_prev=T_prev
@@ -461,10 +639,11 @@ def register_mls_to_tls(
                 voxel_m=config.registration.ndt_voxel_m,
                 resolution_m=config.registration.ndt_resolution_m,
             )
-            ms["ndt"] = (time.process_time() - t0) * 1e3
+            ms["ndt"] += (time.process_time() - t0) * 1e3
             return T_prev @ ndt["T_target_source"] if ndt["converged"] else None
 
         T_pred = None
+        placed = seed = None
         if T_good is None:
             if initial_pose is not None:
                 T_init = np.asarray(initial_pose, dtype=np.float64)
@@ -472,14 +651,43 @@ def register_mls_to_tls(
                 if ref_stems is None:
                     ref_stems = reference_stems(ref, config.features)
                     log.info("reference: %d stems", len(ref_stems[0]))
-                T_init = _coarse_initial_pose(feats, points, ref, ref_stems, config)
-                if T_init is None:
-                    if seen >= config.registration.coarse_max_frames:
-                        raise ProcessingError(
-                            f"the first {seen} MLS frames cannot be aligned to the reference by "
-                            "stem positions (do they show the same plot?); give --initial-pose"
-                        )
+                    init = Initializer(ref_stems[0][:, :2], ref_stems[1], ref_coarse, config)
+                # Odometry of the frames before the placement: NDT frame to frame (the last
+                # relative motion as the guess); a failure starts a new odometry segment.
+                ndt_ok = True
+                if prev_points is not None:
+                    T_rel = ndt_from_previous(rel_local, T_prev=np.eye(4))
+                    ndt_ok = T_rel is not None
+                    T_local = T_local @ T_rel if ndt_ok else np.eye(4)
+                    rel_local = T_rel if ndt_ok else np.eye(4)
+                pending = PendingFrame(
+                    index,
+                    float(scan.stamp),
+                    t_mid,
+                    feats,
+                    np.ascontiguousarray(points[:: max(1, len(points) // 500)]),
+                    T_local.copy(),
+                    _ground_z(points),
+                    ms,
+                )
+                T_local_prev = T_local
+                placed = init.push(pending, ndt_ok, lm_with)
+                # The stem-corrected odometry pose; its motion guesses the next NDT.
+                T_local = pending.T_local
+                if ndt_ok and prev_points is not None:
+                    rel_local = np.linalg.inv(T_local_prev) @ T_local
+                prev_points = points
+                if placed is None:
                     continue
+                T_init = placed.T_tls_sensor
+                for f in init.dropped():
+                    unplaced.append((f.stamp, "no pose: odometry broke before the walk was placed"))
+                records, seed = _backfill(init, T_init, lm_with, config)
+                for rec in records:
+                    frames.append(rec)
+                    if on_frame is not None:
+                        on_frame(rec)
+                init.pending.clear()
         else:
             V = se3_exp(twist * dt)
             T_pred = T_prev @ V
@@ -489,8 +697,9 @@ def register_mls_to_tls(
                 if T_ndt is not None:
                     T_pred = T_init = T_ndt
 
-        lm = lm_at(T_init)
-        good = _trusted(lm, T_pred, config)
+        lm = placed.lm if placed is not None else lm_at(T_init)
+        failure = trust_failure(lm, T_pred, config)
+        good = not failure
         fallback = relocalized = False
         if not good and T_good is not None and config.registration.initial_pose != "ndt":
             # Fallback: NDT against the previous frame, chained onto its pose.
@@ -537,16 +746,13 @@ def register_mls_to_tls(
             lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
             and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
         )
-        if T_good is None and good and initial_pose is None:
-            stems_agree = stems_agree and _stems_on_reference(feats, T, ref_stems, config)
-        # The first frame anchors everything: its stems must sit on the reference's stems.
-        if T_good is None and not (good and (stems_agree or initial_pose is not None)):
-            if initial_pose is not None or seen >= config.registration.coarse_max_frames:
-                raise ProcessingError(
-                    "the first MLS frame does not register onto the reference "
-                    f"({lm['inliers']} feature pairs): mismatched data or a wrong initial pose"
-                )
-            continue
+        # A given first pose must register (a user's mistake otherwise); a placed walk was
+        # verified by the initializer.
+        if T_good is None and not good:
+            raise ProcessingError(
+                "the first MLS frame does not register onto the reference from the given "
+                f"initial pose ({failure}): mismatched data or a wrong initial pose"
+            )
         # Only frames whose stems sit on the reference's stems join the map: a frame that
         # registered onto earlier wrongly placed frames must not spread the error.
         if ref_stems is None:
@@ -573,29 +779,42 @@ def register_mls_to_tls(
         twist_used = twist.copy()
         # The velocity (NDT guess, prediction and deskew) only from two consecutive trusted
         # poses: a bad pose would distort the next frames through the deskew.
-        if T_prev is not None and good and prev_good:
+        # A relocalized frame jumped: the motion from the previous pose is no velocity.
+        if relocalized:
+            twist, t_twist = np.zeros(6), None
+        elif T_prev is not None and good and prev_good:
             twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
             t_twist = t_ref
+        elif seed is not None:
+            # The placed frame's velocity from the frame before it (chained back, LM refined).
+            dt_seed = t_ref - seed[1]
+            if 0 < dt_seed <= config.registration.max_velocity_age_s:
+                twist = se3_log(np.linalg.inv(seed[0]) @ T) / dt_seed
+                t_twist = t_ref
         # The pose at the stamp (sweep start): from the frame's own in-sweep motion when
         # estimated (on top of the deskew it was estimated after), else extrapolated.
         if len(sweep):
             T_stamp = sweep_pose(T, sweep, -t_mid) @ se3_exp(-twist_used * t_mid)
         else:
             T_stamp = T @ se3_exp(-twist * t_mid)
-        record = FrameRecord(
-            stamp=float(scan.stamp),
-            T_tls_sensor=np.asarray(T_stamp),
-            accepted=bool(accepted),
-            converged=bool(lm["converged"]),
-            degenerate=bool(lm["degenerate"]),
-            virtual_inliers=int(lm["virtual_inliers"]),
-            virtual_rms_m=float(lm["virtual_rms_m"]),
-            real_inliers=int(lm["real_inliers"]),
-            real_rms_m=float(lm["real_rms_m"]),
-            ms_features=ms["features"],
-            ms_lm=ms["lm"],
-            ms_ndt=ms["ndt"],
-            ms_target=ms["target"],
+        reason = _unmerged_reason(
+            good,
+            failure,
+            stems_agree,
+            lm,
+            on_reference,
+            relocalized,
+            swept,
+            accepted,
+            ref_dt,
+            ref_dr,
+        )
+        record = _record(
+            scan.stamp,
+            T_stamp,
+            lm,
+            ms,
+            reason,
             fallback=fallback,
             t_mid_s=t_mid,
             deskew_twist=twist_used if times is not None else np.zeros(6),
@@ -614,7 +833,7 @@ def register_mls_to_tls(
     if seen == 0:
         raise InputError("the MLS input holds no scans")
     if not frames:
-        raise ProcessingError("no MLS frame could be registered onto the reference")
+        raise ProcessingError(_unplaced_message(seen, init))
     gmap.flush()
     return TlsRun(
         frames=frames,
@@ -622,4 +841,49 @@ def register_mls_to_tls(
         reference=ref,
         frame_centres=centres,
         initial_method=method,
+        unplaced=unplaced,
+    )
+
+
+def unmerged_frames(run: TlsRun) -> list[tuple[float, str]]:
+    """(stamp, reason) of every frame that did not join the map (with a pose or without),
+    in time order."""
+    rows = [(f.stamp, f.reason) for f in run.frames if not f.accepted]
+    return sorted(rows + list(run.unplaced))
+
+
+def unmerged_csv(run: TlsRun) -> str:
+    """The unmerged frames as CSV text: stamp,has_pose,reason."""
+    posed = {f.stamp for f in run.frames}
+    lines = ["stamp,has_pose,reason"]
+    for stamp, reason in unmerged_frames(run):
+        text = reason.replace('"', "'")
+        lines.append(f'{stamp:.6f},{int(stamp in posed)},"{text}"')
+    return "\n".join(lines) + "\n"
+
+
+def unmerged_summary(run: TlsRun) -> dict[str, int]:
+    """How many frames did not join the map, per reason kind (the reason up to its first
+    parenthesis or colon detail, so similar reasons count together)."""
+    out: dict[str, int] = {}
+    for _, reason in unmerged_frames(run):
+        kind = reason.split(" (")[0].split(": ")[0] if reason else "unknown"
+        out[kind] = out.get(kind, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def _ground_z(points: np.ndarray) -> float | None:
+    return ground_height_near(points, np.zeros(2))
+
+
+def _unplaced_message(seen: int, init: Initializer | None) -> str:
+    """The error when no frame of the walk could be placed on the reference."""
+    if init is None:
+        return "no MLS frame could be registered onto the reference"
+    b = init.best
+    return (
+        f"none of the {seen} MLS frames could be placed on the TLS reference by its stems "
+        f"({init.attempts} attempts; best: {b.reason}; the reference has "
+        f"{len(init.ref_xy)} stems): is the reference from the same plot? "
+        "Give --initial-pose if it is"
     )

@@ -14,7 +14,7 @@ from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
 from forestslam.tls.config import TlsConfig
-from forestslam.tls.pipeline import TlsRun, register_mls_to_tls
+from forestslam.tls.pipeline import TlsRun, register_mls_to_tls, unmerged_csv, unmerged_summary
 from forestslam.tls.trees import circumference_coverage, observations, plot_trees
 
 log = logging.getLogger(__name__)
@@ -70,7 +70,8 @@ def parse_initial_pose(text: str | None) -> np.ndarray | None:
 
 
 def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
-    """trajectory.tum, plot.laz, trees.csv, coverage.json, plot.png; returns the summary."""
+    """trajectory.tum, plot.laz, trees.csv, coverage.json, unmerged.csv, plot.png; returns
+    the summary."""
     from forestslam.tls.plotting import plot_tls_run
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -103,6 +104,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         ],
     }
     atomic_write_text(out_dir / "coverage.json", json.dumps(coverage, indent=1) + "\n")
+    atomic_write_text(out_dir / "unmerged.csv", unmerged_csv(run))
     plot_tls_run(
         out_dir / "plot.png",
         run.map_points,
@@ -128,6 +130,8 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         ),
         "fallback_frames": int(sum(f.fallback for f in frames)),
         "initial_pose": run.initial_method,
+        "without_pose": len(run.unplaced),
+        "unmerged": unmerged_summary(run),
     }
 
 
