@@ -265,18 +265,36 @@ struct RayPoint {
     double range;                 // measured range (in the plane)
 };
 
-Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x, double sr, double st) {
+Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x, double sr, double st,
+                            Eigen::Matrix<double, 2, 3> *J = nullptr) {
     const Eigen::Vector2d w = x.head<2>() - p.origin;
     const double a = p.dir.dot(w);
     const double d2 = std::max(0.0, w.squaredNorm() - a * a);
     const double q = x(2) * x(2) - d2;
-    if (q > 0) return Eigen::Vector2d((p.range - (a - std::sqrt(q))) / sr, 0.0);
-    return Eigen::Vector2d((p.range - a) / sr, (std::sqrt(d2) - x(2)) / st);
+    const Eigen::Vector2d across = w - a * p.dir;  // half the gradient of d2 by the centre
+    if (q > 0) {  // the beam meets the circle: residual along the beam to its near hit
+        const double root = std::sqrt(q);
+        if (J != nullptr) {
+            J->setZero();
+            J->block<1, 2>(0, 0) = (-p.dir - across / root).transpose() / sr;
+            (*J)(0, 2) = x(2) / root / sr;
+        }
+        return Eigen::Vector2d((p.range - (a - root)) / sr, 0.0);
+    }
+    // the beam misses: along the beam to its closest approach, and the miss distance across
+    const double d = std::sqrt(d2);
+    if (J != nullptr) {
+        J->setZero();
+        J->block<1, 2>(0, 0) = -p.dir.transpose() / sr;
+        if (d > 0) J->block<1, 2>(1, 0) = across.transpose() / (d * st);
+        (*J)(1, 2) = -1.0 / st;
+    }
+    return Eigen::Vector2d((p.range - a) / sr, (d - x(2)) / st);
 }
 
 double cauchyWeight(double e2) { return 1.0 / (1.0 + e2 / (2.5 * 2.5)); }
 
-// IRLS Levenberg-Marquardt on (cx, cy, r) with central-difference Jacobians (3 parameters).
+// IRLS Levenberg-Marquardt on (cx, cy, r) with analytic Jacobians (3 parameters).
 bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iterations,
                 Eigen::Vector3d &x) {
     double lambda = 1e-3;
@@ -290,17 +308,10 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
     for (int it = 0; it < iterations; ++it) {
         Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
         Eigen::Vector3d Jte = Eigen::Vector3d::Zero();
-        const double h = 1e-6;
         for (size_t k = 0; k < pts.size(); ++k) {
-            const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st);
-            w[k] = cauchyWeight(e.squaredNorm());
             Eigen::Matrix<double, 2, 3> J;
-            for (int j = 0; j < 3; ++j) {
-                Eigen::Vector3d xp = x, xm = x;
-                xp(j) += h, xm(j) -= h;
-                J.col(j) =
-                    (rayResidual(pts[k], xp, sr, st) - rayResidual(pts[k], xm, sr, st)) / (2 * h);
-            }
+            const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st, &J);
+            w[k] = cauchyWeight(e.squaredNorm());
             JtJ += w[k] * J.transpose() * J;
             Jte += w[k] * J.transpose() * e;
         }
@@ -312,11 +323,13 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
             const Eigen::Vector3d step = A.ldlt().solve(-Jte);
             if (!step.allFinite()) return false;
             const Eigen::Vector3d xn = x + step;
-            if (xn(2) > 0 && cost(xn, w) <= before) {
+            const double after = xn(2) > 0 ? cost(xn, w) : before + 1.0;
+            if (after <= before) {
                 x = xn;
                 lambda = std::max(lambda * 0.3, 1e-9);
                 improved = true;
-                if (step.norm() < 1e-8) return true;
+                // converged: a step under a micrometre, or no cost left to gain
+                if (step.norm() < 1e-6 || before - after <= 1e-9 * before) return true;
             } else {
                 lambda *= 10.0;
             }
