@@ -41,6 +41,7 @@ def test_window_and_run_yaml(tmp_path, monkeypatch):
             "map_points": 0,
             "ms_features_lm_mean": 1.0,
             "coverage_tls": None,
+            "unmerged": {},
         }
 
     monkeypatch.setattr(runner, "register_mls_to_tls", register)

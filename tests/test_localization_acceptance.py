@@ -132,7 +132,8 @@ def test_paper_matcher_finds_a_present_place_and_rejects_an_absent_one(forest):
 
 
 def test_unknown_matcher_is_an_input_error():
+    from forestslam.config_utils import from_dict
     from forestslam.errors import InputError
 
-    with pytest.raises(InputError, match="matcher"):
-        LocalizationConfig(matcher="icp")
+    with pytest.raises(InputError, match="matcher.*default, paper"):
+        from_dict(LocalizationConfig, {"matcher": "icp"})
