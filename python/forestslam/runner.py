@@ -14,10 +14,8 @@ skipped and counted; stretches without trees are bridged by odometry.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import platform
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -487,7 +485,9 @@ def run(
     packets = profile.packet_config() if profile is not None else None
     stream, scans, count = window.open(input_path, topic, packets)  # `start` skipped undecoded
     if profile is None:
-        profile, scans = _identify_sensor(scans)
+        from forestslam.sensors.identify import identify_stream
+
+        profile, scans = identify_stream(scans)
     prior, pose, drift = _multisession(cfg, prior_map, initial_pose, inject_drift)
     options = RunOptions(prior, pose, drift, Georeference.from_options(crs, georef))
     if rerun or rerun_save is not None:
@@ -546,19 +546,6 @@ def run(
                 pipe.viewer.close()
     summary.status = job.status
     return summary
-
-
-def _identify_sensor(scans):
-    """(profile, scans): the shipped profile the first scans fit, and the scans with those put
-    back in front."""
-    from forestslam.sensors.identify import identify
-
-    first = list(itertools.islice(scans, 5))
-    if not first:
-        raise InputError("no scans to identify the sensor from: give --sensor")
-    profile = identify(first)
-    print(f"forestslam: sensor identified as {profile.name} from the data", file=sys.stderr)
-    return profile, itertools.chain(first, scans)
 
 
 def _multisession(cfg, prior_map, initial_pose, inject_drift):

@@ -16,7 +16,11 @@ def register(app: typer.Typer) -> None:
     )
     def _command(
         input: Path = typer.Argument(..., help="Bag (.bag/.mcap), folder or cloud file."),
-        sensor: str = typer.Option(..., "--sensor", help="Profile name or YAML (vlp16, map, ...)."),
+        sensor: str | None = typer.Option(
+            None,
+            "--sensor",
+            help="Profile name or YAML (vlp16, map, ...); default: identified from the data.",
+        ),
         out: Path = typer.Option(..., "--out", help="Output CSV of the detected trees."),
         scan: int | None = typer.Option(None, "--scan", help="Process only scan K (0-based)."),
         png: Path | None = typer.Option(
@@ -47,7 +51,7 @@ def register(app: typer.Typer) -> None:
         from forestslam.perception.stems import BREAST_HEIGHT_SOURCES
         from forestslam.sensors import load_profile
 
-        profile = load_profile(sensor)
+        profile = load_profile(sensor) if sensor is not None else None
         cfg = load_config(config).perception
         if scan is not None and scan < 0:
             raise InputError(f"--scan must be >= 0, not {scan}")
@@ -55,7 +59,12 @@ def register(app: typer.Typer) -> None:
             raise InputError("--scan K is one scan: give it without --start / --max-scans")
         check_output_file(out)
         window = ScanWindow(scan, 1) if scan is not None else ScanWindow(start, max_scans)
-        _, stream, count = window.open(input, topic)  # scans before the window not decoded
+        packets = profile.packet_config() if profile is not None else None
+        _, stream, count = window.open(input, topic, packets)  # scans before it not decoded
+        if profile is None:
+            from forestslam.sensors.identify import identify_stream
+
+            profile, stream = identify_stream(stream)
         bar = Progress(count, "scan", "detect", enabled=not no_progress and count != 1)
         rows: dict[str, list] = {k: [] for k in ("scan", "id", "x", "y", "z", "dbh_m")}
         n_scans, last, total_ms = 0, None, 0.0

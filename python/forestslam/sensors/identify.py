@@ -120,4 +120,21 @@ def identify(scans: list[Scan], names: list[str] | None = None) -> SensorProfile
         return chosen[0]
     listing = "; ".join(f"{n}: {', '.join(w) or 'fits'}" for n, w in fits.items())
     what = "several sensors fit" if chosen else "no shipped sensor fits"
-    raise InputError(f"{what} the data ({sig.describe()}): {listing}. Give --sensor")
+    raise InputError(
+        f"{what} the data ({sig.describe()}): {listing}. Give --sensor (for an accumulated "
+        "map, a TLS scan or a crop of either: --sensor map or tls)"
+    )
+
+
+def identify_stream(scans, first: int = 5):
+    """(profile, scans): the shipped profile the first scans of an iterator fit, and the same
+    scans with those put back in front; the choice is said on stderr."""
+    import itertools
+    import sys
+
+    head = list(itertools.islice(scans, first))
+    if not head:
+        raise InputError("no scans to identify the sensor from: give --sensor")
+    profile = identify(head)
+    print(f"forestslam: sensor identified as {profile.name} from the data", file=sys.stderr)
+    return profile, itertools.chain(head, scans)
