@@ -22,6 +22,7 @@ from forestslam.errors import InputError
 from forestslam.io.scan import Scan
 from forestslam.odometry.bridge import fill_core
 from forestslam.odometry.config import METHODS, MODES, OdometryConfig
+from forestslam.perception.pipeline import stems_from_core
 from forestslam.sensors import SensorProfile, load_profile
 
 log = logging.getLogger(__name__)
@@ -97,27 +98,6 @@ def core_odometry_config(config: OdometryConfig) -> Any:
     return core
 
 
-def _stems(d: dict):
-    from forestslam.perception import Stems
-
-    k = len(d["z"])
-    return Stems(
-        xy=np.asarray(d["xy"]).reshape(k, 2),
-        dbh=np.asarray(d["dbh"]),
-        z=np.asarray(d["z"]),
-        mean=np.asarray(d["mean"]).reshape(k, 3),
-        cov=np.asarray(d["cov"]).reshape(k, 3, 3),
-        axis=np.asarray(d["axis"]).reshape(k, 3),
-        points=[np.asarray(p).reshape(-1, 3) for p in d["points"]],
-        base_z=np.asarray(d["base_z"]),
-        ground=np.asarray(d["ground"]).reshape(-1, 3),
-        diameters=list(d["diameters"]),
-        timing=dict(d["timing"]),
-        cpu_ms=dict(d["cpu_ms"]),
-        counts=dict(d["counts"]),
-    )
-
-
 def _column(values: np.ndarray | None, dtype) -> np.ndarray | None:
     return None if values is None else np.ascontiguousarray(values, dtype=dtype).reshape(-1)
 
@@ -170,7 +150,7 @@ class Odometry:
             T_world_sensor=np.array(res.T_world_sensor),
             covariance=np.array(res.covariance),
             degraded=bool(res.degraded),
-            stems=_stems(res.stems),
+            stems=stems_from_core(res.stems),
             timing=dict(res.timing),
             covariance6=None if res.covariance6 is None else np.array(res.covariance6),
             method=res.method,

@@ -147,23 +147,8 @@ def detect(
         profile.kind != "map",
         _options(profile, config, scan, breast_height_z),
     )
-    k = len(result["z"])
-    stems = Stems(
-        xy=np.asarray(result["xy"]).reshape(k, 2),
-        dbh=np.asarray(result["dbh"]),
-        z=np.asarray(result["z"]),
-        mean=np.asarray(result["mean"]).reshape(k, 3),
-        cov=np.asarray(result["cov"]).reshape(k, 3, 3),
-        axis=np.asarray(result["axis"]).reshape(k, 3),
-        points=[np.asarray(p).reshape(-1, 3) for p in result["points"]],
-        base_z=np.asarray(result["base_z"]),
-        ground=np.asarray(result["ground"]).reshape(-1, 3),
-        diameters=list(result["diameters"]),
-        timing=dict(result["timing"]),
-        cpu_ms=dict(result["cpu_ms"]),
-        counts=dict(result["counts"]),
-        breast_source=np.asarray(result["breast_source"], dtype=np.int64),
-    )
+    stems = stems_from_core(result)
+    k = len(stems.z)
     log.debug("%d stems, %d ground points, %.1f ms", k, len(stems.ground), stems.timing["total"])
     return stems
 
@@ -340,4 +325,26 @@ def estimate_diameter(
         normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
     return _core().perception_estimate_diameter(
         points, normals, float(base_z), up, to_dict(config.diameter)
+    )
+
+
+def stems_from_core(result: dict) -> Stems:
+    """Stems from the C++ detection dict (forestslam._core: detectionDict), as both the detector
+    and the odometry return it."""
+    k = len(result["z"])
+    return Stems(
+        xy=np.asarray(result["xy"]).reshape(k, 2),
+        dbh=np.asarray(result["dbh"]),
+        z=np.asarray(result["z"]),
+        mean=np.asarray(result["mean"]).reshape(k, 3),
+        cov=np.asarray(result["cov"]).reshape(k, 3, 3),
+        axis=np.asarray(result["axis"]).reshape(k, 3),
+        points=[np.asarray(p).reshape(-1, 3) for p in result["points"]],
+        base_z=np.asarray(result["base_z"]),
+        ground=np.asarray(result["ground"]).reshape(-1, 3),
+        diameters=list(result["diameters"]),
+        timing=dict(result["timing"]),
+        cpu_ms=dict(result["cpu_ms"]),
+        counts=dict(result["counts"]),
+        breast_source=np.asarray(result["breast_source"], dtype=np.int64),
     )
