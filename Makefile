@@ -39,7 +39,10 @@ $(VENV)/.installed: $(VENV)/.deps $(SOURCES) CMakeLists.txt pyproject.toml
 
 # The bundled default: data/sample.yaml simulated once (cached, git-ignored), then the main job
 # on it and the evaluation against its ground truth.
-$(SAMPLE)/sequence.bag: data/sample.yaml | $(VENV)/.installed
+# Re-simulated when the scenario or the simulator changes (a cached sample of an older model
+# would hide what the new one shows).
+SIM_SOURCES := $(shell find python/forestslam/sim cpp/forestslam/sim -type f -not -path '*/__pycache__/*')
+$(SAMPLE)/sequence.bag: data/sample.yaml $(SIM_SOURCES) | $(VENV)/.installed
 	$(VENV)/bin/forestslam simulate --scenario data/sample.yaml --out $(SAMPLE)
 
 run: install $(SAMPLE)/sequence.bag
