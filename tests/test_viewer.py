@@ -34,3 +34,23 @@ def test_saved_recording_holds_the_run_entities(tmp_path):
 def test_viewer_needs_a_target():
     with pytest.raises(InputError, match="spawn"):
         RerunView()
+
+
+def test_a_run_records_every_entity_as_it_goes(tmp_path):
+    rr = pytest.importorskip("rerun")
+    from forestslam.runner import run
+    from forestslam.sim import simulate
+
+    seq = simulate("sample", tmp_path / "sim", length_m=14.0)
+    path = tmp_path / "run.rrd"
+    run(
+        seq / "sequence.bag",
+        "vlp16",
+        tmp_path / "run",
+        mode="map3d",
+        progress=False,
+        rerun_save=path,
+    )
+    summary = rr.chunk.RrdReader(path).store().summary()
+    for entity in ("scan", "stems", "trajectory", "trees", "ground", "sensor"):
+        assert f"/world/{entity}" in summary

@@ -434,6 +434,8 @@ class Pipeline:
         from forestslam.mapping.plot import plot_dtm
 
         ground = self.ground.build(kf_poses)  # voxels in the run's own frame, near its origin
+        if self.viewer is not None:
+            self.viewer.ground(self.n - 1, self.stamps[-1], ground)
         ground = self.frame.points(ground)  # then moved, in float64, into the output frame
         write_cloud(self.out_dir / "ground.ply", ground)
         m = self.cfg.mapping
