@@ -292,9 +292,9 @@ class Pipeline:
         if self.prior.placed:
             return
         if self.initial_pose is not None:
-            from forestslam.multisession.prior import planar_matrix
+            from forestslam.geometry import planar_pose
 
-            T_map_first = planar_matrix(*self.initial_pose)  # the first scan's sensor frame
+            T_map_first = planar_pose(*self.initial_pose)  # the first scan's sensor frame
             self.prior.place_at(self.slam, T_map_first, i, stamp)
             return
         self.prior.maybe_place(self.slam, res.keyframe, res.T_map_sensor, i, stamp)

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from forestslam.geometry import planar_pose
+
 
 class DriftInjector:
     def __init__(
@@ -61,8 +63,7 @@ class DriftInjector:
             step[1, 3] += self.jump_m  # sideways, in the sensor frame
             dyaw += self.jump
             self.jump_at_m = None  # once
-        turn = np.eye(4)
-        turn[:2, :2] = [[math.cos(dyaw), -math.sin(dyaw)], [math.sin(dyaw), math.cos(dyaw)]]
+        turn = planar_pose(0.0, 0.0, dyaw)
         self._true = T.copy()
         self._drifted = self._drifted @ turn @ step
         return self._drifted.copy()

@@ -22,9 +22,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from forestslam.errors import InputError
-from forestslam.evaluation.trajectory import umeyama
+from forestslam.geometry import planar_pose, rigid_fit, yaw_of
 from forestslam.localization import build_map, localize
 from forestslam.localization.config import LocalizationConfig
+from forestslam.multisession.fusion import fuse_dbh
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,7 @@ class MergeConfig:
     min_agreeing: int = 2
     gate_m: float = 0.5
     refine_iterations: int = 10
+    dbh_sigma_m: float = 0.02  # a DBH without its own spread (dbh_std_m)
 
 
 @dataclass(frozen=True)
@@ -67,13 +69,6 @@ class MapAlignment:
             "accepted_queries": self.accepted,
             "agreeing_queries": self.agreeing,
         }
-
-
-def _planar(x: float, y: float, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-    T[:2, 3] = [x, y]
-    return T
 
 
 def _query_centres(b_path_xy: np.ndarray, b_xy: np.ndarray, step_m: float) -> np.ndarray:
@@ -113,9 +108,8 @@ def _refine(a_xy, b_xy, T, config: MergeConfig) -> tuple[np.ndarray, np.ndarray,
         new = np.column_stack([ia[mutual], mutual])
         if len(new) < 3:
             raise InputError(f"refinement kept {len(new)} tree pairs: the maps do not overlap")
-        src = np.column_stack([b_xy[new[:, 1]], np.zeros(len(new))])
-        dst = np.column_stack([a_xy[new[:, 0]], np.zeros(len(new))])
-        T = umeyama(src, dst)
+        fit = rigid_fit(b_xy[new[:, 1]], a_xy[new[:, 0]])  # (3,3) planar
+        T = planar_pose(fit[0, 2], fit[1, 2], float(yaw_of(fit)))
         if np.array_equal(new, pairs):
             break
         pairs = new
@@ -156,7 +150,7 @@ def align_tree_maps(
         )
     x, y = np.mean([poses[j][:2] for j in group], axis=0)
     yaw = math.atan2(*np.sum([[math.sin(poses[j][2]), math.cos(poses[j][2])] for j in group], 0))
-    T, pairs, rms = _refine(a_xy, b_xy, _planar(x, y, yaw), config)
+    T, pairs, rms = _refine(a_xy, b_xy, planar_pose(x, y, yaw), config)
     log.info(
         "B placed in A: %d of %d queries agree, %d tree pairs, rms %.3f m",
         len(group),
@@ -167,7 +161,9 @@ def align_tree_maps(
     return MapAlignment(T, pairs, rms, queries, len(poses), len(group), votes)
 
 
-def fuse_trees(a: dict, b: dict, alignment: MapAlignment) -> dict[str, np.ndarray]:
+def fuse_trees(
+    a: dict, b: dict, alignment: MapAlignment, config: MergeConfig = MergeConfig()
+) -> dict[str, np.ndarray]:
     """The merged tree table (see the module doc) in A's frame; ids renumbered from 1."""
     T = alignment.T_a_b
     n_a, n_b = len(a["x"]), len(b["x"])
@@ -183,11 +179,12 @@ def fuse_trees(a: dict, b: dict, alignment: MapAlignment) -> dict[str, np.ndarra
     obs_a, obs_b = cols["observations"][0][ia], cols["observations"][1][ib]
     w_a = obs_a / (obs_a + obs_b)
     xyz = w_a[:, None] * a_xyz[ia] + (1 - w_a[:, None]) * b_xyz[ib]
-    dbh, std = _fuse_dbh(
+    dbh, std = fuse_dbh(
         cols["dbh_m"][0][ia],
         cols["dbh_std_m"][0][ia],
         cols["dbh_m"][1][ib],
         cols["dbh_std_m"][1][ib],
+        config.dbh_sigma_m,
     )
     only_a = np.setdiff1d(np.arange(n_a), ia)
     only_b = np.setdiff1d(np.arange(n_b), ib)
@@ -219,18 +216,3 @@ def fuse_trees(a: dict, b: dict, alignment: MapAlignment) -> dict[str, np.ndarra
         "observations": np.concatenate([p[3] for p in parts]).astype(np.int64),
         "source": np.concatenate([np.full(len(p[0]), p[4]) for p in parts]),
     }
-
-
-def _fuse_dbh(d_a, s_a, d_b, s_b) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse-variance mean of two DBH estimates (equal weights where a spread is missing;
-    one estimate where the other is missing)."""
-    known = np.isfinite(s_a) & np.isfinite(s_b) & (s_a > 0) & (s_b > 0)
-    w_a = np.where(known, 1 / np.where(known, s_a, 1) ** 2, 1.0)
-    w_b = np.where(known, 1 / np.where(known, s_b, 1) ** 2, 1.0)
-    w_a = np.where(np.isfinite(d_a), w_a, 0.0)
-    w_b = np.where(np.isfinite(d_b), w_b, 0.0)
-    total = w_a + w_b
-    with np.errstate(invalid="ignore", divide="ignore"):
-        dbh = (w_a * np.nan_to_num(d_a) + w_b * np.nan_to_num(d_b)) / total
-        std = np.where(known, 1 / np.sqrt(total), np.fmin(s_a, s_b))
-    return np.where(total > 0, dbh, np.nan), std

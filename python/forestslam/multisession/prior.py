@@ -27,6 +27,8 @@ import numpy as np
 
 from forestslam.config_utils import Positive, PositiveInt, Range
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose, rigid_fit, yaw_of
+from forestslam.multisession.fusion import fuse_dbh
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +39,7 @@ class PriorMapConfig:
     # canopy), and from a forestslam map (a run directory or saved map).
     inventory_sigma_m: Positive = 0.3
     map_sigma_m: Positive = 0.05
-    dbh_sigma_m: Positive = 0.01  # a prior DBH without its own spread (dbh_std_m)
+    dbh_sigma_m: Positive = 0.01  # a DBH (prior's or run's) without its own spread (dbh_std_m)
     place_every_keyframes: PositiveInt = 4  # placement attempts while not placed
     place_radius_m: Positive = 25.0  # the run's trees around the machine that form a query
     place_min_trees: Annotated[int, Range(ge=3)] = 6
@@ -125,13 +127,6 @@ def parse_initial_pose(text: str) -> np.ndarray:
     return np.array([values[0], values[1], math.radians(values[2])])
 
 
-def planar_matrix(x: float, y: float, yaw: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:2, :2] = [[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]]
-    T[:2, 3] = [x, y]
-    return T
-
-
 class PriorTracker:
     """Places a run in a prior map and feeds the prior trees to its SLAM (see module doc)."""
 
@@ -204,16 +199,13 @@ class PriorTracker:
         inventory's priors, so this removes what the placement got wrong."""
         if not self.placed:
             return
-        from forestslam.evaluation.trajectory import umeyama
-
         xy, _ = slam.landmarks()
         mine = np.flatnonzero(self.prior_landmarks >= 0)
         mine = mine[slam.observed_this_run()[self.prior_landmarks[mine]]]
         if len(mine) < 3:
             return
-        src = np.column_stack([xy[self.prior_landmarks[mine]], np.zeros(len(mine))])
-        dst = np.column_stack([self.prior.xy[mine], np.zeros(len(mine))])
-        self.T_local_odom = umeyama(src, dst)
+        fit = rigid_fit(xy[self.prior_landmarks[mine]], self.prior.xy[mine])  # (3,3) planar
+        self.T_local_odom = planar_pose(fit[0, 2], fit[1, 2], float(yaw_of(fit)))
 
     def T_map_odom(self) -> np.ndarray:
         """Map coordinates <- odometry frame (identity while not placed)."""
@@ -250,12 +242,12 @@ class PriorTracker:
         j = prior_of[lm]
         is_prior = j >= 0
         p = self.prior
-        prior_std = np.where(np.isfinite(p.dbh_std_m), p.dbh_std_m, self.cfg.dbh_sigma_m)
-        dbh, std = _fuse(
-            np.asarray(table["dbh_m"], np.float64),
-            np.asarray(table["dbh_std_m"], np.float64),
+        dbh, std = fuse_dbh(
+            table["dbh_m"],
+            table["dbh_std_m"],
             np.where(is_prior, p.dbh_m[j], np.nan),
-            np.where(is_prior, prior_std[j], np.nan),
+            np.where(is_prior, p.dbh_std_m[j], np.nan),
+            self.cfg.dbh_sigma_m,
         )
         first_new = int(p.ids.max()) + 1 if len(p.ids) else 1
         ids = np.where(is_prior, p.ids[j], first_new + np.cumsum(~is_prior) - 1)
@@ -292,17 +284,3 @@ class PriorTracker:
         else:
             placement["frame"] = "own (the first scan's sensor frame): never placed in the map"
         return {"source": self.prior.source, "trees": len(self.prior), "placement": placement}
-
-
-def _fuse(d_a, s_a, d_b, s_b) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse-variance fusion of two DBH estimates with spreads; one where the other is NaN."""
-    ok_a = np.isfinite(d_a) & np.isfinite(s_a) & (s_a > 0)
-    ok_b = np.isfinite(d_b) & np.isfinite(s_b) & (s_b > 0)
-    w_a = np.where(ok_a, 1.0 / np.where(ok_a, s_a, 1.0) ** 2, 0.0)
-    w_b = np.where(ok_b, 1.0 / np.where(ok_b, s_b, 1.0) ** 2, 0.0)
-    total = w_a + w_b
-    with np.errstate(invalid="ignore", divide="ignore"):
-        dbh = (w_a * np.nan_to_num(d_a) + w_b * np.nan_to_num(d_b)) / total
-        std = 1.0 / np.sqrt(total)
-    dbh = np.where(total > 0, dbh, np.where(np.isfinite(d_a), d_a, d_b))
-    return dbh, np.where(total > 0, std, np.nan)

@@ -127,14 +127,11 @@ def identify(scans: list[Scan], names: list[str] | None = None) -> SensorProfile
 
 
 def identify_stream(scans, first: int = 5):
-    """(profile, scans): the shipped profile the first scans of an iterator fit, and the same
-    scans with those put back in front; the choice is said on stderr."""
+    """(profile, scans): the shipped profile the first scans of an iterator fit (logged by
+    `identify`), and the same scans with those put back in front."""
     import itertools
-    import sys
 
     head = list(itertools.islice(scans, first))
     if not head:
         raise InputError("no scans to identify the sensor from: give --sensor")
-    profile = identify(head)
-    print(f"forestslam: sensor identified as {profile.name} from the data", file=sys.stderr)
-    return profile, itertools.chain(head, scans)
+    return identify(head), itertools.chain(head, scans)
