@@ -17,6 +17,7 @@ import math
 import os
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -171,13 +172,28 @@ def run_simulated(args) -> None:
             )
 
 
+def count_absent(name, frames, tree_map, query, args, total, accepted_total):
+    """Localize `args.absent_queries` queries of a place not in `tree_map` (`query()` makes
+    one), print the row and return the updated (queries, accepted) totals."""
+    from forestslam.localization import localize
+
+    acc = tri = 0
+    for _ in range(args.absent_queries):
+        local, _truth = query()
+        loc = localize(tree_map, local)
+        acc += loc.accepted
+        tri += loc.accepted and loc.stage == "triangle"
+    print(f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} {tri:>8}")
+    return total + args.absent_queries, accepted_total + acc
+
+
 def run_simulated_absent(args) -> None:
     """Queries from places that are not in the map; every acceptance is wrong.
     a) longleaf split in halves: the map holds one half, the queries are driven in the other
        (poses >= range + 5 m from the boundary, so no view reaches the mapped half);
     b) spruces (a denser, different stand) queried in the whole longleaf map;
     c) synthetic stands (uniform, 1 m minimum spacing, densities 0.01-0.05 /m^2) in longleaf."""
-    from forestslam.localization import build_map, localize
+    from forestslam.localization import build_map
 
     args.range = args.ranges[0]
     xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
@@ -203,36 +219,20 @@ def run_simulated_absent(args) -> None:
     for name, (in_map, (xlo, xhi)) in halves.items():
         tree_map = build_map(xy[in_map], dbh[in_map])
         for frames in (1, 5):
-            acc = tri = 0
-            for _ in range(args.absent_queries):
-                local, _truth = simulate_query_x(xy, dbh, rng, frames, args, xlo, xhi)
-                loc = localize(tree_map, local)
-                acc += loc.accepted
-                tri += loc.accepted and loc.stage == "triangle"
-            total += args.absent_queries
-            accepted_total += acc
-            print(
-                f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} "
-                f"{tri:>8}"
+            query = partial(simulate_query_x, xy, dbh, rng, frames, args, xlo, xhi)
+            total, accepted_total = count_absent(
+                name, frames, tree_map, query, args, total, accepted_total
             )
     others = {"spruces in longleaf": (sp_xy, sp_dbh, 2.0)}
     for density in (0.01, 0.02, 0.05):
         sxy = random_stand(3000, density, rng)
         others[f"uniform {density}/m2 in longleaf"] = (sxy, np.full(len(sxy), 0.3), 20.0)
     for name, (oxy, odbh, margin) in others.items():
+        lo, hi = float(oxy.min()) + margin, float(oxy.max()) - margin
         for frames in (1, 5):
-            acc = tri = 0
-            lo, hi = float(oxy.min()) + margin, float(oxy.max()) - margin
-            for _ in range(args.absent_queries):
-                local, _truth = simulate_query(oxy, odbh, rng, frames, args, lo, hi)
-                loc = localize(whole, local)
-                acc += loc.accepted
-                tri += loc.accepted and loc.stage == "triangle"
-            total += args.absent_queries
-            accepted_total += acc
-            print(
-                f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} "
-                f"{tri:>8}"
+            query = partial(simulate_query, oxy, odbh, rng, frames, args, lo, hi)
+            total, accepted_total = count_absent(
+                name, frames, whole, query, args, total, accepted_total
             )
     print(
         f"absent places accepted: {accepted_total}/{max(total, 1)} = "
