@@ -3,7 +3,6 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
-#include <limits>
 #include <optional>
 #include <stdexcept>
 
@@ -239,6 +238,7 @@ namespace {
 
 // Circle fits on their own (also used by the evaluation and the TLS tree fits).
 void defineCircleFits(py::module_ &m) {
+    const CircleFitOptions d;  // the keyword defaults are the C++ struct's
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
@@ -259,10 +259,9 @@ void defineCircleFits(py::module_ &m) {
             }
             return circleDict(f);
         },
-        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = 0.03,
-        py::arg("min_radius_m") = 0.0,
-        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
-        py::arg("lateral_sigma_m") = 0.005, py::arg("seed") = 42,
+        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
+        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
+        py::arg("lateral_sigma_m") = d.lateral_sigma_m, py::arg("seed") = d.seed,
         "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
         "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
         "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
@@ -284,9 +283,10 @@ void defineCircleFits(py::module_ &m) {
             }
             return circleDict(f);
         },
-        py::arg("xy"), py::arg("inlier_threshold_m") = 0.03, py::arg("min_radius_m") = 0.0,
-        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
-        py::arg("max_ransac_iterations") = 200, py::arg("arc_sectors") = 36, py::arg("seed") = 42,
+        py::arg("xy"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
+        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
+        py::arg("max_ransac_iterations") = d.max_ransac_iterations,
+        py::arg("arc_sectors") = d.arc_sectors, py::arg("seed") = d.seed,
         "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64.\n"
         "Returns dict: valid bool, centre (2,), radius, inliers int, rms_m, arc_coverage in [0,1]\n"
         "(occupied angular sectors), inlier_indices list[int] (rows of xy). Invalid (valid=False,\n"
