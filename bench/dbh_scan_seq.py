@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import transform_points
 from forestslam.io import read_scans, read_trees_csv, read_tum
 from forestslam.perception import PerceptionConfig, detect
 
@@ -26,7 +27,7 @@ def evaluate(sim: Path, n_scans: int, sensor: str) -> dict[str, list]:
         if k not in pick:
             continue
         T = np.linalg.inv(poses[k])
-        local = world @ T[:3, :3].T + T[:3, 3]
+        local = transform_points(T, world)
         near = (np.linalg.norm(local[:, :2], axis=1) <= 15) & (trees["dbh_m"] >= 0.1)
         stems = detect(scan, sensor, cfg)
         for i in range(len(stems)):

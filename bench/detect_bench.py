@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from forestslam.geometry import transform_points
 from forestslam.perception import PerceptionConfig, detect
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -116,7 +117,7 @@ def truth_in_sensor(trees: dict, T_world_sensor: np.ndarray) -> tuple[np.ndarray
     """Breast-height stem centres (T,3) in the sensor frame and their DBH (T,)."""
     p = np.c_[trees["x"], trees["y"], trees["z_ground"] + 1.3]
     T = np.linalg.inv(T_world_sensor)
-    return p @ T[:3, :3].T + T[:3, 3], np.asarray(trees["dbh_m"])
+    return transform_points(T, p), np.asarray(trees["dbh_m"])
 
 
 def visible(scan_points: np.ndarray, centres: np.ndarray, dbh: np.ndarray) -> np.ndarray:
@@ -259,7 +260,7 @@ def rigid_icp(source: np.ndarray, target: np.ndarray, iterations: int = 40, keep
     tree = cKDTree(target)
     T = np.eye(4)
     for _ in range(iterations):
-        moved = source @ T[:3, :3].T + T[:3, 3]
+        moved = transform_points(T, source)
         d, j = tree.query(moved)
         near = d <= np.quantile(d, keep)
         T = umeyama(moved[near], target[j[near]]) @ T
@@ -294,7 +295,7 @@ def compare_ground_with_als(mls: np.ndarray, ground: np.ndarray, als_path: Path)
     )
     for frame, ref in (
         ("as given", als[cls == 2]),
-        ("co-registered", als[cls == 2] @ T[:3, :3].T + T[:3, 3]),
+        ("co-registered", transform_points(T, als[cls == 2])),
     ):
         tin = LinearNDInterpolator(ref[:, :2], ref[:, 2])
         cells = []

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import planar_pose, rot2
+
 DATA = Path(
     os.environ.get("FORESTSLAM_DATA")
     or Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -98,8 +100,7 @@ def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
         idx = visible_trees(xy, dbh, pos, rng, args.range, args.dropout, args.sapling_dropout)
         fake_seen = fakes[np.hypot(*(fakes - pos).T) < args.range]
         d = np.vstack([xy[idx], fake_seen]) - pos
-        c, s = math.cos(yaw), math.sin(yaw)
-        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+        local = d @ rot2(yaw)  # world offsets in the frame turned by yaw
         local += rng.normal(0, args.noise, local.shape)
         nt = rng.poisson(args.transient_false)
         rt = args.range * np.sqrt(rng.uniform(size=nt))
@@ -110,10 +111,7 @@ def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
         if k == len(path) - 1:
             drift[:] = 0  # the local frame is the last frame: its odometry pose is the reference
             true_pose = (pos[0], pos[1], yaw)
-        cy, sy = math.cos(yaw + drift[2]), math.sin(yaw + drift[2])
-        T = np.eye(4)
-        T[:2, :2] = [[cy, -sy], [sy, cy]]
-        T[:2, 3] = pos + drift[:2]
+        T = planar_pose(pos[0] + drift[0], pos[1] + drift[1], yaw + drift[2])
         xys.append(local)
         poses.append(T)
     config = LocalizationConfig(min_observations=args.min_observations)

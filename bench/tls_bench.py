@@ -39,6 +39,14 @@ from scipy.spatial import cKDTree
 from forestslam import _core
 from forestslam.errors import ProcessingError
 from forestslam.evaluation.ground import vertical_errors
+from forestslam.geometry import (
+    planar_pose,
+    pose3,
+    rot2,
+    rotation_zyx,
+    transform_points,
+    transform_xy,
+)
 from forestslam.io import read_cloud, read_scans, read_tum
 from forestslam.odometry.deskew import deskew_points, se3_log
 from forestslam.tls import TlsConfig, register_mls_to_tls
@@ -65,21 +73,6 @@ def simulated(name: str) -> Path:
 def rot_err_deg(a: np.ndarray, b: np.ndarray) -> float:
     d = a[:3, :3].T @ b[:3, :3]
     return float(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-
-
-def rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = (
-        np.cos(roll),
-        np.sin(roll),
-        np.cos(pitch),
-        np.sin(pitch),
-        np.cos(yaw),
-        np.sin(yaw),
-    )
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return rz @ ry @ rx
 
 
 def match(a: np.ndarray, b: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +149,7 @@ def ground_floor(scans, world, t0: float, cfg: TlsConfig, every: int = 8) -> dic
         twist = se3_log(np.linalg.inv(T0) @ T1) / sweep_s
         for key, tw in (("constant_velocity", twist), ("rigid", np.zeros(6))):
             p0 = deskew_points(pts, times, tw) if np.any(tw) else pts
-            out[key].append(ground_errors(p0 @ T0[:3, :3].T + T0[:3, 3], world.terrain))
+            out[key].append(ground_errors(transform_points(T0, p0), world.terrain))
     return {k: float(np.mean(np.abs(np.concatenate(v)))) for k, v in out.items()}
 
 
@@ -164,7 +157,8 @@ def perturbation(rng) -> np.ndarray:
     """A seeded initial-pose error like NDT chaining leaves: 0.15 m x-y, 0.05 m z, 2 deg yaw,
     0.5 deg roll/pitch (standard deviations)."""
     D = np.eye(4)
-    D[:3, :3] = rotation(*np.radians(rng.normal(0, [0.5, 0.5, 2.0])))
+    roll, pitch, yaw = np.radians(rng.normal(0, [0.5, 0.5, 2.0]))
+    D[:3, :3] = rotation_zyx(yaw, pitch, roll)
     D[:3, 3] = rng.normal(0, [0.15, 0.15, 0.05])
     return D
 
@@ -235,7 +229,7 @@ def per_frame_comparison(run, by_stamp, truth_mid, ref, ref_trees, cfg, every: i
         for n in names:
             T = poses[n][-1]
             p = moved if n == "proposed" else pts
-            parts[n].append(p[::2] @ T[:3, :3].T + T[:3, 3])
+            parts[n].append(transform_points(T, p[::2]))
     truths = np.array(truths)
     out = {"frames": len(truths), "every": every}
     for n in names:
@@ -270,7 +264,7 @@ def sequential_baselines(run, clouds, truth_mid, ref, ref_trees, cfg) -> dict:
     for n, poses in (("ndt_only", ndt_poses), ("icp_only", icp_poses)):
         te, re = pose_errors(np.array(poses), truths)
         parts = [
-            clouds[f.stamp][::2] @ T[:3, :3].T + T[:3, 3]
+            transform_points(T, clouds[f.stamp][::2])
             for f, T in zip(run.frames, poses, strict=True)
         ]
         out[n] = method_summary(te, re, *stem_deviation(parts, ref_trees, cfg))
@@ -370,7 +364,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         report["sequential_whole_walk"] = seq
 
     merged = plot_trees(run.map_points, cfg.trees, cfg.features)
-    truth_xy_tls = (truth_xy_world @ T_tls_world[:2, :2].T) + T_tls_world[:2, 3]
+    truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
     ia, ib = match(merged.xyz[:, :2], truth_xy_tls, 0.5)
     pos_err = np.linalg.norm(merged.xyz[ia, :2] - truth_xy_tls[ib], axis=1)
     dbh_err = merged.dbh_m[ia] - trees_csv["dbh_m"][ib]
@@ -383,13 +377,13 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
     cov_merged = circumference_coverage(run.map_points, merged, cfg.trees)
     ms = np.array([f.ms_features + f.ms_lm for f in run.frames])
     # Ground of the merged map: its MLS part (voxels away from any reference point) and all.
-    merged_world = run.map_points @ T_world_tls[:3, :3].T + T_world_tls[:3, 3]
+    merged_world = transform_points(T_world_tls, run.map_points)
     g_all = ground_errors(merged_world, terrain)
     d_ref, _ = cKDTree(_core.voxel_downsample(ref, cfg.map.voxel_m)).query(
         run.map_points, distance_upper_bound=cfg.map.voxel_m
     )
     g_mls = ground_errors(merged_world[~np.isfinite(d_ref)], terrain)
-    g_ref = ground_errors(ref @ T_world_tls[:3, :3].T + T_world_tls[:3, 3], terrain)
+    g_ref = ground_errors(transform_points(T_world_tls, ref), terrain)
     report["merged_map"] = {
         "stems_detected": len(merged),
         "stems_matched_truth": int(len(pos_err)),
@@ -572,26 +566,14 @@ def run_real(out: Path) -> dict:
         c = rng.uniform(-2.5, 2.5, 2)
         disc = local[np.linalg.norm(local[:, :2] - c, axis=1) < 6.0]
         yaw, roll, pitch = rng.uniform(-np.pi, np.pi), rng.normal(0, 0.02), rng.normal(0, 0.02)
-        Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-        Rx = np.array(
-            [[1, 0, 0], [0, np.cos(roll), -np.sin(roll)], [0, np.sin(roll), np.cos(roll)]]
-        )
-        Ry = np.array(
-            [[np.cos(pitch), 0, np.sin(pitch)], [0, 1, 0], [-np.sin(pitch), 0, np.cos(pitch)]]
-        )
-        T_true = np.eye(4)
-        T_true[:3, :3] = Rz @ Ry @ Rx
-        T_true[:3, 3] = [c[0], c[1], rng.uniform(-1, 1)]
+        T_true = pose3(rotation_zyx(yaw, pitch, roll), [c[0], c[1], rng.uniform(-1, 1)])
         # Frame = disc expressed in a frame whose pose in the plot is T_true, thinned to 30 %.
         frame = (disc - T_true[:3, 3]) @ T_true[:3, :3]
         frame = frame[rng.random(len(frame)) < 0.3]
         frame += rng.normal(0, 0.005, frame.shape)
         feats = frame_features(frame, None, cfg.features)
         # Initial guess: truth perturbed by 0.2 m and 2 deg (what NDT chaining leaves).
-        d = np.eye(4)
-        a = np.radians(2.0)
-        d[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
-        d[:3, 3] = [0.15, -0.1, 0.05]
+        d = planar_pose(0.15, -0.1, np.radians(2.0), 0.05)
         r = _core.register_stem_centre_lm(
             target, feats.centres, feats.radii, feats.real_points, np.ascontiguousarray(d @ T_true)
         )
@@ -736,8 +718,7 @@ def _start_offset(path: str, heading: float) -> np.ndarray:
         turn = np.pi * LANE_SPACING_M / 2
         n = max(1, int(round((WALK_M + turn) / (LANE_M + turn))))
         local = np.array([-LANE_M / 2, -(n - 1) / 2 * LANE_SPACING_M])
-    c, s = np.cos(heading), np.sin(heading)
-    return np.array([[c, -s], [s, c]]) @ local
+    return rot2(heading) @ local
 
 
 def plot_scenarios(plot: dict, folder: Path, frames: int) -> tuple[Path, Path]:

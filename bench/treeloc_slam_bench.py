@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import transform_points
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data" / "treeloc"
 
@@ -31,7 +33,7 @@ def planar_ate(est_xy: np.ndarray, ref_xy: np.ndarray) -> float:
     from forestslam.geometry import rigid_fit
 
     T = rigid_fit(est_xy, ref_xy)
-    moved = est_xy @ T[:2, :2].T + T[:2, 2]
+    moved = transform_points(T, est_xy)
     return float(np.sqrt(np.mean(np.sum((moved - ref_xy) ** 2, axis=1))))
 
 

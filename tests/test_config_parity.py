@@ -17,7 +17,8 @@ _core = pytest.importorskip("forestslam._core")
 ONLY_PYTHON = {"PerceptionConfig": {"intensity_filter"}}  # decides intensity_threshold
 ONLY_CPP = {
     "FpfhConfig": {"icp"},  # the odometry's registration.icp is used
-    "PerceptionOptions": {"intensity_threshold"},  # from the sensor profile
+    # from the sensor profile / from detect's breast_height_z argument
+    "PerceptionOptions": {"intensity_threshold", "breast_height_z"},
 }
 
 
@@ -96,3 +97,24 @@ def test_bridge_names_unknown_keys_and_wrong_types():
         core_odometry_config(bad)
     ok = core_odometry_config(OdometryConfig(keyframe_distance_m=2, max_stamp_gap_s=0.5))
     assert ok.keyframe_distance_m == 2.0 and ok.max_stamp_gap_s == 0.5
+
+
+def test_perception_options_cross_typed_with_the_key_named():
+    """detect and every perception stage take the typed C++ structs from the one bridge."""
+    import math
+
+    from forestslam.perception.config import PerceptionConfig
+    from forestslam.perception.pipeline import core_options, segment_ground, sensor_geometry
+    from forestslam.sensors import load_profile
+
+    profile = load_profile("vlp16")
+    options = core_options(PerceptionConfig(), profile, breast_height_z=1.5)
+    assert isinstance(options, _core.PerceptionOptions) and options.breast_height_z == 1.5
+    assert math.isnan(core_options(PerceptionConfig(), profile).breast_height_z)
+    assert isinstance(sensor_geometry(profile), _core.SensorGeometry)
+    bad = PerceptionConfig()
+    bad.ground.cell_size_m = "0.5"
+    with pytest.raises(InputError, match=r"perception\.ground\.cell_size_m"):
+        core_options(bad, profile)
+    with pytest.raises(InputError, match=r"perception\.ground\.cell_size_m"):
+        segment_ground([[0.0, 0.0, 0.0]], bad)

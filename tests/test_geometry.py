@@ -25,6 +25,22 @@ def test_planar_poses_and_yaw():
     )
 
 
+def test_rotation_zyx_matches_scipy_and_transform_xy_the_planar_part():
+    rng = np.random.default_rng(3)
+    ypr = rng.uniform(-np.pi, np.pi, (6, 3))
+    want = Rotation.from_euler("ZYX", ypr).as_matrix()
+    np.testing.assert_allclose(g.rotation_zyx(*ypr.T), want, atol=1e-12)
+    np.testing.assert_allclose(g.rotation_zyx(*ypr[0]), want[0], atol=1e-12)
+    xy = rng.normal(0, 3, (4, 2))
+    T = g.planar_pose(1.0, -2.0, 0.7, z=5.0)
+    np.testing.assert_allclose(
+        g.transform_xy(T, xy), g.transform_points(T, np.c_[xy, np.zeros(4)])[:, :2], atol=1e-12
+    )
+    np.testing.assert_allclose(
+        g.transform_xy(g.se2(1.0, -2.0, 0.7), xy), g.transform_xy(T, xy), atol=1e-12
+    )
+
+
 def test_inverse_single_and_batched():
     rng = np.random.default_rng(0)
     poses = np.stack([random_pose(rng) for _ in range(5)])

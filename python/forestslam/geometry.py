@@ -34,6 +34,26 @@ def yaw_of(T: np.ndarray) -> float | np.ndarray:
     return np.arctan2(T[..., 1, 0], T[..., 0, 0])
 
 
+def rotation_zyx(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
+    """(N,3,3) Rz(yaw) Ry(pitch) Rx(roll) of arrays of angles (rad) (scipy's intrinsic "ZYX",
+    written out: the simulator calls it per point time); (3,3) for scalar angles."""
+    scalar = np.ndim(yaw) == 0
+    yaw, pitch, roll = (np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in (yaw, pitch, roll))
+    cy, sy, cp, sp, cr, sr = (
+        np.cos(yaw),
+        np.sin(yaw),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(roll),
+        np.sin(roll),
+    )
+    r = np.empty((len(yaw), 3, 3))
+    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = -sp, cp * sr, cp * cr
+    return r[0] if scalar else r
+
+
 def hat(v: np.ndarray) -> np.ndarray:
     """Skew-symmetric (3,3) of a 3-vector: hat(a) @ b == cross(a, b)."""
     x, y, z = np.asarray(v, dtype=np.float64)
@@ -82,6 +102,15 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     d = T.shape[-1] - 1
     p = np.asarray(points, dtype=np.float64).reshape(-1, d)
     return p @ T[:d, :d].T + T[:d, d]
+
+
+def transform_xy(T: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Planar points (N,2) mapped by a planar pose (3,3), or by a pose (4,4) at z = 0 (the xy of
+    the result): R[:2,:2] p + t[:2]."""
+    T = np.asarray(T, dtype=np.float64)
+    d = T.shape[-1] - 1
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    return p @ T[:2, :2].T + T[:2, d]
 
 
 # --------------------------------------------------------------------------------- SE(3)

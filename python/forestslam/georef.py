@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose, transform_points
 
 
 def parse_georef(text: str) -> np.ndarray:
@@ -25,11 +26,7 @@ def parse_georef(text: str) -> np.ndarray:
     if len(values) != 4 or not np.all(np.isfinite(values)):
         raise InputError(f"--georef must be x,y,z,yaw_deg (four numbers), not {text!r}")
     x, y, z, yaw_deg = values
-    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
-    T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:3, 3] = [x, y, z]
-    return T
+    return planar_pose(x, y, np.radians(yaw_deg), z)
 
 
 def _projected_crs(text: str):
@@ -84,7 +81,7 @@ class Georeference:
     def points(self, points_local: np.ndarray) -> np.ndarray:
         """(N,3) local -> (N,3) float64 in the CRS."""
         p = np.asarray(points_local, dtype=np.float64).reshape(-1, 3)
-        return p @ self.T_crs_local[:3, :3].T + self.T_crs_local[:3, 3]
+        return transform_points(self.T_crs_local, p)
 
     def xy(self, xy_local: np.ndarray, z_local: np.ndarray | None = None) -> np.ndarray:
         """(N,2) local -> (N,2) in the CRS (heights of 0 unless given)."""

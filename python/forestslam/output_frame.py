@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import transform_points
 from forestslam.georef import Georeference
 
 
@@ -39,8 +40,7 @@ class OutputFrame:
         return np.einsum("ij,njk->nik", self.T(), np.asarray(poses, dtype=np.float64))
 
     def points(self, points: np.ndarray) -> np.ndarray:
-        T = self.T()
-        return np.asarray(points, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+        return transform_points(self.T(), points)
 
     def table(self, table: dict) -> dict:
         """A tree table in the prior map's coordinates (or the odometry frame without one) moved

@@ -474,15 +474,36 @@ def run(
 
     The output directory is owned as `forestslam.job` describes (lock, an earlier run's outputs
     replaced or refused, run.yaml with the outcome)."""
-    from forestslam.config import config_to_dict, load_config
+    from forestslam.config import load_config
     from forestslam.config_utils import validate
-    from forestslam.job import Checkpoints, Job, Progress, ScanWindow
-    from forestslam.sensors import load_profile
+    from forestslam.job import Job, ScanWindow
 
     if mode not in MODES:
         raise InputError(f"unknown mode {mode!r}; choose one of {', '.join(MODES)}")
     window = ScanWindow(start, max_scans)
     cfg = validate(config) if config is not None else load_config(config_path)
+    profile, stream, scans, count = _open_scans(window, input_path, topic, sensor)
+    prior, pose, drift = _multisession(cfg, prior_map, initial_pose, inject_drift)
+    options = RunOptions(prior, pose, drift, Georeference.from_options(crs, georef))
+    if rerun or rerun_save is not None:
+        from forestslam.viewer import RerunView
+
+        options.viewer = RerunView(spawn=rerun, save=rerun_save)
+    meta = _run_meta(input_path, topic, profile, sensor is None, mode, window, cfg)
+    with Job("run", out_dir, meta, inputs=[input_path, config_path], overwrite=overwrite) as job:
+        pipe = Pipeline(profile, cfg, mode, job.out, options)
+        job.meta["output_frame"] = pipe.frame.to_dict()
+        summary = RunSummary(out_dir=job.out, mode=mode)
+        _process_scans(pipe, scans, count, stream, job, summary, progress, input_path)
+    summary.status = job.status
+    return summary
+
+
+def _open_scans(window, input_path, topic, sensor):
+    """(profile, stream, scans, count) of the window; the sensor identified from the first
+    scans when `sensor` is None."""
+    from forestslam.sensors import load_profile
+
     profile = load_profile(sensor) if sensor is not None else None
     packets = profile.packet_config() if profile is not None else None
     stream, scans, count = window.open(input_path, topic, packets)  # `start` skipped undecoded
@@ -490,64 +511,66 @@ def run(
         from forestslam.sensors.identify import identify_stream
 
         profile, scans = identify_stream(scans)
-    prior, pose, drift = _multisession(cfg, prior_map, initial_pose, inject_drift)
-    options = RunOptions(prior, pose, drift, Georeference.from_options(crs, georef))
-    if rerun or rerun_save is not None:
-        from forestslam.viewer import RerunView
+    return profile, stream, scans, count
 
-        options.viewer = RerunView(spawn=rerun, save=rerun_save)
-    meta = {
+
+def _run_meta(input_path, topic, profile, identified: bool, mode: str, window, cfg) -> dict:
+    """run.yaml's description of the run (its summary is added as it goes)."""
+    from forestslam.config import config_to_dict
+
+    return {
         "input": str(input_path),
         "topic": topic,
         "sensor": profile.name,
-        "sensor_identified": sensor is None,
+        "sensor_identified": identified,
         "mode": mode,
         **window.meta(),
         "versions": _versions(),
         "config": config_to_dict(cfg),
     }
-    with Job("run", out_dir, meta, inputs=[input_path, config_path], overwrite=overwrite) as job:
-        pipe = Pipeline(profile, cfg, mode, job.out, options)
+
+
+def _process_scans(pipe, scans, count, stream, job, summary, progress: bool, input_path) -> None:
+    """The scan loop with its progress and checkpoints; the final outputs and run.yaml summary
+    are written however it ends."""
+    from forestslam.job import Checkpoints, Progress
+
+    checkpoints = Checkpoints(pipe.cfg.mapping.checkpoint_every_scans)
+    bar = Progress(count, "scan", "run", enabled=progress)
+    t0, c0 = time.perf_counter(), time.process_time()
+
+    def update_summary() -> None:
+        summary.wall_s = time.perf_counter() - t0
+        summary.scans = pipe.n
+        summary.failed_scans = pipe.failed
+        summary.degraded_scans = pipe.degraded
+        summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
+        summary.cpu_s = time.process_time() - c0
+        summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
+        summary.read_stats = stream.stats.to_dict()
+        job.summary = summary.to_dict()
+        _record_multisession(job, pipe)
+
+    try:
+        for scan in scans:
+            pipe.process(scan)
+            trees = {"trees": pipe.slam.n_landmarks} if pipe.slam is not None else {}
+            bar.update(1, **trees)
+            if checkpoints.due(pipe.n):
+                pipe.write(final=False)
+                update_summary()  # a killed run's run.yaml then has counts up to here
+                job.write_meta()
+        if pipe.n == 0:
+            raise InputError(f"{input_path}: no scan could be processed")
+    finally:
+        bar.close()
+        update_summary()
+        _finish(pipe, summary)
+        job.summary = summary.to_dict()
+        _record_multisession(job, pipe)  # after the final refit of the placement
         job.meta["output_frame"] = pipe.frame.to_dict()
-        summary = RunSummary(out_dir=job.out, mode=mode)
-        checkpoints = Checkpoints(cfg.mapping.checkpoint_every_scans)
-        bar = Progress(count, "scan", "run", enabled=progress)
-        t0, c0 = time.perf_counter(), time.process_time()
-
-        def update_summary() -> None:
-            summary.wall_s = time.perf_counter() - t0
-            summary.scans = pipe.n
-            summary.failed_scans = pipe.failed
-            summary.degraded_scans = pipe.degraded
-            summary.scans_per_s = pipe.n / summary.wall_s if summary.wall_s > 0 else 0.0
-            summary.cpu_s = time.process_time() - c0
-            summary.cpu_scans_per_s = pipe.n / summary.cpu_s if summary.cpu_s > 0 else 0.0
-            summary.read_stats = stream.stats.to_dict()
-            job.summary = summary.to_dict()
-            _record_multisession(job, pipe)
-
-        try:
-            for scan in scans:
-                pipe.process(scan)
-                trees = {"trees": pipe.slam.n_landmarks} if pipe.slam is not None else {}
-                bar.update(1, **trees)
-                if checkpoints.due(pipe.n):
-                    pipe.write(final=False)
-                    update_summary()  # a killed run's run.yaml then has counts up to here
-                    job.write_meta()
-            if pipe.n == 0:
-                raise InputError(f"{input_path}: no scan could be processed")
-        finally:
-            bar.close()
-            update_summary()
-            _finish(pipe, summary)
-            job.summary = summary.to_dict()
-            _record_multisession(job, pipe)  # after the final refit of the placement
-            job.meta["output_frame"] = pipe.frame.to_dict()
-            if pipe.viewer is not None:
-                pipe.viewer.close()
-    summary.status = job.status
-    return summary
+        if pipe.viewer is not None:
+            pipe.viewer.close()
 
 
 def _multisession(cfg, prior_map, initial_pose, inject_drift):

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import transform_points
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,7 @@ class RerunView:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         if len(pts) > self._max_points:
             pts = pts[self._rng.choice(len(pts), self._max_points, replace=False)]
-        world = pts @ T_world_sensor[:3, :3].T + T_world_sensor[:3, 3]
+        world = transform_points(T_world_sensor, pts)
         self._stream.log("world/scan", rr.Points3D(world, colors=_height_colors(world[:, 2])))
         self._stream.log(
             "world/sensor",

@@ -500,34 +500,95 @@ void ForestScene::castBatch(const Ray *rays, size_t n, Hit *hits) const {
     }
 }
 
-void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
-                             uint32_t id) const {
-    // Along the walk axis u all rays of the bundle advance together: a ray is at the offset
-    // a = |u - u_origin| at t = a / |du|, where it is at v_origin + a sv and z_origin + a kz.
-    // One lane per ray still walking, sorted by kz: its segment inside the grid as offsets
-    // [a_lo, a_stop] (a_stop: grid exit, end of range, or the best hit so far).
+// The state of one bundle's walk along the grid columns (castBundle), shared by its stages.
+// Along the walk axis u all rays of the bundle advance together: a ray is at the offset
+// a = |u - u_origin| at t = a / |du|, where it is at v_origin + a sv and z_origin + a kz.
+// One lane per ray still walking, sorted by kz: its segment inside the grid as offsets
+// [a_lo, a_stop] (a_stop: grid exit, end of range, or the best hit so far).
+struct ForestScene::BundleWalk {
     struct Lane {
         int k;
         double a_lo, a_stop, adu, sv, kz;
     };
+    const Ray *rays;
+    Hit *hits;
     Lane lanes[kMaxBundle];
     int n_active = 0;
-    // The walk runs from the first ray's origin; every other ray's origin is within eps of it
-    // (in each axis), so a ray translated to the first origin meets a box grown by eps wherever
-    // the ray itself meets the box: all rejections below use boxes grown by eps.
-    const Eigen::Vector3d &o = rays[0].origin;
-    const double ox = o.x(), oy = o.y(), oz = o.z();
+    // Largest distance (per axis) of a ray's origin from the first ray's, from which the walk
+    // runs: a ray translated to the first origin meets a box grown by eps wherever the ray
+    // itself meets the box, so all rejections use boxes grown by eps.
     double eps = 0.0;
+    double su = 1.0;     // direction of the walk along u (+1 / -1)
+    int au = 0, av = 1;  // axes of u and v in x, y
+    double ro[3];        // first origin relative to the boxes (x0_, y0_, z0_)
+    double ou = 0.0;     // first origin along u
+    // Fan of the active lanes across (sv) and their nearest end (a_stop), refreshed when a lane
+    // leaves; the lanes stay sorted by kz.
+    double sv_lo = kInf, sv_hi = -kInf, a_stop_min = kInf;
+
+    void refresh() {
+        sv_lo = kInf;
+        sv_hi = -kInf;
+        a_stop_min = kInf;
+        for (int a = 0; a < n_active; ++a) {
+            sv_lo = std::min(sv_lo, lanes[a].sv);
+            sv_hi = std::max(sv_hi, lanes[a].sv);
+            a_stop_min = std::min(a_stop_min, lanes[a].a_stop);
+        }
+    }
+    // Lanes whose segment ends before offset a_done are done.
+    void retire(double a_done) {
+        if (a_stop_min > a_done) return;
+        int w = 0;
+        for (int a = 0; a < n_active; ++a)
+            if (lanes[a].a_stop > a_done) lanes[w++] = lanes[a];
+        n_active = w;
+        refresh();
+    }
+};
+
+void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
+                             uint32_t id) const {
+    BundleWalk w;
+    w.rays = rays;
+    w.hits = hits;
+    startBundle(w, n, along_x);
+    if (w.n_active == 0) return;
+    const int step = w.su > 0 ? 1 : -1;
+    const double u0 = along_x ? x0_ : y0_;
+    const int nu = along_x ? nx_ : ny_;
+    // From the column of the rearmost origin: the others start up to eps behind the first.
+    int iu = static_cast<int>(
+        std::clamp(std::floor((w.ou - w.su * w.eps - u0) * inv_cell_), 0.0, nu - 1.0));
+    for (; w.n_active > 0 && iu >= 0 && iu < nu; iu += step) {
+        // Offsets of this column's near and far boundaries from the first origin (its column
+        // and any behind it from a = 0).
+        const double a1 = w.su * (u0 + (w.su > 0 ? iu + 1 : iu) * cell_ - w.ou);
+        // The lanes' paths over the column, grown by eps along the walk (a point of a ray is
+        // within eps of its translate, whose offset a may then lie just outside the column).
+        const double a0 =
+            std::max(0.0, w.su * (u0 + (w.su > 0 ? iu : iu + 1) * cell_ - w.ou) - w.eps);
+        const double a1e = a1 + w.eps;
+        if (a1e >= a0) walkColumn(w, along_x, iu, a0, a1e, stamp, id);
+        // Lanes whose segment ends in this column are done (kept one column more when the
+        // end lies within round-off of the boundary).
+        w.retire(a1 - w.eps - 1e-9);
+    }
+}
+
+void ForestScene::startBundle(BundleWalk &w, int n, bool along_x) const {
+    const Ray *rays = w.rays;
+    const Eigen::Vector3d &o = rays[0].origin;
     for (int k = 0; k < n; ++k) {
         // Terrain and the segment to walk exactly as cast() does, from the ray's own origin.
         const Ray &ray = rays[k];
-        eps = std::max(eps, (ray.origin - o).cwiseAbs().maxCoeff());
-        Hit &best = hits[k];
+        w.eps = std::max(w.eps, (ray.origin - o).cwiseAbs().maxCoeff());
+        Hit &best = w.hits[k];
         best = Hit();
         double t, t1;
         if (!startCast(ray, GridRay(ray), best, t, t1)) continue;
         const double dz = ray.dir.z();
-        Lane &l = lanes[n_active++];
+        BundleWalk::Lane &l = w.lanes[w.n_active++];
         l.k = k;
         const double du = along_x ? ray.dir.x() : ray.dir.y();
         const double dv = along_x ? ray.dir.y() : ray.dir.x();
@@ -538,129 +599,104 @@ void ForestScene::castBundle(const Ray *rays, int n, bool along_x, Hit *hits, ui
         l.a_lo = t * l.adu;
         l.a_stop = std::min(t1, best.t) * l.adu;
     }
-    if (n_active == 0) return;
-    std::sort(lanes, lanes + n_active, [](const Lane &a, const Lane &b) { return a.kz < b.kz; });
-    const double su = (along_x ? rays[0].dir.x() : rays[0].dir.y()) > 0 ? 1.0 : -1.0;
-    const int step = su > 0 ? 1 : -1;
-    const double u0 = along_x ? x0_ : y0_;
-    const int nu = along_x ? nx_ : ny_, nv = along_x ? ny_ : nx_;
-    const int au = along_x ? 0 : 1, av = along_x ? 1 : 0;  // axes of u and v in x, y
-    const double ro[3] = {ox - x0_, oy - y0_, oz - z0_};   // origin relative to the boxes
+    if (w.n_active == 0) return;
+    std::sort(w.lanes, w.lanes + w.n_active,
+              [](const BundleWalk::Lane &a, const BundleWalk::Lane &b) { return a.kz < b.kz; });
+    w.su = (along_x ? rays[0].dir.x() : rays[0].dir.y()) > 0 ? 1.0 : -1.0;
+    w.au = along_x ? 0 : 1;
+    w.av = along_x ? 1 : 0;
+    w.ro[0] = o.x() - x0_;
+    w.ro[1] = o.y() - y0_;
+    w.ro[2] = o.z() - z0_;
+    w.ou = along_x ? o.x() : o.y();
+    w.refresh();
+}
+
+void ForestScene::walkColumn(BundleWalk &w, bool along_x, int iu, double a0, double a1e,
+                             uint32_t *stamp, uint32_t id) const {
+    const int au = w.au, av = w.av;
+    const double *ro = w.ro;
+    // Box of all lanes' paths in this column, grid-relative, widened by eps and a hair so that
+    // round-off never drops a cell, a layer or a primitive.
+    const double m = 1e-7 + w.eps;
+    const double kz_lo = w.lanes[0].kz, kz_hi = w.lanes[w.n_active - 1].kz;
+    double lo[3], hi[3];
+    lo[au] = ro[au] + std::min(w.su * a0, w.su * a1e) - m;
+    hi[au] = ro[au] + std::max(w.su * a0, w.su * a1e) + m;
+    lo[av] = ro[av] + std::min(a0 * w.sv_lo, a1e * w.sv_lo) - m;
+    hi[av] = ro[av] + std::max(a0 * w.sv_hi, a1e * w.sv_hi) + m;
+    lo[2] = ro[2] + std::min(a0 * kz_lo, a1e * kz_lo) - m;
+    hi[2] = ro[2] + std::max(a0 * kz_hi, a1e * kz_hi) + m;
+    const int nv = along_x ? ny_ : nx_;
     const double lmax = nl_ - 1.0;
+    const int iv0 = static_cast<int>(std::clamp(std::floor(lo[av] * inv_cell_), 0.0, nv - 1.0));
+    const int iv1 = static_cast<int>(std::clamp(std::floor(hi[av] * inv_cell_), 0.0, nv - 1.0));
+    const int l0 = static_cast<int>(std::clamp(lo[2] * inv_layer_m_, 0.0, lmax));
+    const int l1 = static_cast<int>(std::clamp(hi[2] * inv_layer_m_, 0.0, lmax));
+    const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
     const uint64_t *layers = cell_layers_.data();
     const Prim *prims = prims_.data();
     const uint32_t *items = cell_items_.data();
     const uint32_t *starts = cell_start_.data();
-    // Fan of the active lanes across (sv) and their nearest end (a_stop), refreshed when a lane
-    // leaves; the lanes stay sorted by kz.
-    double sv_lo = kInf, sv_hi = -kInf, a_stop_min = kInf;
-    auto refresh = [&] {
-        sv_lo = kInf;
-        sv_hi = -kInf;
-        a_stop_min = kInf;
-        for (int a = 0; a < n_active; ++a) {
-            sv_lo = std::min(sv_lo, lanes[a].sv);
-            sv_hi = std::max(sv_hi, lanes[a].sv);
-            a_stop_min = std::min(a_stop_min, lanes[a].a_stop);
+    for (int iv = iv0; iv <= iv1; ++iv) {
+        const size_t c =
+            along_x ? static_cast<size_t>(iv) * nx_ + iu : static_cast<size_t>(iu) * nx_ + iv;
+        if (!((layers[c] >> l0) & span)) continue;
+        for (uint32_t q = starts[c], q1 = starts[c + 1]; q < q1; ++q) {
+            const uint32_t row = items[q];
+            if (stamp[row] == id) continue;
+            const Prim &p = prims[row];
+            if (p.lo[0] > hi[0] || p.hi[0] < lo[0] || p.lo[1] > hi[1] || p.hi[1] < lo[1] ||
+                p.lo[2] > hi[2] || p.hi[2] < lo[2])
+                continue;  // may still meet the bundle in a later column
+            stamp[row] = id;
+            testLanes(w, p);
         }
-    };
-    refresh();
-    const double ou = along_x ? ox : oy;
-    // From the column of the rearmost origin: the others start up to eps behind the first.
-    int iu =
-        static_cast<int>(std::clamp(std::floor((ou - su * eps - u0) * inv_cell_), 0.0, nu - 1.0));
-    for (; n_active > 0 && iu >= 0 && iu < nu; iu += step) {
-        // Offsets of this column's near and far boundaries from the first origin (its column
-        // and any behind it from a = 0).
-        const double a1 = su * (u0 + (su > 0 ? iu + 1 : iu) * cell_ - ou);
-        // The lanes' paths over the column, grown by eps along the walk (a point of a ray is
-        // within eps of its translate, whose offset a may then lie just outside the column).
-        const double a0 = std::max(0.0, su * (u0 + (su > 0 ? iu : iu + 1) * cell_ - ou) - eps);
-        const double a1e = a1 + eps;
-        if (a1e >= a0) {
-            // Box of all lanes' paths in this column, grid-relative, widened by eps and a hair
-            // so that round-off never drops a cell, a layer or a primitive.
-            const double m = 1e-7 + eps;
-            const double kz_lo = lanes[0].kz, kz_hi = lanes[n_active - 1].kz;
-            double lo[3], hi[3];
-            lo[au] = ro[au] + std::min(su * a0, su * a1e) - m;
-            hi[au] = ro[au] + std::max(su * a0, su * a1e) + m;
-            lo[av] = ro[av] + std::min(a0 * sv_lo, a1e * sv_lo) - m;
-            hi[av] = ro[av] + std::max(a0 * sv_hi, a1e * sv_hi) + m;
-            lo[2] = ro[2] + std::min(a0 * kz_lo, a1e * kz_lo) - m;
-            hi[2] = ro[2] + std::max(a0 * kz_hi, a1e * kz_hi) + m;
-            const int iv0 =
-                static_cast<int>(std::clamp(std::floor(lo[av] * inv_cell_), 0.0, nv - 1.0));
-            const int iv1 =
-                static_cast<int>(std::clamp(std::floor(hi[av] * inv_cell_), 0.0, nv - 1.0));
-            const int l0 = static_cast<int>(std::clamp(lo[2] * inv_layer_m_, 0.0, lmax));
-            const int l1 = static_cast<int>(std::clamp(hi[2] * inv_layer_m_, 0.0, lmax));
-            const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
-            for (int iv = iv0; iv <= iv1; ++iv) {
-                const size_t c = along_x ? static_cast<size_t>(iv) * nx_ + iu
-                                         : static_cast<size_t>(iu) * nx_ + iv;
-                if (!((layers[c] >> l0) & span)) continue;
-                for (uint32_t q = starts[c], q1 = starts[c + 1]; q < q1; ++q) {
-                    const uint32_t row = items[q];
-                    if (stamp[row] == id) continue;
-                    const Prim &p = prims[row];
-                    if (p.lo[0] > hi[0] || p.hi[0] < lo[0] || p.lo[1] > hi[1] || p.hi[1] < lo[1] ||
-                        p.lo[2] > hi[2] || p.hi[2] < lo[2])
-                        continue;  // may still meet the bundle in a later column
-                    // Tested once for the bundle: each lane whose whole segment can meet the
-                    // box, i.e. whose a range overlaps the box's and whose slopes sv and kz
-                    // reach the box's v and z extents over it (for kz a contiguous run of the
-                    // sorted lanes). The slope bounds hold over the whole box, so a box no
-                    // active lane's slope reaches is done with for the bundle.
-                    stamp[row] = id;
-                    const double pa0 = su * (p.lo[au] - ro[au]), pa1 = su * (p.hi[au] - ro[au]);
-                    const double pa_lo = std::min(pa0, pa1) - eps;
-                    const double pa_hi = std::max(pa0, pa1) + eps;
-                    double k_lo = -kInf, k_hi = kInf, s_lo = -kInf, s_hi = kInf;
-                    if (pa_lo > 0.0) {
-                        const double r_lo = 1.0 / pa_lo, r_hi = 1.0 / pa_hi;
-                        const double bv0 = p.lo[av] - ro[av] - eps;
-                        const double bv1 = p.hi[av] - ro[av] + eps;
-                        s_lo = std::min(bv0 * r_lo, bv0 * r_hi);
-                        s_hi = std::max(bv1 * r_lo, bv1 * r_hi);
-                        if (s_lo > sv_hi || s_hi < sv_lo) continue;
-                        const double bz0 = p.lo[2] - ro[2] - eps;
-                        const double bz1 = p.hi[2] - ro[2] + eps;
-                        k_lo = std::min(bz0 * r_lo, bz0 * r_hi);
-                        k_hi = std::max(bz1 * r_lo, bz1 * r_hi);
-                    }
-                    int a = 0;
-                    if (k_lo > lanes[0].kz)
-                        a = static_cast<int>(
-                            std::partition_point(lanes, lanes + n_active,
-                                                 [&](const Lane &l) { return l.kz < k_lo; }) -
-                            lanes);
-                    for (; a < n_active && lanes[a].kz <= k_hi; ++a) {
-                        Lane &l = lanes[a];
-                        if (l.sv < s_lo || l.sv > s_hi || pa_lo > l.a_stop || pa_hi < l.a_lo)
-                            continue;
-                        const Ray &ray = rays[l.k];
-                        Hit &best = hits[l.k];
-                        Hit h;
-                        if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) &&
-                            h.t < best.t) {
-                            best = h;
-                            l.a_stop = std::min(l.a_stop, h.t * l.adu);
-                            a_stop_min = std::min(a_stop_min, l.a_stop);
-                        }
-                    }
-                }
-            }
-        }
-        // Lanes whose segment ends in this column are done (kept one column more when the
-        // end lies within round-off of the boundary).
-        const double a_done = a1 - eps - 1e-9;
-        if (a_stop_min <= a_done) {
-            int w = 0;
-            for (int a = 0; a < n_active; ++a)
-                if (lanes[a].a_stop > a_done) lanes[w++] = lanes[a];
-            n_active = w;
-            refresh();
+    }
+}
+
+void ForestScene::testLanes(BundleWalk &w, const Prim &p) const {
+    // Tested once for the bundle: each lane whose whole segment can meet the box, i.e. whose a
+    // range overlaps the box's and whose slopes sv and kz reach the box's v and z extents over
+    // it (for kz a contiguous run of the sorted lanes). The slope bounds hold over the whole
+    // box, so a box no active lane's slope reaches is done with for the bundle.
+    const int au = w.au, av = w.av;
+    const double *ro = w.ro;
+    const double eps = w.eps, su = w.su;
+    const double pa0 = su * (p.lo[au] - ro[au]), pa1 = su * (p.hi[au] - ro[au]);
+    const double pa_lo = std::min(pa0, pa1) - eps;
+    const double pa_hi = std::max(pa0, pa1) + eps;
+    double k_lo = -kInf, k_hi = kInf, s_lo = -kInf, s_hi = kInf;
+    if (pa_lo > 0.0) {
+        const double r_lo = 1.0 / pa_lo, r_hi = 1.0 / pa_hi;
+        const double bv0 = p.lo[av] - ro[av] - eps;
+        const double bv1 = p.hi[av] - ro[av] + eps;
+        s_lo = std::min(bv0 * r_lo, bv0 * r_hi);
+        s_hi = std::max(bv1 * r_lo, bv1 * r_hi);
+        if (s_lo > w.sv_hi || s_hi < w.sv_lo) return;
+        const double bz0 = p.lo[2] - ro[2] - eps;
+        const double bz1 = p.hi[2] - ro[2] + eps;
+        k_lo = std::min(bz0 * r_lo, bz0 * r_hi);
+        k_hi = std::max(bz1 * r_lo, bz1 * r_hi);
+    }
+    BundleWalk::Lane *lanes = w.lanes;
+    const int n_active = w.n_active;
+    int a = 0;
+    if (k_lo > lanes[0].kz)
+        a = static_cast<int>(
+            std::partition_point(lanes, lanes + n_active,
+                                 [&](const BundleWalk::Lane &l) { return l.kz < k_lo; }) -
+            lanes);
+    for (; a < n_active && lanes[a].kz <= k_hi; ++a) {
+        BundleWalk::Lane &l = lanes[a];
+        if (l.sv < s_lo || l.sv > s_hi || pa_lo > l.a_stop || pa_hi < l.a_lo) continue;
+        const Ray &ray = w.rays[l.k];
+        Hit &best = w.hits[l.k];
+        Hit h;
+        if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t) {
+            best = h;
+            l.a_stop = std::min(l.a_stop, h.t * l.adu);
+            w.a_stop_min = std::min(w.a_stop_min, l.a_stop);
         }
     }
 }

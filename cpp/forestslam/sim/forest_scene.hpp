@@ -104,6 +104,14 @@ class ForestScene {
     static constexpr int kMaxBundle = 128;
     void castBundle(const Ray *rays, int n, bool along_x, Hit *hits, uint32_t *stamp,
                     uint32_t id) const;
+    // The stages of castBundle, on the walk's state (defined in forest_scene.cpp): the lanes of
+    // the rays that reach the grid, one grid column of the walk, one primitive against the lanes.
+    struct BundleWalk;
+    struct Prim;
+    void startBundle(BundleWalk &w, int n, bool along_x) const;
+    void walkColumn(BundleWalk &w, bool along_x, int iu, double a0, double a1e, uint32_t *stamp,
+                    uint32_t id) const;
+    void testLanes(BundleWalk &w, const Prim &p) const;
 
     Heightfield terrain_;
     std::vector<Stem> stems_;

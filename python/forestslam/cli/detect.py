@@ -39,26 +39,16 @@ def register(app: typer.Typer) -> None:
             "stem piece shorter than the band (a breast-height slice).",
         ),
     ) -> None:
-        import time
-
-        import numpy as np
-
         from forestslam.config import load_config
         from forestslam.errors import InputError
         from forestslam.io import write_trees_csv
-        from forestslam.job import Progress, ScanWindow, check_output_file
-        from forestslam.perception import detect
-        from forestslam.perception.stems import BREAST_HEIGHT_SOURCES
+        from forestslam.job import Progress, check_output_file
         from forestslam.sensors import load_profile
 
         profile = load_profile(sensor) if sensor is not None else None
         cfg = load_config(config).perception
-        if scan is not None and scan < 0:
-            raise InputError(f"--scan must be >= 0, not {scan}")
-        if scan is not None and (start or max_scans is not None):
-            raise InputError("--scan K is one scan: give it without --start / --max-scans")
+        window = _window(scan, start, max_scans)
         check_output_file(out)
-        window = ScanWindow(scan, 1) if scan is not None else ScanWindow(start, max_scans)
         packets = profile.packet_config() if profile is not None else None
         _, stream, count = window.open(input, topic, packets)  # scans before it not decoded
         if profile is None:
@@ -66,51 +56,106 @@ def register(app: typer.Typer) -> None:
 
             profile, stream = identify_stream(stream)
         bar = Progress(count, "scan", "detect", enabled=not no_progress and count != 1)
-        rows: dict[str, list] = {k: [] for k in ("scan", "id", "x", "y", "z", "dbh_m")}
-        n_scans, last, total_ms = 0, None, 0.0
-        sources = np.zeros(len(BREAST_HEIGHT_SOURCES), dtype=np.int64)
-        for k, sc in enumerate(stream, start=window.start):
-            bar.update(1)
-            t0 = time.perf_counter()
-            stems = detect(sc, profile, cfg, breast_height_z)
-            sources += np.bincount(stems.breast_source, minlength=len(sources))
-            total_ms += (time.perf_counter() - t0) * 1e3
-            n_scans += 1
-            last = (k, sc, stems)
-            rows["scan"] += [k] * len(stems)
-            rows["id"] += stems.ids.tolist()
-            rows["x"] += stems.xy[:, 0].tolist()
-            rows["y"] += stems.xy[:, 1].tolist()
-            rows["z"] += stems.z.tolist()
-            rows["dbh_m"] += stems.dbh.tolist()
-        bar.close()
-        if n_scans == 0:
+        try:
+            tally = _detect_all(stream, window.start, profile, cfg, breast_height_z, bar)
+        finally:
+            bar.close()
+        if tally.n_scans == 0:
             what = f"scan {scan}" if scan is not None else "any scan"
             raise InputError(f"{input}: has no {what}")
+        columns = tally.columns()
+        write_trees_csv(out, columns)
+        _report(tally, columns, out)
+        if png is not None and tally.last is not None:
+            from forestslam.perception.plotting import plot_detections
+
+            k, sc, stems = tally.last
+            plot_detections(
+                sc.points, stems, png, title=f"{input.name} scan {k}: {len(stems)} stems"
+            )
+            print(f"breast-height slice -> {png}")
+
+
+def _window(scan: int | None, start: int, max_scans: int | None):
+    """The scan window: one scan K (--scan), else --start / --max-scans."""
+    from forestslam.errors import InputError
+    from forestslam.job import ScanWindow
+
+    if scan is not None and scan < 0:
+        raise InputError(f"--scan must be >= 0, not {scan}")
+    if scan is not None and (start or max_scans is not None):
+        raise InputError("--scan K is one scan: give it without --start / --max-scans")
+    return ScanWindow(scan, 1) if scan is not None else ScanWindow(start, max_scans)
+
+
+class _Tally:
+    """The stems of every scan as table rows, the breast-height sources and the time spent."""
+
+    def __init__(self, n_sources: int) -> None:
+        import numpy as np
+
+        self.rows: dict[str, list] = {k: [] for k in ("scan", "id", "x", "y", "z", "dbh_m")}
+        self.n_scans, self.last, self.total_ms = 0, None, 0.0
+        self.sources = np.zeros(n_sources, dtype=np.int64)
+
+    def add(self, k: int, sc, stems, ms: float) -> None:
+        import numpy as np
+
+        self.sources += np.bincount(stems.breast_source, minlength=len(self.sources))
+        self.total_ms += ms
+        self.n_scans += 1
+        self.last = (k, sc, stems)
+        rows = self.rows
+        rows["scan"] += [k] * len(stems)
+        rows["id"] += stems.ids.tolist()
+        rows["x"] += stems.xy[:, 0].tolist()
+        rows["y"] += stems.xy[:, 1].tolist()
+        rows["z"] += stems.z.tolist()
+        rows["dbh_m"] += stems.dbh.tolist()
+
+    def columns(self) -> dict:
+        """The trees.csv columns (no `scan` column for a single scan)."""
+        import numpy as np
+
+        rows = self.rows
         columns = {
             "scan": np.asarray(rows["scan"], dtype=np.int64),
             "id": np.asarray(rows["id"], dtype=np.int64),
             **{c: np.asarray(rows[c], dtype=np.float64) for c in ("x", "y", "z", "dbh_m")},
         }
-        if n_scans == 1:
+        if self.n_scans == 1:
             del columns["scan"]
-        write_trees_csv(out, columns)
-        n_trees = len(columns["id"])
-        n_dbh = int(np.isfinite(columns["dbh_m"]).sum())
-        print(
-            f"{n_trees} stems ({n_dbh} with DBH) in {n_scans} scan(s), "
-            f"{total_ms / n_scans:.1f} ms per scan -> {out}"
-        )
-        if n_trees:
-            used = ", ".join(
-                f"{BREAST_HEIGHT_SOURCES[i]} ({n})" for i, n in enumerate(sources) if n
-            )
-            print(f"breast height (1.3 m above the base) from: {used}")
-        if png is not None and last is not None:
-            from forestslam.perception.plotting import plot_detections
+        return columns
 
-            k, sc, stems = last
-            plot_detections(
-                sc.points, stems, png, title=f"{input.name} scan {k}: {len(stems)} stems"
-            )
-            print(f"breast-height slice -> {png}")
+
+def _detect_all(stream, first: int, profile, cfg, breast_height_z, bar) -> _Tally:
+    import time
+
+    from forestslam.perception import detect
+    from forestslam.perception.stems import BREAST_HEIGHT_SOURCES
+
+    tally = _Tally(len(BREAST_HEIGHT_SOURCES))
+    for k, sc in enumerate(stream, start=first):
+        bar.update(1)
+        t0 = time.perf_counter()
+        stems = detect(sc, profile, cfg, breast_height_z)
+        tally.add(k, sc, stems, (time.perf_counter() - t0) * 1e3)
+    return tally
+
+
+def _report(tally: _Tally, columns: dict, out: Path) -> None:
+    import numpy as np
+
+    from forestslam.perception.stems import BREAST_HEIGHT_SOURCES
+
+    n_trees = len(columns["id"])
+    n_dbh = int(np.isfinite(columns["dbh_m"]).sum())
+    print(
+        f"{n_trees} stems ({n_dbh} with DBH) in {tally.n_scans} scan(s), "
+        f"{tally.total_ms / tally.n_scans:.1f} ms per scan -> {out}"
+    )
+    if n_trees:
+        used = ", ".join(
+            f"{BREAST_HEIGHT_SOURCES[i]} ({n})" for i, n in enumerate(tally.sources) if n
+        )
+        print(f"breast height (1.3 m above the base) from: {used}")

@@ -61,37 +61,26 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         from forestslam.errors import InputError
         from forestslam.io.tree_tables import is_tree_table
-        from forestslam.localization import load_map
-        from forestslam.localization.runner import run_localization
 
-        loc_config = None
-        if config is not None:
-            from forestslam.config import load_config
-
-            loc_config = load_config(config).localization
-        tree_map = load_map(map_path, loc_config)
-        if save_map is not None:
-            print(f"map saved to {tree_map.save(save_map)}")
+        tree_map = _load_map(map_path, config, save_map)
         if is_tree_table(input_path):
-            from forestslam.localization.tables import run_table_localization
-
-            r = run_table_localization(
+            _localize_table(
                 input_path,
                 tree_map,
                 out,
-                every=every,
-                config_path=config,
-                gravity=gravity,
-                start=start,
-                max_queries=max_scans,
-            )
-            print(
-                f"{len(r.queries)} tree-table queries, {r.accepted} accepted, median "
-                f"{r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+                every,
+                config,
+                gravity,
+                start,
+                max_scans,
+                no_progress,
+                overwrite,
             )
             return
         if sensor is None:
             raise InputError("--sensor is needed for a bag, folder or cloud input")
+        from forestslam.localization.runner import run_localization
+
         r = run_localization(
             input_path,
             tree_map,
@@ -111,3 +100,42 @@ def register(app: typer.Typer) -> None:
             f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "
             f"median {r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
         )
+
+
+def _load_map(map_path: Path, config: Path | None, save_map: Path | None):
+    """The prior tree map (localization section of --config), saved as .npz if asked."""
+    from forestslam.localization import load_map
+
+    loc_config = None
+    if config is not None:
+        from forestslam.config import load_config
+
+        loc_config = load_config(config).localization
+    tree_map = load_map(map_path, loc_config)
+    if save_map is not None:
+        print(f"map saved to {tree_map.save(save_map)}")
+    return tree_map
+
+
+def _localize_table(
+    input_path, tree_map, out, every, config, gravity, start, max_scans, no_progress, overwrite
+) -> None:
+    """Queries from the frames of another mapper's tree table."""
+    from forestslam.localization.tables import run_table_localization
+
+    r = run_table_localization(
+        input_path,
+        tree_map,
+        out,
+        every=every,
+        config_path=config,
+        gravity=gravity,
+        start=start,
+        max_queries=max_scans,
+        progress=not no_progress,
+        overwrite=overwrite,
+    )
+    print(
+        f"{len(r.queries)} tree-table queries, {r.accepted} accepted, median "
+        f"{r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+    )

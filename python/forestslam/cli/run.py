@@ -83,16 +83,19 @@ def register(app: typer.Typer) -> None:
             rerun=rerun,
             rerun_save=rerun_save,
         )
-        rs = s.read_stats
-        print(
-            f"{s.scans} scans in {s.wall_s:.1f} s ({s.scans_per_s:.1f} scans/s; "
-            f"{s.cpu_scans_per_s:.1f} per CPU second), "
-            f"{s.trees} trees, {s.keyframes} keyframes, {s.degraded_scans} degraded, "
-            f"{s.failed_scans} failed, {rs.get('skipped', 0)} corrupt messages skipped"
-            + (f", {rs['lost_bytes']} bytes lost" if rs.get("lost_bytes") else "")
-            + "".join(
-                f", {n} {kind.replace('_', ' ')}" for kind, n in rs.get("degraded", {}).items()
-            )
-            + (f", {s.loop_closures} loop closures" if s.loop_closures else "")
-            + f" -> {s.out_dir}"
-        )
+        _print_summary(s)
+
+
+def _print_summary(s) -> None:
+    """One line: scans, speed, trees, degraded / failed scans, what the reader skipped."""
+    rs = s.read_stats
+    print(
+        f"{s.scans} scans in {s.wall_s:.1f} s ({s.scans_per_s:.1f} scans/s; "
+        f"{s.cpu_scans_per_s:.1f} per CPU second), "
+        f"{s.trees} trees, {s.keyframes} keyframes, {s.degraded_scans} degraded, "
+        f"{s.failed_scans} failed, {rs.get('skipped', 0)} corrupt messages skipped"
+        + (f", {rs['lost_bytes']} bytes lost" if rs.get("lost_bytes") else "")
+        + "".join(f", {n} {kind.replace('_', ' ')}" for kind, n in rs.get("degraded", {}).items())
+        + (f", {s.loop_closures} loop closures" if s.loop_closures else "")
+        + f" -> {s.out_dir}"
+    )

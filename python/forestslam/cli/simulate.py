@@ -52,9 +52,6 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         import time
 
-        import yaml
-
-        from forestslam.config_utils import parse_yaml
         from forestslam.errors import InputError
         from forestslam.job import check_output_path
         from forestslam.sim import available_scenarios, simulate
@@ -78,26 +75,49 @@ def register(app: typer.Typer) -> None:
             "max_scans": max_scans,
             "preview": True if preview else None,
         }
-        if crop is not None:
-            try:
-                values = [float(v) for v in crop.split(",")]
-            except ValueError:
-                values = []
-            if len(values) != 4:
-                raise InputError(f"--crop {crop!r}: expected xmin,ymin,xmax,ymax")
-            overrides["crop_m"] = values
-        for item in set_ or []:
-            key, sep, value = item.partition("=")
-            if not sep or not key.strip():
-                raise InputError(f"--set {item!r}: expected section.field=value")
-            overrides[key.strip().replace(".", "__")] = parse_yaml(value, f"--set {item!r}")
+        overrides.update(_crop(crop))
+        overrides.update(_set_overrides(set_ or []))
         start = time.perf_counter()
         out_dir = simulate(scenario, out, progress=True, **overrides)
-        elapsed = time.perf_counter() - start
-        derived = yaml.safe_load((out_dir / "truth" / "scenario.yaml").read_text())["derived"]
-        files = sorted(p.name for p in out_dir.iterdir() if p.is_file())
-        print(
-            f"{out_dir}: {derived['scans']} scans, {derived['duration_s']:.1f} s, path "
-            f"{derived['path_length_m']:.1f} m, {derived['objects']['trees']} trees, "
-            f"written in {elapsed:.1f} s ({', '.join(files)}, truth/)"
-        )
+        _print_summary(out_dir, time.perf_counter() - start)
+
+
+def _crop(crop: str | None) -> dict:
+    """--crop xmin,ymin,xmax,ymax as the crop_m override (none without the flag)."""
+    from forestslam.errors import InputError
+
+    if crop is None:
+        return {}
+    try:
+        values = [float(v) for v in crop.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise InputError(f"--crop {crop!r}: expected xmin,ymin,xmax,ymax")
+    return {"crop_m": values}
+
+
+def _set_overrides(items: list[str]) -> dict:
+    """--set section.field=value items as simulate() overrides (section__field: value)."""
+    from forestslam.config_utils import parse_yaml
+    from forestslam.errors import InputError
+
+    overrides = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"--set {item!r}: expected section.field=value")
+        overrides[key.strip().replace(".", "__")] = parse_yaml(value, f"--set {item!r}")
+    return overrides
+
+
+def _print_summary(out_dir: Path, elapsed: float) -> None:
+    import yaml
+
+    derived = yaml.safe_load((out_dir / "truth" / "scenario.yaml").read_text())["derived"]
+    files = sorted(p.name for p in out_dir.iterdir() if p.is_file())
+    print(
+        f"{out_dir}: {derived['scans']} scans, {derived['duration_s']:.1f} s, path "
+        f"{derived['path_length_m']:.1f} m, {derived['objects']['trees']} trees, "
+        f"written in {elapsed:.1f} s ({', '.join(files)}, truth/)"
+    )

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import transform_points
+
 log = logging.getLogger(__name__)
 
 
@@ -52,7 +54,7 @@ def height_errors(points: np.ndarray, alignment: np.ndarray, terrain) -> dict:
     estimate -> truth, against the terrain: n, median_abs_m, bias_m (median signed), rmse_m,
     p90_abs_m (None when there are no points)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    dz = vertical_errors(points @ alignment[:3, :3].T + alignment[:3, 3], terrain)
+    dz = vertical_errors(transform_points(alignment, points), terrain)
     if len(dz) == 0:
         return {"n": 0, "median_abs_m": None, "bias_m": None, "rmse_m": None, "p90_abs_m": None}
     return {

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import transform_xy
+
 
 def plot_errors(
     path: Path,
@@ -36,7 +38,7 @@ def plot_errors(
     if trees is not None and est_trees is not None and truth_trees is not None:
         match = trees["match_est_to_truth"]
         ex = np.column_stack([est_trees["x"], est_trees["y"]])
-        ex = ex @ alignment[:2, :2].T + alignment[:2, 3]
+        ex = transform_xy(alignment, ex)
         ax.plot(
             truth_trees["x"], truth_trees["y"], "o", mfc="none", mec="0.6", ms=4, label="true trees"
         )
@@ -64,7 +66,7 @@ def plot_errors(
         ax.set_ylabel("estimated DBH [cm]")
         ax.set_title("DBH")
         ex = np.column_stack([est_trees["x"], est_trees["y"]])[ok]
-        ex = ex @ alignment[:2, :2].T + alignment[:2, 3]
+        ex = transform_xy(alignment, ex)
         tx = np.column_stack([truth_trees["x"], truth_trees["y"]])[match[ok]]
         ax2.hist(np.linalg.norm(ex - tx, axis=1) * 100, bins=30)
         ax2.set_xlabel("tree position error [cm]")

@@ -50,15 +50,7 @@ def evaluate_run(
     from forestslam.io.atomic import atomic_write_text
 
     run_dir, truth_dir = Path(run_dir), Path(truth_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: run directory not found")
-    if not (truth_dir / "trajectory.tum").is_file():
-        raise InputError(f"{truth_dir}: no trajectory.tum (expected a simulator truth directory)")
-    est_path = run_dir / "trajectory.tum"
-    if not est_path.is_file():
-        est_path = run_dir / "odometry.tum"
-    if not est_path.is_file():
-        raise InputError(f"{run_dir}: neither trajectory.tum nor odometry.tum found")
+    est_path = _estimate_path(run_dir, truth_dir)
     gt_stamps, gt_poses = read_tum(truth_dir / "trajectory.tum")
     est_stamps, est_poses = read_tum(est_path)
     if len(est_stamps) == 0:
@@ -78,28 +70,12 @@ def evaluate_run(
 
     ia, ib = associate(est_stamps, gt_stamps, max_dt)
     path_xy = gt_poses[ib.min() : ib.max() + 1, :2, 3]
-    trees = None
+    trees, est, truth = None, None, None
     if (run_dir / "trees.csv").is_file() and (truth_dir / "trees.csv").is_file():
         est = read_trees_csv(run_dir / "trees.csv")
         truth = read_trees_csv(truth_dir / "trees.csv")
-        n = len(est.get("x", []))
-        if "z" in est and n and np.isfinite(est["z"]).all():
-            est_xyz = np.column_stack([est["x"], est["y"], est["z"]])
-        else:
-            est_xyz = np.column_stack([est.get("x", np.zeros(0)), est.get("y", np.zeros(0))])
-        est_dbh = est.get("dbh_m", np.full(n, np.nan))
-        truth_xy = np.column_stack([truth["x"], truth["y"]])
-        trees = tree_errors(
-            est_xyz,
-            est_dbh,
-            truth_xy,
-            truth["dbh_m"],
-            path_xy,
-            traj["alignment"],
-            gate_m=gate_m,
-            min_dbh_m=min_dbh_m,
-            max_dist_m=max_dist_m,
-        )
+        gates = {"gate_m": gate_m, "min_dbh_m": min_dbh_m, "max_dist_m": max_dist_m}
+        trees = _tree_metrics(est, truth, path_xy, traj["alignment"], gates)
         metrics["trees"] = _plain(trees)
         metrics["trees"].update(gate_m=gate_m, min_dbh_m=min_dbh_m, max_dist_m=max_dist_m)
     ground = _ground_metrics(run_dir, truth_dir, traj["alignment"])
@@ -116,10 +92,36 @@ def evaluate_run(
             gt_poses[ib],
             traj["alignment"],
             trees,
-            est if trees is not None else None,
-            truth if trees is not None else None,
+            est,
+            truth,
         )
     return metrics
+
+
+def _estimate_path(run_dir: Path, truth_dir: Path) -> Path:
+    """The run's trajectory to score: trajectory.tum, else odometry.tum (inputs checked)."""
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: run directory not found")
+    if not (truth_dir / "trajectory.tum").is_file():
+        raise InputError(f"{truth_dir}: no trajectory.tum (expected a simulator truth directory)")
+    est_path = run_dir / "trajectory.tum"
+    if not est_path.is_file():
+        est_path = run_dir / "odometry.tum"
+    if not est_path.is_file():
+        raise InputError(f"{run_dir}: neither trajectory.tum nor odometry.tum found")
+    return est_path
+
+
+def _tree_metrics(est: dict, truth: dict, path_xy, alignment, gates: dict) -> dict:
+    """tree_errors of the run's tree table against the truth's (3D when every z is known)."""
+    n = len(est.get("x", []))
+    if "z" in est and n and np.isfinite(est["z"]).all():
+        est_xyz = np.column_stack([est["x"], est["y"], est["z"]])
+    else:
+        est_xyz = np.column_stack([est.get("x", np.zeros(0)), est.get("y", np.zeros(0))])
+    est_dbh = est.get("dbh_m", np.full(n, np.nan))
+    truth_xy = np.column_stack([truth["x"], truth["y"]])
+    return tree_errors(est_xyz, est_dbh, truth_xy, truth["dbh_m"], path_xy, alignment, **gates)
 
 
 def _ground_metrics(run_dir: Path, truth_dir: Path, alignment: np.ndarray) -> dict:

@@ -7,6 +7,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from forestslam.errors import InputError
+from forestslam.geometry import transform_points, transform_xy
 
 
 def _densify(path_xy: np.ndarray, step_m: float) -> np.ndarray:
@@ -35,8 +36,33 @@ def distance_to_path(xy: np.ndarray, path_xy: np.ndarray, step_m: float = 0.1) -
 def _transform_xy(points: np.ndarray, alignment: np.ndarray) -> np.ndarray:
     """(K,2) or (K,3) estimate-frame positions -> (K,2) truth-frame XY by the (4,4) alignment."""
     if points.shape[1] == 3:
-        return (points @ alignment[:3, :3].T + alignment[:3, 3])[:, :2]
-    return points @ alignment[:2, :2].T + alignment[:2, 3]
+        return transform_points(alignment, points)[:, :2]
+    return transform_xy(alignment, points)
+
+
+def _match_one_to_one(
+    est: np.ndarray, finite_est: np.ndarray, truth_xy: np.ndarray, gate_m: float
+) -> np.ndarray:
+    """Matched truth index per estimate (-1: none): the Hungarian method on the XY distances of
+    the pairs within gate_m."""
+    est_match = np.full(len(est), -1, dtype=np.int64)
+    if not (finite_est.any() and len(truth_xy)):
+        return est_match
+    candidates = cKDTree(truth_xy).query_ball_point(est[finite_est], r=gate_m)
+    rows = np.nonzero(finite_est)[0]
+    pairs = [(r, c) for r, cs in zip(rows, candidates, strict=True) for c in cs]
+    if not pairs:
+        return est_match
+    pr, pc = np.array(pairs).T
+    ur, r_idx = np.unique(pr, return_inverse=True)
+    uc, c_idx = np.unique(pc, return_inverse=True)
+    big = 1e6
+    cost = np.full((len(ur), len(uc)), big)
+    cost[r_idx, c_idx] = np.linalg.norm(est[pr] - truth_xy[pc], axis=1)
+    ri, ci = linear_sum_assignment(cost)
+    ok = cost[ri, ci] <= gate_m
+    est_match[ur[ri[ok]]] = uc[ci[ok]]
+    return est_match
 
 
 def tree_errors(
@@ -85,22 +111,7 @@ def tree_errors(
     truth_in_roi = (truth_dbh >= min_dbh_m) & (distance_to_path(truth_xy, path) <= max_dist_m)
     est_in_roi = finite_est & (distance_to_path(est, path) <= max_dist_m)
 
-    est_match = np.full(len(est), -1, dtype=np.int64)  # matched truth index per estimate
-    if finite_est.any() and len(truth_xy):
-        candidates = cKDTree(truth_xy).query_ball_point(est[finite_est], r=gate_m)
-        rows = np.nonzero(finite_est)[0]
-        pairs = [(r, c) for r, cs in zip(rows, candidates, strict=True) for c in cs]
-        if pairs:
-            pr, pc = np.array(pairs).T
-            ur, r_idx = np.unique(pr, return_inverse=True)
-            uc, c_idx = np.unique(pc, return_inverse=True)
-            big = 1e6
-            cost = np.full((len(ur), len(uc)), big)
-            cost[r_idx, c_idx] = np.linalg.norm(est[pr] - truth_xy[pc], axis=1)
-            ri, ci = linear_sum_assignment(cost)
-            ok = cost[ri, ci] <= gate_m
-            est_match[ur[ri[ok]]] = uc[ci[ok]]
-
+    est_match = _match_one_to_one(est, finite_est, truth_xy, gate_m)
     matched = est_match >= 0
     truth_matched = np.zeros(len(truth_xy), dtype=bool)
     truth_matched[est_match[matched]] = True

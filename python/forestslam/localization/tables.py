@@ -114,15 +114,17 @@ def run_table_localization(
     gravity: str = "stems",
     start: int = 0,
     max_queries: int | None = None,
+    progress: bool = False,
+    overwrite: bool = False,
 ):
     """Localize every ``every``-th frame of a tree table in ``tree_map``; writes
     ``localization.json`` and ``localization.tum`` like ``run_localization`` (the pose written
     is the levelled frame of pose k in the map frame; ``stamp`` from the table's trajectory,
-    else the frame index)."""
+    else the frame index), into ``out_dir`` owned as `forestslam.job` describes."""
     import time
-    from pathlib import Path
 
     from forestslam.io.tree_tables import read_tree_table
+    from forestslam.job import Job, Progress, ScanWindow
     from forestslam.localization.config import LocalizationConfig
     from forestslam.localization.localize import localize
     from forestslam.localization.runner import LocalizationRun, _query_record, _write_outputs
@@ -130,6 +132,7 @@ def run_table_localization(
 
     if every < 1:
         raise InputError(f"--every must be >= 1 (got {every})")
+    window = ScanWindow(start, max_queries)
     cfg = LocalizationConfig()
     if config_path is not None:
         from forestslam.config import load_config
@@ -137,9 +140,7 @@ def run_table_localization(
         cfg = load_config(config_path).localization
     table = read_tree_table(trees_path)
     tree_map = tree_map if isinstance(tree_map, TreeMap) else load_map(tree_map)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    run = LocalizationRun(out)
+    frames = table.frames[window.start :: every][: window.max_scans]
     meta = {
         "input": str(trees_path),
         "map_trees": len(tree_map),
@@ -147,15 +148,27 @@ def run_table_localization(
         "gravity": gravity,
         "frame": "pose of the levelled frame k in the map frame (planar x, y, yaw)",
     }
-    t0 = time.perf_counter()
-    for i, k in enumerate(table.frames[start::every]):
-        if max_queries is not None and i >= max_queries:
-            break
-        local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
-        loc = localize(tree_map, local, cfg)
-        stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
-        run.scans += 1
-        run.queries.append(_query_record(stamp, int(k), len(local), loc))
-    run.wall_s = time.perf_counter() - t0
-    _write_outputs(run, meta)
+    job_meta = {**meta, **window.meta()}
+    with Job("localize", out_dir, job_meta, [trees_path, config_path], overwrite) as job:
+        run = LocalizationRun(job.out)
+        bar = Progress(len(frames), "query", "localize", enabled=progress)
+        t0 = time.perf_counter()
+        try:
+            for k in frames:
+                local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
+                loc = localize(tree_map, local, cfg)
+                stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
+                run.scans += 1
+                run.queries.append(_query_record(stamp, int(k), len(local), loc))
+                bar.update(1, accepted=run.accepted)
+        finally:
+            bar.close()
+            run.wall_s = time.perf_counter() - t0
+            _write_outputs(run, meta)
+            job.summary = {
+                "scans": run.scans,
+                "queries": len(run.queries),
+                "accepted": run.accepted,
+                "wall_s": round(run.wall_s, 3),
+            }
     return run

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from forestslam.geometry import transform_points
 from forestslam.io.gis import GROUND, UNCLASSIFIED
 from forestslam.mapping.voxel import voxel_downsample, voxel_keys
 
@@ -68,11 +69,7 @@ class CloudMap:
         if not parts:
             return _empty()
         pts = np.concatenate(
-            [
-                kf.points.astype(np.float64) @ keyframe_poses[kf.index][:3, :3].T
-                + keyframe_poses[kf.index][:3, 3]
-                for kf in parts
-            ]
+            [transform_points(keyframe_poses[kf.index], kf.points) for kf in parts]
         )
         ground = np.concatenate([kf.ground for kf in parts])
         tree = np.concatenate([kf.tree_id for kf in parts])

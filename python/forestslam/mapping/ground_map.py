@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from forestslam.geometry import transform_points
 from forestslam.mapping.voxel import voxel_downsample
 
 
@@ -46,7 +47,7 @@ class GroundMap:
         for kf, pts in zip(self._kf, self._points, strict=True):
             if len(pts) and kf < len(keyframe_poses):
                 t = keyframe_poses[kf]
-                parts.append(pts.astype(np.float64) @ t[:3, :3].T + t[:3, 3])
+                parts.append(transform_points(t, pts))
         if not parts:
             return np.zeros((0, 3))
         return voxel_downsample(np.concatenate(parts), self.voxel_m)

@@ -16,6 +16,7 @@ from collections import deque
 
 import numpy as np
 
+from forestslam.geometry import transform_points
 from forestslam.mapping.config import MappingConfig
 from forestslam.mapping.voxel import voxel_downsample
 
@@ -68,4 +69,4 @@ class ScanToMapRefiner:
 
     def add_keyframe(self, source: np.ndarray, T_map_sensor: np.ndarray) -> None:
         if len(source):
-            self._map.append(source @ T_map_sensor[:3, :3].T + T_map_sensor[:3, 3])
+            self._map.append(transform_points(T_map_sensor, source))

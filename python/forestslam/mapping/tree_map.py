@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from forestslam.geometry import transform_points
 from forestslam.mapping.config import MappingConfig
 
 log = logging.getLogger(__name__)
@@ -119,7 +120,7 @@ class TreeMap:
                 continue
             if tree.n_band_scans == 0:
                 tree.first_scan = scan_index
-            tree.band.append(band @ T_odom[:3, :3].T + T_odom[:3, 3])
+            tree.band.append(transform_points(T_odom, band))
             tree.origins.append(np.broadcast_to(T_odom[:2, 3], (len(band), 2)))
             tree.n_band_scans += 1
             tree.last_scan = scan_index

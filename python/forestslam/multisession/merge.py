@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose, rigid_fit, yaw_of
+from forestslam.geometry import planar_pose, rigid_fit, transform_points, transform_xy, yaw_of
 from forestslam.localization import build_map, localize
 from forestslam.localization.config import LocalizationConfig
 from forestslam.multisession.fusion import fuse_dbh
@@ -100,7 +100,7 @@ def _refine(a_xy, b_xy, T, config: MergeConfig) -> tuple[np.ndarray, np.ndarray,
     tree_a = cKDTree(a_xy)
     pairs = np.zeros((0, 2), dtype=np.int64)
     for _ in range(config.refine_iterations):
-        moved = b_xy @ T[:2, :2].T + T[:2, 3]
+        moved = transform_xy(T, b_xy)
         d_ab, ia = tree_a.query(moved, distance_upper_bound=config.gate_m)
         d_ba, ib = cKDTree(moved).query(a_xy, distance_upper_bound=config.gate_m)
         jb = np.flatnonzero(np.isfinite(d_ab))
@@ -113,7 +113,7 @@ def _refine(a_xy, b_xy, T, config: MergeConfig) -> tuple[np.ndarray, np.ndarray,
         if np.array_equal(new, pairs):
             break
         pairs = new
-    moved = b_xy[pairs[:, 1]] @ T[:2, :2].T + T[:2, 3]
+    moved = transform_xy(T, b_xy[pairs[:, 1]])
     rms = float(np.sqrt(np.mean(np.sum((moved - a_xy[pairs[:, 0]]) ** 2, axis=1))))
     return T, pairs, rms
 
@@ -167,7 +167,7 @@ def fuse_trees(
     """The merged tree table (see the module doc) in A's frame; ids renumbered from 1."""
     T = alignment.T_a_b
     n_a, n_b = len(a["x"]), len(b["x"])
-    b_xyz = np.column_stack([b["x"], b["y"], b.get("z", np.zeros(n_b))]) @ T[:3, :3].T + T[:3, 3]
+    b_xyz = transform_points(T, np.column_stack([b["x"], b["y"], b.get("z", np.zeros(n_b))]))
     a_xyz = np.column_stack([a["x"], a["y"], a.get("z", np.zeros(n_a))])
     cols = {}
     for name, default in (("dbh_m", np.nan), ("dbh_std_m", np.nan), ("observations", 1)):

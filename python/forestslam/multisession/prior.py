@@ -27,7 +27,7 @@ import numpy as np
 
 from forestslam.config_utils import Positive, PositiveInt, Range
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose, rigid_fit, yaw_of
+from forestslam.geometry import planar_pose, rigid_fit, transform_xy, yaw_of
 from forestslam.multisession.fusion import fuse_dbh
 
 log = logging.getLogger(__name__)
@@ -179,7 +179,7 @@ class PriorTracker:
     def _placed(self, slam, T_local_odom, info, scan, stamp, matches: dict[int, int]) -> None:
         self.T_local_odom = T_local_odom
         T_odom_local = np.linalg.inv(T_local_odom)
-        xy_odom = self.prior.xy @ T_odom_local[:2, :2].T + T_odom_local[:2, 3]
+        xy_odom = transform_xy(T_odom_local, self.prior.xy)
         self.prior_landmarks = slam.add_prior_landmarks(
             xy_odom, self.prior.dbh_m, self.prior.observations, self.prior.sigma_m, matches
         )
@@ -253,7 +253,7 @@ class PriorTracker:
         ids = np.where(is_prior, p.ids[j], first_new + np.cumsum(~is_prior) - 1)
         status = self.tree_status(slam.n_landmarks, slam.observed_this_run())[lm]
         T = self.T_map_odom()
-        xy = np.column_stack([table["x"], table["y"]]) @ T[:2, :2].T + T[:2, 3]
+        xy = transform_xy(T, np.column_stack([table["x"], table["y"]]))
         out = dict(table)
         out.update(
             id=ids,

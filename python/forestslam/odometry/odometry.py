@@ -62,8 +62,7 @@ def core_sensor(profile: SensorProfile) -> Any:
     from forestslam.perception.pipeline import sensor_geometry
 
     sensor = _core.OdometrySensor()
-    for key, value in sensor_geometry(profile).items():
-        setattr(sensor.geometry, key, value)
+    sensor.geometry = sensor_geometry(profile)
     sensor.kind = profile.kind
     threshold = profile.intensity_threshold
     sensor.intensity_threshold = math.nan if threshold is None else float(threshold)
@@ -72,14 +71,10 @@ def core_sensor(profile: SensorProfile) -> Any:
 
 def core_perception(profile: SensorProfile, config: Any | None) -> Any:
     """The C++ PerceptionOptions of a PerceptionConfig (default: its defaults)."""
-    from forestslam import _core
     from forestslam.perception.config import PerceptionConfig
+    from forestslam.perception.pipeline import core_options
 
-    config = config or PerceptionConfig()
-    options = fill_core(config, _core.PerceptionOptions(), "perception", skip=("intensity_filter",))
-    use = config.intensity_filter and profile.intensity_threshold is not None
-    options.intensity_threshold = float(profile.intensity_threshold) if use else math.nan
-    return options
+    return core_options(config or PerceptionConfig(), profile)
 
 
 def core_odometry_config(config: OdometryConfig) -> Any:

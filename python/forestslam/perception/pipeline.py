@@ -9,7 +9,6 @@ DBH (SAC cylinder and robust circle fit, chosen by quality).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import logging
 import math
@@ -17,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from forestslam.config_utils import to_dict
 from forestslam.errors import InputError
 from forestslam.io.scan import Scan
 from forestslam.perception.config import PerceptionConfig
@@ -35,38 +33,48 @@ def _core():
     return _core
 
 
-# The last config / profile converted for the C++ chain with its dict: a per-scan caller passes
-# the same objects every time, and converting them costs about a millisecond per scan. Compared
-# by value (a deep copy is kept), so a config changed in place is converted again.
-_MEMO: dict[str, tuple[object, dict]] = {}
+def sensor_geometry(sensor: str | SensorProfile):
+    """The sensor facts the C++ chain needs: a typed forestslam._core.SensorGeometry."""
+    profile = load_profile(sensor)
+    g = _core().SensorGeometry()
+    g.has_range_image = bool(profile.has_range_image)
+    g.image_rows = int(profile.image_rows)
+    g.image_cols = int(profile.image_cols)
+    g.horizontal_fov_rad = math.radians(profile.horizontal_fov_deg)
+    if profile.channels > 0:
+        g.vertical_angles_rad = [float(a) for a in profile.vertical_angles_rad]
+    g.theta_v_rad = float(profile.theta_v_rad)
+    g.azimuth_step_rad = math.radians(profile.azimuth_resolution_deg)
+    return g
 
 
-def _memo(kind: str, obj: object, make) -> dict:
-    hit = _MEMO.get(kind)
-    if hit is not None and type(hit[0]) is type(obj) and hit[0] == obj:
-        return hit[1]
-    value = make(obj)
-    _MEMO[kind] = (copy.deepcopy(obj), value)
-    return value
+def core_options(
+    config: PerceptionConfig,
+    profile: SensorProfile,
+    has_intensity: bool = True,
+    breast_height_z: float | None = None,
+):
+    """The C++ PerceptionOptions of `config` through the one config bridge (unknown keys and
+    wrong types raise InputError naming the key). The profile's intensity threshold applies when
+    the config enables the filter and the scan has intensity; `breast_height_z` None: NaN."""
+    from forestslam.odometry.bridge import fill_core
+
+    options = fill_core(config, _core().PerceptionOptions(), "perception", skip=_PYTHON_ONLY)
+    threshold = profile.intensity_threshold
+    use = config.intensity_filter and threshold is not None and has_intensity
+    options.intensity_threshold = float(threshold) if use else math.nan
+    options.breast_height_z = math.nan if breast_height_z is None else float(breast_height_z)
+    return options
 
 
-def sensor_geometry(sensor: str | SensorProfile) -> dict:
-    """The sensor facts the C++ chain needs, as a dict of SensorGeometry fields."""
-    return dict(_memo("sensor", load_profile(sensor), _sensor_geometry))
+_PYTHON_ONLY = ("intensity_filter",)  # decides options.intensity_threshold above
 
 
-def _sensor_geometry(profile: SensorProfile) -> dict:
-    return {
-        "has_range_image": bool(profile.has_range_image),
-        "image_rows": int(profile.image_rows),
-        "image_cols": int(profile.image_cols),
-        "horizontal_fov_rad": math.radians(profile.horizontal_fov_deg),
-        "vertical_angles_rad": [float(a) for a in profile.vertical_angles_rad]
-        if profile.channels > 0
-        else [],
-        "theta_v_rad": float(profile.theta_v_rad),
-        "azimuth_step_rad": math.radians(profile.azimuth_resolution_deg),
-    }
+def _stage_options(config, where: str, core_cls: str):
+    """One sub-config (ground, filter, ...) as its typed C++ struct."""
+    from forestslam.odometry.bridge import fill_core
+
+    return fill_core(config, getattr(_core(), core_cls)(), f"perception.{where}")
 
 
 def _as_scan(scan: Scan | np.ndarray) -> Scan:
@@ -85,18 +93,6 @@ def _as_scan(scan: Scan | np.ndarray) -> Scan:
             f"cloud has {len(points):,} points, more than {MAX_POINTS:,}: crop or thin it first"
         )
     return scan
-
-
-def _options(
-    profile: SensorProfile, config: PerceptionConfig, scan: Scan, breast_height_z: float | None
-) -> dict:
-    options = dict(_memo("config", config, to_dict))  # top level copied: changed below
-    options["breast_height_z"] = breast_height_z
-    threshold = profile.intensity_threshold
-    use = config.intensity_filter and threshold is not None and scan.intensity is not None
-    options["intensity_threshold"] = float(threshold) if use else None
-    options.pop("intensity_filter", None)
-    return options
 
 
 def _ring(profile: SensorProfile, scan: Scan) -> np.ndarray | None:
@@ -145,7 +141,7 @@ def detect(
         _ring(profile, scan),
         sensor_geometry(profile),
         profile.kind != "map",
-        _options(profile, config, scan, breast_height_z),
+        core_options(config, profile, scan.intensity is not None, breast_height_z),
     )
     stems = stems_from_core(result)
     k = len(stems.z)
@@ -178,7 +174,9 @@ def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -
     filter (single-scan XY range limit of config.ground.max_range_m applies)."""
     config = config or PerceptionConfig()
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    out = _core().perception_segment_ground(points, to_dict(config.ground))
+    out = _core().perception_segment_ground(
+        points, _stage_options(config.ground, "ground", "GroundOptions")
+    )
     return np.asarray(out["is_ground"], dtype=bool)
 
 
@@ -230,7 +228,9 @@ def ground_surface(
         shift = np.r_[np.floor(finite[:, :2].mean(axis=0)), 0.0]
         extent = float(np.abs(finite[:, :2] - shift[:2]).max()) + 1.0
         ground = dataclasses.replace(ground, max_range_m=max(ground.max_range_m, extent))
-    out = _core().perception_segment_ground(np.ascontiguousarray(finite - shift), to_dict(ground))
+    out = _core().perception_segment_ground(
+        np.ascontiguousarray(finite - shift), _stage_options(ground, "ground", "GroundOptions")
+    )
     return GroundSurface(
         z=np.asarray(out["grid_z"], dtype=np.float64),
         origin=np.asarray(out["grid_origin"], dtype=np.float64) + shift[:2],
@@ -251,7 +251,10 @@ def filter_normals(
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     rows = np.arange(len(points), dtype=np.int32) if candidates is None else candidates
     out = _core().perception_normal_filter(
-        points, np.asarray(rows, dtype=np.int32), profile.theta_v_rad, to_dict(config.filter)
+        points,
+        np.asarray(rows, dtype=np.int32),
+        profile.theta_v_rad,
+        _stage_options(config.filter, "filter", "NormalFilterOptions"),
     )
     return np.asarray(out["kept"], dtype=np.int64), np.asarray(out["normals"]).reshape(-1, 3)
 
@@ -267,7 +270,7 @@ def coarse_clusters(
     config = config or PerceptionConfig()
     profile = load_profile(sensor)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    seg = to_dict(config.segmentation)
+    seg = _stage_options(config.segmentation, "segmentation", "SegmentationOptions")
     min_size = max(2, config.segmentation.min_points // 2)
     if profile.has_range_image:
         ring32 = None if ring is None else np.asarray(ring, dtype=np.int32)
@@ -305,7 +308,8 @@ def classify_cluster(
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    return _core().perception_cluster_shape(points, up, to_dict(config.segmentation))
+    seg = _stage_options(config.segmentation, "segmentation", "SegmentationOptions")
+    return _core().perception_cluster_shape(points, up, seg)
 
 
 def estimate_diameter(
@@ -324,7 +328,11 @@ def estimate_diameter(
     if normals is not None:
         normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
     return _core().perception_estimate_diameter(
-        points, normals, float(base_z), up, to_dict(config.diameter)
+        points,
+        normals,
+        float(base_z),
+        up,
+        _stage_options(config.diameter, "diameter", "DiameterOptions"),
     )
 
 

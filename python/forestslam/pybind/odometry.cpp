@@ -1,5 +1,6 @@
 // Odometry bindings: the tree odometry, its motion model and every option struct it takes
-// (perception's included), each as a typed class: config crosses into C++ one way.
+// (perception's are bound in perception.cpp), each as a typed class: config crosses into C++
+// one way.
 #include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
@@ -19,104 +20,6 @@ namespace pc = forestslam::perception;
 namespace od = forestslam::odometry;
 
 #define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
-
-void definePerceptionOptions(py::module_ &m) {
-    py::class_<pc::SensorGeometry> g(m, "SensorGeometry", "What perception needs of a sensor.");
-    g.def(py::init<>());
-    FS_FIELD(g, pc::SensorGeometry, has_range_image);
-    FS_FIELD(g, pc::SensorGeometry, image_rows);
-    FS_FIELD(g, pc::SensorGeometry, image_cols);
-    FS_FIELD(g, pc::SensorGeometry, horizontal_fov_rad);
-    FS_FIELD(g, pc::SensorGeometry, vertical_angles_rad);
-    FS_FIELD(g, pc::SensorGeometry, theta_v_rad);
-    FS_FIELD(g, pc::SensorGeometry, azimuth_step_rad);
-
-    py::class_<pc::GroundOptions> gr(m, "GroundOptions");
-    gr.def(py::init<>());
-    FS_FIELD(gr, pc::GroundOptions, cell_size_m);
-    FS_FIELD(gr, pc::GroundOptions, max_window_cells);
-    FS_FIELD(gr, pc::GroundOptions, slope);
-    FS_FIELD(gr, pc::GroundOptions, initial_distance_m);
-    FS_FIELD(gr, pc::GroundOptions, max_distance_m);
-    FS_FIELD(gr, pc::GroundOptions, base);
-    FS_FIELD(gr, pc::GroundOptions, exponential);
-    FS_FIELD(gr, pc::GroundOptions, cell_height_m);
-    FS_FIELD(gr, pc::GroundOptions, min_component_cells);
-    FS_FIELD(gr, pc::GroundOptions, max_range_m);
-
-    py::class_<pc::NormalFilterOptions> f(m, "NormalFilterOptions");
-    f.def(py::init<>());
-    FS_FIELD(f, pc::NormalFilterOptions, adaptive);
-    FS_FIELD(f, pc::NormalFilterOptions, ring_min_m);
-    FS_FIELD(f, pc::NormalFilterOptions, ring_max_m);
-    FS_FIELD(f, pc::NormalFilterOptions, rings);
-    FS_FIELD(f, pc::NormalFilterOptions, radius_scale);
-    FS_FIELD(f, pc::NormalFilterOptions, min_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, fixed_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_normal_angle_rad);
-    FS_FIELD(f, pc::NormalFilterOptions, min_neighbours);
-    FS_FIELD(f, pc::NormalFilterOptions, max_neighbours);
-    FS_FIELD(f, pc::NormalFilterOptions, min_height_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_height_m);
-    FS_FIELD(f, pc::NormalFilterOptions, voxel_m);
-    FS_FIELD(f, pc::NormalFilterOptions, map_voxel_m);
-
-    py::class_<pc::SegmentationOptions> s(m, "SegmentationOptions");
-    s.def(py::init<>());
-    FS_FIELD(s, pc::SegmentationOptions, block_cols);
-    FS_FIELD(s, pc::SegmentationOptions, beta_min_rad);
-    FS_FIELD(s, pc::SegmentationOptions, max_neighbour_gap_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_pixel_gap);
-    FS_FIELD(s, pc::SegmentationOptions, max_gap_m);
-    FS_FIELD(s, pc::SegmentationOptions, min_votes);
-    FS_FIELD(s, pc::SegmentationOptions, euclidean_tolerance_m);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_k);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_neighbours);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_max_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, map_dbscan_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, min_points);
-    FS_FIELD(s, pc::SegmentationOptions, min_length_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_axis_angle_rad);
-    FS_FIELD(s, pc::SegmentationOptions, min_sv_ratio);
-    FS_FIELD(s, pc::SegmentationOptions, max_width_m);
-    FS_FIELD(s, pc::SegmentationOptions, merge_xy_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_range_m);
-    FS_FIELD(s, pc::SegmentationOptions, ground_search_m);
-
-    py::class_<pc::DiameterOptions> d(m, "DiameterOptions");
-    d.def(py::init<>());
-    FS_FIELD(d, pc::DiameterOptions, band_low_m);
-    FS_FIELD(d, pc::DiameterOptions, band_high_m);
-    FS_FIELD(d, pc::DiameterOptions, band_max_half_m);
-    FS_FIELD(d, pc::DiameterOptions, min_band_points);
-    FS_FIELD(d, pc::DiameterOptions, min_radius_m);
-    FS_FIELD(d, pc::DiameterOptions, max_radius_m);
-    FS_FIELD(d, pc::DiameterOptions, inlier_threshold_m);
-    FS_FIELD(d, pc::DiameterOptions, min_arc_coverage);
-    FS_FIELD(d, pc::DiameterOptions, map_min_arc_coverage);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_iterations);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_max_points);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_normal_weight);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_section_low_m);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_section_high_m);
-    FS_FIELD(d, pc::DiameterOptions, max_lean_rad);
-    FS_FIELD(d, pc::DiameterOptions, silhouette);
-    FS_FIELD(d, pc::DiameterOptions, fit_all);
-
-    py::class_<pc::PerceptionOptions> p(m, "PerceptionOptions",
-                                        "intensity_threshold NaN: no intensity filter.");
-    p.def(py::init<>());
-    FS_FIELD(p, pc::PerceptionOptions, intensity_threshold);
-    FS_FIELD(p, pc::PerceptionOptions, ground_voxel_m);
-    FS_FIELD(p, pc::PerceptionOptions, ground);
-    FS_FIELD(p, pc::PerceptionOptions, filter);
-    FS_FIELD(p, pc::PerceptionOptions, segmentation);
-    FS_FIELD(p, pc::PerceptionOptions, diameter);
-    FS_FIELD(p, pc::PerceptionOptions, slice_voxel_m);
-    FS_FIELD(p, pc::PerceptionOptions, slice_min_inlier_ratio);
-}
 
 void defineOdometryConfig(py::module_ &m) {
     py::class_<od::MotionModelConfig> mm(m, "MotionModelConfig");
@@ -275,7 +178,6 @@ void defineTreeOdometry(py::module_ &m) {
 }  // namespace
 
 void define_odometry(py::module_ &m) {
-    definePerceptionOptions(m);
     defineOdometryConfig(m);
     defineMotionModel(m);
     defineTreeOdometry(m);

@@ -3,7 +3,6 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
-#include <limits>
 #include <optional>
 #include <stdexcept>
 
@@ -33,122 +32,112 @@ py::dict circleDict(const CircleFit &f) {
 
 namespace pc = forestslam::perception;
 
-// Copy the keys of a (flat) dict onto struct fields of the same name; Python validates names.
-#define FS_GET(dict, obj, field) \
-    if (dict.contains(#field)) obj.field = dict[#field].cast<decltype(obj.field)>()
+#define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
 
-pc::GroundOptions groundOptions(const py::dict &d) {
-    pc::GroundOptions o;
-    FS_GET(d, o, cell_size_m);
-    FS_GET(d, o, max_window_cells);
-    FS_GET(d, o, slope);
-    FS_GET(d, o, initial_distance_m);
-    FS_GET(d, o, max_distance_m);
-    FS_GET(d, o, base);
-    FS_GET(d, o, exponential);
-    FS_GET(d, o, cell_height_m);
-    FS_GET(d, o, min_component_cells);
-    FS_GET(d, o, max_range_m);
-    return o;
+// Every perception option struct as a typed class (filled by forestslam.odometry.bridge).
+void defineSensorGeometry(py::module_ &m) {
+    py::class_<pc::SensorGeometry> g(m, "SensorGeometry", "What perception needs of a sensor.");
+    g.def(py::init<>());
+    FS_FIELD(g, pc::SensorGeometry, has_range_image);
+    FS_FIELD(g, pc::SensorGeometry, image_rows);
+    FS_FIELD(g, pc::SensorGeometry, image_cols);
+    FS_FIELD(g, pc::SensorGeometry, horizontal_fov_rad);
+    FS_FIELD(g, pc::SensorGeometry, vertical_angles_rad);
+    FS_FIELD(g, pc::SensorGeometry, theta_v_rad);
+    FS_FIELD(g, pc::SensorGeometry, azimuth_step_rad);
 }
 
-pc::NormalFilterOptions filterOptions(const py::dict &d) {
-    pc::NormalFilterOptions o;
-    FS_GET(d, o, adaptive);
-    FS_GET(d, o, ring_min_m);
-    FS_GET(d, o, ring_max_m);
-    FS_GET(d, o, rings);
-    FS_GET(d, o, radius_scale);
-    FS_GET(d, o, min_radius_m);
-    FS_GET(d, o, max_radius_m);
-    FS_GET(d, o, fixed_radius_m);
-    FS_GET(d, o, max_normal_angle_rad);
-    FS_GET(d, o, min_neighbours);
-    FS_GET(d, o, max_neighbours);
-    FS_GET(d, o, min_height_m);
-    FS_GET(d, o, max_height_m);
-    FS_GET(d, o, voxel_m);
-    FS_GET(d, o, map_voxel_m);
-    return o;
+// The options of the ground and normal filters.
+void defineFilterOptions(py::module_ &m) {
+    py::class_<pc::GroundOptions> gr(m, "GroundOptions");
+    gr.def(py::init<>());
+    FS_FIELD(gr, pc::GroundOptions, cell_size_m);
+    FS_FIELD(gr, pc::GroundOptions, max_window_cells);
+    FS_FIELD(gr, pc::GroundOptions, slope);
+    FS_FIELD(gr, pc::GroundOptions, initial_distance_m);
+    FS_FIELD(gr, pc::GroundOptions, max_distance_m);
+    FS_FIELD(gr, pc::GroundOptions, base);
+    FS_FIELD(gr, pc::GroundOptions, exponential);
+    FS_FIELD(gr, pc::GroundOptions, cell_height_m);
+    FS_FIELD(gr, pc::GroundOptions, min_component_cells);
+    FS_FIELD(gr, pc::GroundOptions, max_range_m);
+
+    py::class_<pc::NormalFilterOptions> f(m, "NormalFilterOptions");
+    f.def(py::init<>());
+    FS_FIELD(f, pc::NormalFilterOptions, adaptive);
+    FS_FIELD(f, pc::NormalFilterOptions, ring_min_m);
+    FS_FIELD(f, pc::NormalFilterOptions, ring_max_m);
+    FS_FIELD(f, pc::NormalFilterOptions, rings);
+    FS_FIELD(f, pc::NormalFilterOptions, radius_scale);
+    FS_FIELD(f, pc::NormalFilterOptions, min_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, fixed_radius_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_normal_angle_rad);
+    FS_FIELD(f, pc::NormalFilterOptions, min_neighbours);
+    FS_FIELD(f, pc::NormalFilterOptions, max_neighbours);
+    FS_FIELD(f, pc::NormalFilterOptions, min_height_m);
+    FS_FIELD(f, pc::NormalFilterOptions, max_height_m);
+    FS_FIELD(f, pc::NormalFilterOptions, voxel_m);
+    FS_FIELD(f, pc::NormalFilterOptions, map_voxel_m);
 }
 
-pc::SegmentationOptions segmentationOptions(const py::dict &d) {
-    pc::SegmentationOptions o;
-    FS_GET(d, o, block_cols);
-    FS_GET(d, o, beta_min_rad);
-    FS_GET(d, o, max_neighbour_gap_m);
-    FS_GET(d, o, max_pixel_gap);
-    FS_GET(d, o, max_gap_m);
-    FS_GET(d, o, min_votes);
-    FS_GET(d, o, euclidean_tolerance_m);
-    FS_GET(d, o, dbscan_k);
-    FS_GET(d, o, dbscan_min_neighbours);
-    FS_GET(d, o, dbscan_min_eps_m);
-    FS_GET(d, o, dbscan_max_eps_m);
-    FS_GET(d, o, map_dbscan_eps_m);
-    FS_GET(d, o, min_points);
-    FS_GET(d, o, min_length_m);
-    FS_GET(d, o, max_axis_angle_rad);
-    FS_GET(d, o, min_sv_ratio);
-    FS_GET(d, o, max_width_m);
-    FS_GET(d, o, merge_xy_m);
-    FS_GET(d, o, max_range_m);
-    FS_GET(d, o, ground_search_m);
-    return o;
-}
+// The options of segmentation and DBH, and the chain's options holding all of them.
+void defineStemOptions(py::module_ &m) {
+    py::class_<pc::SegmentationOptions> s(m, "SegmentationOptions");
+    s.def(py::init<>());
+    FS_FIELD(s, pc::SegmentationOptions, block_cols);
+    FS_FIELD(s, pc::SegmentationOptions, beta_min_rad);
+    FS_FIELD(s, pc::SegmentationOptions, max_neighbour_gap_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_pixel_gap);
+    FS_FIELD(s, pc::SegmentationOptions, max_gap_m);
+    FS_FIELD(s, pc::SegmentationOptions, min_votes);
+    FS_FIELD(s, pc::SegmentationOptions, euclidean_tolerance_m);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_k);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_neighbours);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, dbscan_max_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, map_dbscan_eps_m);
+    FS_FIELD(s, pc::SegmentationOptions, min_points);
+    FS_FIELD(s, pc::SegmentationOptions, min_length_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_axis_angle_rad);
+    FS_FIELD(s, pc::SegmentationOptions, min_sv_ratio);
+    FS_FIELD(s, pc::SegmentationOptions, max_width_m);
+    FS_FIELD(s, pc::SegmentationOptions, merge_xy_m);
+    FS_FIELD(s, pc::SegmentationOptions, max_range_m);
+    FS_FIELD(s, pc::SegmentationOptions, ground_search_m);
 
-pc::DiameterOptions diameterOptions(const py::dict &d) {
-    pc::DiameterOptions o;
-    FS_GET(d, o, band_low_m);
-    FS_GET(d, o, band_high_m);
-    FS_GET(d, o, band_max_half_m);
-    FS_GET(d, o, min_band_points);
-    FS_GET(d, o, min_radius_m);
-    FS_GET(d, o, max_radius_m);
-    FS_GET(d, o, inlier_threshold_m);
-    FS_GET(d, o, min_arc_coverage);
-    FS_GET(d, o, map_min_arc_coverage);
-    FS_GET(d, o, cylinder_iterations);
-    FS_GET(d, o, cylinder_max_points);
-    FS_GET(d, o, cylinder_normal_weight);
-    FS_GET(d, o, cylinder_section_low_m);
-    FS_GET(d, o, cylinder_section_high_m);
-    FS_GET(d, o, max_lean_rad);
-    FS_GET(d, o, silhouette);
-    FS_GET(d, o, fit_all);
-    return o;
-}
+    py::class_<pc::DiameterOptions> d(m, "DiameterOptions");
+    d.def(py::init<>());
+    FS_FIELD(d, pc::DiameterOptions, band_low_m);
+    FS_FIELD(d, pc::DiameterOptions, band_high_m);
+    FS_FIELD(d, pc::DiameterOptions, band_max_half_m);
+    FS_FIELD(d, pc::DiameterOptions, min_band_points);
+    FS_FIELD(d, pc::DiameterOptions, min_radius_m);
+    FS_FIELD(d, pc::DiameterOptions, max_radius_m);
+    FS_FIELD(d, pc::DiameterOptions, inlier_threshold_m);
+    FS_FIELD(d, pc::DiameterOptions, min_arc_coverage);
+    FS_FIELD(d, pc::DiameterOptions, map_min_arc_coverage);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_iterations);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_max_points);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_normal_weight);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_section_low_m);
+    FS_FIELD(d, pc::DiameterOptions, cylinder_section_high_m);
+    FS_FIELD(d, pc::DiameterOptions, max_lean_rad);
+    FS_FIELD(d, pc::DiameterOptions, silhouette);
+    FS_FIELD(d, pc::DiameterOptions, fit_all);
 
-py::dict sub(const py::dict &d, const char *key) {
-    return d.contains(key) ? py::dict(d[key]) : py::dict();
-}
-
-pc::PerceptionOptions perceptionOptions(const py::dict &d) {
-    pc::PerceptionOptions o;
-    if (d.contains("intensity_threshold") && !d["intensity_threshold"].is_none())
-        o.intensity_threshold = d["intensity_threshold"].cast<double>();
-    FS_GET(d, o, ground_voxel_m);
-    if (d.contains("breast_height_z") && !d["breast_height_z"].is_none())
-        o.breast_height_z = d["breast_height_z"].cast<double>();
-    FS_GET(d, o, slice_voxel_m);
-    FS_GET(d, o, slice_min_inlier_ratio);
-    o.ground = groundOptions(sub(d, "ground"));
-    o.filter = filterOptions(sub(d, "filter"));
-    o.segmentation = segmentationOptions(sub(d, "segmentation"));
-    o.diameter = diameterOptions(sub(d, "diameter"));
-    return o;
-}
-
-pc::SensorGeometry sensorGeometry(const py::dict &d) {
-    pc::SensorGeometry s;
-    FS_GET(d, s, has_range_image);
-    FS_GET(d, s, image_rows);
-    FS_GET(d, s, image_cols);
-    FS_GET(d, s, horizontal_fov_rad);
-    FS_GET(d, s, vertical_angles_rad);
-    FS_GET(d, s, theta_v_rad);
-    FS_GET(d, s, azimuth_step_rad);
-    return s;
+    py::class_<pc::PerceptionOptions> p(m, "PerceptionOptions",
+                                        "intensity_threshold NaN: no intensity filter.");
+    p.def(py::init<>());
+    FS_FIELD(p, pc::PerceptionOptions, intensity_threshold);
+    FS_FIELD(p, pc::PerceptionOptions, ground_voxel_m);
+    FS_FIELD(p, pc::PerceptionOptions, breast_height_z);
+    FS_FIELD(p, pc::PerceptionOptions, ground);
+    FS_FIELD(p, pc::PerceptionOptions, filter);
+    FS_FIELD(p, pc::PerceptionOptions, segmentation);
+    FS_FIELD(p, pc::PerceptionOptions, diameter);
+    FS_FIELD(p, pc::PerceptionOptions, slice_voxel_m);
+    FS_FIELD(p, pc::PerceptionOptions, slice_min_inlier_ratio);
 }
 
 py::dict fitDict(const pc::DiameterFit &f) {
@@ -245,7 +234,11 @@ py::dict detectionDict(const perception::Detection &det) {
     return d;
 }
 
-void define_perception(py::module_ &m) {
+namespace {
+
+// Circle fits on their own (also used by the evaluation and the TLS tree fits).
+void defineCircleFits(py::module_ &m) {
+    const CircleFitOptions d;  // the keyword defaults are the C++ struct's
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
@@ -266,10 +259,9 @@ void define_perception(py::module_ &m) {
             }
             return circleDict(f);
         },
-        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = 0.03,
-        py::arg("min_radius_m") = 0.0,
-        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
-        py::arg("lateral_sigma_m") = 0.005, py::arg("seed") = 42,
+        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
+        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
+        py::arg("lateral_sigma_m") = d.lateral_sigma_m, py::arg("seed") = d.seed,
         "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
         "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
         "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
@@ -291,9 +283,10 @@ void define_perception(py::module_ &m) {
             }
             return circleDict(f);
         },
-        py::arg("xy"), py::arg("inlier_threshold_m") = 0.03, py::arg("min_radius_m") = 0.0,
-        py::arg("max_radius_m") = std::numeric_limits<double>::infinity(),
-        py::arg("max_ransac_iterations") = 200, py::arg("arc_sectors") = 36, py::arg("seed") = 42,
+        py::arg("xy"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
+        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
+        py::arg("max_ransac_iterations") = d.max_ransac_iterations,
+        py::arg("arc_sectors") = d.arc_sectors, py::arg("seed") = d.seed,
         "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64.\n"
         "Returns dict: valid bool, centre (2,), radius, inliers int, rms_m, arc_coverage in [0,1]\n"
         "(occupied angular sectors), inlier_indices list[int] (rows of xy). Invalid (valid=False,\n"
@@ -302,15 +295,16 @@ void define_perception(py::module_ &m) {
         "fit_circle_algebraic",
         [](const Eigen::Ref<const Points2> &xy) { return circleDict(fitCircleAlgebraic(xy)); },
         py::arg("xy"), "Plain Taubin algebraic circle fit of xy (N,2); same dict as fit_circle.");
+}
 
-    using IntArray = py::array_t<int, py::array::c_style | py::array::forcecast>;
+// The whole per-scan perception chain.
+void defineDetect(py::module_ &m) {
     m.def(
         "perception_detect",
         [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXd> intensity,
-           std::optional<Eigen::VectorXi> ring, const py::dict &sensor, bool scan_centred,
-           const py::dict &options) {
-            const pc::SensorGeometry g = sensorGeometry(sensor);
-            const pc::PerceptionOptions o = perceptionOptions(options);
+           std::optional<Eigen::VectorXi> ring, const pc::SensorGeometry &g, bool scan_centred,
+           const pc::PerceptionOptions &options) {
+            const pc::PerceptionOptions o = options;  // a copy: used without the GIL
             const Eigen::VectorXd in = intensity ? *intensity : Eigen::VectorXd();
             const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
             pc::Detection det;
@@ -323,11 +317,16 @@ void define_perception(py::module_ &m) {
         py::arg("points"), py::arg("intensity"), py::arg("ring"), py::arg("sensor"),
         py::arg("scan_centred"), py::arg("options"),
         "Whole perception chain on points (N,3) (intensity (N,)|None, ring (N,)|None).\n"
-        "sensor: dict of SensorGeometry fields; options: nested dict of PerceptionOptions.\n"
+        "sensor: SensorGeometry; options: PerceptionOptions.\n"
         "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
         "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
         "diameters list[dict], ground (G,3), up (3,), timing dict ms (wall), cpu_ms dict\n"
         "(thread CPU ms per stage), counts dict.");
+}
+
+// Every stage of the chain on its own (debugging and the ablation): the filters ...
+void defineFilterStages(py::module_ &m) {
+    using IntArray = py::array_t<int, py::array::c_style | py::array::forcecast>;
     m.def(
         "perception_intensity_filter",
         [](const Eigen::VectorXd &intensity, double threshold) {
@@ -337,8 +336,8 @@ void define_perception(py::module_ &m) {
         "Rows (list[int]) with intensity <= threshold (all rows when threshold is NaN).");
     m.def(
         "perception_segment_ground",
-        [](const Eigen::Ref<const Points3> &points, const py::dict &options) {
-            const pc::GroundSegmentation gs = pc::segmentGround(points, groundOptions(options));
+        [](const Eigen::Ref<const Points3> &points, const pc::GroundOptions &options) {
+            const pc::GroundSegmentation gs = pc::segmentGround(points, options);
             py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
             auto mm = mask.mutable_unchecked<1>();
             for (size_t i = 0; i < gs.is_ground.size(); ++i)
@@ -357,9 +356,9 @@ void define_perception(py::module_ &m) {
     m.def(
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
-           const py::dict &options) {
-            const pc::NormalFilterResult r = pc::normalFilter(points, toRows(candidates), theta_v,
-                                                              filterOptions(options), nullptr);
+           const pc::NormalFilterOptions &options) {
+            const pc::NormalFilterResult r =
+                pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
             py::dict d;
             d["kept"] = r.kept;
             d["normals"] = r.normals;
@@ -369,15 +368,17 @@ void define_perception(py::module_ &m) {
         py::arg("points"), py::arg("candidates"), py::arg("theta_v_rad"), py::arg("options"),
         "Adaptive ring-based normal filter over rows `candidates` of points (N,3). Returns dict:\n"
         "kept list[int] (rows), normals (M,3), radius_per_ring list[float].");
+}
+
+// Clustering, stem classification and DBH of single clusters.
+void defineClusterStages(py::module_ &m) {
     m.def(
         "perception_range_image_clusters",
         [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXi> ring,
-           const py::dict &sensor, const py::dict &options, int min_size) {
-            const pc::SensorGeometry g = sensorGeometry(sensor);
+           const pc::SensorGeometry &g, const pc::SegmentationOptions &options, int min_size) {
             const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
             const auto proj = pc::projectToRangeImage(points, rg, g);
-            const auto so = segmentationOptions(options);
-            return clustersList(pc::rangeImageClusters(points, proj, g, so, min_size));
+            return clustersList(pc::rangeImageClusters(points, proj, g, options, min_size));
         },
         py::arg("points"), py::arg("ring"), py::arg("sensor"), py::arg("options"),
         py::arg("min_size") = 2, "Divide-and-merge range-image clusters: list of row arrays.");
@@ -400,7 +401,7 @@ void define_perception(py::module_ &m) {
     m.def(
         "perception_cluster_shape",
         [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up,
-           const py::dict &options) {
+           const pc::SegmentationOptions &options) {
             std::vector<int> rows(static_cast<size_t>(points.rows()));
             for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
             const pc::ClusterShape s = pc::clusterShape(points, rows, up);
@@ -412,8 +413,7 @@ void define_perception(py::module_ &m) {
             d["length"] = s.length;
             d["width"] = s.width;
             d["axis_angle"] = s.axis_angle;
-            const auto so = segmentationOptions(options);
-            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), so);
+            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), options);
             return d;
         },
         py::arg("points"), py::arg("up"), py::arg("options"),
@@ -422,15 +422,26 @@ void define_perception(py::module_ &m) {
     m.def(
         "perception_estimate_diameter",
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
-           const Eigen::Vector3d &up, const py::dict &options) {
+           const Eigen::Vector3d &up, const pc::DiameterOptions &options) {
             const Points3 n = normals ? *normals : Points3(0, 3);
-            const auto dopt = diameterOptions(options);
-            return diameterDict(pc::estimateDiameter(points, n, base_z, up, dopt));
+            return diameterDict(pc::estimateDiameter(points, n, base_z, up, options));
         },
         py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"), py::arg("options"),
         "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: dict with\n"
         "circle / cylinder fits (valid, radius, centre, axis, inliers, rms_m, arc_coverage,\n"
         "score), method, dbh (NaN if none accepted), centre (3,), band_points.");
+}
+
+}  // namespace
+
+void define_perception(py::module_ &m) {
+    defineSensorGeometry(m);
+    defineFilterOptions(m);
+    defineStemOptions(m);
+    defineCircleFits(m);
+    defineDetect(m);
+    defineFilterStages(m);
+    defineClusterStages(m);
 }
 
 }  // namespace forestslam::python

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from forestslam.errors import InputError, ProcessingError
+from forestslam.geometry import rotation_zyx, se2, transform_points
 from forestslam.sim.config import MotionConfig
 from forestslam.sim.stand import Stand
 from forestslam.sim.terrain import Terrain
@@ -141,7 +142,6 @@ def _capped(step: np.ndarray, limit: float = 0.3) -> np.ndarray:
 
 def _nominal(cfg: MotionConfig, centre: np.ndarray, heading: float, extent: np.ndarray):
     length = cfg.length_m
-    rot = np.array([[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]])
     if cfg.path == "loop":
         a_over_b = max(cfg.loop_aspect, 1e-3)
         phi = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
@@ -181,7 +181,7 @@ def _nominal(cfg: MotionConfig, centre: np.ndarray, heading: float, extent: np.n
         raise InputError(
             f"motion.path must be loop, lawnmower, line or a CSV file, not {cfg.path!r}"
         )
-    return local @ rot.T + centre, closed
+    return transform_points(se2(centre[0], centre[1], heading), local), closed
 
 
 def read_waypoints(path: Path) -> np.ndarray:
@@ -258,23 +258,6 @@ def plan_path(cfg: MotionConfig, stand: Stand) -> PlannedPath:
             "choose another centre, length or waypoints"
         )
     return best
-
-
-def rotation_zyx(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """(N,3,3) Rz(yaw) Ry(pitch) Rx(roll) (scipy's intrinsic 'ZYX', written out: it is hot)."""
-    cy, sy, cp, sp, cr, sr = (
-        np.cos(yaw),
-        np.sin(yaw),
-        np.cos(pitch),
-        np.sin(pitch),
-        np.cos(roll),
-        np.sin(roll),
-    )
-    r = np.empty((len(yaw), 3, 3))
-    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = -sp, cp * sr, cp * cr
-    return r
 
 
 class Trajectory:

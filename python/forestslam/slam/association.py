@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from forestslam.geometry import rigid_fit, transform_points
 from forestslam.slam.config import SlamConfig
 
 
@@ -31,23 +32,6 @@ class AssociationResult:
     matches: np.ndarray  # (K,) landmark index per observation, -1 = none
     correction: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3,3) planar, map<-pred
     support: int = 0  # observations agreeing with the correction (0 = no correction)
-
-
-def rigid_2d(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Least-squares rigid transform (3,3) with dst ~ R src + t for (N,2) pairs, N >= 2."""
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    h = (src - mu_s).T @ (dst - mu_d)
-    yaw = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-    c, s = np.cos(yaw), np.sin(yaw)
-    rot = np.array([[c, -s], [s, c]])
-    t = np.eye(3)
-    t[:2, :2] = rot
-    t[:2, 2] = mu_d - rot @ mu_s
-    return t
-
-
-def _apply(t: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    return xy @ t[:2, :2].T + t[:2, 2]
 
 
 def dbh_compatible(obs_dbh: np.ndarray, lm_dbh: np.ndarray, ratio: float) -> np.ndarray:
@@ -80,7 +64,7 @@ def _consensus(
     corr[:2, 2] = shifts[best]
     n_in = int(support[best])
     for _ in range(3):  # refine to a rigid correction on the inliers
-        moved = _apply(corr, obs)
+        moved = transform_points(corr, obs)
         dist, nn = lm_tree.query(moved, distance_upper_bound=cfg.consensus_inlier_m)
         inl = np.isfinite(dist)
         if inl.sum() < 2:
@@ -88,6 +72,11 @@ def _consensus(
         n_in = int(inl.sum())
         corr = rigid_2d(obs[inl], lm_xy[nn[inl]])
     return corr, n_in
+
+
+def rigid_2d(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Planar rigid fit (3,3) with dst ~ R src + t of (N,2) pairs (geometry.rigid_fit)."""
+    return rigid_fit(src, dst)
 
 
 def associate(
@@ -115,7 +104,7 @@ def associate(
     tree = cKDTree(lm_xy)
     if use_consensus and k >= cfg.consensus_min_support:
         result.correction, result.support = _consensus(obs_xy, tree, lm_xy, radius, cfg)
-    obs = _apply(result.correction, obs_xy)
+    obs = transform_points(result.correction, obs_xy)
     var_obs = cfg.observation_sigma_m**2
     if result.support:
         pose_var = 0.0  # the correction has absorbed the pose error

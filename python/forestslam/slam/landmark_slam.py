@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
+from forestslam import geometry
 from forestslam.errors import InputError, ProcessingError
 from forestslam.slam.association import associate, dbh_compatible, rigid_2d
 from forestslam.slam.config import SlamConfig
@@ -42,16 +43,17 @@ def L(j: int) -> int:
 
 def planar(T: np.ndarray) -> np.ndarray:
     """(x, y, yaw) of a (4,4) pose; yaw of the rotated x axis projected on the plane."""
-    return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
+    return np.array([T[0, 3], T[1, 3], geometry.yaw_of(T)])
 
 
 def pose2_matrix(p: np.ndarray) -> np.ndarray:
-    c, s = math.cos(p[2]), math.sin(p[2])
-    return np.array([[c, -s, p[0]], [s, c, p[1]], [0.0, 0.0, 1.0]])
+    """Planar pose (3,3) of (x, y, yaw)."""
+    return geometry.se2(p[0], p[1], p[2])
 
 
 def matrix_pose2(m: np.ndarray) -> np.ndarray:
-    return np.array([m[0, 2], m[1, 2], math.atan2(m[1, 0], m[0, 0])])
+    """(x, y, yaw) of a planar pose (3,3)."""
+    return np.array([m[0, 2], m[1, 2], geometry.yaw_of(m)])
 
 
 def lift(m: np.ndarray) -> np.ndarray:
@@ -64,16 +66,14 @@ def lift(m: np.ndarray) -> np.ndarray:
 
 def level_points(T_world_sensor: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Sensor-frame points (N,3) -> the levelled frame: sensor origin, world z up, sensor yaw."""
-    yaw = math.atan2(T_world_sensor[1, 0], T_world_sensor[0, 0])
-    c, s = math.cos(yaw), math.sin(yaw)
-    rz_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    return points @ (rz_t @ T_world_sensor[:3, :3]).T
+    R_level_sensor = geometry.rot_z(geometry.yaw_of(T_world_sensor)).T @ T_world_sensor[:3, :3]
+    return points @ R_level_sensor.T
 
 
 def tilt(T: np.ndarray) -> np.ndarray:
     """T (4,4) with its planar part (x, y, yaw) removed: z, roll and pitch remain, so that
     T == lift(pose2_matrix(planar(T))) @ tilt(T)."""
-    return np.linalg.inv(lift(pose2_matrix(planar(T)))) @ T
+    return geometry.inverse(lift(pose2_matrix(planar(T)))) @ T
 
 
 @dataclass
@@ -361,9 +361,8 @@ class LandmarkSlam:
         corr[:, 2] = np.unwrap(corr[:, 2])
         kf_t = stamps[kf_scan]
         c = np.column_stack([np.interp(stamps, kf_t, corr[:, i]) for i in range(3)])
-        cos, sin = np.cos(c[:, 2]), np.sin(c[:, 2])
         lifts = np.tile(np.eye(4), (n, 1, 1))
-        lifts[:, 0, 0], lifts[:, 0, 1], lifts[:, 1, 0], lifts[:, 1, 1] = cos, -sin, sin, cos
+        lifts[:, :2, :2] = geometry.rot2(c[:, 2])
         lifts[:, :2, 3] = c[:, :2]
         if self.height is not None:
             dz = self.height.solve(self.n_landmarks)[0]
