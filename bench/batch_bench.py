@@ -2,7 +2,8 @@
 
 The same manifest (4 entries, the same sequence and scan range, with truth) is processed
   - sequentially: one fresh Python process running the batch's own task (`process_recording`:
-    `forestslam run` + evaluation) for each entry in turn, the imports paid once;
+    `forestslam run` + evaluation) for each entry in turn, then the batch's summary files, the
+    imports paid once;
   - by `forestslam batch MANIFEST --out DIR --workers 2 --force` (a fresh process: LocalCluster
     start, 2 worker processes, their imports, the 4 tasks, the summary).
 Both are timed by wall clock (the target is wall time) and by CPU time of the process and all its
@@ -32,11 +33,18 @@ from pathlib import Path
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # as Dask's nanny sets it for its workers: same on both sides
 REPO = Path(__file__).resolve().parents[1]
+# The batch's own work (every recording's task, then summary.csv/.md/.png) one after another in
+# one process without Dask
 SEQUENTIAL = (
-    "import sys; from forestslam.batch import load_manifest; "
+    "import sys, time; from pathlib import Path; t0 = time.perf_counter(); "
+    "from forestslam.batch import load_manifest; "
     "from forestslam.batch.job import process_recording; "
+    "from forestslam.batch.plot import plot_summary; "
+    "from forestslam.batch.summary import write_summary; "
     "rows = [process_recording(r, sys.argv[2]) for r in load_manifest(sys.argv[1])]; "
-    "assert all(r['status'] == 'ok' for r in rows), rows"
+    "assert all(r['status'] == 'ok' for r in rows), rows; "
+    "write_summary(Path(sys.argv[2]), rows, time.perf_counter() - t0); "
+    "plot_summary(Path(sys.argv[2]) / 'summary.png', rows)"
 )
 CLI = "import sys; from forestslam.cli.main import main; sys.argv[0] = 'forestslam'; main()"
 

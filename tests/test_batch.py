@@ -168,3 +168,13 @@ def test_cli_exit_code_and_error_line(tmp_path):
     assert proc.returncode == 1
     assert proc.stderr.strip().splitlines()[-1].startswith("forestslam: error: ")
     assert "unknown key(s) colour" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_local_workers_run_with_glibc_default_memory_settings():
+    """Dask's nanny would start workers with MALLOC_TRIM_THRESHOLD_=65536 (fixed mmap threshold:
+    a recording then costs 8-9 % more CPU in page faults); the local cluster unsets it."""
+    from forestslam.batch.engine import _client
+
+    with _client(workers=1, scheduler=None, n_tasks=1) as client:
+        env = client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+    assert list(env.values()) == [None]

@@ -101,9 +101,10 @@ class FakeOdometry:
 
 
 def install_fake(monkeypatch=None, delay_s=0.0):
-    import forestslam.config  # noqa: F401  (loads the real odometry config before the fake lands)
+    import forestslam.odometry as real
 
     module = types.ModuleType("forestslam.odometry")
+    module.__path__ = real.__path__  # its submodules (config, deskew) stay the real ones
     FakeOdometry.delay_s = delay_s
     module.Odometry = FakeOdometry
     if monkeypatch is not None:

@@ -7,16 +7,13 @@ Ground (map3d runs): DTM cells and ground-map points moved by the same alignment
 simulator's terrain, rebuilt from the truth's scenario.yaml.
 """
 
-from forestslam.evaluation.ground import dtm_cells, height_errors, load_truth_terrain
-from forestslam.evaluation.trajectory import associate, trajectory_errors, umeyama
-from forestslam.evaluation.trees import tree_errors
+from forestslam.lazy import lazy_exports
 
-__all__ = [
-    "associate",
-    "umeyama",
-    "trajectory_errors",
-    "tree_errors",
-    "dtm_cells",
-    "height_errors",
-    "load_truth_terrain",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "ground": ("dtm_cells", "height_errors", "load_truth_terrain"),
+        "trajectory": ("associate", "trajectory_errors", "umeyama"),
+        "trees": ("tree_errors",),
+    },
+)

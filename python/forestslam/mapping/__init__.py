@@ -1,17 +1,13 @@
 """Forest mapping: tree map with fused DBH, voxelized ground map and DTM, figures."""
 
-from forestslam.mapping.config import MappingConfig
-from forestslam.mapping.ground_map import GroundMap, dtm_grid, remove_raised_cells, write_dtm
-from forestslam.mapping.tree_map import TreeMap, fit_band_circle
-from forestslam.mapping.voxel import voxel_downsample
+from forestslam.lazy import lazy_exports
 
-__all__ = [
-    "MappingConfig",
-    "TreeMap",
-    "fit_band_circle",
-    "GroundMap",
-    "dtm_grid",
-    "remove_raised_cells",
-    "write_dtm",
-    "voxel_downsample",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "config": ("MappingConfig",),
+        "ground_map": ("GroundMap", "dtm_grid", "remove_raised_cells", "write_dtm"),
+        "tree_map": ("TreeMap", "fit_band_circle"),
+        "voxel": ("voxel_downsample",),
+    },
+)

@@ -1,5 +1,10 @@
 """One map across sessions: merging tree maps of two runs (and, later, prior maps in a run)."""
 
-from forestslam.multisession.merge import MapAlignment, MergeConfig, align_tree_maps, fuse_trees
+from forestslam.lazy import lazy_exports
 
-__all__ = ["MapAlignment", "MergeConfig", "align_tree_maps", "fuse_trees"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "merge": ("MapAlignment", "MergeConfig", "align_tree_maps", "fuse_trees"),
+    },
+)

@@ -1,7 +1,12 @@
 """LiDAR odometry: `Odometry(sensor, config=None).step(scan) -> OdometryStep`."""
 
-from forestslam.odometry.config import METHODS, MODES, OdometryConfig
-from forestslam.odometry.deskew import deskew_points
-from forestslam.odometry.odometry import Odometry, OdometryStep
+from forestslam.lazy import lazy_exports
 
-__all__ = ["METHODS", "MODES", "Odometry", "OdometryConfig", "OdometryStep", "deskew_points"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "config": ("METHODS", "MODES", "OdometryConfig"),
+        "deskew": ("deskew_points",),
+        "odometry": ("Odometry", "OdometryStep"),
+    },
+)

@@ -1,5 +1,10 @@
 """Sensor profiles: shipped YAML files selectable by name, or a user's own YAML file."""
 
-from forestslam.sensors.profile import SensorProfile, available_profiles, load_profile
+from forestslam.lazy import lazy_exports
 
-__all__ = ["SensorProfile", "available_profiles", "load_profile"]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "profile": ("SensorProfile", "available_profiles", "load_profile"),
+    },
+)

@@ -1,15 +1,12 @@
 """Landmark SLAM: GTSAM iSAM2 with Pose2 keyframes and Point2 trees, robust data association."""
 
-from forestslam.slam.association import AssociationResult, associate
-from forestslam.slam.config import SlamConfig
-from forestslam.slam.landmark_slam import LandmarkSlam, ScanResult, level_points, planar
+from forestslam.lazy import lazy_exports
 
-__all__ = [
-    "SlamConfig",
-    "LandmarkSlam",
-    "ScanResult",
-    "associate",
-    "AssociationResult",
-    "level_points",
-    "planar",
-]
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "association": ("AssociationResult", "associate"),
+        "config": ("SlamConfig",),
+        "landmark_slam": ("LandmarkSlam", "ScanResult", "level_points", "planar"),
+    },
+)
