@@ -1,7 +1,9 @@
 """Per-tree DBH of a `forestslam run` against simulator truth (after `forestslam evaluate`):
-bias, MAE, RMSE, share of mapped trees with a DBH, dbh_std_m calibration (share of trees within
-+-1 sigma of the truth) and the worst trees. Usage: python bench/dbh_run_trees.py RUN TRUTH [...]
-(pairs of run and truth folders)."""
+bias, MAE, RMSE, share of mapped trees with a DBH (all mapped trees, and those matched to a
+truth stem of DBH >= 10 cm), dbh_std_m calibration (share of trees within +-1 sigma of the
+truth) and the worst trees; then one table of the issue-15 targets, figures vs targets.
+Usage: python bench/dbh_run_trees.py RUN TRUTH [RUN TRUTH ...] (pairs of run and truth
+folders; the sensor, for the MAE target, from the run's run.yaml)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from forestslam.evaluation.trees import tree_errors
 from forestslam.io import read_trees_csv, read_tum
@@ -30,11 +33,13 @@ def report(run: Path, truth: Path) -> dict:
     e = 100 * (est["dbh_m"][k] - tru["dbh_m"][m[k]])
     sd = 100 * est["dbh_std_m"][k]
     ok = np.isfinite(e)
+    inventory = tru["dbh_m"][m[k]] >= 0.1  # matched trees an inventory would measure
     cal = np.abs(e[ok & np.isfinite(sd)]) <= sd[ok & np.isfinite(sd)]
     out = {
         "trees": len(est["dbh_m"]),
         "with_dbh": float(np.isfinite(est["dbh_m"]).mean()),
         "matched": len(k),
+        "with_dbh_10cm": float(ok[inventory].mean()) if inventory.any() else float("nan"),
         "bias_cm": float(np.mean(e[ok])),
         "mae_cm": float(np.mean(np.abs(e[ok]))),
         "median_abs_cm": float(np.median(np.abs(e[ok]))),
@@ -52,13 +57,43 @@ def report(run: Path, truth: Path) -> dict:
         )
         for i in worst
     ]
+    run_yaml = yaml.safe_load((run / "run.yaml").read_text())
+    out["sensor"] = str(run_yaml.get("sensor", "?"))
     return out
+
+
+MAE_TARGET_CM = {"vlp16": 1.5, "hdl32": 1.2}
+
+
+def target_table(rows: list[tuple[str, dict]]) -> None:
+    """Issue-15 targets: |bias| <= 0.5 cm, MAE <= 1.5 (VLP-16) / 1.2 cm (HDL-32), >= 90 % of
+    mapped trees with a DBH, about 68 % of trees within +-1 sigma (taken as 0.60-0.76)."""
+
+    def mark(ok: bool) -> str:
+        return "ok" if ok else "MISS"
+
+    print(
+        f"{'run':28s} {'sensor':6s} {'bias cm (|.|<=0.5)':>20s} {'MAE cm (<=1.5/1.2)':>20s} "
+        f"{'with DBH (>=0.90)':>18s} {'>=10cm w/ DBH':>14s} {'in 1 sigma (~0.68)':>19s}"
+    )
+    for name, r in rows:
+        target = MAE_TARGET_CM.get(r["sensor"], 1.5)
+        print(
+            f"{name[-28:]:28s} {r['sensor']:6s} "
+            f"{r['bias_cm']:+8.2f} {mark(abs(r['bias_cm']) <= 0.5):>11s} "
+            f"{r['mae_cm']:8.2f} {mark(r['mae_cm'] <= target):>11s} "
+            f"{r['with_dbh']:8.2f} {mark(r['with_dbh'] >= 0.9):>9s} "
+            f"{r['with_dbh_10cm']:14.2f} "
+            f"{r['within_1sigma']:8.2f} {mark(0.6 <= r['within_1sigma'] <= 0.76):>10s}"
+        )
 
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    rows = []
     for run, truth in zip(args[::2], args[1::2], strict=True):
         r = report(Path(run), Path(truth))
+        rows.append((run, r))
         print(
             f"{run}: trees {r['trees']} with DBH {r['with_dbh']:.2f}, matched {r['matched']}: "
             f"bias {r['bias_cm']:+.2f} cm, MAE {r['mae_cm']:.2f}, median |e| "
@@ -66,3 +101,4 @@ if __name__ == "__main__":
             f"{r['within_1sigma']:.2f} of {r['with_sigma']}; worst (id, err, sigma, obs) "
             f"{r['worst']}"
         )
+    target_table(rows)
