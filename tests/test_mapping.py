@@ -144,3 +144,8 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
             np.array([0.6]),
         )
     assert np.isnan(tm.dbh(2)[0])
+    # A DBH in only 3 of a tree's 8 scans (the others found no circle): a chance circle.
+    for i in range(8):
+        dbh = np.array([0.3 if i < 3 else np.nan])
+        tm.add(i, np.eye(4), np.array([9]), [np.zeros((0, 3))], np.zeros(1), np.ones(1), dbh)
+    assert np.isnan(tm.dbh(9)[0])

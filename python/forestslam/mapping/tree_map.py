@@ -43,6 +43,8 @@ class _Tree:
     n_band_scans: int = 0
     measurements: list = field(default_factory=list)  # (dbh, weight)
     scan_dbh: list = field(default_factory=list)  # per-scan perception DBH (bounded)
+    n_scans: int = 0  # scans that observed the tree
+    n_scans_dbh: int = 0  # of those, scans with a per-scan DBH
     z_sum: float = 0.0
     z_n: int = 0
 
@@ -139,11 +141,14 @@ class TreeMap:
             tree = self.trees.setdefault(int(ids[k]), _Tree())
             if tree.first_scan < 0:
                 tree.first_scan = scan_index
+            tree.n_scans += 1
             if np.isfinite(centre_z[k]):
                 tree.z_sum += float(centre_z[k])
                 tree.z_n += 1
-            if np.isfinite(scan_dbh[k]) and len(tree.scan_dbh) < self.MAX_SCAN_DBH:
-                tree.scan_dbh.append(float(scan_dbh[k]))
+            if np.isfinite(scan_dbh[k]):
+                tree.n_scans_dbh += 1
+                if len(tree.scan_dbh) < self.MAX_SCAN_DBH:
+                    tree.scan_dbh.append(float(scan_dbh[k]))
             pts = points[k] if k < len(points) else None
             if pts is None or len(pts) == 0 or not np.isfinite(base_z[k]):
                 continue
@@ -208,11 +213,13 @@ class TreeMap:
     def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
         """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
         only when at least dbh_fallback_min_scans agree (robust spread within
-        dbh_fallback_max_spread of the median, or 2 cm); its std is that spread (at least
-        5 mm) with the model floor. Scans of a far tree merged with its neighbour give 2-4x its
-        DBH: better none than that."""
+        dbh_fallback_max_spread of the median, or 2 cm) and perception measured a DBH in most
+        of the scans that saw the tree; its std is that spread (at least 5 mm) with the model
+        floor. Scans of a far tree merged with its neighbour give 2-4x its DBH, and a DBH found
+        in only a few of a tree's scans is a chance circle (clutter, two stems crossing; a
+        56 cm DBH on a 3 cm sapling from 3 of its 24 scans): better none than that."""
         d = np.asarray(tree.scan_dbh)
-        if len(d) < self.cfg.dbh_fallback_min_scans:
+        if len(d) < self.cfg.dbh_fallback_min_scans or 2 * tree.n_scans_dbh < tree.n_scans:
             return float("nan"), float("nan"), 0
         med = float(np.median(d))
         spread = _spread(d)
