@@ -63,6 +63,10 @@ def main() -> None:
                 else f"{m} -"
             )
         print(f"{sim.name} per-scan DBH (cm): " + "; ".join(parts))
+        chosen = np.abs(np.asarray(err["chosen"]))
+        if len(chosen):
+            verdict = "ok" if chosen.mean() <= 2.5 else "MISS"
+            print(f"{sim.name} per-scan DBH MAE {chosen.mean():.2f} cm (target <= 2.5): {verdict}")
 
 
 if __name__ == "__main__":

@@ -97,6 +97,24 @@ def test_tree_map_fuses_dbh_over_windows():
     assert table["z"][0] == pytest.approx(0.3)
 
 
+def test_points_seen_through_a_circle_mark_it_as_no_stem():
+    from forestslam.mapping.tree_map import seen_through_share
+
+    rng = np.random.default_rng(2)
+    fit = {"centre": np.array([5.0, 0.0]), "radius": 0.2}
+    origins = np.column_stack([np.zeros(200), rng.uniform(-3, 3, 200)])
+    # Points on the half each beam meets first (3 cm range noise): a stem hides nothing.
+    u = fit["centre"] - origins
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    ang = np.arctan2(-u[:, 1], -u[:, 0]) + rng.uniform(-1.2, 1.2, 200)
+    near = fit["centre"] + 0.2 * np.column_stack([np.cos(ang), np.sin(ang)])
+    near += u * rng.normal(scale=0.03, size=(200, 1))
+    assert seen_through_share(near, origins, fit, 0.03) < 0.05
+    # The same points mirrored to the far half (a circle through stems behind each other).
+    far = 2 * fit["centre"] - near
+    assert seen_through_share(far, origins, fit, 0.03) > 0.9
+
+
 def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
     tm = TreeMap(MappingConfig())
     for i in range(3):
@@ -110,8 +128,9 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
             np.array([0.5, 0.2 + 0.01 * i]),
         )
     dbh, std, n = tm.dbh(2)
-    # The scans agree: their median, their robust spread as std.
-    assert dbh == pytest.approx(0.21) and n == 0 and std == pytest.approx(1.4826 * 0.01)
+    # The scans agree: their median; std: their robust spread with the 2 % model floor.
+    assert dbh == pytest.approx(0.21) and n == 0
+    assert std == pytest.approx(np.hypot(1.4826 * 0.01, 0.02 * 0.21))
     assert np.isnan(tm.dbh(5)[0])
     # Scans that disagree (a far stem merged with its neighbour in some): no DBH.
     for i in range(3, 6):
@@ -125,3 +144,8 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
             np.array([0.6]),
         )
     assert np.isnan(tm.dbh(2)[0])
+    # A DBH in only 3 of a tree's 8 scans (the others found no circle): a chance circle.
+    for i in range(8):
+        dbh = np.array([0.3 if i < 3 else np.nan])
+        tm.add(i, np.eye(4), np.array([9]), [np.zeros((0, 3))], np.zeros(1), np.ones(1), dbh)
+    assert np.isnan(tm.dbh(9)[0])

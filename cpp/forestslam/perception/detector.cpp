@@ -123,19 +123,22 @@ Eigen::Vector3d groundNormal(const Eigen::Ref<const Points3> &ground) {
     return n;
 }
 
-Detection detectStems(const Eigen::Ref<const Points3> &points,
-                      const Eigen::Ref<const Eigen::VectorXd> &intensity,
-                      const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
-                      bool scan_centred, const PerceptionOptions &opt) {
-    // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.
-    pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
-    Detection det;
-    det.input_points = static_cast<int>(points.rows());
-    StageClock clock;
-    const auto t0 = clock.wall;
-    const double c0 = clock.cpu;
+namespace {
 
-    // 1. Finite rows within the intensity threshold.
+// Points of one call relative to a local origin (map clouds), with their rings.
+struct Input {
+    Points3 pts;
+    Eigen::RowVector3d origin = Eigen::RowVector3d::Zero();
+    Eigen::VectorXi ring;  // per row of pts; empty when the input has no rings
+};
+
+// 1. Finite rows within the intensity threshold. Map clouds come in projected coordinates
+// (UTM: 3.8e6 m): PCL works in float, so work relative to a local origin and add it back to
+// the outputs.
+Input selectInput(const Eigen::Ref<const Points3> &points,
+                  const Eigen::Ref<const Eigen::VectorXd> &intensity,
+                  const Eigen::Ref<const Eigen::VectorXi> &ring, bool scan_centred,
+                  const PerceptionOptions &opt, Detection &det) {
     std::vector<int> keep = intensityFilter(intensity, opt.intensity_threshold, points.rows());
     det.after_intensity = static_cast<int>(keep.size());
     std::vector<int> finite;
@@ -143,34 +146,38 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     for (int i : keep)
         if (points.row(i).allFinite()) finite.push_back(i);
     det.finite_points = static_cast<int>(finite.size());
-    Points3 pts = selectRows(points, finite);
-    // Map clouds come in projected coordinates (UTM: 3.8e6 m): PCL works in float, so work
-    // relative to a local origin and add it back to the outputs.
-    Eigen::RowVector3d origin = Eigen::RowVector3d::Zero();
-    if (!scan_centred && pts.rows() > 0) {
-        origin = pts.colwise().minCoeff().array().floor().matrix();
-        pts.rowwise() -= origin;
+    Input in;
+    in.pts = selectRows(points, finite);
+    if (!scan_centred && in.pts.rows() > 0) {
+        in.origin = in.pts.colwise().minCoeff().array().floor().matrix();
+        in.pts.rowwise() -= in.origin;
     }
-    Eigen::VectorXi ring_sel;
     if (ring.size() == points.rows()) {
-        ring_sel.resize(static_cast<Eigen::Index>(finite.size()));
+        in.ring.resize(static_cast<Eigen::Index>(finite.size()));
         for (size_t k = 0; k < finite.size(); ++k)
-            ring_sel(static_cast<Eigen::Index>(k)) = ring(finite[k]);
+            in.ring(static_cast<Eigen::Index>(k)) = ring(finite[k]);
     }
-    clock.lap(det, "intensity");
+    return in;
+}
 
-    // 2. Ground.
+// 2. Ground: segmentation, thinned ground points and the ground normal.
+GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const PerceptionOptions &opt,
+                              Detection &det) {
     GroundOptions gopt = opt.ground;
     if (!scan_centred) gopt.max_range_m = 0;
     GroundSegmentation gs = segmentGround(pts, gopt);
     det.ground_points = gs.ground_count;
     det.ground = thinGround(pts, gs.is_ground, opt.ground_voxel_m);
     det.up = groundNormal(det.ground);
-    clock.lap(det, "ground");
+    return gs;
+}
 
-    // 3. Adaptive normals and filter on the non-ground points.
+// 3. Adaptive normals and filter on the non-ground points within range.
+NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation &gs,
+                                    const SensorGeometry &sensor, bool scan_centred,
+                                    const PerceptionOptions &opt) {
     std::vector<int> candidates;
-    candidates.reserve(finite.size());
+    candidates.reserve(static_cast<size_t>(pts.rows()));
     const double range_max = scan_centred ? opt.segmentation.max_range_m : 0.0;
     for (Eigen::Index i = 0; i < pts.rows(); ++i) {
         if (gs.is_ground[static_cast<size_t>(i)]) continue;
@@ -182,32 +189,31 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         fopt.adaptive = false;
         fopt.voxel_m = std::max(fopt.voxel_m, fopt.map_voxel_m);
     }
-    const NormalFilterResult nf = normalFilter(pts, candidates, sensor.theta_v_rad, fopt,
-                                               gs.grid.z.size() > 0 ? &gs.grid : nullptr);
-    const Points3 filtered = selectRows(pts, nf.kept);
-    det.filtered_points = static_cast<int>(filtered.rows());
-    clock.lap(det, "normals");
+    return normalFilter(pts, candidates, sensor.theta_v_rad, fopt,
+                        gs.grid.z.size() > 0 ? &gs.grid : nullptr);
+}
 
-    // 4. Coarse clusters: range image for single scans, 3D otherwise.
-    const SegmentationOptions &so = opt.segmentation;
-    Clusters coarse;
-    if (sensor.has_range_image && scan_centred) {
-        Eigen::VectorXi ring_f;
-        if (ring_sel.size() > 0) {
-            ring_f.resize(static_cast<Eigen::Index>(nf.kept.size()));
-            for (size_t k = 0; k < nf.kept.size(); ++k)
-                ring_f(static_cast<Eigen::Index>(k)) = ring_sel(nf.kept[k]);
-        }
-        const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
-        coarse = rangeImageClusters(filtered, proj, sensor, so, std::max(2, so.min_points / 2));
-    } else {
-        coarse =
-            euclideanClusters(filtered, so.euclidean_tolerance_m, std::max(2, so.min_points / 2));
+// 4. Coarse clusters: range image for single scans, 3D otherwise.
+Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
+                        const Eigen::VectorXi &ring, const SensorGeometry &sensor,
+                        bool scan_centred, const SegmentationOptions &so) {
+    if (!(sensor.has_range_image && scan_centred))
+        return euclideanClusters(filtered, so.euclidean_tolerance_m,
+                                 std::max(2, so.min_points / 2));
+    Eigen::VectorXi ring_f;
+    if (ring.size() > 0) {
+        ring_f.resize(static_cast<Eigen::Index>(nf.kept.size()));
+        for (size_t k = 0; k < nf.kept.size(); ++k)
+            ring_f(static_cast<Eigen::Index>(k)) = ring(nf.kept[k]);
     }
-    det.coarse_clusters = static_cast<int>(coarse.size());
-    clock.lap(det, "clustering");
+    const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
+    return rangeImageClusters(filtered, proj, sensor, so, std::max(2, so.min_points / 2));
+}
 
-    // 5. DBSCAN refinement and SVD classification.
+// 5. DBSCAN refinement, SVD classification and the merge of one tree's pieces.
+Clusters classifyStems(const Points3 &filtered, const Clusters &coarse,
+                       const SensorGeometry &sensor, bool scan_centred,
+                       const SegmentationOptions &so, Detection &det) {
     Clusters stems;
     for (const auto &c : coarse) {
         const double eps = (sensor.has_range_image && scan_centred)
@@ -219,34 +225,50 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
             if (isStem(s, static_cast<int>(sub.size()), so)) stems.push_back(std::move(sub));
         }
     }
-    stems = mergeStemClusters(filtered, stems, so);
-    clock.lap(det, "classification");
+    return mergeStemClusters(filtered, stems, so);
+}
 
-    // 6. Per stem: shape, local ground, breast-height centre and diameter.
+// Local ground height under a stem at `xy` (nearest ground points, wider, the ground grid, the
+// plane of the ground seen farther out for the blind circle around the sensor); NaN if none.
+double stemGroundHeight(const Detection &det, const GroundSegmentation &gs,
+                        const Eigen::Vector2d &xy, const SegmentationOptions &so) {
+    double base = localGroundHeight(det.ground, xy, so.ground_search_m);
+    if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
+    if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
+    if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
+    return base;
+}
+
+// What the single-scan silhouette estimate needs from the sensor.
+SilhouetteSensor silhouetteSensor(const SensorGeometry &sensor) {
     SilhouetteSensor silhouette;
     silhouette.vertical_angles_rad = sensor.vertical_angles_rad;
     silhouette.azimuth_step_rad =
         sensor.azimuth_step_rad > 0
             ? sensor.azimuth_step_rad
             : (sensor.image_cols > 0 ? sensor.horizontal_fov_rad / sensor.image_cols : 0.0);
+    return silhouette;
+}
+
+// 6. Per stem: shape, local ground, breast-height centre and diameter.
+void measureStems(const Points3 &filtered, const NormalFilterResult &nf, const Clusters &stems,
+                  const GroundSegmentation &gs, const SensorGeometry &sensor, bool scan_centred,
+                  const PerceptionOptions &opt, Detection &det) {
+    const SegmentationOptions &so = opt.segmentation;
+    const SilhouetteSensor silhouette = silhouetteSensor(sensor);
     DiameterOptions dopt = opt.diameter;
     if (!scan_centred)
         dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
     const bool use_silhouette = opt.diameter.silhouette && scan_centred && sensor.has_range_image &&
                                 !silhouette.vertical_angles_rad.empty();
+    const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
     for (const auto &rows : stems) {
         Stem st;
         st.points = selectRows(filtered, rows);
         st.normals = selectRows(nf.normals, rows);
         st.shape = clusterShape(filtered, rows, det.up);
         if (!isStem(st.shape, static_cast<int>(rows.size()), so)) continue;  // merged oddly
-        const Eigen::Vector2d xy = st.shape.mean.head<2>();
-        double base = localGroundHeight(det.ground, xy, so.ground_search_m);
-        if (!std::isfinite(base))
-            base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
-        if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
-        // In the blind circle around the sensor: the plane of the ground seen farther out.
-        if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
+        double base = stemGroundHeight(det, gs, st.shape.mean.head<2>(), so);
         st.ground_found = std::isfinite(base);
         if (std::isfinite(opt.breast_height_z)) {
             base = opt.breast_height_z - bandMiddle(opt.diameter);
@@ -256,7 +278,6 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
             st.breast_source = BreastHeightSource::LowestPoint;
         }
         st.base_z = base;
-        const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
                                        use_silhouette ? &silhouette : nullptr,
                                        scan_centred ? &sensor_origin : nullptr);
@@ -264,13 +285,16 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
             st.breast = st.diameter.centre;
         } else {
             // No accepted fit: the principal axis at breast height.
-            const double zb = base + 0.5 * (opt.diameter.band_low_m + opt.diameter.band_high_m);
+            const double zb = base + bandMiddle(opt.diameter);
             const Eigen::Vector3d &a = st.shape.axis;
             st.breast = st.shape.mean + a * ((zb - st.shape.mean.z()) / std::max(a.z(), 0.2));
         }
         det.stems.push_back(std::move(st));
     }
-    if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(pts, opt);
+}
+
+// 7. Ids, and every output back from the local origin to the input frame.
+void toInputFrame(const Eigen::RowVector3d &origin, Detection &det) {
     for (size_t k = 0; k < det.stems.size(); ++k) {
         Stem &st = det.stems[k];
         st.id = static_cast<int>(k);
@@ -284,6 +308,40 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
         st.diameter.cylinder.centre += origin.transpose();
     }
     if (!origin.isZero()) det.ground.rowwise() += origin;
+}
+
+}  // namespace
+
+Detection detectStems(const Eigen::Ref<const Points3> &points,
+                      const Eigen::Ref<const Eigen::VectorXd> &intensity,
+                      const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
+                      bool scan_centred, const PerceptionOptions &opt) {
+    // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.
+    pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
+    Detection det;
+    det.input_points = static_cast<int>(points.rows());
+    StageClock clock;
+    const auto t0 = clock.wall;
+    const double c0 = clock.cpu;
+
+    const Input in = selectInput(points, intensity, ring, scan_centred, opt, det);
+    clock.lap(det, "intensity");
+    const GroundSegmentation gs = findGround(in.pts, scan_centred, opt, det);
+    clock.lap(det, "ground");
+    const NormalFilterResult nf = filterStemPoints(in.pts, gs, sensor, scan_centred, opt);
+    const Points3 filtered = selectRows(in.pts, nf.kept);
+    det.filtered_points = static_cast<int>(filtered.rows());
+    clock.lap(det, "normals");
+    const Clusters coarse =
+        coarseClusters(filtered, nf, in.ring, sensor, scan_centred, opt.segmentation);
+    det.coarse_clusters = static_cast<int>(coarse.size());
+    clock.lap(det, "clustering");
+    const Clusters stems =
+        classifyStems(filtered, coarse, sensor, scan_centred, opt.segmentation, det);
+    clock.lap(det, "classification");
+    measureStems(filtered, nf, stems, gs, sensor, scan_centred, opt, det);
+    if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(in.pts, opt);
+    toInputFrame(in.origin, det);
     clock.lap(det, "diameter");
     det.timing_ms["total"] = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
     det.cpu_ms["total"] = threadCpuMs() - c0;

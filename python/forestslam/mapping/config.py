@@ -22,6 +22,12 @@ class MappingConfig:
     dbh_max_rms_m: Positive = 0.03
     dbh_min_arc_coverage: Fraction = 0.2
     dbh_min_inlier_ratio: Fraction = 0.5  # of the window's points within circle_inlier_m
+    # At most this share of a window's points may have been seen through its circle (beyond
+    # the middle of their beam's chord): an opaque stem hides them (circles through clumps).
+    dbh_max_seen_through: Fraction = 0.15
+    # dbh_std_m floor for sections that are not circles (ovality, lobes: a fitted circle and
+    # the tape girth differ by a few per cent of the DBH, depending on the side seen).
+    dbh_std_floor_rel: Fraction = 0.02
     # Spread of band points across their beams (beam footprint, bark, pose jitter between the
     # scans of a window) for the range-model circle fit; the range spread is estimated.
     dbh_lateral_sigma_m: Positive = 0.01

@@ -9,11 +9,17 @@ its quality. The fit knows where every point was seen from (the scan's sensor po
 `forestslam._core.fit_circle_rays`): LiDAR noise lies along the beam, and an orthogonal-distance
 fit of the one-sided arcs a window sees shrinks the stem (-2 cm DBH at 3 cm range noise,
 bench/dbh_bench.py); the range model does not. Moving past a stem shows it from several
-sides, so a window covers much more arc than one scan. Measurements that pass the quality
-gates are fused by a weighted mean (weight: inliers x arc coverage^2) after dropping outliers
-beyond 3 MADs of the median; dbh_std_m is their weighted standard deviation (NaN with one
-measurement). Trees without any accepted window fall back to the median of the per-scan DBH
-from perception when those agree.
+sides, so a window covers much more arc than one scan. A window circle must be physically
+possible: an opaque stem hides whatever lies behind its near half, so a circle that points were
+seen through (beyond the middle of their beam's chord) is not one stem but a circle through a
+clump of stems or a stem and a branch behind it (+68 cm on a tree of a three-stem clump).
+Measurements that pass the gates are fused by a weighted mean (weight: inliers x arc
+coverage^2) after dropping outliers beyond 3 MADs of the median. dbh_std_m adds up what the
+data says: the standard error of the window mean (Bessel-corrected weighted spread), the
+spread of perception's per-scan DBH of the stem (how well the sensor resolves it: the windows
+accumulate the same views, so their sampling and footprint errors do not average out) and a
+model floor for sections that are not circles (dbh_std_floor_rel of the DBH). Trees without
+any accepted window fall back to the median of the per-scan DBH when those agree.
 """
 
 from __future__ import annotations
@@ -38,6 +44,8 @@ class _Tree:
     n_band_scans: int = 0
     measurements: list = field(default_factory=list)  # (dbh, weight)
     scan_dbh: list = field(default_factory=list)  # per-scan perception DBH (bounded)
+    n_scans: int = 0  # scans that observed the tree
+    n_scans_dbh: int = 0  # of those, scans with a per-scan DBH
     z_sum: float = 0.0
     z_n: int = 0
 
@@ -68,11 +76,39 @@ def fit_band_circle(
         return None
     if fit["arc_coverage"] < cfg.dbh_min_arc_coverage:
         return None
+    if origins is not None:
+        fit["seen_through"] = seen_through_share(xy, origins, fit, cfg.circle_inlier_m)
+        if fit["seen_through"] > cfg.dbh_max_seen_through:
+            return None
     # Most of the window's points lie on its circle: a window holding two stems (a far stem
     # associated with its neighbour) otherwise gives a circle through both.
     if fit["inliers"] < cfg.dbh_min_inlier_ratio * len(xy):
         return None
     return fit
+
+
+def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit: dict, tol_m: float) -> float:
+    """Share of the points (M,2) whose beam from its origin (M,2) crosses the fitted circle
+    and ends more than tol_m beyond the middle of its chord: points an opaque stem of that
+    circle would have hidden (vectorised; an ideal stem view gives 0, range noise alone a few
+    per cent at grazing beams)."""
+    centre, radius = np.asarray(fit["centre"], dtype=np.float64)[:2], float(fit["radius"])
+    beam = xy - origins
+    rng = np.linalg.norm(beam, axis=1)
+    ok = rng > 0
+    if not ok.any():
+        return 0.0
+    u = beam[ok] / rng[ok, None]
+    to_centre = centre - origins[ok]
+    mid = np.einsum("ij,ij->i", u, to_centre)  # chord middle along the beam
+    miss2 = np.einsum("ij,ij->i", to_centre, to_centre) - mid**2  # beam-centre distance^2
+    behind = (miss2 < radius**2) & (rng[ok] > mid + tol_m)
+    return float(np.count_nonzero(behind)) / len(xy)
+
+
+def _spread(d: np.ndarray) -> float:
+    """Robust spread (1.4826 MAD) of values d."""
+    return float(1.4826 * np.median(np.abs(d - np.median(d))))
 
 
 class TreeMap:
@@ -106,11 +142,14 @@ class TreeMap:
             tree = self.trees.setdefault(int(ids[k]), _Tree())
             if tree.first_scan < 0:
                 tree.first_scan = scan_index
+            tree.n_scans += 1
             if np.isfinite(centre_z[k]):
                 tree.z_sum += float(centre_z[k])
                 tree.z_n += 1
-            if np.isfinite(scan_dbh[k]) and len(tree.scan_dbh) < self.MAX_SCAN_DBH:
-                tree.scan_dbh.append(float(scan_dbh[k]))
+            if np.isfinite(scan_dbh[k]):
+                tree.n_scans_dbh += 1
+                if len(tree.scan_dbh) < self.MAX_SCAN_DBH:
+                    tree.scan_dbh.append(float(scan_dbh[k]))
             pts = points[k] if k < len(points) else None
             if pts is None or len(pts) == 0 or not np.isfinite(base_z[k]):
                 continue
@@ -154,7 +193,7 @@ class TreeMap:
         tree.measurements.append((2.0 * fit["radius"], weight))
 
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
-        """Fused DBH, its std (NaN with < 2 measurements) and the number of measurements."""
+        """Fused DBH, its std and the number of window measurements fused (module docstring)."""
         tree = self.trees.get(tree_id)
         if tree is None:
             return float("nan"), float("nan"), 0
@@ -163,26 +202,31 @@ class TreeMap:
         d, w = np.array(tree.measurements).T
         if len(d) >= 3:
             med = np.median(d)
-            mad = 1.4826 * np.median(np.abs(d - med))
-            keep = np.abs(d - med) <= max(3 * mad, 0.01)
+            keep = np.abs(d - med) <= max(3 * _spread(d), 0.01)
             d, w = d[keep], w[keep]
         mean = float(np.average(d, weights=w))
-        std = float(np.sqrt(np.average((d - mean) ** 2, weights=w))) if len(d) > 1 else np.nan
-        return mean, std, len(d)
+        se = np.sqrt(np.average((d - mean) ** 2, weights=w) / (len(d) - 1)) if len(d) > 1 else 0.0
+        scans = np.asarray(tree.scan_dbh)
+        scan_spread = _spread(scans) if len(scans) >= self.cfg.dbh_fallback_min_scans else 0.0
+        floor = self.cfg.dbh_std_floor_rel * mean
+        return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
     def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
         """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
         only when at least dbh_fallback_min_scans agree (robust spread within
-        dbh_fallback_max_spread of the median, or 2 cm); the spread is its std. Scans of a
-        far tree merged with its neighbour give 2-4x its DBH: better none than that."""
+        dbh_fallback_max_spread of the median, or 2 cm) and perception measured a DBH in most
+        of the scans that saw the tree; its std is that spread (at least 5 mm) with the model
+        floor. Scans of a far tree merged with its neighbour give 2-4x its DBH, and a DBH found
+        in only a few of a tree's scans is a chance circle (clutter, two stems crossing; a
+        56 cm DBH on a 3 cm sapling from 3 of its 24 scans): better none than that."""
         d = np.asarray(tree.scan_dbh)
-        if len(d) < self.cfg.dbh_fallback_min_scans:
+        if len(d) < self.cfg.dbh_fallback_min_scans or 2 * tree.n_scans_dbh < tree.n_scans:
             return float("nan"), float("nan"), 0
         med = float(np.median(d))
-        spread = float(1.4826 * np.median(np.abs(d - med)))
+        spread = _spread(d)
         if spread > max(0.02, self.cfg.dbh_fallback_max_spread * med):
             return float("nan"), float("nan"), 0
-        return med, max(spread, 0.005), 0
+        return med, float(np.hypot(max(spread, 0.005), self.cfg.dbh_std_floor_rel * med)), 0
 
     def table(self, ids: np.ndarray, xy: np.ndarray, observations: np.ndarray) -> dict:
         """Columns for trees.csv: id,x,y,z,dbh_m,dbh_std_m,observations for the given trees
