@@ -133,6 +133,23 @@ def test_output_names_without_run_yaml_are_refused(tmp_path):
     assert (tmp_path / "trees.csv").read_text() == "a user's inventory"
 
 
+def test_a_resumed_job_keeps_the_outputs_of_its_own_command_only(tmp_path):
+    """A batch keeps an earlier batch's recording folders (it resumes them) and lists them in its
+    run.yaml; the files of another command are still refused."""
+    with Job("batch", tmp_path, resume=True) as job:
+        (job.out / "rec0").mkdir()
+        (job.out / "summary.csv").write_text("first")
+    with Job("batch", tmp_path, resume=True) as job:
+        assert (job.out / "rec0").is_dir() and (job.out / "summary.csv").read_text() == "first"
+        (job.out / "rec1").mkdir()
+    assert meta(tmp_path)["outputs"] == ["rec0", "rec1", "run.yaml", "summary.csv"]
+    other = tmp_path / "other"
+    with Job("run", other) as job:
+        (job.out / "trees.csv").write_text("a run's map")
+    with pytest.raises(InputError, match=r"earlier `forestslam run`"):
+        Job("batch", other, resume=True).__enter__()
+
+
 def test_an_input_among_the_outputs_to_replace_is_refused(tmp_path):
     with Job("tls-register", tmp_path) as job:
         (job.out / "plot.laz").write_text("merged cloud")

@@ -65,6 +65,8 @@ KNOWN_OUTPUTS: dict[str, tuple[str, ...]] = {
         "unmerged.csv",
         "plot.png",
     ),
+    # a batch's own files; the recording folders beside them are kept (resumed) by the batch
+    "batch": ("summary.csv", "summary.md", "summary.png"),
     "merge": (
         "trees.csv",
         "trees.geojson",
@@ -238,8 +240,10 @@ class Job:
         meta: dict | None = None,
         inputs: Iterable[str | Path | None] = (),
         overwrite: bool = False,
+        resume: bool = False,
     ) -> None:
         self.command = command
+        self.resume = resume  # an earlier run of the same command keeps its files (batch)
         self.out = Path(out_dir)
         self.meta = dict(meta or {})
         self.inputs = [Path(p) for p in inputs if p is not None and not _is_object(p)]
@@ -255,12 +259,12 @@ class Job:
         check_output_path(self.out)
         self._lock()
         try:
-            self._clear_earlier_outputs()
+            kept = self._clear_earlier_outputs()
             from forestslam.io.atomic import remove_stale_temporaries
 
             if remove_stale_temporaries(self.out):
                 log.info("%s: removed temporaries left by an earlier, killed run", self.out)
-            self._foreign = {p.name for p in self.out.iterdir()} - {LOCK_NAME}
+            self._foreign = {p.name for p in self.out.iterdir()} - {LOCK_NAME} - kept
             self.write_meta()
         except BaseException:
             self._unlock()
@@ -316,7 +320,8 @@ class Job:
         os.close(self._lock_fd)  # closing releases the flock
         self._lock_fd = None
 
-    def _clear_earlier_outputs(self) -> None:
+    def _clear_earlier_outputs(self) -> set[str]:
+        """Remove an earlier run's outputs; returns those kept (`resume`: the same command)."""
         earlier = _read_meta(self.out / META_NAME)
         mine = set(KNOWN_OUTPUTS.get(self.command, ())) | {META_NAME}
         if earlier is None:  # files of our names, but no run.yaml of a job accounts for them
@@ -328,7 +333,9 @@ class Job:
             names |= {n for n in listed if _is_plain_name(n)} if isinstance(listed, list) else set()
         present = sorted(n for n in names if (self.out / n).exists() or (self.out / n).is_symlink())
         if not present:
-            return
+            return set()
+        if self.resume and (command == self.command or earlier is None):
+            return names  # only our own names without a run.yaml: an older batch, resumed
         if command != self.command and not self.overwrite:
             shown = ", ".join(present[:6]) + (", ..." if len(present) > 6 else "")
             whose = f"an earlier `forestslam {command}`" if command else "no forestslam run.yaml"
@@ -349,6 +356,7 @@ class Job:
             else:
                 target.unlink(missing_ok=True)
         log.info("%s: removed %d files of the earlier run: %s", self.out, len(present), present)
+        return set()
 
     # ---------------------------------------------------------------- run.yaml
     def outputs(self) -> list[str]:

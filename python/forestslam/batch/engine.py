@@ -29,6 +29,7 @@ from forestslam.batch.job import failed_row, finished_row, one_line, process_rec
 from forestslam.batch.manifest import Recording
 from forestslam.batch.progress import BatchProgress
 from forestslam.errors import InputError
+from forestslam.job import Job
 
 log = logging.getLogger(__name__)
 
@@ -75,17 +76,32 @@ def run_batch(
     force: bool = False,
     progress: bool = True,
 ) -> BatchResult:
-    """Process the recordings not finished yet (all with `force`) and write OUT/summary.*"""
-    from forestslam.batch.plot import plot_summary
-    from forestslam.batch.summary import write_summary
+    """Process the recordings not finished yet (all with `force`) and write OUT/summary.*
 
+    OUT is held like every job's output folder (forestslam.job.Job: a lock against a second
+    batch into it, run.yaml with the outcome; the files of another command are refused), but the
+    recording folders of an earlier batch are kept for resuming."""
     if workers is not None and workers < 1:
         raise InputError(f"--workers must be >= 1, not {workers}")
     if workers is not None and scheduler is not None:
         raise InputError("give either --workers (a local cluster) or --scheduler, not both")
     t0 = time.perf_counter()
     out = Path(out).absolute()
-    out.mkdir(parents=True, exist_ok=True)
+    meta = {"recordings": [r.name for r in recordings], "workers": workers, "force": force}
+    meta["scheduler"] = scheduler
+    inputs = [p for r in recordings for p in (r.input, r.truth, r.config, r.prior_map)]
+    with Job("batch", out, meta, inputs=inputs, resume=True) as job:
+        result = _run_batch(recordings, out, workers, scheduler, force, progress, t0)
+        failed = len(result.failed)
+        job.summary = {"ok": len(result.rows) - failed, "failed": failed, "kept": result.skipped}
+        job.summary["wall_s"] = round(result.wall_s, 1)
+    return result
+
+
+def _run_batch(recordings, out: Path, workers, scheduler, force, progress, t0) -> BatchResult:
+    from forestslam.batch.plot import plot_summary
+    from forestslam.batch.summary import write_summary
+
     rows: dict[str, dict] = {}
     todo = []
     for rec in recordings:
