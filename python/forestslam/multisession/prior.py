@@ -29,6 +29,7 @@ from forestslam.config_utils import Positive, PositiveInt, Range
 from forestslam.errors import InputError
 from forestslam.geometry import planar_pose, rigid_fit, yaw_of
 from forestslam.multisession.fusion import fuse_dbh
+from forestslam.multisession.level import level_fit
 
 log = logging.getLogger(__name__)
 
@@ -217,30 +218,15 @@ class PriorTracker:
         lm = self.prior_landmarks[mine]
         fit = rigid_fit(xy[lm], self.prior.xy[mine])  # (3,3) planar
         self.T_local_odom = planar_pose(fit[0, 2], fit[1, 2], float(yaw_of(fit)))
-        z_run, z_map = slam.landmark_heights()[lm], self.prior.z[mine]
-        both = np.isfinite(z_run) & np.isfinite(z_map)
-        if both.sum() >= self.cfg.level_min_trees:
-            src = np.column_stack([xy[lm], z_run])[both]
-            dst = np.column_stack([self.prior.xy[mine], z_map])[both]
-            self._level(src, dst)
-
-    def _level(self, src: np.ndarray, dst: np.ndarray) -> None:
-        """A 3D rigid fit (N,3) -> (N,3) of the run's tree centres onto the map's, refitted
-        without the pairs beyond 3 robust sigmas; kept when its tilt is plausible."""
-        T = rigid_fit(src, dst)
-        for _ in range(2):
-            r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
-            keep = r <= 3.0 * 1.4826 * max(float(np.median(r)), 1e-3)
-            if keep.sum() < self.cfg.level_min_trees:
-                return
-            T = rigid_fit(src[keep], dst[keep])
-        tilt = math.degrees(math.acos(float(np.clip(T[2, 2], -1.0, 1.0))))
-        if tilt > self.cfg.level_max_tilt_deg:
-            log.warning("prior map: a %.1f deg tilt to the map is implausible, kept planar", tilt)
-            return
-        self.T_local_odom = T
-        self.placement["tilt_deg"] = tilt
-        self.placement["levelled_trees"] = int(keep.sum())
+        levelled = level_fit(
+            np.column_stack([xy[lm], slam.landmark_heights()[lm]]),
+            np.column_stack([self.prior.xy[mine], self.prior.z[mine]]),
+            self.cfg.level_min_trees,
+            self.cfg.level_max_tilt_deg,
+        )
+        if levelled is not None:
+            self.T_local_odom = levelled[0]
+            self.placement.update(tilt_deg=levelled[1], levelled_trees=levelled[2])
 
     def T_map_odom(self) -> np.ndarray:
         """Map coordinates <- odometry frame (identity while not placed)."""
