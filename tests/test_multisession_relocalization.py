@@ -77,3 +77,4 @@ def test_a_segment_in_a_place_the_map_does_not_hold_stays_lost_and_ties_nothing(
     assert slam.losses == 1 and slam.lost_since is not None
     assert loops.stats["relocalization_queries"] > 5 and loops.stats["relocalizations"] == 0
     assert np.all(slam.aliases() < 0) and slam.relocalizations == 0  # no tie was added
+    assert loops.stats["index_builds"] == 1  # the map before the loss is indexed once
