@@ -10,7 +10,8 @@
   ATE with and without place recognition, and the loop closures it made.
 - A with drift and a tracking loss (--jump: after 30 m the odometry jumps 4 m sideways and
   20 deg): ATE with the chain break and relocalization, without place recognition (the break
-  alone), and without the break (slam.loss_min_tracked 0: the jump stays in the chain).
+  alone), and (longleaf) without the break (slam.loss_min_tracked 0: the jump stays in the
+  chain); on both worlds.
 
 Every run goes through `forestslam.runner.run` as the CLI does. Needs ../shared/data/stands
 (longleaf, spruces); sequences are simulated once into data/cache/bench-multisession.
@@ -179,14 +180,15 @@ def main() -> int:
         world_rows = b_in_a(world, a, b, args.out / world)
         targets.append(world_rows[-1][1])
         rows += world_rows
+        out, jump = args.out / world, f"{args.drift},{args.jump}"
+        both = {"with place recognition": "", "without": NO_PLACE_RECOGNITION}
         if world == "longleaf":
-            rows.append(b_in_inventory(b, args.out / world))
+            rows.append(b_in_inventory(b, out))
             targets.append(rows[-1][1])
-            out = args.out / world
-            both = {"with place recognition": "", "without": NO_PLACE_RECOGNITION}
             rows += drifted(a, out, args.drift, both)
-            jump = f"{args.drift},{args.jump}"
             rows += drifted(a, out, jump, both | {"without the chain break": NO_BREAK})
+        else:
+            rows += drifted(a, out, jump, both)
 
     print(f"\nmulti-session bench (VLP-16; longleaf crop {CROP}, spruces; CPU s per run)")
     print(f"{'case':58s} {'ATE m':>8s} {'CPU s':>7s}  notes")
