@@ -83,14 +83,15 @@ def test_a_rejected_localization_adds_no_constraint():
     elsewhere = rng.uniform(200, 260, (80, 2))  # a map of another place
     n = len(elsewhere)
     prior = PriorMap(
-        elsewhere,
-        np.full(n, 0.3),
-        np.full(n, np.nan),
-        np.ones(n),
-        np.arange(n),
-        np.full(n, 0.3),
-        np.zeros(2),
-        "test",
+        xy=elsewhere,
+        dbh_m=np.full(n, 0.3),
+        dbh_std_m=np.full(n, np.nan),
+        z=np.full(n, np.nan),
+        observations=np.ones(n),
+        ids=np.arange(n),
+        sigma_m=np.full(n, 0.3),
+        origin=np.zeros(2),
+        source="test",
     )
     slam = LandmarkSlam()
     slam._lm_xy = own  # a graph's trees, as the SLAM has them

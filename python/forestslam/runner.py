@@ -598,6 +598,8 @@ def _record_multisession(job, pipe: Pipeline) -> None:
         job.meta["prior_map"] = pipe.prior.to_dict()
     if pipe.loops is not None:
         job.meta["place_recognition"] = dict(pipe.loops.stats)
+    if pipe.slam is not None:  # tracking losses (odometry jumps) and their relocalizations
+        job.meta.setdefault("place_recognition", {})["tracking_losses"] = pipe.slam.losses
 
 
 def _finish(pipe: Pipeline, summary: RunSummary) -> None:

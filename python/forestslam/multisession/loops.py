@@ -1,14 +1,22 @@
 """Loop closure and relocalization by place recognition, inside one run.
 
 Re-association under the odometry's prediction re-finds trees only while the pose error is within
-its search radius: past that (a long excursion's drift, or a loss: a jump of the odometry, a gap
-in the recording) the SLAM maps the same trees a second time. The symptom is checked every
-`every_keyframes` keyframes: near the machine there are trees mapped earlier that the SLAM has
-not re-found lately, and trees it has just mapped. Then the newly mapped trees are localized by
-the Delaunay-star localizer among all trees mapped earlier (and prior-map trees); when its
-acceptance test holds and the place disagrees with the graph by more than `min_correction_m`,
-each matched pair (older copy, newer copy) is tied by a robust factor. A rejected query adds
-nothing, and a correction beyond `max_correction_m` is refused.
+its search radius: past that (a long excursion's drift) the SLAM maps the same trees a second
+time. The symptom is checked every `every_keyframes` keyframes: near the machine there are trees
+mapped earlier that the SLAM has not re-found lately, and trees it has just mapped. Then the
+newly mapped trees are localized by the Delaunay-star localizer among all trees mapped earlier
+(and prior-map trees); when its acceptance test holds and the place disagrees with the graph by
+more than `min_correction_m`, each matched pair (older copy, newer copy) is tied by a robust
+factor. A rejected query adds nothing, and a correction beyond `max_correction_m` is refused.
+
+Relocalization: when the SLAM lost track (the trees it tracked vanished at once: an odometry
+jump), it starts a segment nearly free of the odometry chain (`LandmarkSlam.lost_since`). At
+every keyframe the segment's own trees are then localized among the trees mapped before it,
+anywhere in the map; the first accepted place ties them (the segment moves onto the map, however
+far) and tracking resumes against every tree.
+
+The Delaunay index of the mapped trees is kept between queries and rebuilt only when trees moved
+(a closure) or the mapped set grew by `rebuild_growth` (building costs ~100x a query).
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from typing import Annotated
 
 import numpy as np
 
-from forestslam.config_utils import Positive, PositiveInt, Range
+from forestslam.config_utils import NonNegative, Positive, PositiveInt, Range
 
 log = logging.getLogger(__name__)
 
@@ -35,21 +43,40 @@ class PlaceRecognitionConfig:
     min_correction_m: Positive = 0.3
     max_correction_m: Positive = 50.0
     tie_sigma_m: Positive = 0.1
+    # the kept Delaunay index is rebuilt when a tree moved this much or the set grew by this
+    rebuild_growth: NonNegative = 0.1
+    index_tolerance_m: Positive = 0.1
 
 
 class PlaceRecognition:
     def __init__(self, config: PlaceRecognitionConfig | None = None, localization=None) -> None:
         self.cfg = config or PlaceRecognitionConfig()
         self.localization = localization
-        self.stats = {"queries": 0, "rejected": 0, "consistent": 0, "refused": 0, "closures": 0}
+        self.stats = {
+            "queries": 0,
+            "rejected": 0,
+            "consistent": 0,
+            "refused": 0,
+            "closures": 0,
+            "relocalization_queries": 0,
+            "relocalizations": 0,
+            "index_builds": 0,
+        }
+        self._index = None  # (TreeMap, landmark ids, their positions when built)
 
     def step(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
-        """At a keyframe: query and, when a loop is verified, tie the trees. True on a closure."""
-        c = self.cfg
-        if not c.enabled or keyframe % c.every_keyframes or keyframe < c.window_keyframes:
+        """At a keyframe: relocalize a lost segment, or query for a loop and, when one is
+        verified, tie the trees. True when trees were tied."""
+        if not self.cfg.enabled:
             return False
-        from forestslam.localization import build_map, localize
+        if slam.lost_since is not None:
+            return self._relocalize(slam, keyframe, T_map_sensor)
+        return self._close_loop(slam, keyframe, T_map_sensor)
 
+    def _close_loop(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
+        c = self.cfg
+        if keyframe % c.every_keyframes or keyframe < c.window_keyframes:
+            return False
         xy, _ = slam.landmarks()
         first, last = slam.landmark_keyframes()
         alive = slam.aliases() < 0
@@ -61,8 +88,8 @@ class PlaceRecognition:
         if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
             return False
         self.stats["queries"] += 1
-        q_ids, m_ids = np.flatnonzero(recent), np.flatnonzero(old)
-        loc = localize(build_map(xy[m_ids]), xy[q_ids], self.localization)
+        q_ids = np.flatnonzero(recent)
+        loc, m_ids = self._query(xy, old, xy[q_ids])
         if loc.rejected:
             self.stats["rejected"] += 1
             return False
@@ -76,15 +103,73 @@ class PlaceRecognition:
                 "place recognition: a %.1f m correction refused at keyframe %d", shift, keyframe
             )
             return False
-        m = np.asarray(loc.matches, dtype=np.int64).reshape(-1, 2)
-        pairs = np.column_stack([m_ids[m[:, 1]], q_ids[m[:, 0]]])
-        slam.tie_trees(pairs, c.tie_sigma_m)
+        slam.tie_trees(self._pairs(loc, m_ids, q_ids), c.tie_sigma_m)
         self.stats["closures"] += 1
         log.info(
             "place recognition: loop closed at keyframe %d (%d trees, %.2f m, %.2f deg)",
             keyframe,
-            len(pairs),
+            len(loc.matches),
             shift,
             math.degrees(loc.yaw),
         )
         return True
+
+    def _relocalize(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
+        """The lost segment's trees around the machine localized among the trees mapped before
+        the loss (anywhere: a lost pose bounds nothing); accepted -> tied, tracking resumes."""
+        c = self.cfg
+        xy, _ = slam.landmarks()
+        first, _ = slam.landmark_keyframes()
+        alive = slam.aliases() < 0
+        near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
+        segment = alive & near & (first >= slam.lost_since)
+        mapped = alive & (first < slam.lost_since)
+        if segment.sum() < c.min_query_trees or mapped.sum() < c.min_query_trees:
+            return False
+        self.stats["relocalization_queries"] += 1
+        q_ids = np.flatnonzero(segment)
+        loc, m_ids = self._query(xy, mapped, xy[q_ids])
+        if loc.rejected:
+            return False
+        pairs, lost_since = self._pairs(loc, m_ids, q_ids), slam.lost_since
+        slam.relocalized(pairs, c.tie_sigma_m)
+        self.stats["relocalizations"] += 1
+        log.info(
+            "place recognition: relocalized at keyframe %d (lost since %d, %d trees, %.2f m, "
+            "%.2f deg)",
+            keyframe,
+            lost_since,
+            len(pairs),
+            math.hypot(loc.x, loc.y),
+            math.degrees(loc.yaw),
+        )
+        return True
+
+    def _query(self, xy: np.ndarray, mapped: np.ndarray, query_xy: np.ndarray):
+        """Localize query_xy (K,2) among the trees `mapped` (L,) bool; (result, ids the result's
+        map indices refer to)."""
+        from forestslam.localization import build_map, localize
+
+        ids = np.flatnonzero(mapped)
+        if not self._index_fits(xy, ids):
+            self._index = (build_map(xy[ids]), ids, xy[ids].copy())
+            self.stats["index_builds"] += 1
+        tree_map, m_ids, _ = self._index
+        return localize(tree_map, query_xy, self.localization), m_ids
+
+    def _index_fits(self, xy: np.ndarray, ids: np.ndarray) -> bool:
+        """Whether the kept index still stands for the trees `ids`: all of its trees are among
+        them, none moved by more than `index_tolerance_m`, and few new ones are missing."""
+        if self._index is None:
+            return False
+        _, m_ids, m_xy = self._index
+        c = self.cfg
+        if len(ids) > len(m_ids) * (1.0 + c.rebuild_growth) or not np.isin(m_ids, ids).all():
+            return False
+        return float(np.abs(xy[m_ids] - m_xy).max(initial=0.0)) <= c.index_tolerance_m
+
+    @staticmethod
+    def _pairs(loc, m_ids: np.ndarray, q_ids: np.ndarray) -> np.ndarray:
+        """(K,2) landmark indices (map tree, query tree) of the localizer's matches."""
+        m = np.asarray(loc.matches, dtype=np.int64).reshape(-1, 2)
+        return np.column_stack([m_ids[m[:, 1]], q_ids[m[:, 0]]])

@@ -41,6 +41,9 @@ class MergeConfig:
     gate_m: float = 0.5
     refine_iterations: int = 10
     dbh_sigma_m: float = 0.02  # a DBH without its own spread (dbh_std_m)
+    # levelling on the matched trees' heights (forestslam.multisession.level)
+    level_min_trees: int = 8
+    level_max_tilt_deg: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,7 @@ class MapAlignment:
     accepted: int
     agreeing: int
     votes: list[dict] = field(default_factory=list)
+    tilt_deg: float = 0.0  # of B's frame against A's when levelled on tree heights
 
     def to_dict(self) -> dict:
         yaw = math.degrees(math.atan2(self.T_a_b[1, 0], self.T_a_b[0, 0]))
@@ -68,6 +72,7 @@ class MapAlignment:
             "queries": self.queries,
             "accepted_queries": self.accepted,
             "agreeing_queries": self.agreeing,
+            "tilt_deg": float(self.tilt_deg),
         }
 
 

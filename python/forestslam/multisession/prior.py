@@ -27,8 +27,9 @@ import numpy as np
 
 from forestslam.config_utils import Positive, PositiveInt, Range
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose, rigid_fit, transform_xy, yaw_of
+from forestslam.geometry import planar_pose, rigid_fit, transform_points, transform_xy, yaw_of
 from forestslam.multisession.fusion import fuse_dbh
+from forestslam.multisession.level import level_fit
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,13 @@ class PriorMapConfig:
     place_every_keyframes: PositiveInt = 4  # placement attempts while not placed
     place_radius_m: Positive = 25.0  # the run's trees around the machine that form a query
     place_min_trees: Annotated[int, Range(ge=3)] = 6
+    # Levelling: each run's frame is its first scan's sensor frame, tilted by the slope and
+    # sway where it started; a planar placement leaves the tilt between the run and the map, so
+    # the trajectory and the trees sit apart by tilt x height difference (terrain relief). With
+    # tree centre heights in both (a forestslam map), the final fit is a 3D rigid fit of the
+    # re-observed trees when this many have heights and the tilt found is plausible.
+    level_min_trees: Annotated[int, Range(ge=3)] = 8
+    level_max_tilt_deg: Positive = 15.0
 
 
 @dataclass(frozen=True)
@@ -52,6 +60,7 @@ class PriorMap:
     xy: np.ndarray  # (M,2) local
     dbh_m: np.ndarray  # (M,) NaN where unknown
     dbh_std_m: np.ndarray  # (M,) NaN where unknown
+    z: np.ndarray  # (M,) breast-height centre heights, NaN where unknown (an inventory)
     observations: np.ndarray  # (M,) observation counts (1 for an inventory)
     ids: np.ndarray  # (M,) the map's tree ids
     sigma_m: np.ndarray  # (M,) position sigma
@@ -108,6 +117,7 @@ def load_prior_map(path: str | Path, config: PriorMapConfig | None = None) -> Pr
         xy=xy[keep] - origin,
         dbh_m=dbh[keep],
         dbh_std_m=_column(table, ("dbh_std_m",), n, np.nan)[keep],
+        z=_column(table, ("z",), n, np.nan)[keep],
         observations=_column(table, ("observations",), n, 1.0)[keep],
         ids=ids[keep],
         sigma_m=_column(table, ("sigma_m", "position_std_m"), n, sigma)[keep],
@@ -195,8 +205,9 @@ class PriorTracker:
 
     def refit(self, slam) -> None:
         """T_local_odom refitted from the prior trees this run saw again: their optimised
-        positions onto their map positions (planar rigid fit). The observations outweigh an
-        inventory's priors, so this removes what the placement got wrong."""
+        positions onto their map positions. The observations outweigh an inventory's priors,
+        so this removes what the placement got wrong. Planar, or 3D (levelled, see
+        PriorMapConfig.level_*) when the map and the run have the trees' heights."""
         if not self.placed:
             return
         xy, _ = slam.landmarks()
@@ -204,8 +215,18 @@ class PriorTracker:
         mine = mine[slam.observed_this_run()[self.prior_landmarks[mine]]]
         if len(mine) < 3:
             return
-        fit = rigid_fit(xy[self.prior_landmarks[mine]], self.prior.xy[mine])  # (3,3) planar
+        lm = self.prior_landmarks[mine]
+        fit = rigid_fit(xy[lm], self.prior.xy[mine])  # (3,3) planar
         self.T_local_odom = planar_pose(fit[0, 2], fit[1, 2], float(yaw_of(fit)))
+        levelled = level_fit(
+            np.column_stack([xy[lm], slam.landmark_heights()[lm]]),
+            np.column_stack([self.prior.xy[mine], self.prior.z[mine]]),
+            self.cfg.level_min_trees,
+            self.cfg.level_max_tilt_deg,
+        )
+        if levelled is not None:
+            self.T_local_odom = levelled[0]
+            self.placement.update(tilt_deg=levelled[1], levelled_trees=levelled[2])
 
     def T_map_odom(self) -> np.ndarray:
         """Map coordinates <- odometry frame (identity while not placed)."""
@@ -253,17 +274,21 @@ class PriorTracker:
         ids = np.where(is_prior, p.ids[j], first_new + np.cumsum(~is_prior) - 1)
         status = self.tree_status(slam.n_landmarks, slam.observed_this_run())[lm]
         T = self.T_map_odom()
-        xy = transform_xy(T, np.column_stack([table["x"], table["y"]]))
+        z = np.asarray(table.get("z", np.full(len(lm), np.nan)), dtype=np.float64)
+        z_fill = np.where(np.isfinite(z), z, np.nanmean(z) if np.isfinite(z).any() else 0.0)
+        xyz = transform_points(T, np.column_stack([table["x"], table["y"], z_fill]))
         out = dict(table)
         out.update(
             id=ids,
-            x=xy[:, 0],
-            y=xy[:, 1],
+            x=xyz[:, 0],
+            y=xyz[:, 1],
             dbh_m=dbh,
             dbh_std_m=std,
             observations=nobs[lm].astype(np.int64),
             status=status,
         )
+        if "z" in table:
+            out["z"] = np.where(np.isfinite(z), xyz[:, 2], np.nan)
         return out
 
     def express_poses(self, poses: np.ndarray) -> np.ndarray:

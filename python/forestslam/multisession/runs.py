@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from forestslam.errors import InputError
+from forestslam.multisession.level import level_fit
 from forestslam.multisession.merge import MergeConfig, align_tree_maps, fuse_trees
 
 log = logging.getLogger(__name__)
@@ -25,6 +27,24 @@ def _load_run(run_dir: Path) -> tuple[dict, np.ndarray, np.ndarray]:
             raise InputError(f"{run_dir}: no {path.name} (a slam or map3d run writes it)")
     stamps, poses = read_tum(traj_path)
     return read_trees_csv(trees_path), stamps, poses
+
+
+def _levelled(a: dict, b: dict, alignment, config: MergeConfig):
+    """The planar placement made 3D on the matched trees' centres when both maps have
+    heights (see forestslam.multisession.level); as it was otherwise."""
+    if "z" not in a or "z" not in b:
+        return alignment
+    ia, ib = alignment.pairs[:, 0], alignment.pairs[:, 1]
+    levelled = level_fit(
+        np.column_stack([b["x"], b["y"], b["z"]])[ib],
+        np.column_stack([a["x"], a["y"], a["z"]])[ia],
+        config.level_min_trees,
+        config.level_max_tilt_deg,
+    )
+    if levelled is None:
+        return alignment
+    log.info("B levelled on A: tilt %.2f deg over %d trees", levelled[1], levelled[2])
+    return replace(alignment, T_a_b=levelled[0], tilt_deg=levelled[1])
 
 
 def merge_runs(
@@ -44,6 +64,7 @@ def merge_runs(
         poses_b[:, :2, 3],
         config,
     )
+    alignment = _levelled(a, b, alignment, config)
     merged = fuse_trees(a, b, alignment)
     poses_b_in_a = np.einsum("ij,kjl->kil", alignment.T_a_b, poses_b)
     write_tum(out / "trajectory_a.tum", stamps_a, poses_a)

@@ -5,7 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from forestslam.config_utils import NonNegative, NonNegativeInt, Positive, PositiveInt, Range
+from forestslam.config_utils import (
+    Fraction,
+    NonNegative,
+    NonNegativeInt,
+    Positive,
+    PositiveInt,
+    Range,
+)
 
 
 @dataclass
@@ -54,6 +61,15 @@ class SlamConfig:
     height_obs_sigma_m: Positive = 0.1  # perception centre heights: ~6 cm MAD on rough ground
     height_step_sigma_m: Positive = 0.005
     height_sigma_per_m: NonNegative = 0.01
+    # Tracking loss (multi-session, issue 21): at a keyframe, when at least `loss_min_tracked`
+    # trees seen at the previous keyframe are still in range but at most `loss_max_refound` of
+    # them are re-found, the odometry jumped: its factor across the loss gets `loss_sigma_m` /
+    # `loss_sigma_deg` (a new, nearly free segment) and, until place recognition relocalizes the
+    # segment, trees are associated only with the segment's own (0: never break the chain).
+    loss_min_tracked: NonNegativeInt = 6
+    loss_max_refound: Fraction = 0.25
+    loss_sigma_m: Positive = 10.0
+    loss_sigma_deg: Positive = 90.0
     # iSAM2
     relinearize_threshold: NonNegative = 0.01
     relinearize_skip: PositiveInt = 1

@@ -26,7 +26,12 @@ import numpy as np
 
 from forestslam import geometry
 from forestslam.errors import InputError, ProcessingError
-from forestslam.slam.association import associate, dbh_compatible, rigid_2d
+from forestslam.slam.association import (
+    AssociationResult,
+    associate,
+    dbh_compatible,
+    rigid_2d,
+)
 from forestslam.slam.config import SlamConfig
 from forestslam.slam.height import HeightGraph
 
@@ -130,6 +135,12 @@ class LandmarkSlam:
         self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
         self.loop_closures = 0
         self.n_landmark_factors = 0
+        # Tracking loss (see SlamConfig.loss_*): the first keyframe of the current lost segment,
+        # None while tracking holds or once place recognition relocalized the segment.
+        self.lost_since: int | None = None
+        self.losses = 0
+        self.relocalizations = 0
+        self._loss_kfs: list[int] = []  # keyframes that started a segment
         c = self.cfg
         self.height = (
             HeightGraph(c.height_obs_sigma_m, c.height_step_sigma_m, c.height_sigma_per_m)
@@ -211,6 +222,14 @@ class LandmarkSlam:
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
         self.loop_closures += 1
+
+    def relocalized(self, pairs: np.ndarray, sigma_m: float) -> None:
+        """Place recognition placed the lost segment in the map: its trees (newer) are tied to
+        the map's (older) as in `tie_trees`, and association uses every tree again."""
+        self.tie_trees(pairs, sigma_m)
+        self.loop_closures -= 1  # a relocalization, counted apart
+        self.relocalizations += 1
+        self.lost_since = None
 
     def observed_this_run(self) -> np.ndarray:
         """(L,) whether this run observed each tree (prior-map trees may not have been)."""
@@ -326,15 +345,8 @@ class LandmarkSlam:
         pred = self._predict(o2)
         if len(idx) and self.n_landmarks:
             obs = stems_xy[idx] @ pred[:2, :2].T + pred[:2, 2]
-            res = associate(
-                obs,
-                stems_dbh[idx],
-                self._lm_xy,
-                self.landmark_sigma(),
-                self._lm_dbh,
-                np.eye(2) * cfg.search_radius_min_m**2 / 9,
-                cfg,
-                use_consensus=False,
+            res = self._associate(
+                obs, stems_dbh[idx], np.eye(2) * cfg.search_radius_min_m**2 / 9, False
             )
             ids[idx] = res.matches
             pred = self._localize(obs, res.matches) @ pred
@@ -361,6 +373,8 @@ class LandmarkSlam:
         corr[:, 2] = np.unwrap(corr[:, 2])
         kf_t = stamps[kf_scan]
         c = np.column_stack([np.interp(stamps, kf_t, corr[:, i]) for i in range(3)])
+        for k in self._loss_kfs:  # the jump is the lost keyframe's scan: no blending across it
+            c[kf_scan[k - 1] + 1 : kf_scan[k]] = corr[k - 1]
         lifts = np.tile(np.eye(4), (n, 1, 1))
         lifts[:, :2, :2] = geometry.rot2(c[:, 2])
         lifts[:, :2, 3] = c[:, :2]
@@ -401,6 +415,43 @@ class LandmarkSlam:
             or dyaw >= math.radians(cfg.keyframe_yaw_deg)
             or (dt >= cfg.keyframe_max_interval_s and d >= 0.1 * cfg.keyframe_distance_m)
         )
+
+    def _associate(self, obs_map, obs_dbh, pose_cov, use_consensus: bool = True):
+        """`associate` with the trees this run may match now: not the second copies tied to an
+        older one, and only the lost segment's own trees while it is not relocalized."""
+        usable = self._lm_alias < 0
+        if self.lost_since is not None:
+            usable &= self._lm_first_kf >= self.lost_since
+        ids = np.flatnonzero(usable)
+        res = associate(
+            obs_map,
+            obs_dbh,
+            self._lm_xy[ids],
+            self.landmark_sigma()[ids],
+            self._lm_dbh[ids],
+            pose_cov,
+            self.cfg,
+            use_consensus,
+        )
+        hit = res.matches >= 0
+        res.matches[hit] = ids[res.matches[hit]]
+        return res
+
+    def _tracking_lost(self, kf: int, pred: np.ndarray, n_obs: int, matches: np.ndarray) -> bool:
+        """Whether the trees tracked at the previous keyframe vanished at this one (see
+        SlamConfig.loss_*): an odometry jump, not occlusion of a few."""
+        cfg = self.cfg
+        if cfg.loss_min_tracked == 0 or n_obs < cfg.loss_min_tracked:
+            return False
+        alias = self.aliases()  # a tree tied since is tracked as its older copy
+        root = np.where(alias >= 0, alias, np.arange(self.n_landmarks))
+        tracked = np.unique(root[self._lm_last_kf == kf - 1])
+        rng = np.linalg.norm(self._lm_xy[tracked] - pred[:2, 2], axis=1)
+        tracked = tracked[rng <= cfg.max_observation_range_m - cfg.search_radius_max_m]
+        if len(tracked) < cfg.loss_min_tracked:
+            return False
+        refound = np.isin(tracked, root[matches[matches >= 0]]).sum()
+        return refound <= cfg.loss_max_refound * len(tracked)
 
     def _localize(self, obs_map: np.ndarray, matches: np.ndarray) -> np.ndarray:
         """Planar correction (3,3) of a non-keyframe scan from its associated stems: a rigid fit
@@ -480,17 +531,22 @@ class LandmarkSlam:
             pose_cov = np.zeros((2, 2))
         else:
             pred = self._predict(o2)
-            delta = matrix_pose2(np.linalg.inv(pose2_matrix(self._kf_odom2[-1])) @ pose2_matrix(o2))
-            graph.add(
-                gtsam.BetweenFactorPose2(
-                    X(kf - 1), X(kf), gtsam.Pose2(*delta), self._odometry_noise()
-                )
-            )
             pose_cov = self._pose_cov[:2, :2] + self._cov_acc[:2, :2]
         obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
-        res = associate(
-            obs_map, obs_dbh, self._lm_xy, self.landmark_sigma(), self._lm_dbh, pose_cov, cfg
-        )
+        res = self._associate(obs_map, obs_dbh, pose_cov)
+        if not first:
+            odom_noise = self._odometry_noise()
+            if self._tracking_lost(kf, pred, len(obs_s), res.matches):
+                # a new segment: nearly free of the chain, its trees its own until relocalized
+                odom_noise = gtsam.noiseModel.Diagonal.Sigmas(
+                    np.array([cfg.loss_sigma_m] * 2 + [math.radians(cfg.loss_sigma_deg)])
+                )
+                res = AssociationResult(matches=np.full(len(obs_s), -1, dtype=np.int64))
+                self.lost_since, self.losses = kf, self.losses + 1
+                self._loss_kfs.append(kf)
+                log.info("tracking lost at keyframe %d: a new segment starts", kf)
+            delta = matrix_pose2(np.linalg.inv(pose2_matrix(self._kf_odom2[-1])) @ pose2_matrix(o2))
+            graph.add(gtsam.BetweenFactorPose2(X(kf - 1), X(kf), gtsam.Pose2(*delta), odom_noise))
         pred = res.correction @ pred
         if not first and self.refine_hook is not None:
             refined = self.refine_hook(pred)
@@ -557,6 +613,7 @@ class LandmarkSlam:
             "lm": {k: v.copy() for k, v in vars(self).items() if k.startswith("_lm_")},
             "tentative": copy.deepcopy(self._tentative),
             "counts": (self.loop_closures, self.n_landmark_factors),
+            "loss": (self.lost_since, self.losses, self.relocalizations),
             "keyframes": self.n_keyframes,
             "height_obs": None if self.height is None else self.height.n_observations,
         }
@@ -566,6 +623,8 @@ class LandmarkSlam:
             setattr(self, name, value)
         self._tentative = before["tentative"]
         self.loop_closures, self.n_landmark_factors = before["counts"]
+        self.lost_since, self.losses, self.relocalizations = before["loss"]
+        self._loss_kfs = [k for k in self._loss_kfs if k < before["keyframes"]]
         n = before["keyframes"]
         del self._kf_scan[n:], self._kf_odom2[n:]
         if self.height is not None:
