@@ -164,3 +164,7 @@ def test_table_as_map_and_as_queries(tmp_path, world):
     for q, T in zip(doc["queries"], query_poses, strict=True):
         assert q["accepted"] and q["stage"] == "star"
         assert math.hypot(q["x"] - T[0, 3], q["y"] - T[1, 3]) < 0.2
+    # The common job skeleton: run.yaml records the outcome, the lock is released.
+    from forestslam.job import run_status
+
+    assert run_status(out) == ("complete", None)

@@ -84,6 +84,7 @@ def register(app: typer.Typer) -> None:
                 gravity=gravity,
                 start=start,
                 max_queries=max_scans,
+                overwrite=overwrite,
             )
             print(
                 f"{len(r.queries)} tree-table queries, {r.accepted} accepted, median "
