@@ -56,6 +56,10 @@ TEST(Acceptance, TruncatedProductTailKnownValue) {
     const double p = mu * std::exp(-mu) * std::exp(-w) + 1 - std::exp(-mu) * (1 + mu);
     EXPECT_NEAR(forestslam::truncatedProductTailLog10(mu, c, 1, w), -std::log10(p), 1e-9);
     EXPECT_EQ(forestslam::truncatedProductTailLog10(mu, c, 0, 5.0), 0.0);
+    // Against the direct sum of Pois(j) P(Gamma(j) >= s - j c) (scipy.stats, 400 terms).
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(2.0, 2.1, 10, 12.5), 4.529518, 1e-5);
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(15.0, 1.9, 30, 40.0), 4.180385, 1e-5);
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(0.08, 4.5, 2, 9.0), 4.720768, 1e-5);
     // Closer inliers are more significant; more of them too.
     EXPECT_GT(forestslam::truncatedProductTailLog10(0.5, 3, 3, 9),
               forestslam::truncatedProductTailLog10(0.5, 3, 3, 2));

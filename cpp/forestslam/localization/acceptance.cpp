@@ -73,13 +73,28 @@ double truncatedProductTailLog10(double mu, double c, int k, double w) {
     double total = kNegInf;
     for (int j = 1; j <= jmax; ++j) {
         const double log_pois = -mu + j * std::log(mu) - std::lgamma(j + 1.0);
+        if (log_pois < total - 40) continue;  // Q <= 1: this term cannot matter
         const double x = s - j * c;
         double log_q = 0.0;  // x <= 0: the j terms exceed s surely
         if (x > 0) {
-            log_q = kNegInf;
-            for (int m = 0; m < j; ++m)
-                log_q = logsumexp(log_q, -x + m * std::log(x) - std::lgamma(m + 1.0));
-            log_q = std::min(0.0, log_q);
+            // log sum_{m < j} e^-x x^m / m!, terms built by recurrence, summed against the
+            // largest (at m = min(j - 1, floor(x))).
+            const double lx = std::log(x);
+            const int mode = std::min(j - 1, static_cast<int>(x));
+            const double log_mode = -x + mode * lx - std::lgamma(mode + 1.0);
+            double sum = 1.0, t = 0.0;
+            for (int m = mode - 1; m >= 0; --m) {  // t = log(term_m / term_mode)
+                t += std::log(m + 1.0) - lx;
+                if (t < -40) break;
+                sum += std::exp(t);
+            }
+            t = 0.0;
+            for (int m = mode + 1; m < j; ++m) {
+                t += lx - std::log(double(m));
+                if (t < -40) break;
+                sum += std::exp(t);
+            }
+            log_q = std::min(0.0, log_mode + std::log(sum));
         }
         total = logsumexp(total, log_pois + log_q);
     }

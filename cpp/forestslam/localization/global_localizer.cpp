@@ -132,7 +132,7 @@ struct Hypotheses {
     std::unordered_set<uint64_t> seen;
 
     int best = 0;      // highest consensus so far
-    int verified = 0;  // every verified correspondence, duplicates included (the search size)
+    int verified = 0;  // every verified correspondence, duplicates included (time budget)
     std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
@@ -337,8 +337,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 =
-        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage1 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
+                                       scoring, tri.used_points, cfg);
     stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
@@ -393,8 +393,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 =
-        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage2 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
+                                       scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
@@ -484,7 +484,7 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
                std::make_tuple(b.pose[0], b.pose[1], b.pose[2]);
     });
     res.hypotheses = static_cast<int>(hyps.size());
-    const int searched = static_cast<int>(matches.size());
+    const int searched = static_cast<int>(hyps.size());  // the bins tested
     GlobalLocalization out = decide(res, hyps, searched, usable, scoring, tri.used_points, cfg);
     out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
     if (out.rejected && hyps.empty())

@@ -125,7 +125,8 @@ class TreeMap {
                                      const Triangulation &tri, const Points2 &usable,
                                      const Points2 &scoring,
                                      const GlobalLocalizerConfig &cfg) const;
-    // searched: verified correspondences (the multiple-testing count of the acceptance test).
+    // searched: the hypotheses tested (the multiple-testing count of the acceptance test):
+    // verified matches whose poses are distinct by hash (a repeat is not tested again).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                               int searched, const Points2 &local, const Points2 &scoring,
                               const std::vector<int> &local_rows,
