@@ -558,8 +558,8 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     // The test is made at a hypothesis' own pose, fixed by its seed points (the refinement
     // below moves the pose to gather inliers, which chance alignments in a dense map also gain).
     // The most significant of the best-scoring few wins (in a sparse view several score alike
-    // and only the closeness of the fit tells them apart); the runner-up is the most significant
-    // distinct one of them, else the best-scoring distinct hypothesis.
+    // and only the closeness of the fit tells them apart; paper: the fullest bin); the runner-up is
+    // the most significant distinct one of them, else the best-scoring distinct hypothesis.
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
     auto evidenceOf = [&](const Hypothesis &h) {
         return evidence(scoring, h.pose, seeds(h.stage), searched, cfg);
@@ -567,8 +567,8 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     std::vector<ChanceEvidence> top;
     for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)
         top.push_back(evidenceOf(hyps[i]));
-    size_t bi = 0;
-    for (size_t i = 1; i < top.size(); ++i)
+    size_t bi = 0;  // paper: the fullest bin wins (Eq. 4), as written
+    for (size_t i = 1; cfg.matcher != Matcher::Paper && i < top.size(); ++i)
         if (top[i].significance > top[bi].significance) bi = i;
     const Hypothesis best = hyps[bi];
     const ChanceEvidence best_evidence = top[bi];
@@ -653,8 +653,13 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     acfg.min_significance = cfg.min_significance;
     acfg.ambiguity_ratio = cfg.ambiguity_ratio;
     acfg.min_inliers = cfg.min_inliers;
-    const AcceptanceVerdict verdict =
-        judge(best_evidence, runnerUpFraction(best_evidence.significance, res.runner_up), acfg);
+    // Paper: the runner-up bin's votes over the fullest's (the matcher's own score); its bins
+    // are coarse (0.5 m, 2 deg), so a place split over two bins stays ambiguous.
+    const double runner_fraction =
+        cfg.matcher == Matcher::Paper
+            ? (ri >= 0 ? double(hyps[ri].score) / std::max(best.score, 1) : 0.0)
+            : runnerUpFraction(best_evidence.significance, res.runner_up);
+    const AcceptanceVerdict verdict = judge(best_evidence, runner_fraction, acfg);
     res.rejected = !verdict.accepted;
     res.reason = verdict.reason;
     if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {
