@@ -168,6 +168,10 @@ def run_simulated(args) -> None:
                 f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
                 f"{np.median(times):>8.2f}"
             )
+    print(
+        "targets (issue 16): 1-frame views >= 99 % right (issue's 3,604-tree stand: 189/200 = "
+        "94.5 % before), 0 wrong"
+    )
 
 
 def count_absent(name, frames, tree_map, query, args, total, accepted_total):
@@ -375,7 +379,7 @@ def run_treeloc(args) -> None:
         print(
             f"  absent places (query > {reach:.0f} m from every map tree): accepted "
             f"{absent_acc}/{len(absent_rows)}"
-            f" = {absent_acc / max(len(absent_rows), 1):.2%}"
+            f" = {absent_acc / max(len(absent_rows), 1):.2%} (target <= 0.5 %)"
         )
         ms_test = np.array([r[5] for r in test_rows])
         ms_absent = np.array([r[5] for r in absent_rows]) if absent_rows else np.zeros(1)
@@ -396,7 +400,7 @@ def run_treeloc(args) -> None:
         print(
             f"  absent places in the map's western half ({west.sum()} trees; queries > "
             f"{reach:.0f} m from all of them): accepted {half_acc}/{len(away)} = "
-            f"{half_acc / max(len(away), 1):.2%}"
+            f"{half_acc / max(len(away), 1):.2%} (target <= 0.5 %)"
         )
         if q_name == "v03":
             print(
@@ -495,7 +499,7 @@ def run_fortls() -> None:
             f"{loc.rms_m:>6.3f} {loc.time_ms:>6.2f} {loc.stage or '-':>8} "
             f"{loc.significance:>6.1f}"
         )
-    print(f"right plot found for {correct}/{len(plots)} plots")
+    print(f"right plot found for {correct}/{len(plots)} plots (target: all)")
     run_fortls_leave_one_out(field, tls, plots)
 
 
@@ -561,7 +565,23 @@ def run_fortls_leave_one_out(field: dict, tls: dict, plots: list[int]) -> None:
             f"{p:>4} {int(keep.sum()):>4} {'YES' if loc.accepted else 'no':>8} "
             f"{loc.stage or '-':>8} {loc.inliers:>7} {loc.significance:>7.2f} {loc.reason}"
         )
-    print(f"absent plot accepted {wrong}/{len(plots)}")
+    print(f"absent plot accepted {wrong}/{len(plots)} (target <= 0.5 %)")
+    # Ten queries cannot show a rate of 0.5 %: each left-out plot is also queried with 20 random
+    # partial views (80 % of its TLS trees, another scan position's misses), 200 queries.
+    rng = np.random.default_rng(16)
+    subsets = accepted = 0
+    for p in plots:
+        keep = np.hypot(*(stand - centres[p]).T) > 25.0
+        tree_map = build_map(stand[keep])
+        local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
+        for _ in range(20):
+            part = local[rng.uniform(size=len(local)) < 0.8]
+            accepted += localize(tree_map, part).accepted
+            subsets += 1
+    print(
+        f"absent plot, partial views (80 % of the TLS trees, 20 per plot): accepted "
+        f"{accepted}/{subsets} = {accepted / subsets:.2%} (target <= 0.5 %)"
+    )
 
 
 def sequence_errors(out_dir: Path, truth_dir: Path) -> tuple[int, int, list, list, int]:

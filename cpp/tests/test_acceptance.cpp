@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "forestslam/localization/acceptance.hpp"
 
@@ -46,4 +47,55 @@ TEST(Acceptance, JudgeGivesTheReason) {
     EXPECT_NE(forestslam::judge(e, 0.0, cfg).reason.find("not significant"), std::string::npos);
     e = forestslam::chanceEvidence(5, 5, 0.0, 3, 1);
     EXPECT_EQ(forestslam::judge(e, 0.0, cfg).reason, "too few inliers");
+}
+
+TEST(Acceptance, TruncatedProductTailKnownValue) {
+    // One inlier (k = 1) with closeness w <= c: S >= c + w when one term's Exp(1) exceeds w, or
+    // when two or more terms (each >= c) occur: P = mu e^-mu e^-w + P(N >= 2).
+    const double mu = 0.1, c = 3.0, w = 2.0;
+    const double p = mu * std::exp(-mu) * std::exp(-w) + 1 - std::exp(-mu) * (1 + mu);
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(mu, c, 1, w), -std::log10(p), 1e-9);
+    EXPECT_EQ(forestslam::truncatedProductTailLog10(mu, c, 0, 5.0), 0.0);
+    // Against the direct sum of Pois(j) P(Gamma(j) >= s - j c) (scipy.stats, 400 terms).
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(2.0, 2.1, 10, 12.5), 4.529518, 1e-5);
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(15.0, 1.9, 30, 40.0), 4.180385, 1e-5);
+    EXPECT_NEAR(forestslam::truncatedProductTailLog10(0.08, 4.5, 2, 9.0), 4.720768, 1e-5);
+    // Closer inliers are more significant; more of them too.
+    EXPECT_GT(forestslam::truncatedProductTailLog10(0.5, 3, 3, 9),
+              forestslam::truncatedProductTailLog10(0.5, 3, 3, 2));
+    EXPECT_GT(forestslam::truncatedProductTailLog10(0.5, 3, 4, 2),
+              forestslam::truncatedProductTailLog10(0.5, 3, 3, 2));
+}
+
+TEST(Acceptance, ClosenessOfChanceInliersIsExponential) {
+    // Chance inliers land uniformly in the gate's disc: -ln(U / p) is Exp(1) (mean 1, and
+    // P(> 3) = e^-3), so the test's null model holds; a fit within the noise floor scores high.
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(0, 1);
+    const double density = 0.05, gate = 0.5;
+    double sum = 0;
+    int above3 = 0;
+    const int n = 20000;
+    for (int i = 0; i < n; ++i) {
+        const double v = forestslam::closeness(density, gate * std::sqrt(u(rng)), gate, 0.0);
+        sum += v;
+        above3 += v > 3;
+    }
+    EXPECT_NEAR(sum / n, 1.0, 0.03);
+    EXPECT_NEAR(double(above3) / n, std::exp(-3.0), 0.005);
+    EXPECT_NEAR(forestslam::closeness(density, 0.0, gate, 0.05),
+                forestslam::closeness(density, 0.05, gate, 0.05), 1e-12);  // the noise floor
+    EXPECT_EQ(forestslam::closeness(density, 0.7, gate, 0.05), 0.0);
+}
+
+TEST(Acceptance, ClosenessMakesAFewTightInliersSignificant) {
+    using forestslam::chanceEvidence;
+    // A sparse map (chance rate 0.01 per trunk): 2 inliers beyond the seeds, with and without
+    // knowing they landed within centimetres.
+    const double w = 2 * forestslam::closeness(0.0127, 0.05, 0.5, 0.02);
+    const auto counted = chanceEvidence(5, 8, 0.08, 3, 10);
+    const auto close = chanceEvidence(5, 8, 0.08, 3, 10, w);
+    EXPECT_GT(close.significance, counted.significance + 1.0);
+    // Inliers spread over the gate (closeness ~ 1 each, its mean by chance) gain little.
+    EXPECT_LT(chanceEvidence(5, 8, 0.08, 3, 10, 2.0).significance, counted.significance + 0.5);
 }

@@ -176,3 +176,42 @@ TEST(GlobalLocalizer, AbsentPlacesAreNotSignificant) {
         EXPECT_TRUE(res.rejected) << "query " << q << " significance " << res.significance;
     }
 }
+
+TEST(GlobalLocalizer, AFewTightTrunksInASparseMapAreEnough) {
+    // 6 trunks seen in a sparse stand (0.01 trunks/m^2): too few for a count in a 0.5 m gate,
+    // but they fit within centimetres. Found, with 0 wrong; the same view of another stand is
+    // rejected.
+    const Points2 map = stand(400, 200, 5, 4.0);
+    const Points2 other = stand(400, 200, 55, 4.0);
+    const forestslam::TreeMap tree_map(map);
+    int found = 0, wrong = 0, absent_accepted = 0;
+    for (int q = 0; q < 10; ++q) {
+        const Eigen::Vector3d truth(40 + 12 * q, 100, 0.5 * q);
+        const auto res = tree_map.localize(observe(map, truth, 14, 0.03, 0.0, 0, 20 + q));
+        if (!res.rejected) {
+            const bool right = std::hypot(res.x - truth[0], res.y - truth[1]) < 0.3;
+            found += right;
+            wrong += !right;
+        }
+        absent_accepted +=
+            !tree_map.localize(observe(other, truth, 14, 0.03, 0.0, 0, 40 + q)).rejected;
+    }
+    EXPECT_GE(found, 8);
+    EXPECT_EQ(wrong, 0);
+    EXPECT_EQ(absent_accepted, 0);
+}
+
+TEST(GlobalLocalizer, TwoCopiesOfAPlaceAreAmbiguous) {
+    // The map holds the same patch twice, 100 m apart: both places are significant, so neither
+    // is accepted.
+    const Points2 patch = stand(60, 40, 9);
+    Points2 map(2 * patch.rows(), 2);
+    map.topRows(patch.rows()) = patch;
+    map.bottomRows(patch.rows()) = patch.rowwise() + Eigen::RowVector2d(100, 0);
+    const forestslam::TreeMap tree_map(map);
+    const auto res = tree_map.localize(observe(patch, {20, 20, 0.4}, 15, 0.02, 0.1, 0, 3));
+    EXPECT_TRUE(res.rejected);
+    EXPECT_NE(res.reason.find("ambiguous"), std::string::npos) << res.reason;
+    ASSERT_TRUE(res.runner_up.exists);
+    EXPECT_NEAR(std::abs(res.runner_up.x - res.x), 100.0, 0.5);
+}

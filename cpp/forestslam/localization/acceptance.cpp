@@ -2,12 +2,14 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace forestslam {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kLn10 = 2.302585092994046;
+constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 }  // namespace
 
 DensityGrid::DensityGrid(const Eigen::Ref<const Points2> &xy, double cell_m, int half_window)
@@ -54,8 +56,61 @@ double poissonTailLog10(double mu, int k) {
     return std::max(0.0, -(log_first + std::log(sum)) / kLn10);
 }
 
+double truncatedProductTailLog10(double mu, double c, int k, double w) {
+    if (k <= 0) return 0.0;
+    if (mu <= 0) return 300.0;
+    c = std::max(0.0, c);
+    const double s = k * c + std::max(0.0, w);
+    // P(S >= s) = sum_j Pois(j; mu) Q(j, s - j c), Q(j, x) = P(Gamma(j, 1) >= x)
+    // = P(Poisson(x) <= j - 1) for integer j; summed in log space.
+    auto logsumexp = [](double a, double b) {
+        if (a == kNegInf) return b;
+        if (b == kNegInf) return a;
+        const double m = std::max(a, b);
+        return m + std::log(std::exp(a - m) + std::exp(b - m));
+    };
+    const int jmax = static_cast<int>(std::max<double>(k, mu) + 10 * std::sqrt(mu + 1) + 60);
+    double total = kNegInf;
+    for (int j = 1; j <= jmax; ++j) {
+        const double log_pois = -mu + j * std::log(mu) - std::lgamma(j + 1.0);
+        if (log_pois < total - 40) continue;  // Q <= 1: this term cannot matter
+        const double x = s - j * c;
+        double log_q = 0.0;  // x <= 0: the j terms exceed s surely
+        if (x > 0) {
+            // log sum_{m < j} e^-x x^m / m!, terms built by recurrence, summed against the
+            // largest (at m = min(j - 1, floor(x))).
+            const double lx = std::log(x);
+            const int mode = std::min(j - 1, static_cast<int>(x));
+            const double log_mode = -x + mode * lx - std::lgamma(mode + 1.0);
+            double sum = 1.0, t = 0.0;
+            for (int m = mode - 1; m >= 0; --m) {  // t = log(term_m / term_mode)
+                t += std::log(m + 1.0) - lx;
+                if (t < -40) break;
+                sum += std::exp(t);
+            }
+            t = 0.0;
+            for (int m = mode + 1; m < j; ++m) {
+                t += lx - std::log(double(m));
+                if (t < -40) break;
+                sum += std::exp(t);
+            }
+            log_q = std::min(0.0, log_mode + std::log(sum));
+        }
+        total = logsumexp(total, log_pois + log_q);
+    }
+    return std::max(0.0, -total / kLn10);
+}
+
+double closeness(double density, double d_m, double gate_m, double floor_m) {
+    const double p = chanceRate(density, gate_m);
+    if (p <= 0) return 0.0;
+    const double d = std::min(gate_m, std::max(d_m, floor_m));
+    const double u = chanceRate(density, d);
+    return u > 0 ? std::max(0.0, -std::log(u / p)) : 0.0;
+}
+
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
-                              int hypotheses) {
+                              int hypotheses, double closeness_sum) {
     ChanceEvidence e;
     e.inliers = inliers;
     e.trials = trials;
@@ -63,7 +118,12 @@ ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed
     // The seed trunks are inliers by construction: only the others are evidence.
     const double per_trunk = trials > 0 ? expected / trials : 0.0;
     e.expected = per_trunk * (trials - e.seed_points);
-    const double tail = poissonTailLog10(e.expected, inliers - e.seed_points);
+    const int k = inliers - e.seed_points;
+    e.closeness = closeness_sum;
+    const double c = per_trunk > 0 ? -std::log(std::min(1.0, per_trunk)) : 0.0;
+    const double tail = closeness_sum < 0 || per_trunk <= 0
+                            ? poissonTailLog10(e.expected, k)
+                            : truncatedProductTailLog10(e.expected, c, k, closeness_sum);
     e.significance = tail - std::log10(std::max(1, hypotheses));
     return e;
 }

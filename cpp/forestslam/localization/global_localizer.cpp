@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <tuple>
 #include <unordered_set>
@@ -12,9 +13,10 @@ namespace forestslam {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-constexpr int kMapTriangleNeighbours = 8;  // map triangles: each trunk with 2 of its 8 nearest
-constexpr double kMaxTriangleEdge = 30.0;  // metres
-constexpr int kMinStarsBeforeExit = 30;    // query stars tried before a decisive early exit
+constexpr int kMapTriangleNeighbours = 8;   // map triangles: each trunk with 2 of its 8 nearest
+constexpr double kMaxTriangleEdge = 30.0;   // metres
+constexpr int kMinStarsBeforeExit = 30;     // query stars tried before a decisive early exit
+constexpr size_t kEvaluatedHypotheses = 4;  // best-scoring hypotheses given the full test
 
 double wrapAngle(double a) {
     a = std::fmod(a + kPi, 2 * kPi);
@@ -63,6 +65,46 @@ int consensus(const Points2 &local, const Eigen::Vector3d &pose, const PointGrid
     return count;
 }
 
+// How close the runner-up comes: its significance over the best's (same test, same trunks), 0
+// without a runner-up or when it is no evidence at all. Significance, not the inlier count: in a
+// 6-trunk view 4 inliers against 5 says nothing, in a 100-trunk view both are decisive.
+double runnerUpFraction(double best_significance, const RunnerUp &r) {
+    if (!r.exists || r.significance <= 0) return 0.0;
+    return r.significance / std::max(best_significance, 1e-9);
+}
+
+// Residual of each pair under the rigid fit to all the other pairs (closed form from the sums
+// with the pair removed); empty when fewer than 4 pairs.
+std::vector<double> leaveOneOutResiduals(const Points2 &local, const Points2 &map,
+                                         const std::vector<std::pair<int, int>> &pairs) {
+    const size_t n = pairs.size();
+    if (n < 4) return {};
+    Eigen::Vector2d sp = Eigen::Vector2d::Zero(), sq = Eigen::Vector2d::Zero();
+    double sdot = 0, scross = 0;
+    auto P = [&](size_t k) { return Eigen::Vector2d(local.row(pairs[k].first).transpose()); };
+    auto Q = [&](size_t k) { return Eigen::Vector2d(map.row(pairs[k].second).transpose()); };
+    for (size_t k = 0; k < n; ++k) {
+        const Eigen::Vector2d p = P(k), q = Q(k);
+        sp += p;
+        sq += q;
+        sdot += p.dot(q);
+        scross += p.x() * q.y() - p.y() * q.x();
+    }
+    std::vector<double> out(n);
+    const double m = double(n - 1);
+    for (size_t k = 0; k < n; ++k) {
+        const Eigen::Vector2d p = P(k), q = Q(k);
+        const Eigen::Vector2d lc = (sp - p) / m, mc = (sq - q) / m;
+        const double sxx = (sdot - p.dot(q)) - m * lc.dot(mc);
+        const double sxy =
+            (scross - (p.x() * q.y() - p.y() * q.x())) - m * (lc.x() * mc.y() - lc.y() * mc.x());
+        const Eigen::Vector3d pose(0, 0, std::atan2(sxy, sxx));
+        const Eigen::Vector2d t = mc - apply(pose, lc);
+        out[k] = (apply({t.x(), t.y(), pose[2]}, p) - q).norm();
+    }
+    return out;
+}
+
 // Vertex correspondence check of two stars: the nine edges agree in length and every triangle
 // of the star has the same orientation on both sides (the side test).
 bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
@@ -90,7 +132,7 @@ struct Hypotheses {
     std::unordered_set<uint64_t> seen;
 
     int best = 0;      // highest consensus so far
-    int verified = 0;  // every verified correspondence, duplicates included (the search size)
+    int verified = 0;  // every verified correspondence, duplicates included (time budget)
     std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
@@ -295,8 +337,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 =
-        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage1 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
+                                       scoring, tri.used_points, cfg);
     stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
@@ -351,8 +393,8 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         }
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 =
-        decide(res, hyps.list, hyps.verified, local, scoring, tri.used_points, cfg);
+    GlobalLocalization stage2 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
+                                       scoring, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
@@ -442,7 +484,7 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
                std::make_tuple(b.pose[0], b.pose[1], b.pose[2]);
     });
     res.hypotheses = static_cast<int>(hyps.size());
-    const int searched = static_cast<int>(matches.size());
+    const int searched = static_cast<int>(hyps.size());  // the bins tested
     GlobalLocalization out = decide(res, hyps, searched, usable, scoring, tri.used_points, cfg);
     out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
     if (out.rejected && hyps.empty())
@@ -459,6 +501,36 @@ int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalL
         n += (p.head<2>() - Eigen::Vector2d(res.x, res.y)).norm() <= cfg.distinct_translation_m &&
              std::abs(wrapAngle(p[2] - res.yaw)) <= cfg.distinct_yaw_rad;
     return n;
+}
+
+ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
+                                 int searched, const GlobalLocalizerConfig &cfg) const {
+    // Inliers one-to-one (two detections of a split stem near one map trunk are one).
+    std::vector<double> d2s;
+    const auto pairs = associate(scoring, pose, grid_, cfg.inlier_gate_m, &d2s);
+    double closeness_sum = -1.0;
+    if (cfg.closeness_evidence) {
+        // Each inlier's distance under the pose fitted to the other inliers (leave-one-out):
+        // independent of where it landed by chance, and free of the seed pose's lever-arm
+        // error on far trunks.
+        const std::vector<double> loo = leaveOneOutResiduals(scoring, xy_, pairs);
+        std::vector<double> close;
+        close.reserve(pairs.size());
+        for (size_t k = 0; k < pairs.size(); ++k) {
+            const Eigen::Vector2d q = apply(pose, scoring.row(pairs[k].first).transpose());
+            const double d = loo.empty() ? std::sqrt(d2s[k]) : loo[k];
+            close.push_back(
+                closeness(density_.at(q.x(), q.y()), d, cfg.inlier_gate_m, cfg.min_sigma_m));
+        }
+        // The seeds lie close by construction: the `seeds` closest inliers carry no evidence.
+        std::sort(close.begin(), close.end(), std::greater<>());
+        closeness_sum = 0.0;
+        for (size_t k = std::min<size_t>(std::max(0, seeds), close.size()); k < close.size(); ++k)
+            closeness_sum += close[k];
+    }
+    return chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
+                          expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
+                          closeness_sum);
 }
 
 double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
@@ -483,31 +555,51 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     // Stable: among equal scores the star hypotheses (found first) win.
     std::stable_sort(hyps.begin(), hyps.end(),
                      [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
-    const Hypothesis &best = hyps.front();
+    // The test is made at a hypothesis' own pose, fixed by its seed points (the refinement
+    // below moves the pose to gather inliers, which chance alignments in a dense map also gain).
+    // The most significant of the best-scoring few wins (in a sparse view several score alike
+    // and only the closeness of the fit tells them apart; paper: the fullest bin); the runner-up is
+    // the most significant distinct one of them, else the best-scoring distinct hypothesis.
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
-    res.stage = best.stage;
-    res.second_inliers = 0;
-    res.runner_up = RunnerUp{};
-    int runner_score = 0;  // the runner-up's score in the matcher's own units
-    for (const Hypothesis &h : hyps) {
-        const bool distinct =
-            (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
-            std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
-        if (distinct) {
-            runner_score = h.score;
-            RunnerUp &r = res.runner_up;
-            r.exists = true;
-            r.x = h.pose[0];
-            r.y = h.pose[1];
-            r.yaw = wrapAngle(h.pose[2]);
-            r.inliers = consensus(scoring, h.pose, grid_, cfg.inlier_gate_m);
-            r.significance = chanceEvidence(r.inliers, static_cast<int>(scoring.rows()),
-                                            expectedChance(scoring, h.pose, cfg.inlier_gate_m),
-                                            seeds(h.stage), searched)
-                                 .significance;
-            res.second_inliers = r.inliers;
-            break;
+    auto evidenceOf = [&](const Hypothesis &h) {
+        return evidence(scoring, h.pose, seeds(h.stage), searched, cfg);
+    };
+    std::vector<ChanceEvidence> top;
+    for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)
+        top.push_back(evidenceOf(hyps[i]));
+    size_t bi = 0;  // paper: the fullest bin wins (Eq. 4), as written
+    for (size_t i = 1; cfg.matcher != Matcher::Paper && i < top.size(); ++i)
+        if (top[i].significance > top[bi].significance) bi = i;
+    const Hypothesis best = hyps[bi];
+    const ChanceEvidence best_evidence = top[bi];
+    auto distinct = [&](const Hypothesis &h) {
+        return (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
+               std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
+    };
+    int ri = -1;
+    ChanceEvidence runner;
+    for (size_t i = 0; i < top.size(); ++i)
+        if (distinct(hyps[i]) && (ri < 0 || top[i].significance > runner.significance)) {
+            ri = static_cast<int>(i);
+            runner = top[i];
         }
+    for (size_t i = top.size(); ri < 0 && i < hyps.size(); ++i)
+        if (distinct(hyps[i])) {
+            ri = static_cast<int>(i);
+            runner = evidenceOf(hyps[i]);
+        }
+    res.stage = best.stage;
+    res.runner_up = RunnerUp{};
+    res.second_inliers = 0;
+    if (ri >= 0) {
+        RunnerUp &r = res.runner_up;
+        r.exists = true;
+        r.x = hyps[ri].pose[0];
+        r.y = hyps[ri].pose[1];
+        r.yaw = wrapAngle(hyps[ri].pose[2]);
+        r.inliers = runner.inliers;
+        r.significance = runner.significance;
+        res.second_inliers = r.inliers;
     }
 
     // Least-squares refinement over all inliers, re-associating each round.
@@ -555,25 +647,19 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
     if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
 
-    // The test is made at the hypothesis' own pose, fixed by its seed points: the refinement
-    // above moves the pose to gather inliers, which chance alignments in a dense map also
-    // gain (a 200-trunk view of an absent place in a 0.25 trunks/m^2 map: 50-90 inliers after
-    // refinement against 25-45 expected). The best of the searched hypotheses is corrected for
-    // by the search count.
-    // Inliers one-to-one (two detections of a split stem near one map trunk are one).
-    const int best_consensus =
-        static_cast<int>(associate(scoring, best.pose, grid_, cfg.inlier_gate_m).size());
-    const ChanceEvidence evidence = chanceEvidence(
-        best_consensus, static_cast<int>(scoring.rows()),
-        expectedChance(scoring, best.pose, cfg.inlier_gate_m), seeds(best.stage), searched);
-    res.significance = evidence.significance;
-    res.expected_chance_inliers = evidence.expected;
+    res.significance = best_evidence.significance;
+    res.expected_chance_inliers = best_evidence.expected;
     AcceptanceConfig acfg;
     acfg.min_significance = cfg.min_significance;
     acfg.ambiguity_ratio = cfg.ambiguity_ratio;
     acfg.min_inliers = cfg.min_inliers;
-    const AcceptanceVerdict verdict =
-        judge(evidence, double(runner_score) / std::max(best.score, 1), acfg);
+    // Paper: the runner-up bin's votes over the fullest's (the matcher's own score); its bins
+    // are coarse (0.5 m, 2 deg), so a place split over two bins stays ambiguous.
+    const double runner_fraction =
+        cfg.matcher == Matcher::Paper
+            ? (ri >= 0 ? double(hyps[ri].score) / std::max(best.score, 1) : 0.0)
+            : runnerUpFraction(best_evidence.significance, res.runner_up);
+    const AcceptanceVerdict verdict = judge(best_evidence, runner_fraction, acfg);
     res.rejected = !verdict.accepted;
     res.reason = verdict.reason;
     if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {

@@ -26,10 +26,14 @@ struct GlobalLocalizerConfig {
     double rotation_ambiguity = 0.15;  // also try starting edges this much longer than the shortest
     double edge_tolerance_m = 0.35;    // |local - map| for the nine star edges
     double inlier_gate_m = 0.5;        // local trunk within this of a map trunk: consensus
-    int min_inliers = 6;               // fewer: rejected
+    int min_inliers = 4;               // fewer: rejected (the significance test decides)
     double min_inlier_fraction = 0.25;  // of the local trunks
-    double ambiguity_ratio = 0.8;       // rejected when second-best >= ratio * best
-    double min_significance = 2.3;      // -log10 of the search-corrected chance probability (0.005)
+    // Rejected when a distinct runner-up's significance reaches this fraction of the best's.
+    double ambiguity_ratio = 0.8;
+    double min_significance = 2.3;  // -log10 of the search-corrected chance probability (0.005)
+    // Test how close the inliers land too (truncated product, see acceptance.hpp); residuals
+    // below min_sigma_m count as min_sigma_m.
+    bool closeness_evidence = true;
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
@@ -121,7 +125,8 @@ class TreeMap {
                                      const Triangulation &tri, const Points2 &usable,
                                      const Points2 &scoring,
                                      const GlobalLocalizerConfig &cfg) const;
-    // searched: verified correspondences (the multiple-testing count of the acceptance test).
+    // searched: the hypotheses tested (the multiple-testing count of the acceptance test):
+    // verified matches whose poses are distinct by hash (a repeat is not tested again).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                               int searched, const Points2 &local, const Points2 &scoring,
                               const std::vector<int> &local_rows,
@@ -129,6 +134,10 @@ class TreeMap {
     // Verified matches whose pose agrees with the answer (within the distinct thresholds).
     int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
                  const GlobalLocalizerConfig &cfg) const;
+    // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points,
+    // the best of `searched`.
+    ChanceEvidence evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
+                            int searched, const GlobalLocalizerConfig &cfg) const;
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
     double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 

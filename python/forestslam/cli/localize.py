@@ -73,7 +73,6 @@ def register(app: typer.Typer) -> None:
                 gravity,
                 start,
                 max_scans,
-                no_progress,
                 overwrite,
             )
             return
@@ -118,7 +117,7 @@ def _load_map(map_path: Path, config: Path | None, save_map: Path | None):
 
 
 def _localize_table(
-    input_path, tree_map, out, every, config, gravity, start, max_scans, no_progress, overwrite
+    input_path, tree_map, out, every, config, gravity, start, max_scans, overwrite
 ) -> None:
     """Queries from the frames of another mapper's tree table."""
     from forestslam.localization.tables import run_table_localization
@@ -132,7 +131,6 @@ def _localize_table(
         gravity=gravity,
         start=start,
         max_queries=max_scans,
-        progress=not no_progress,
         overwrite=overwrite,
     )
     print(

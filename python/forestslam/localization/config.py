@@ -31,7 +31,7 @@ class LocalizationConfig:
     rotation_ambiguity: NonNegative = 0.15  # try other start edges up to this much longer
     edge_tolerance_m: Positive = 0.35  # edge-length agreement of corresponding triangles
     inlier_gate_m: Positive = 0.5  # local trunk this close to a map trunk counts as consensus
-    min_inliers: Annotated[int, Range(ge=3)] = 6  # fewer: rejected
+    min_inliers: Annotated[int, Range(ge=3)] = 4  # fewer: rejected (the significance test decides)
     min_inlier_fraction: Fraction = 0.25  # of the local trunks; fewer: rejected
     # rejected when the second-best distinct pose scores this much
     ambiguity_ratio: NonNegative = 0.8
@@ -40,6 +40,10 @@ class LocalizationConfig:
     # chance probability of 0.005, the target rate of accepted absent places (the test is
     # conservative: measured rates are lower, see bench/localize_bench.py).
     min_significance: NonNegative = 2.3
+    # Test how close the inliers land as well as how many (truncated product: a true pose puts
+    # them within the positioning noise, chance ones anywhere in the gate); residuals below
+    # min_sigma_m count as min_sigma_m.
+    closeness_evidence: bool = True
     distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: NonNegative = 5.0
     refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers

@@ -106,6 +106,7 @@ def _core_config(config: LocalizationConfig):
         "min_inlier_fraction",
         "ambiguity_ratio",
         "min_significance",
+        "closeness_evidence",
         "distinct_translation_m",
         "refine_iterations",
         "min_sigma_m",

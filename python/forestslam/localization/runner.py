@@ -80,6 +80,60 @@ def _write_outputs(run: LocalizationRun, meta: dict) -> None:
     write_tum(run.out_dir / "localization.tum", np.array([q["stamp"] for q in acc]), poses)
 
 
+def _load_config(config_path, keyframe_distance_m: float | None = None):
+    """(root config or None, LocalizationConfig): the file's when given, else the defaults;
+    ``keyframe_distance_m`` (the CLI option) overrides the file."""
+    from forestslam.config_utils import validate
+
+    root = None
+    if config_path is not None:  # the root config imports every component's config: lazily
+        from forestslam.config import load_config
+
+        root = load_config(config_path)
+    cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
+    if keyframe_distance_m is not None:
+        cfg.keyframe_distance_m = keyframe_distance_m
+    validate(cfg, "localization")
+    return root, cfg
+
+
+def _open_map(map_path: str | Path | TreeMap) -> TreeMap:
+    """The prior map (a TreeMap as is, else loaded); fewer than 3 trees is an InputError."""
+    tree_map = map_path if isinstance(map_path, TreeMap) else load_map(map_path)
+    if len(tree_map) < 3:
+        raise InputError(f"{map_path}: the map holds {len(tree_map)} trees; at least 3 needed")
+    return tree_map
+
+
+def map_meta(map_path: str | Path | TreeMap, tree_map: TreeMap) -> dict:
+    """The map's entries of ``localization.json`` / ``run.yaml``."""
+    in_memory = isinstance(map_path, TreeMap)
+    return {"map": "(in memory)" if in_memory else str(map_path), "map_trees": len(tree_map)}
+
+
+def run_localize_job(out_dir, meta: dict, inputs: list, overwrite: bool, loop) -> LocalizationRun:
+    """The common job skeleton of `localize` (bags and tree tables): lock, run.yaml, outputs
+    rewritten after every query and once more at the end (also after an error), summary.
+    ``loop(run)`` appends the queries."""
+    from forestslam.job import Job
+
+    with Job("localize", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
+        run = LocalizationRun(job.out)
+        t0 = time.perf_counter()
+        try:
+            loop(run)
+        finally:
+            run.wall_s = time.perf_counter() - t0
+            _write_outputs(run, meta)
+            job.summary = {
+                "scans": run.scans,
+                "queries": len(run.queries),
+                "accepted": run.accepted,
+                "wall_s": round(run.wall_s, 3),
+            }
+    return run
+
+
 def run_localization(
     input_path: str | Path,
     map_path: str | Path | TreeMap,
@@ -100,32 +154,20 @@ def run_localization(
     The local frame of a query is the sensor frame of its last scan; the pose written is that
     sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
     """
-    from forestslam.config_utils import to_dict, validate
-    from forestslam.job import Job, Progress, ScanWindow
+    from forestslam.config_utils import to_dict
+    from forestslam.job import Progress, ScanWindow
     from forestslam.sensors import load_profile
 
     if frames < 1 or every < 1:
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
     window = ScanWindow(start, max_scans)
-    # The root config imports every component's config: only when a file is given.
-    root = None
-    if config_path is not None:
-        from forestslam.config import load_config
-
-        root = load_config(config_path)
-    cfg: LocalizationConfig = getattr(root, "localization", None) or LocalizationConfig()
-    if keyframe_distance_m is not None:
-        cfg.keyframe_distance_m = keyframe_distance_m
-    validate(cfg, "localization")
+    root, cfg = _load_config(config_path, keyframe_distance_m)
     profile = load_profile(sensor)
-    tree_map = map_path if isinstance(map_path, TreeMap) else load_map(map_path)
-    if len(tree_map) < 3:
-        raise InputError(f"{map_path}: the map holds {len(tree_map)} trees; at least 3 needed")
+    tree_map = _open_map(map_path)
     stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
     meta = {
         "input": str(input_path),
-        "map": str(map_path) if not isinstance(map_path, TreeMap) else "(in memory)",
-        "map_trees": len(tree_map),
+        **map_meta(map_path, tree_map),
         "sensor": profile.name,
         "frames": frames,
         "every": every,
@@ -134,70 +176,77 @@ def run_localization(
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
         "config": {"localization": to_dict(cfg)},
     }
-    inputs = [input_path, config_path, None if isinstance(map_path, TreeMap) else map_path]
-    with Job("localize", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
-        run = LocalizationRun(job.out)
+    query = _QuerySetup(tree_map, profile, root, cfg, frames, every, meta)
+
+    def loop(run: LocalizationRun) -> None:
         bar = Progress(count, "scan", "localize", enabled=progress)
-        t0 = time.perf_counter()
         try:
-            _localize_along(
-                scans, window.start, tree_map, profile, root, cfg, frames, every, run, meta, bar
-            )
+            _localize_along(scans, window.start, query, run, bar)
         finally:
             bar.close()
-            run.wall_s = time.perf_counter() - t0
-            _write_outputs(run, meta)
-            job.summary = {
-                "scans": run.scans,
-                "queries": len(run.queries),
-                "accepted": run.accepted,
-                "wall_s": round(run.wall_s, 3),
-            }
-    return run
+
+    inputs = [input_path, config_path, map_path]
+    return run_localize_job(out_dir, meta, inputs, overwrite, loop)
 
 
-def _localize_along(scans, first, tree_map, profile, root, cfg, frames, every, run, meta, bar):
+@dataclass(frozen=True)
+class _QuerySetup:
+    """What every query along a sequence shares."""
+
+    tree_map: TreeMap
+    profile: object
+    root: object
+    cfg: LocalizationConfig
+    frames: int
+    every: int
+    meta: dict
+
+
+def _make_odometry(q: _QuerySetup):
+    """Odometry for aggregated queries (frames > 1), else None."""
+    if q.frames <= 1:
+        return None
+    try:
+        from forestslam.odometry import Odometry
+    except ImportError as exc:
+        raise ProcessingError(f"--frames {q.frames} needs odometry, not available: {exc}") from exc
+    return Odometry(
+        q.profile, getattr(q.root, "odometry", None), getattr(q.root, "perception", None)
+    )
+
+
+def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar) -> None:
     """The query loop: stems per scan (odometry when frames > 1), a query when due."""
-    odometry = None
-    if frames > 1:
-        try:
-            from forestslam.odometry import Odometry
-        except ImportError as exc:
-            raise ProcessingError(
-                f"--frames {frames} needs odometry, not available: {exc}"
-            ) from exc
-        odometry = Odometry(
-            profile, getattr(root, "odometry", None), getattr(root, "perception", None)
-        )
     from forestslam.perception import detect
 
+    odometry = _make_odometry(q)
     # Earlier frames of the query window (keyframes at least keyframe_distance_m apart); the
     # current scan is always the last frame of a query.
-    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=frames - 1)
+    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=q.frames - 1)
     for i, scan in enumerate(scans, start=first):
         run.scans += 1
         bar.update(1, queries=len(run.queries), accepted=run.accepted)
         # First query when the window is full, then every `every` scans.
-        due = run.scans >= frames and (run.scans - frames) % every == 0
+        due = run.scans >= q.frames and (run.scans - q.frames) % q.every == 0
         if odometry is not None:  # every scan: odometry needs them all
             step = odometry.step(scan)
             stems, T = step.stems, np.asarray(step.T_world_sensor, dtype=np.float64)
         elif due:  # one frame per query: only query scans need stems
-            stems, T = detect(scan, profile, getattr(root, "perception", None)), np.eye(4)
+            stems, T = detect(scan, q.profile, getattr(q.root, "perception", None)), np.eye(4)
         else:
             continue
         xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
-        if due and len(window) == frames - 1:
+        local = None
+        if due and len(window) == q.frames - 1:
             frames_xy = [w[0] for w in window] + [xy]
-            local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], cfg)
-        else:
-            local = None
-        if frames > 1 and (
-            not window or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= cfg.keyframe_distance_m
+            local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], q.cfg)
+        if q.frames > 1 and (
+            not window
+            or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= q.cfg.keyframe_distance_m
         ):
             window.append((xy, T))
         if local is None:
             continue
-        loc = localize(tree_map, local, cfg)
+        loc = localize(q.tree_map, local, q.cfg)
         run.queries.append(_query_record(scan.stamp, i, len(local), loc))
-        _write_outputs(run, meta)
+        _write_outputs(run, q.meta)

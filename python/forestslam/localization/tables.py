@@ -114,61 +114,54 @@ def run_table_localization(
     gravity: str = "stems",
     start: int = 0,
     max_queries: int | None = None,
-    progress: bool = False,
     overwrite: bool = False,
 ):
-    """Localize every ``every``-th frame of a tree table in ``tree_map``; writes
-    ``localization.json`` and ``localization.tum`` like ``run_localization`` (the pose written
-    is the levelled frame of pose k in the map frame; ``stamp`` from the table's trajectory,
-    else the frame index), into ``out_dir`` owned as `forestslam.job` describes."""
-    import time
-
+    """Localize every ``every``-th frame of a tree table in ``tree_map`` as a `localize` job
+    (lock, run.yaml, outputs: see ``forestslam.job``); writes ``localization.json`` and
+    ``localization.tum`` like ``run_localization`` (the pose written is the levelled frame of
+    pose k in the map frame; ``stamp`` from the table's trajectory, else the frame index)."""
+    from forestslam.config_utils import to_dict
     from forestslam.io.tree_tables import read_tree_table
-    from forestslam.job import Job, Progress, ScanWindow
-    from forestslam.localization.config import LocalizationConfig
     from forestslam.localization.localize import localize
-    from forestslam.localization.runner import LocalizationRun, _query_record, _write_outputs
-    from forestslam.localization.tree_map import TreeMap, load_map
+    from forestslam.localization.runner import (
+        LocalizationRun,
+        _load_config,
+        _open_map,
+        _query_record,
+        _write_outputs,
+        map_meta,
+        run_localize_job,
+    )
 
     if every < 1:
         raise InputError(f"--every must be >= 1 (got {every})")
-    window = ScanWindow(start, max_queries)
-    cfg = LocalizationConfig()
-    if config_path is not None:
-        from forestslam.config import load_config
-
-        cfg = load_config(config_path).localization
+    if start < 0:
+        raise InputError(f"--start must be >= 0 (got {start})")
+    if gravity not in ("stems", "reference", "none"):
+        raise InputError(f"gravity must be stems, reference or none, not {gravity!r}")
+    _root, cfg = _load_config(config_path)
     table = read_tree_table(trees_path)
-    tree_map = tree_map if isinstance(tree_map, TreeMap) else load_map(tree_map)
-    frames = table.frames[window.start :: every][: window.max_scans]
+    the_map = _open_map(tree_map)
+    frames = table.frames[start::every][:max_queries]
     meta = {
         "input": str(trees_path),
-        "map_trees": len(tree_map),
+        **map_meta(tree_map, the_map),
         "every": every,
+        "start": start,
+        "max_queries": max_queries,
         "gravity": gravity,
         "frame": "pose of the levelled frame k in the map frame (planar x, y, yaw)",
+        "config": {"localization": to_dict(cfg)},
     }
-    job_meta = {**meta, **window.meta()}
-    with Job("localize", out_dir, job_meta, [trees_path, config_path], overwrite) as job:
-        run = LocalizationRun(job.out)
-        bar = Progress(len(frames), "query", "localize", enabled=progress)
-        t0 = time.perf_counter()
-        try:
-            for k in frames:
-                local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
-                loc = localize(tree_map, local, cfg)
-                stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
-                run.scans += 1
-                run.queries.append(_query_record(stamp, int(k), len(local), loc))
-                bar.update(1, accepted=run.accepted)
-        finally:
-            bar.close()
-            run.wall_s = time.perf_counter() - t0
-            _write_outputs(run, meta)
-            job.summary = {
-                "scans": run.scans,
-                "queries": len(run.queries),
-                "accepted": run.accepted,
-                "wall_s": round(run.wall_s, 3),
-            }
-    return run
+
+    def loop(run: LocalizationRun) -> None:
+        for k in frames:
+            local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
+            loc = localize(the_map, local, cfg)
+            stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
+            run.scans += 1
+            run.queries.append(_query_record(stamp, int(k), len(local), loc))
+            if len(run.queries) % 100 == 0:  # a killed run keeps valid files (not O(n^2))
+                _write_outputs(run, meta)
+
+    return run_localize_job(out_dir, meta, [trees_path, config_path, tree_map], overwrite, loop)

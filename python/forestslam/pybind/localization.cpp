@@ -83,6 +83,7 @@ void define_localization(py::module_ &m) {
         .def_readwrite("min_inlier_fraction", &GlobalLocalizerConfig::min_inlier_fraction)
         .def_readwrite("ambiguity_ratio", &GlobalLocalizerConfig::ambiguity_ratio)
         .def_readwrite("min_significance", &GlobalLocalizerConfig::min_significance)
+        .def_readwrite("closeness_evidence", &GlobalLocalizerConfig::closeness_evidence)
         .def_readwrite("distinct_translation_m", &GlobalLocalizerConfig::distinct_translation_m)
         .def_readwrite("distinct_yaw_rad", &GlobalLocalizerConfig::distinct_yaw_rad)
         .def_readwrite("refine_iterations", &GlobalLocalizerConfig::refine_iterations)
