@@ -137,6 +137,10 @@ def fmt(v, digits=3) -> str:
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
+def ms_per_scan(r: dict | None, stage: str) -> float | None:
+    return None if r is None else r["stages_s"].get(stage, 0.0) * 1e3 / r["scans"]
+
+
 def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
     print(f"== {name}: {after['scans']} scans")
     head = f"  {'':<40}{'after':>10}" + (f"{'before':>10}{'ratio':>8}" if before else "")
@@ -153,8 +157,7 @@ def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
     row("CPU s (whole job)", after["cpu_s"], before and before["cpu_s"], 2)
     keys = sorted(set(after["stages_s"]) | set(before["stages_s"] if before else ()))
     for k in keys:
-        ms = lambda r: None if r is None else r["stages_s"].get(k, 0.0) * 1e3 / r["scans"]  # noqa: E731
-        row(f"  {k} [ms/scan]", ms(after), ms(before), 2)
+        row(f"  {k} [ms/scan]", ms_per_scan(after, k), ms_per_scan(before, k), 2)
     for label, key in (
         ("ATE SLAM [m]", "ate_slam_m"),
         ("ATE odometry [m]", "ate_odometry_m"),
@@ -187,8 +190,10 @@ def main() -> int:
         ok &= after["ate_slam_m"] <= after["ate_odometry_m"]
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1))
-    print(f"{'all targets met' if ok else 'some targets missed'} (>= 60 scans/CPU s, SLAM ATE <= "
-          f"odometry ATE); results -> {args.json}")
+    print(
+        f"{'all targets met' if ok else 'some targets missed'} (>= 60 scans/CPU s, SLAM ATE <= "
+        f"odometry ATE); results -> {args.json}"
+    )
     return 0 if ok else 1
 
 
