@@ -164,7 +164,7 @@ def ms_per_scan(r: dict | None, stage: str) -> float | None:
 
 
 def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
-    print(f"== {name}: {after['scans']} scans")
+    print(f"== {name}: {after['scans']} scans", flush=True)
     head = f"  {'':<40}{'after':>10}" + (f"{'before':>10}{'ratio':>8}" if before else "")
     print(head)
 
@@ -194,6 +194,7 @@ def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
         ("DBH MAE [m]", "dbh_mae_m"),
     ):
         row(label, after[key], before and before[key], 4, ratio=False)
+    sys.stdout.flush()
 
 
 def main() -> int:
