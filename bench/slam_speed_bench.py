@@ -2,8 +2,10 @@
 
 For each scenario the main job (`forestslam.runner.run`, mode slam: reading the bag, odometry
 with perception, landmark SLAM, tree and cloud maps, every output written) runs once with the
-code of this worktree and once with a baseline source tree (`--baseline`, default /work/main:
-its `python/` and `build/py/python`), each in its own process pinned to one core with one
+code of this worktree and once with a baseline (`--baseline`, default the git ref main:
+a source tree with `python/` and a built `build/py/python`; or a git ref, whose `python/` is
+exported and run with this tree's C++ build, which compares Python changes only), each in its
+own process pinned to one core with one
 thread per library. The child measures the process CPU time (time.process_time) of the whole
 job and splits it into stages: the C++ odometry's own per-stage CPU clocks (deskew,
 perception and its sub-stages, match, shape, icp, local map), and CPU clocks around the Python
@@ -13,7 +15,7 @@ the SLAM trajectory and of the odometry alone, tree recall / precision, DBH MAE.
 >= 60 VLP-16 scans per CPU second with accuracy unchanged or better.
 
     python bench/slam_speed_bench.py [--scenarios sample,vlp16-loop:600,...]
-        [--baseline /work/main | none] [--json out.json]
+        [--baseline REF | SOURCE_TREE | none] [--json out.json]
 
 A scenario is `sample` (data/cache/sample, made by `make run`), a cached sequence folder, or
 NAME[:MAX_SCANS][:STYLE] simulated once by bench/sim_sequences.py.
@@ -52,6 +54,31 @@ def resolve(spec: str) -> Path:
     name, *rest = spec.split(":")
     n = int(rest[0]) if rest and rest[0] else None
     return sequence(name, n, rest[1] if len(rest) > 1 else None)
+
+
+def baseline_tree(spec: str) -> Path:
+    """A source tree to run as the baseline: `spec` itself when it is a folder, else the git ref
+    `spec` exported (python/ only) beside this tree's C++ build."""
+    if Path(spec).is_dir():
+        return Path(spec)
+    sha = subprocess.run(
+        ["git", "-C", str(REPO), "rev-parse", "--verify", f"{spec}^{{commit}}"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    tree = CACHE / "bench-speed" / f"baseline-{sha[:12]}"
+    if not (tree / "python").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(
+            ["git", "-C", str(REPO), "archive", sha, "python"], capture_output=True, check=True
+        ).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    build = tree / "build" / "py"
+    build.mkdir(parents=True, exist_ok=True)
+    if not (build / "python").exists():
+        (build / "python").symlink_to(REPO / "build" / "py" / "python")
+    return tree
 
 
 def child(seq: Path, out: Path) -> dict:
@@ -203,10 +230,10 @@ def main() -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", default=DEFAULT_SCENARIOS)
-    ap.add_argument("--baseline", default="/work/main", help="source tree to compare; none: off")
+    ap.add_argument("--baseline", default="main", help="git ref or source tree; none: off")
     ap.add_argument("--json", type=Path, default=CACHE / "bench-speed" / "results.json")
     args = ap.parse_args()
-    base = None if args.baseline == "none" else Path(args.baseline)
+    base = None if args.baseline == "none" else baseline_tree(args.baseline)
     results, ok = {}, True
     for spec in (s.strip() for s in args.scenarios.split(",") if s.strip()):
         seq = resolve(spec)
