@@ -211,7 +211,7 @@ class LandmarkSlam:
             self._lm_alias[new] = old
         self._update(graph, gtsam.Values(), before, "tying trees")
         for _ in range(self.cfg.extra_updates_on_loop):
-            self.isam.update()
+            self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
@@ -546,7 +546,7 @@ class LandmarkSlam:
         self._graph.push_back(graph)
         big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
         for _ in range(cfg.extra_updates_on_loop if big else 0):
-            self.isam.update()
+            self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         if self.n_landmarks:
