@@ -54,6 +54,7 @@ def run(
     view_m=12.0,
     heights=None,
     z_drift_per_m=0.0,
+    range_bias=0.0,
 ):
     """Feed the simulated scans; odometry drifts by a yaw bias per step (and in z by
     z_drift_per_m per metre; tree centre heights `heights` (M,) then observed with it)."""
@@ -75,6 +76,9 @@ def run(
         local = np.column_stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]])
         vis = np.linalg.norm(local, axis=1) < view_m
         obs = local[vis] + rng.normal(scale=obs_noise, size=(int(vis.sum()), 2))
+        if range_bias:  # centres fitted to the visible side: nearer (or farther) than the axis
+            r = np.linalg.norm(obs, axis=1, keepdims=True)
+            obs = obs * (r + range_bias) / r
         if clutter:
             obs = np.vstack([obs, rng.uniform(-12, 12, size=(clutter, 2))])
         z = None
@@ -257,7 +261,8 @@ def test_height_correction_removes_odometry_z_drift():
     trees = forest(rng, 60)
     heights = 1.3 + 0.3 * np.sin(trees[:, 0] / 7.0) + 0.2 * np.cos(trees[:, 1] / 5.0)
     # 1 cm of z drift per metre: 0.8 m over the loop
-    slam = run(truth, trees, rng, obs_noise=0.03, heights=heights, z_drift_per_m=0.01)
+    cfg = SlamConfig(height_correction=True)
+    slam = run(truth, trees, rng, obs_noise=0.03, heights=heights, z_drift_per_m=0.01, cfg=cfg)
     stamps, poses = slam.trajectory()
     _, odom = slam.odometry()
     assert abs(odom[-1, 2, 3]) > 0.7
@@ -320,3 +325,19 @@ def test_failed_update_is_rolled_back_and_the_next_keyframe_works():
         lm, np.full(len(lm), np.nan), trees, np.full(len(trees), 0.3), truth[:, :2], max_dist_m=11
     )
     assert t["recall"] == 1.0 and t["precision"] == 1.0 and t["mean_position_error_m"] < 1e-6
+
+
+def test_common_range_bias_of_stem_centres_is_estimated_and_removed():
+    """Stem centres 4 cm nearer than the axes (a fit to the visible side): views from opposite
+    sides disagree by 8 cm and bend the trajectory. The online range offset removes part of the
+    bias (trees seen from one side only absorb the rest, so it under-corrects, never over)."""
+    truth = square_path(side=20.0)
+    trees = forest(np.random.default_rng(5), 60)
+    kw = dict(obs_noise=0.01, range_bias=-0.04)
+    on = run(truth, trees, np.random.default_rng(6), **kw)
+    off = run(truth, trees, np.random.default_rng(6), cfg=SlamConfig(range_offset_gain=0.0), **kw)
+    assert 0.01 < on.range_offset <= 0.04
+    assert off.range_offset == 0.0
+    assert ate(on, truth)["ate_rmse_m"] < 0.7 * ate(off, truth)["ate_rmse_m"]
+    unbiased = run(truth, trees, np.random.default_rng(6), obs_noise=0.01)
+    assert abs(unbiased.range_offset) < 0.01  # no bias, no offset

@@ -54,12 +54,7 @@ class CloudMap:
         ground = np.zeros(len(pts), dtype=bool)
         if ground_points is not None and len(ground_points):
             ground = np.isin(keys, voxel_keys(np.asarray(ground_points, np.float64), v))
-        tree_id = np.zeros(len(pts), dtype=np.uint32)
-        stems = [] if stem_points is None else stem_points
-        ids = [] if stem_tree_ids is None else stem_tree_ids
-        for stem, tid in zip(stems, ids, strict=True):
-            if tid > 0 and len(stem):
-                tree_id[np.isin(keys, voxel_keys(np.asarray(stem, np.float64), v))] = tid
+        tree_id = _stem_ids(keys, v, stem_points or [], stem_tree_ids)
         self._keyframes.append(_Keyframe(keyframe, stamp, pts.astype(np.float32), ground, tree_id))
 
     def build(self, keyframe_poses: np.ndarray) -> dict[str, np.ndarray]:
@@ -99,6 +94,26 @@ class CloudMap:
             "tree_id": tree_id,
             "time": time,
         }
+
+
+def _stem_ids(keys: np.ndarray, voxel_m: float, stems: list, ids) -> np.ndarray:
+    """(N,) uint32 tree id of the voxels `keys` holding a stem's points (0: none); one sorted
+    lookup for all stems (where two stems share a voxel, the later one's id)."""
+    out = np.zeros(len(keys), dtype=np.uint32)
+    ids = np.zeros(0, dtype=np.int64) if ids is None else np.asarray(ids).ravel()
+    if len(stems) != len(ids):
+        raise ValueError(f"{len(stems)} stems for {len(ids)} tree ids")
+    use = [k for k in range(len(stems)) if ids[k] > 0 and len(stems[k])]
+    if not use:
+        return out
+    stem_keys = np.concatenate([voxel_keys(np.asarray(stems[k], np.float64), voxel_m) for k in use])
+    stem_ids = np.concatenate([np.full(len(stems[k]), ids[k], dtype=np.uint32) for k in use])
+    order = np.argsort(stem_keys, kind="stable")
+    stem_keys, stem_ids = stem_keys[order], stem_ids[order]
+    last = np.searchsorted(stem_keys, keys, side="right") - 1  # the latest stem in a voxel
+    hit = (last >= 0) & (stem_keys[np.maximum(last, 0)] == keys)
+    out[hit] = stem_ids[last[hit]]
+    return out
 
 
 def _empty() -> dict[str, np.ndarray]:

@@ -7,13 +7,15 @@ from pathlib import Path
 import numpy as np
 
 
-def _figure():
-    import matplotlib
+def _subplots(figsize: tuple[float, float], dpi: int):
+    """A figure and its axes on the Agg canvas, without pyplot (whose import and global figure
+    manager cost about as much CPU as drawing the map; nothing here is shown on screen)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = Figure(figsize=figsize, dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot()
 
 
 def plot_map(
@@ -30,8 +32,7 @@ def plot_map(
 
     from forestslam.io.atomic import atomic_write
 
-    plt = _figure()
-    fig, ax = plt.subplots(figsize=(8, 8), dpi=120)
+    fig, ax = _subplots((8, 8), 120)
     pts = [p for p in (trajectory_xy, trees_xy) if len(p)]
     extent = float(np.ptp(np.vstack(pts), axis=0).max()) if pts else 1.0
     scale = max(1, int(round(extent / 15.0)))
@@ -64,15 +65,13 @@ def plot_map(
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png"), mode="wb")
-    plt.close(fig)
 
 
 def plot_dtm(path: Path, dtm: dict) -> None:
     from forestslam.io.atomic import atomic_write
 
-    plt = _figure()
     z = dtm["z"]
-    fig, ax = plt.subplots(figsize=(7, 6), dpi=110)
+    fig, ax = _subplots((7, 6), 110)
     if z.size:
         c = dtm["cell_m"]
         ext = [
@@ -91,4 +90,3 @@ def plot_dtm(path: Path, dtm: dict) -> None:
     ax.set_title(f"DTM ({dtm['cell_m']} m cells)")
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png"), mode="wb")
-    plt.close(fig)

@@ -141,6 +141,11 @@ class LandmarkSlam:
         self.losses = 0
         self.relocalizations = 0
         self._loss_kfs: list[int] = []  # keyframes that started a segment
+        # Metres added to every observed stem-centre range: a centre fitted to the visible side
+        # of a stem sits nearer (or farther) than the axis by a similar amount whatever the
+        # tree, so views from opposite sides disagree and bend the trajectory. Estimated online
+        # from the range residuals of well-observed trees (see _update_range_offset).
+        self.range_offset = 0.0
         c = self.cfg
         self.height = (
             HeightGraph(c.height_obs_sigma_m, c.height_step_sigma_m, c.height_sigma_per_m)
@@ -217,7 +222,7 @@ class LandmarkSlam:
             self._lm_alias[new] = old
         self._update(graph, gtsam.Values(), before, "tying trees")
         for _ in range(self.cfg.extra_updates_on_loop):
-            self.isam.update()
+            self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
@@ -317,6 +322,8 @@ class LandmarkSlam:
             raise InputError("add_scan: stems_xy, stems_dbh and stems_z differ in length")
         ok = np.isfinite(stems_xy).all(axis=1)
         rng = np.linalg.norm(stems_xy, axis=1)
+        if self.range_offset and len(stems_xy):  # the stem centres' radial bias, see below
+            stems_xy = stems_xy * ((rng + self.range_offset) / np.maximum(rng, 1e-9))[:, None]
         ok &= (rng >= cfg.min_observation_range_m) & (rng <= cfg.max_observation_range_m)
         idx = np.nonzero(ok)[0]
         o2 = planar(T_odom)
@@ -594,7 +601,7 @@ class LandmarkSlam:
         self._graph.push_back(graph)
         big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
         for _ in range(cfg.extra_updates_on_loop if big else 0):
-            self.isam.update()
+            self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         if self.n_landmarks:
@@ -605,7 +612,24 @@ class LandmarkSlam:
             log.debug("marginal covariance of keyframe %d unavailable", kf)
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
+        self._update_range_offset(kf, res.matches, ranges)
         return kf
+
+    def _update_range_offset(self, kf: int, matches: np.ndarray, ranges: np.ndarray) -> None:
+        """Move `range_offset` towards the median range residual (predicted minus observed)
+        of this keyframe's observations of trees seen often enough to be placed from several
+        sides; bounded by the observation sigma, so it can only remove a small common bias."""
+        cfg = self.cfg
+        if not cfg.range_offset_gain:
+            return
+        m = np.flatnonzero(matches >= 0)
+        m = m[self._lm_nobs[matches[m]] >= cfg.range_offset_min_observations]
+        if len(m) < cfg.consensus_min_support:
+            return
+        pred = np.linalg.norm(self._lm_xy[matches[m]] - self._kf_est[kf, :2], axis=1)
+        step = cfg.range_offset_gain * float(np.median(pred - ranges[m]))
+        bound = cfg.observation_sigma_m
+        self.range_offset = float(np.clip(self.range_offset + step, -bound, bound))
 
     def _snapshot(self) -> dict:
         """What adding a keyframe changes before its iSAM2 update (to undo a failed one)."""
