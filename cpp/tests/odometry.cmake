@@ -11,5 +11,6 @@ if(FORESTSLAM_INSTALL)
            COMMAND ${CMAKE_COMMAND} -DBUILD=${PROJECT_BINARY_DIR}
                    -DSOURCE=${CMAKE_CURRENT_SOURCE_DIR}/consumer
                    -DWORK=${CMAKE_CURRENT_BINARY_DIR}/install_consumer
+                   -DBINDIR=${CMAKE_INSTALL_BINDIR} -DDATADIR=${CMAKE_INSTALL_DATADIR}
                    -P ${CMAKE_CURRENT_SOURCE_DIR}/install_consumer.cmake)
 endif()

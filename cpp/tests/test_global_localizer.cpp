@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/localization/global_localizer.hpp"
 
@@ -175,4 +176,9 @@ TEST(GlobalLocalizer, AbsentPlacesAreNotSignificant) {
         const auto res = tree_map.localize(observe(other, pose, 20, 0.05, 0.1, 2, 10 + q));
         EXPECT_TRUE(res.rejected) << "query " << q << " significance " << res.significance;
     }
+}
+
+TEST(GlobalLocalizer, FitRigid2DNeedsOnePartnerPerPoint) {
+    const std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}}, b = {{0, 0}, {3, 1}};
+    EXPECT_THROW(forestslam::fitRigid2D(a, b), std::invalid_argument);
 }

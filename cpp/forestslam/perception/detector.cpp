@@ -128,6 +128,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
                       const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
                       bool scan_centred, const PerceptionOptions &opt) {
     // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.
+    requirePerPoint("detectStems", "intensities", intensity.size(), points.rows(), true);
+    requirePerPoint("detectStems", "rings", ring.size(), points.rows(), true);
     pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
     Detection det;
     det.input_points = static_cast<int>(points.rows());
