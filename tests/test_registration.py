@@ -129,3 +129,16 @@ def test_bad_inputs_raise_input_error_and_empty_inputs_do_not_crash():
     nan = np.full((4, 3), np.nan)
     assert len(reg.match_trees(nan, nan, np.eye(4))) == 0
     assert len(reg.voxel_downsample(nan, 0.25)) == 0
+
+
+def test_poses_cross_the_binding_as_rigid_4x4_arrays():
+    core = pytest.importorskip("forestslam._core")
+    r = core.RegistrationResult()
+    r.T_target_source = planar(1.0, 2.0, 0.3)
+    np.testing.assert_allclose(r.T_target_source, planar(1.0, 2.0, 0.3), atol=1e-15)
+    sheared = np.eye(4)
+    sheared[3, 0] = 0.5  # a projective matrix, not a pose
+    with pytest.raises(ValueError, match="last row"):
+        core.transform_points(sheared, np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="gate_m"):
+        core.match_trees(np.zeros((2, 3)), np.zeros((2, 3)), np.eye(4), 0.0)

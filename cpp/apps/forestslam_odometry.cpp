@@ -83,10 +83,10 @@ bool plausibleTimes(const Eigen::VectorXd &t, double rate_hz) {
 }
 
 void writeTumLine(std::ostream &out, const odometry::OdometryResult &r) {
-    const Eigen::Matrix4d &T = r.T_world_sensor;
-    const Eigen::Quaterniond q(Eigen::Matrix3d(T.topLeftCorner<3, 3>()));
-    out << std::fixed << std::setprecision(6) << r.stamp << ' ' << std::setprecision(6) << T(0, 3)
-        << ' ' << T(1, 3) << ' ' << T(2, 3) << ' ' << std::setprecision(9) << q.x() << ' ' << q.y()
+    const Eigen::Vector3d t = r.T_world_sensor.translation();
+    const Eigen::Quaterniond q(r.T_world_sensor.rotation());
+    out << std::fixed << std::setprecision(6) << r.stamp << ' ' << std::setprecision(6) << t.x()
+        << ' ' << t.y() << ' ' << t.z() << ' ' << std::setprecision(9) << q.x() << ' ' << q.y()
         << ' ' << q.z() << ' ' << q.w() << '\n';
 }
 

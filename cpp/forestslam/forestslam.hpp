@@ -1,22 +1,42 @@
 // forestslam C++ core, everything at once: #include "forestslam/forestslam.hpp" and link
-// forestslam::forestslam (find_package(forestslam)).
+// forestslam::forestslam (find_package(forestslam)). Every public header of every concern; each
+// concern's API lives in namespace forestslam::<concern>, the shared vocabulary (Points3, Pose3,
+// circle fits, k-d tree, voxel keys: the common concern) in namespace forestslam.
 #pragma once
 
 #include "forestslam/common/circle_fit.hpp"
+#include "forestslam/common/kdtree.hpp"
 #include "forestslam/common/types.hpp"
+#include "forestslam/common/voxel_key.hpp"
 #include "forestslam/features/dog_keypoints.hpp"
 #include "forestslam/features/virtual_features.hpp"
 #include "forestslam/features/voxel_grid.hpp"
+#include "forestslam/io/lzf.hpp"
+#include "forestslam/io/point_mask.hpp"
+#include "forestslam/localization/acceptance.hpp"
+#include "forestslam/localization/delaunay.hpp"
+#include "forestslam/localization/feature_index.hpp"
 #include "forestslam/localization/global_localizer.hpp"
+#include "forestslam/localization/triangle_star.hpp"
+#include "forestslam/localization/trunk_extraction.hpp"
+#include "forestslam/odometry/local_map.hpp"
 #include "forestslam/odometry/motion_model.hpp"
+#include "forestslam/odometry/odometry_config.hpp"
 #include "forestslam/odometry/sensor_profile.hpp"
 #include "forestslam/odometry/tree_odometry.hpp"
 #include "forestslam/perception/detector.hpp"
+#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/preprocess.hpp"
+#include "forestslam/perception/segmentation.hpp"
+#include "forestslam/perception/stems.hpp"
 #include "forestslam/registration/deskew.hpp"
 #include "forestslam/registration/fpfh_ransac.hpp"
 #include "forestslam/registration/ndt.hpp"
 #include "forestslam/registration/point_to_plane_icp.hpp"
+#include "forestslam/registration/result.hpp"
 #include "forestslam/registration/shape_registration.hpp"
 #include "forestslam/registration/stem_centre_lm.hpp"
 #include "forestslam/registration/tree_correspondences.hpp"
+#include "forestslam/sim/forest_scene.hpp"
+#include "forestslam/sim/ray_primitives.hpp"
 #include "forestslam/sim/scan_synthesis.hpp"

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <stdexcept>
 #include <vector>
 
 #include "forestslam/common/circle_fit.hpp"
@@ -123,6 +124,9 @@ TEST(CircleFit, ArcCoverageCountsOccupiedSectors) {
     p << 1, 0.01, -1, 0.01;  // two opposite sectors out of 4
     EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {0, 1}, Eigen::Vector2d::Zero(), 4), 0.5);
     EXPECT_DOUBLE_EQ(forestslam::arcCoverage(p, {}, Eigen::Vector2d::Zero(), 4), 0.0);
+    EXPECT_THROW(forestslam::arcCoverage(p, {0, 2}, Eigen::Vector2d::Zero(), 4), std::out_of_range);
+    EXPECT_THROW(forestslam::arcCoverage(p, {0}, Eigen::Vector2d::Zero(), 0),
+                 std::invalid_argument);
 }
 
 namespace {
@@ -172,11 +176,10 @@ TEST(CircleFit, RangeNoiseOnOneSidedArcsBiasesTheOrthogonalFitNotTheRayFit) {
     EXPECT_LT(std::abs(bias_rays), 0.002);
 }
 
-TEST(CircleFit, RayFitWithoutUsableOriginsIsTheOrthogonalFit) {
+TEST(CircleFit, RayFitNeedsOneOriginPerPoint) {
     const Points2 p = arc(3.0, -2.0, 0.25, 0.0, 2.0, 40, 0.0, 1);
-    const CircleFit a = forestslam::fitCircle(p);
-    const CircleFit b = forestslam::fitCircleRays(p, Points2(3, 2));  // wrong row count
-    EXPECT_DOUBLE_EQ(a.radius, b.radius);
+    // A wrong row count is an error, not a silent fall back to the orthogonal fit.
+    EXPECT_THROW(forestslam::fitCircleRays(p, Points2(3, 2)), std::invalid_argument);
     // Exact points seen from one origin: the range model keeps the exact circle.
     const Points2 o = Eigen::RowVector2d(-5.0, -2.0).replicate(p.rows(), 1);
     const CircleFit c = forestslam::fitCircleRays(p, o);

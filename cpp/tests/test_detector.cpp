@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "forestslam/perception/detector.hpp"
 #include "perception_scene.hpp"
@@ -53,4 +54,14 @@ TEST(Detector, BadInputGivesEmptyResults) {
     EXPECT_TRUE(detectStems(scan.points, no_i, bad, g, true, o).stems.empty());
     // The same scan as a map (3D clustering, fixed-radius normals) still finds the stem.
     EXPECT_EQ(detectStems(scan.points, no_i, no_r, g, false, o).stems.size(), 1u);
+}
+
+TEST(Detector, PerPointFieldsOfAnotherLengthThrow) {
+    const auto g = test::vlp16Geometry();
+    const Points3 points = Points3::Zero(10, 3);
+    // One intensity or ring short: an error, not a silently unfiltered or ring-less scan.
+    EXPECT_THROW(detectStems(points, Eigen::VectorXd::Zero(9), Eigen::VectorXi(), g, true, {}),
+                 std::invalid_argument);
+    EXPECT_THROW(detectStems(points, Eigen::VectorXd(), Eigen::VectorXi::Zero(9), g, true, {}),
+                 std::invalid_argument);
 }

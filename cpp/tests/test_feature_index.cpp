@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/localization/feature_index.hpp"
 
@@ -31,8 +32,6 @@ TEST(FeatureIndex, KnnMatchesBruteForce) {
         tree.knn(query, 5, all[1].first + 1e-12, idx, dist);
         EXPECT_EQ(idx.size(), 2u);
     }
-    tree.knn(Eigen::VectorXd::Zero(3), 5, 1e9, idx, dist);  // wrong dimension: nothing
-    EXPECT_TRUE(idx.empty());
 }
 
 TEST(FeatureIndex, GridNearestWithinGate) {
@@ -46,4 +45,11 @@ TEST(FeatureIndex, GridNearestWithinGate) {
     EXPECT_EQ(grid.nearest(-4.4, 3.0, 0.5), -1);
     EXPECT_EQ(grid.nearest(0.0, 2.5, 3.0), 0);  // gate wider than a cell
     EXPECT_EQ(grid.nearest(NAN, 0.0, 1.0), -1);
+}
+
+TEST(FeatureIndex, QueryOfAnotherDimensionThrows) {
+    const forestslam::KdTree tree(forestslam::KdTree::Matrix::Zero(5, 8));
+    std::vector<int> idx;
+    std::vector<double> dist;
+    EXPECT_THROW(tree.knn(Eigen::VectorXd::Zero(7), 3, 1.0, idx, dist), std::invalid_argument);
 }

@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <limits>
+#include <stdexcept>
+
 #include "forestslam/registration/fpfh_ransac.hpp"
 #include "registration_fixtures.hpp"
 
@@ -27,4 +30,7 @@ TEST(FpfhRansac, VoxelDownsampleAndEmpty) {
     const RegistrationResult r = registerFpfh(Points3(0, 3), p);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);
+    Pose3 nan = Pose3::Identity();
+    nan.linear()(0, 0) = std::numeric_limits<double>::quiet_NaN();
+    EXPECT_THROW(registerFpfh(p, p, nan), std::invalid_argument);
 }

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/localization/global_localizer.hpp"
 
@@ -214,4 +215,9 @@ TEST(GlobalLocalizer, TwoCopiesOfAPlaceAreAmbiguous) {
     EXPECT_NE(res.reason.find("ambiguous"), std::string::npos) << res.reason;
     ASSERT_TRUE(res.runner_up.exists);
     EXPECT_NEAR(std::abs(res.runner_up.x - res.x), 100.0, 0.5);
+}
+
+TEST(GlobalLocalizer, FitRigid2DNeedsOnePartnerPerPoint) {
+    const std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}}, b = {{0, 0}, {3, 1}};
+    EXPECT_THROW(forestslam::fitRigid2D(a, b), std::invalid_argument);
 }

@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <limits>
+#include <stdexcept>
+
 #include "forestslam/registration/ndt.hpp"
 #include "tls_scene.hpp"
 
@@ -12,17 +15,25 @@ TEST(Ndt, ConsecutiveFramesRelativeMotion) {
     const Pose3 T_b = test::makePose(0.5, 0.2, 0.0, 0.01, 0.0, 0.15);
     const Points3 a = test::raycast(scene, T_a, rings);
     const Points3 b = test::raycast(scene, T_b, rings);
-    const Eigen::Matrix4d T_ab_true = (T_a.inverse() * T_b).matrix();
+    const Pose3 T_ab_true = T_a.inverse() * T_b;
     const NdtResult r = registerNdt(a, b);
     ASSERT_TRUE(r.converged);
-    EXPECT_LT((r.T_target_source.block<3, 1>(0, 3) - T_ab_true.block<3, 1>(0, 3)).norm(), 0.1);
+    EXPECT_LT((r.T_target_source.translation() - T_ab_true.translation()).norm(), 0.1);
 }
 
 TEST(Ndt, TooFewPointsKeepsInitialGuess) {
     Points3 few(3, 3);
     few.setRandom();
-    const Eigen::Matrix4d T0 = test::makePose(1.0, 0.0, 0.0, 0.0, 0.0, 0.0).matrix();
+    const Pose3 T0 = test::makePose(1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     const NdtResult r = registerNdt(few, few, T0);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.T_target_source.isApprox(T0));
+}
+
+TEST(Ndt, NonFiniteInitialGuessThrows) {
+    Points3 few(3, 3);
+    few.setRandom();
+    Pose3 T0 = Pose3::Identity();
+    T0.translation().x() = std::numeric_limits<double>::quiet_NaN();
+    EXPECT_THROW(registerNdt(few, few, T0), std::invalid_argument);
 }

@@ -1,6 +1,8 @@
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/registration/point_to_plane_icp.hpp"
 #include "registration_fixtures.hpp"
@@ -93,7 +95,18 @@ TEST(PointToPlaneIcp, EmptyInputs) {
     EXPECT_TRUE(r.degenerate);
     r = icpPointToPlane(PlaneTarget(cloud), empty, Pose3::Identity());
     EXPECT_FALSE(r.converged);
-    EXPECT_TRUE(r.T_target_source.isIdentity());
+    EXPECT_TRUE(r.T_target_source.matrix().isIdentity());
+}
+
+TEST(PointToPlaneIcp, NonFinitePosesThrow) {
+    const auto stems = synth::randomStems(5, 10.0, 1);
+    const Points3 cloud = synth::sceneCloud(stems, 10.0, 2);
+    const PlaneTarget target(cloud);
+    Pose3 nan = Pose3::Identity();
+    nan.translation().z() = std::numeric_limits<double>::quiet_NaN();
+    EXPECT_THROW(icpPointToPlane(target, cloud, nan), std::invalid_argument);
+    EXPECT_THROW(icpPointToPlane(target, cloud, Pose3::Identity(), {}, Matrix6d::Identity(), nan),
+                 std::invalid_argument);
 }
 
 TEST(PointToPlaneIcp, NearestMatchesBruteForceAndRespectsGate) {

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "forestslam/perception/preprocess.hpp"
 #include "perception_scene.hpp"
@@ -81,4 +82,9 @@ TEST(Preprocess, AdaptiveNormalFilterKeepsStemsAndDropsGround) {
     for (int i : fixed.kept)
         if (std::hypot(scan.points(i, 0), scan.points(i, 1) - 16) < 0.4) far_fixed++;
     EXPECT_LT(far_fixed, far / 4);
+}
+
+TEST(Preprocess, IntensitiesOfAnotherLengthThrow) {
+    EXPECT_THROW(intensityFilter(Eigen::VectorXd::Zero(3), 100.0, 4), std::invalid_argument);
+    EXPECT_EQ(intensityFilter(Eigen::VectorXd(), 100.0, 4).size(), 4u);  // no intensity at all
 }

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <set>
+#include <stdexcept>
 #include <tuple>
 
 #include "forestslam/perception/segmentation.hpp"
@@ -134,4 +135,11 @@ TEST(Segmentation, ThinnedNearStemStaysWholeWithTheMetricColumnGap) {
     ASSERT_GT(thin.rows(), 30);
     EXPECT_EQ(bridged.size(), 1u);
     EXPECT_GT(strips.size(), 3u);
+}
+
+TEST(Segmentation, RingsOfAnotherLengthThrow) {
+    const auto s = stemsOnly({{5, 0.5, 0.3}});
+    const Eigen::VectorXi short_ring = s.ring.head(s.ring.size() - 1);
+    EXPECT_THROW(projectToRangeImage(s.points, short_ring, test::vlp16Geometry()),
+                 std::invalid_argument);
 }

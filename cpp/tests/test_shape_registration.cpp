@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/registration/shape_registration.hpp"
 #include "forestslam/registration/tree_correspondences.hpp"
@@ -131,4 +132,25 @@ TEST(ShapeRegistration, TwoOrFewerStemsAreDegenerate) {
     const RegistrationResult r =
         registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, identityPairs(3), T);
     EXPECT_FALSE(r.degenerate);
+}
+
+TEST(ShapeRegistration, InvalidInputThrows) {
+    const Scene s = makeScene(6, planarToPose(0.5, -0.3, 0.1), 0.0, 7);
+    // A pair beyond the stems and a covariance table of the wrong length are errors, not
+    // silently skipped pairs.
+    auto out_of_range = identityPairs(6);
+    out_of_range.emplace_back(6, 0);
+    EXPECT_THROW(registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, out_of_range,
+                                Pose3::Identity()),
+                 std::invalid_argument);
+    EXPECT_THROW(consensusPairs(s.src_means, s.tgt_means, {{0, 9}}, Pose3::Identity(), {}),
+                 std::invalid_argument);
+    const Covariances short_covs = s.src_covs.topRows(5);
+    EXPECT_THROW(registerShapes(s.src_means, short_covs, s.tgt_means, s.tgt_covs, identityPairs(5),
+                                Pose3::Identity()),
+                 std::invalid_argument);
+    const double pose[3] = {0.0, 0.0, 0.0};
+    EXPECT_THROW(shapeCost(pose, s.src_means, s.src_covs, s.tgt_means, short_covs.topRows(3),
+                           identityPairs(3), 0.05, nullptr),
+                 std::invalid_argument);
 }

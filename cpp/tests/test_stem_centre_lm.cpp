@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <stdexcept>
 
 #include "forestslam/features/dog_keypoints.hpp"
@@ -11,8 +12,8 @@ using namespace forestslam;
 
 namespace {
 
-double rotationErrorDeg(const Eigen::Matrix4d &a, const Eigen::Matrix4d &b) {
-    const Eigen::Matrix3d d = a.block<3, 3>(0, 0).transpose() * b.block<3, 3>(0, 0);
+double rotationErrorDeg(const Pose3 &a, const Pose3 &b) {
+    const Eigen::Matrix3d d = a.linear().transpose() * b.linear();
     return Eigen::AngleAxisd(d).angle() * 180.0 / M_PI;
 }
 
@@ -36,14 +37,14 @@ TEST(StemCentreLm, RecoversKnownSixDofPerturbation) {
     const Frame f = makeFrame(scene, T_true);
     ASSERT_GE(f.vf.stems.rows(), 3);
     const Pose3 delta = test::makePose(0.2, -0.15, 0.08, 0.015, 0.01, 0.04);
-    const Eigen::Matrix4d T_init = (delta * T_true).matrix();
+    const Pose3 T_init = delta * T_true;
     const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_init);
     EXPECT_TRUE(r.converged);
     EXPECT_FALSE(r.degenerate);
     EXPECT_GT(r.virtual_inliers, 10);
     EXPECT_GT(r.real_inliers, 50);
-    EXPECT_LT((r.T_target_source.block<3, 1>(0, 3) - T_true.translation()).norm(), 0.01);
-    EXPECT_LT(rotationErrorDeg(r.T_target_source, T_true.matrix()), 0.1);
+    EXPECT_LT((r.T_target_source.translation() - T_true.translation()).norm(), 0.01);
+    EXPECT_LT(rotationErrorDeg(r.T_target_source, T_true), 0.1);
     EXPECT_LT(r.virtual_rms_m, 0.02);
     // Covariance is a proper (symmetric positive definite) 6x6 with sub-cm standard deviations.
     const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(r.covariance);
@@ -58,18 +59,18 @@ TEST(StemCentreLm, FrameWithoutStemsRegistersOnRealFeatures) {
     const Frame f = makeFrame(scene, T_true);
     EXPECT_EQ(f.vf.centres.rows(), 0);
     const Pose3 delta = test::makePose(0.15, 0.1, -0.05, 0.01, -0.01, 0.03);
-    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
-                                        (delta * T_true).matrix());
+    const auto r =
+        registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, delta * T_true);
     EXPECT_TRUE(r.converged);
     EXPECT_EQ(r.virtual_inliers, 0);
-    EXPECT_LT((r.T_target_source.block<3, 1>(0, 3) - T_true.translation()).norm(), 0.02);
-    EXPECT_LT(rotationErrorDeg(r.T_target_source, T_true.matrix()), 0.2);
+    EXPECT_LT((r.T_target_source.translation() - T_true.translation()).norm(), 0.02);
+    EXPECT_LT(rotationErrorDeg(r.T_target_source, T_true), 0.2);
 }
 
 TEST(StemCentreLm, TooFewFeaturesIsDegenerateAndKeepsInitialGuess) {
     const auto scene = test::defaultScene();
     const StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
-    const Eigen::Matrix4d T_init = test::makePose(1.0, 2.0, 0.0, 0.0, 0.0, 0.1).matrix();
+    const Pose3 T_init = test::makePose(1.0, 2.0, 0.0, 0.0, 0.0, 0.1);
     const auto r =
         registerStemCentreLm(target, Points3(0, 3), Eigen::VectorXd(0), Points3(0, 3), T_init);
     EXPECT_FALSE(r.converged);
@@ -153,8 +154,7 @@ TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
     const VirtualFeatures vf = extractVirtualFeaturesRings(f.points, f.rings);
     const DogKeypoints kp = detectDogKeypoints(f.points);
     ASSERT_GE(vf.stems.rows(), 3);
-    const Eigen::Matrix4d T_init =
-        (test::makePose(0.05, -0.04, 0.02, 0.004, 0.003, 0.01) * T_mid).matrix();
+    const Pose3 T_init = test::makePose(0.05, -0.04, 0.02, 0.004, 0.003, 0.01) * T_mid;
     StemCentreLmConfig cfg;
     const auto rigid = registerStemCentreLm(target, vf.centres, vf.radii, kp.points, T_init, cfg);
     cfg.sweep_order = 2;
@@ -173,9 +173,9 @@ TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
         const Eigen::Vector3d truth = vibratingPose(T_mid, tau) * p;
         const Eigen::Vector3d at_mid = T_mid * p;
         const Eigen::Vector3d r =
-            rigid.T_target_source.block<3, 3>(0, 0) * p + rigid.T_target_source.block<3, 1>(0, 3);
-        const Eigen::Matrix3d R = sweep.T_target_source.block<3, 3>(0, 0);
-        const Eigen::Vector3d o = sweep.T_target_source.block<3, 1>(0, 3);
+            rigid.T_target_source.linear() * p + rigid.T_target_source.translation();
+        const Eigen::Matrix3d R = sweep.T_target_source.linear();
+        const Eigen::Vector3d o = sweep.T_target_source.translation();
         Eigen::Matrix<double, 6, 1> c =
             tau * sweep.sweep.row(0).transpose() + tau * tau * sweep.sweep.row(1).transpose();
         const Eigen::Vector3d w = c.tail<3>();
@@ -195,7 +195,7 @@ TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
     EXPECT_GT(motion, 0.05);
     EXPECT_LT(sweep_err, 0.4 * rigid_err);
     EXPECT_LT(sweep_err, 0.02);
-    EXPECT_LT((sweep.T_target_source.block<3, 1>(0, 3) - T_mid.translation()).norm(), 0.02);
+    EXPECT_LT((sweep.T_target_source.translation() - T_mid.translation()).norm(), 0.02);
 }
 
 TEST(StemCentreLm, SweepOrderNeedsOneTimePerFeature) {
@@ -207,18 +207,33 @@ TEST(StemCentreLm, SweepOrderNeedsOneTimePerFeature) {
     StemCentreLmConfig cfg;
     cfg.sweep_order = 2;
     // No times, or a time missing: an error, not a silently rigid registration.
-    EXPECT_THROW(
-        registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true.matrix(), cfg),
-        std::invalid_argument);
+    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg),
+                 std::invalid_argument);
     const SweepTimes short_real{Eigen::VectorXd::Zero(n_c), Eigen::VectorXd::Zero(n_r - 1)};
-    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
-                                      T_true.matrix(), cfg, &short_real),
+    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg,
+                                      &short_real),
                  std::invalid_argument);
     // A rigid registration ignores times.
     cfg.sweep_order = 0;
-    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
-                                        T_true.matrix(), cfg, &short_real);
+    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg,
+                                        &short_real);
     EXPECT_TRUE(r.converged);
     EXPECT_EQ(r.sweep.rows(), 0);
-    EXPECT_LT((r.T_target_source.block<3, 1>(0, 3) - T_true.translation()).norm(), 0.01);
+    EXPECT_LT((r.T_target_source.translation() - T_true.translation()).norm(), 0.01);
+}
+
+TEST(StemCentreLm, InvalidInputThrows) {
+    const auto scene = test::defaultScene();
+    const StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
+    Points3 centres(2, 3);
+    centres << 1.0, 0.0, 1.3, 0.0, 2.0, 1.3;
+    // One radius for two centres: an error, not a registration on the first centre only.
+    EXPECT_THROW(registerStemCentreLm(target, centres, Eigen::VectorXd::Constant(1, 0.2),
+                                      Points3(0, 3), Pose3::Identity()),
+                 std::invalid_argument);
+    Pose3 nan = Pose3::Identity();
+    nan.translation().y() = std::numeric_limits<double>::quiet_NaN();
+    EXPECT_THROW(registerStemCentreLm(target, centres, Eigen::VectorXd::Constant(2, 0.2),
+                                      Points3(0, 3), nan),
+                 std::invalid_argument);
 }

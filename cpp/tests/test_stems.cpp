@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 #include "forestslam/perception/stems.hpp"
 
@@ -119,4 +120,14 @@ TEST(Stems, LocalGroundIsTheMedianAround) {
     g << 0, 0, 1.0, 0.5, 0, 1.2, 0, 0.5, 1.1, 10, 10, 9.0;
     EXPECT_DOUBLE_EQ(localGroundHeight(g, Eigen::Vector2d(0.1, 0.1), 2.0), 1.1);
     EXPECT_TRUE(std::isnan(localGroundHeight(g, Eigen::Vector2d(50, 50), 2.0)));
+}
+
+TEST(Stems, NormalsOfAnotherLengthThrow) {
+    Points3 n;
+    const Points3 p = cylinderArc(8, 3, 0.2, 0.2, 3.0, 0.1, 0.005, &n);
+    const Points3 short_normals = n.topRows(n.rows() - 1);
+    EXPECT_THROW(estimateDiameter(p, short_normals, 0.0, Eigen::Vector3d::UnitZ(), {}),
+                 std::invalid_argument);
+    // No normals at all is allowed (no cylinder).
+    EXPECT_TRUE(estimateDiameter(p, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}).circle.valid);
 }

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "forestslam/registration/result.hpp"
 #include "forestslam/registration/tree_correspondences.hpp"
@@ -60,4 +61,18 @@ TEST(TreeCorrespondences, EmptyAndNonFinite) {
     EXPECT_TRUE(forestslam::matchTrees(empty, one, Pose3::Identity(), 1.0).empty());
     EXPECT_TRUE(forestslam::matchTrees(one, empty, Pose3::Identity(), 1.0).empty());
     EXPECT_TRUE(forestslam::matchTrees(nan, one, Pose3::Identity(), 1.0).empty());
+}
+
+TEST(TreeCorrespondences, InvalidGateOrRatioThrows) {
+    Points3 one(1, 3);
+    one << 0, 0, 0;
+    const Pose3 I = Pose3::Identity();
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    // A gate or ratio that would silently match nothing (or everything) is an error.
+    EXPECT_THROW(forestslam::matchTrees(one, one, I, 0.0), std::invalid_argument);
+    EXPECT_THROW(forestslam::matchTrees(one, one, I, nan), std::invalid_argument);
+    EXPECT_THROW(forestslam::matchTrees(one, one, I, 1.0, 0.0), std::invalid_argument);
+    EXPECT_THROW(forestslam::matchTrees(one, one, I, 1.0, 1.5), std::invalid_argument);
+    EXPECT_THROW(forestslam::matchTrees(one, one, I, 1.0, nan), std::invalid_argument);
+    EXPECT_EQ(forestslam::matchTrees(one, one, I, 1.0, 1.0).size(), 1u);
 }

@@ -93,12 +93,18 @@ TEST(TreeOdometry, EmptyScansKeepThePrediction) {
     const OdometryResult r = odo.registerScan(empty);
     EXPECT_EQ(r.method, "prediction");
     EXPECT_TRUE(r.degraded);
-    EXPECT_TRUE(r.T_world_sensor.allFinite());
+    EXPECT_TRUE(r.T_world_sensor.matrix().allFinite());
 }
 
 TEST(TreeOdometry, RejectsInvalidInput) {
     OdometryConfig c;
     c.method = "magic";
+    EXPECT_THROW(TreeOdometry(vlp16(), c), std::invalid_argument);
+    c = OdometryConfig{};
+    c.registration.trees.gate_m = 0.0;  // would match no stem, silently
+    EXPECT_THROW(TreeOdometry(vlp16(), c), std::invalid_argument);
+    c = OdometryConfig{};
+    c.registration.trees.ratio = 2.0;
     EXPECT_THROW(TreeOdometry(vlp16(), c), std::invalid_argument);
     TreeOdometry odo(vlp16());
     LidarScan scan;

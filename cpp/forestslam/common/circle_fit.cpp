@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <stdexcept>
+#include <string>
 
 namespace forestslam {
 namespace {
@@ -174,9 +176,13 @@ void finish(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &opt, Ci
 
 double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
                    const Eigen::Vector2d &centre, int sectors) {
-    if (sectors <= 0 || rows.empty()) return 0.0;
+    if (sectors <= 0) throw std::invalid_argument("arcCoverage: sectors must be > 0");
+    if (rows.empty()) return 0.0;
     std::vector<char> hit(static_cast<size_t>(sectors), 0);
     for (int i : rows) {
+        if (i < 0 || i >= xy.rows())
+            throw std::out_of_range("arcCoverage: row " + std::to_string(i) + " of " +
+                                    std::to_string(xy.rows()));
         const double a = std::atan2(xy(i, 1) - centre.y(), xy(i, 0) - centre.x()) + kPi;
         int s = static_cast<int>(a / (2.0 * kPi) * sectors);
         hit[static_cast<size_t>(std::clamp(s, 0, sectors - 1))] = 1;
@@ -343,8 +349,11 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
 
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
                         const Eigen::Ref<const Points2> &origins, const CircleFitOptions &opt) {
+    if (origins.rows() != xy.rows())
+        throw std::invalid_argument("fitCircleRays: " + std::to_string(origins.rows()) +
+                                    " view origins for " + std::to_string(xy.rows()) + " points");
     CircleFit fit = fitCircle(xy, opt);
-    if (!fit.valid || origins.rows() != xy.rows()) return fit;
+    if (!fit.valid) return fit;
     // Beams of the points near the orthogonal fit (clutter stays out), range spread first
     // from the orthogonal residuals.
     std::vector<RayPoint> pts;

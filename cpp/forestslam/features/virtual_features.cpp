@@ -4,6 +4,8 @@
 #include <cmath>
 #include <map>
 #include <numeric>
+#include <stdexcept>
+#include <string>
 #include <unordered_map>
 
 #include "forestslam/common/circle_fit.hpp"
@@ -166,8 +168,10 @@ VirtualFeatures linkStems(const std::vector<Candidate> &cands, const VirtualFeat
 VirtualFeatures extractVirtualFeaturesRings(const Eigen::Ref<const Points3> &points,
                                             const std::vector<std::uint16_t> &rings,
                                             const VirtualFeaturesConfig &cfg) {
+    if (static_cast<Eigen::Index>(rings.size()) != points.rows())
+        throw std::invalid_argument("extractVirtualFeaturesRings: " + std::to_string(rings.size()) +
+                                    " rings for " + std::to_string(points.rows()) + " points");
     std::vector<Candidate> cands;
-    if (static_cast<Eigen::Index>(rings.size()) != points.rows()) return linkStems(cands, cfg);
     std::map<std::uint16_t, std::vector<int>> by_ring;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         if (points.row(i).allFinite() && points.row(i).head<2>().squaredNorm() > 1e-6) {

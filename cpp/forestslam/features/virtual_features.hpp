@@ -52,7 +52,8 @@ struct VirtualFeatures {
     Eigen::VectorXd stem_radii;  // (S,) median radius
 };
 
-// Ring mode; rings (N,) must match points; the sensor is at the frame origin.
+// Ring mode; rings (N,) must match points (std::invalid_argument otherwise); the sensor is at
+// the frame origin.
 VirtualFeatures extractVirtualFeaturesRings(const Eigen::Ref<const Points3> &points,
                                             const std::vector<std::uint16_t> &rings,
                                             const VirtualFeaturesConfig &config = {});

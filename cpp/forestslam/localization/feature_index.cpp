@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace forestslam {
 
@@ -77,7 +79,11 @@ void KdTree::knn(const Eigen::Ref<const Eigen::VectorXd> &query, int k, double m
                  std::vector<int> &indices, std::vector<double> &distances) const {
     indices.clear();
     distances.clear();
-    if (nodes_.empty() || k <= 0 || query.size() != points_.cols()) return;
+    if (nodes_.empty() || k <= 0) return;
+    if (query.size() != points_.cols())
+        throw std::invalid_argument("KdTree::knn: a query of " + std::to_string(query.size()) +
+                                    " dimensions for features of " +
+                                    std::to_string(points_.cols()));
     std::vector<std::pair<double, int>> heap;
     heap.reserve(k + 1);
     double worst = std::isfinite(max_distance) ? max_distance * max_distance

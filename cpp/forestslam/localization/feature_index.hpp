@@ -18,7 +18,8 @@ class KdTree {
     // points (N,D), one feature per row. Build O(N log N).
     explicit KdTree(Matrix points, int leaf_size = 8);
 
-    // Up to k nearest rows to query (D,) within max_distance, nearest first.
+    // Up to k nearest rows to query (D,) within max_distance, nearest first (another length of
+    // query is std::invalid_argument).
     void knn(const Eigen::Ref<const Eigen::VectorXd> &query, int k, double max_distance,
              std::vector<int> &indices, std::vector<double> &distances) const;
 

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <stdexcept>
+#include <string>
 #include <tuple>
 #include <unordered_set>
 
@@ -200,7 +202,11 @@ Eigen::Matrix3d GlobalLocalization::transform() const {
 
 Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
                            const std::vector<Eigen::Vector2d> &map) {
-    const size_t n = std::min(local.size(), map.size());
+    if (local.size() != map.size())
+        throw std::invalid_argument("fitRigid2D: " + std::to_string(local.size()) +
+                                    " local points for " + std::to_string(map.size()) +
+                                    " map points");
+    const size_t n = local.size();
     if (n == 0) return Eigen::Vector3d::Zero();
     Eigen::Vector2d lc = Eigen::Vector2d::Zero(), mc = Eigen::Vector2d::Zero();
     for (size_t i = 0; i < n; ++i) {

@@ -99,6 +99,7 @@ struct GlobalLocalization {
 };
 
 // 2D rigid transform minimizing sum |R p_i + t - q_i|^2 (closed form); returns (x, y, yaw).
+// local and map pair up row by row (std::invalid_argument when their lengths differ).
 Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
                            const std::vector<Eigen::Vector2d> &map);
 

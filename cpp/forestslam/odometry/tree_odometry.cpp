@@ -124,6 +124,9 @@ void validate(const OdometryConfig &c) {
     need(c.prior_sigma_m > 0 && c.prior_sigma_deg > 0, "prior sigmas must be > 0");
     need(c.registration.icp.max_iterations >= 1, "registration.icp.max_iterations must be >= 1");
     need(c.registration.icp.normal_k >= 3, "registration.icp.normal_k must be >= 3");
+    need(c.registration.trees.gate_m > 0, "registration.trees.gate_m must be > 0");
+    need(c.registration.trees.ratio > 0 && c.registration.trees.ratio <= 1,
+         "registration.trees.ratio must be in (0, 1]");
     motionModelConfig(c);
 }
 
@@ -315,7 +318,7 @@ TreeOdometry::Registration TreeOdometry::registerTrees(Work &work) const {
             work.clock.lap(work.out, "shape");
             use_prior = shape.inliers < config_.min_stems;
             if (!use_prior) {
-                T_init = Pose3(shape.T_target_source) * L;
+                T_init = shape.T_target_source * L;
                 T_init.translation().z() = work.T_pred.translation().z();
                 matched = shape.inliers;
             }
@@ -367,7 +370,7 @@ TreeOdometry::Registration TreeOdometry::registerStemCentres(Work &work) const {
             radii(k) = 0.5 * stems[rows[k]].diameter.dbh;
         }
         const Points3 real = detectDogKeypoints(work.points).points;
-        result = registerStemCentreLm(*target, centres, radii, real, work.T_pred.matrix());
+        result = registerStemCentreLm(*target, centres, radii, real, work.T_pred);
     }
     work.clock.lap(work.out, "stem_centre_lm");
     return accept(target ? &result : nullptr, work.T_pred, false, "stem_centre_lm", 0);
@@ -382,14 +385,14 @@ TreeOdometry::Registration TreeOdometry::accept(const RegistrationResult *result
         Eigen::Vector3d::Constant(std::pow(config_.prior_sigma_deg * kDeg, 2));
     Registration prediction{T_pred, prior, true, "prediction", matched};
     if (!result || result->inliers == 0) return prediction;
-    const Eigen::Matrix4d &T = result->T_target_source;
-    if (!T.allFinite()) return prediction;
-    const Pose3 d = T_pred.inverse() * Pose3(T);
+    const Pose3 &T = result->T_target_source;
+    if (!T.matrix().allFinite()) return prediction;
+    const Pose3 d = T_pred.inverse() * T;
     const double cos_turn = std::clamp((d.linear().trace() - 1.0) / 2.0, -1.0, 1.0);
     if (d.translation().norm() > config_.max_correction_m ||
         std::acos(cos_turn) > config_.max_correction_deg * kDeg)
         return prediction;
-    Registration reg{Pose3(T), result->covariance, degraded, method, matched};
+    Registration reg{T, result->covariance, degraded, method, matched};
     reg.degraded = degraded || (result->degenerate && method != "fpfh") ||
                    !(result->converged || result->iterations > 0);
     if (result->degenerate) reg.covariance += prior;  // the prior carried the unobserved
@@ -422,7 +425,7 @@ OdometryResult TreeOdometry::output(Work &work, const Registration &reg) {
     if (work.t_mid != 0.0) transformDetection(work.out.detection, T_mid_stamp.inverse());
     OdometryResult &out = work.out;
     out.stamp = work.scan.stamp;
-    out.T_world_sensor = T_out.matrix();
+    out.T_world_sensor = T_out;
     out.covariance = worldToBodyPlanar(reg.covariance, T_out);
     out.has_covariance6 = reg.method != "first" && reg.method != "prediction";
     if (out.has_covariance6) out.covariance6 = worldToBody6(reg.covariance, T_out);

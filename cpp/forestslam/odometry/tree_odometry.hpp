@@ -36,7 +36,7 @@ struct OdometrySensor {
 
 struct OdometryResult {
     double stamp = 0.0;
-    Eigen::Matrix4d T_world_sensor = Eigen::Matrix4d::Identity();  // at the stamp
+    Pose3 T_world_sensor = Pose3::Identity();  // at the stamp
     // (3,3) over x, y, yaw of this scan's registration as a body-frame (current sensor frame)
     // perturbation; usable as the covariance of the step from the previous scan.
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();

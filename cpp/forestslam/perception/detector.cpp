@@ -316,6 +316,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
                       const Eigen::Ref<const Eigen::VectorXd> &intensity,
                       const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
                       bool scan_centred, const PerceptionOptions &opt) {
+    requirePerPoint("detectStems", "intensities", intensity.size(), points.rows(), true);
+    requirePerPoint("detectStems", "rings", ring.size(), points.rows(), true);
     // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.
     pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
     Detection det;

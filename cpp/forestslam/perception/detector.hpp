@@ -24,7 +24,8 @@ struct Detection {
     std::map<std::string, double> cpu_ms;     // per stage, CPU time of the calling thread
 };
 
-// `intensity` and `ring` may be empty (size 0). `scan_centred`: the points are around the
+// `intensity` and `ring` are empty (size 0) or hold one value per point (std::invalid_argument
+// otherwise). `scan_centred`: the points are around the
 // sensor origin (single scans, TLS stations); false for accumulated maps (fixed-radius normals,
 // no range limit, 3D clustering).
 Detection detectStems(const Eigen::Ref<const Points3> &points,

@@ -25,6 +25,7 @@ inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
 
 std::vector<int> intensityFilter(const Eigen::Ref<const Eigen::VectorXd> &intensity,
                                  double threshold, Eigen::Index rows) {
+    requirePerPoint("intensityFilter", "intensities", intensity.size(), rows, true);
     std::vector<int> keep;
     keep.reserve(static_cast<size_t>(rows));
     const bool active = std::isfinite(threshold) && intensity.size() == rows;

@@ -11,7 +11,8 @@
 namespace forestslam::perception {
 
 // Rows whose intensity is finite and <= threshold (foliage returns brighter); all rows when the
-// threshold is NaN or `intensity` is empty (the sensor has no intensity).
+// threshold is NaN or `intensity` is empty (the sensor has no intensity); any other length than
+// `rows` is std::invalid_argument.
 std::vector<int> intensityFilter(const Eigen::Ref<const Eigen::VectorXd> &intensity,
                                  double threshold, Eigen::Index rows);
 

@@ -49,6 +49,7 @@ RangeImageProjection projectToRangeImage(const Eigen::Ref<const Points3> &points
                                          const Eigen::Ref<const Eigen::VectorXi> &ring,
                                          const SensorGeometry &s) {
     const Eigen::Index n = points.rows();
+    requirePerPoint("projectToRangeImage", "rings", ring.size(), n, true);
     RangeImageProjection p;
     p.row.assign(static_cast<size_t>(n), -1);
     p.col.assign(static_cast<size_t>(n), -1);

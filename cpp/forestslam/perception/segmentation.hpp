@@ -15,7 +15,8 @@ using Clusters = std::vector<std::vector<int>>;  // rows of the input points, pe
 
 // Pixel (row, col) of every point: row from `ring` when given (one entry per point, the beam
 // index, ascending elevation), else the nearest beam elevation; col from the azimuth over the
-// horizontal field of view. Points outside the image get row/col -1.
+// horizontal field of view. Points outside the image get row/col -1. `ring` is empty or has one
+// entry per point (std::invalid_argument otherwise).
 struct RangeImageProjection {
     std::vector<int> row, col;
 };

@@ -223,6 +223,7 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterOptions &opt,
                               const SilhouetteSensor *sensor, const Eigen::Vector3d *view_origin) {
+    requirePerPoint("estimateDiameter", "normals", normals.rows(), points.rows(), true);
     StemDiameter out;
     if (points.rows() < 3 || !std::isfinite(base_z)) return out;
     // Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a

@@ -65,7 +65,8 @@ struct StemDiameter {
     int band_points = 0;
 };
 
-// Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder).
+// Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder; other
+// lengths are std::invalid_argument).
 // With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
 // lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
 // circle and cylinder by quality. With `view_origin` (where every point was seen from: the

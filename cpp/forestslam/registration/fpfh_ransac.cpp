@@ -7,6 +7,7 @@
 #include <pcl/search/kdtree.h>
 
 #include <cstdlib>
+#include <stdexcept>
 
 #include "forestslam/common/pcl_adapter.hpp"
 
@@ -67,8 +68,10 @@ Points3 voxelCentroids(const Eigen::Ref<const Points3> &points, double voxel_m) 
 RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source_in,
                                 const Eigen::Ref<const Points3> &target_in, const Pose3 &T_init,
                                 const FpfhConfig &config) {
+    if (!T_init.matrix().allFinite())
+        throw std::invalid_argument("registerFpfh: T_init is not finite");
     RegistrationResult result;
-    result.T_target_source = T_init.matrix();
+    result.T_target_source = T_init;
     result.covariance = Matrix6d::Identity() * kUnobservedVariance;
     const Points3 src = voxelCentroids(source_in, config.voxel_m);
     const Points3 tgt = voxelCentroids(target_in, config.voxel_m);

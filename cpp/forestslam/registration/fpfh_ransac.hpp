@@ -21,13 +21,15 @@ struct FpfhConfig {
 
 // T_target_source of source onto target (both (N,3)). inliers: RANSAC inliers of the global step
 // (ICP correspondences are in rmse/converged); degenerate when RANSAC finds no hypothesis or ICP
-// is ill-conditioned. On RANSAC failure the ICP starts from T_init.
+// is ill-conditioned. On RANSAC failure the ICP starts from T_init (std::invalid_argument when it
+// is not finite).
 RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source,
                                 const Eigen::Ref<const Points3> &target,
                                 const Pose3 &T_init = Pose3::Identity(),
                                 const FpfhConfig &config = {});
 
-// Voxel-grid centroid downsampling (PCL VoxelGrid), non-finite rows dropped.
+// Voxel-grid centroid downsampling (PCL VoxelGrid), non-finite rows dropped; voxel_m <= 0
+// returns the finite rows unchanged.
 Points3 voxelCentroids(const Eigen::Ref<const Points3> &points, double voxel_m);
 
 }  // namespace forestslam

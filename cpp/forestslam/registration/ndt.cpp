@@ -2,6 +2,8 @@
 
 #include <pcl/registration/ndt.h>
 
+#include <stdexcept>
+
 #include "forestslam/common/pcl_adapter.hpp"
 #include "forestslam/features/voxel_grid.hpp"
 
@@ -24,11 +26,12 @@ Points3 prepare(const Eigen::Ref<const Points3> &points, const NdtConfig &config
 }  // namespace
 
 NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
-                      const Eigen::Ref<const Points3> &source, const Eigen::Matrix4d &T_initial,
+                      const Eigen::Ref<const Points3> &source, const Pose3 &T_initial,
                       const NdtConfig &config) {
+    if (!T_initial.matrix().allFinite())
+        throw std::invalid_argument("registerNdt: T_initial is not finite");
     NdtResult result;
     result.T_target_source = T_initial;
-    if (!T_initial.allFinite()) return result;
     const Points3 tgt = prepare(target, config);
     const Points3 src = prepare(source, config);
     if (tgt.rows() < config.min_points || src.rows() < config.min_points) return result;
@@ -41,11 +44,11 @@ NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
     ndt.setInputTarget(detail::toPcl(tgt));
     ndt.setInputSource(detail::toPcl(src));
     pcl::PointCloud<pcl::PointXYZ> aligned;
-    ndt.align(aligned, T_initial.cast<float>());
+    ndt.align(aligned, T_initial.matrix().cast<float>());
     const Eigen::Matrix4d T = ndt.getFinalTransformation().cast<double>();
     result.iterations = ndt.getFinalNumIteration();
     if (ndt.hasConverged() && T.allFinite()) {
-        result.T_target_source = T;
+        result.T_target_source = Pose3(T);
         result.converged = true;
         result.fitness = ndt.getFitnessScore();
     }

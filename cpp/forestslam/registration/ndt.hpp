@@ -17,7 +17,7 @@ struct NdtConfig {
 };
 
 struct NdtResult {
-    Eigen::Matrix4d T_target_source = Eigen::Matrix4d::Identity();
+    Pose3 T_target_source = Pose3::Identity();
     bool converged = false;
     int iterations = 0;
     double fitness = 0.0;  // PCL fitness score: mean squared nearest distance (m^2)
@@ -25,9 +25,9 @@ struct NdtResult {
 
 // Align source (N,3) onto target (M,3) starting from T_initial (T_target_source). On too few
 // points or non-convergence T_target_source is the initial guess and converged is false.
+// Throws std::invalid_argument when T_initial is not finite.
 NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
                       const Eigen::Ref<const Points3> &source,
-                      const Eigen::Matrix4d &T_initial = Eigen::Matrix4d::Identity(),
-                      const NdtConfig &config = {});
+                      const Pose3 &T_initial = Pose3::Identity(), const NdtConfig &config = {});
 
 }  // namespace forestslam

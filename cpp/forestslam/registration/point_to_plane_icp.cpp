@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <stdexcept>
 #include <vector>
 
 #include "forestslam/common/kdtree.hpp"
@@ -173,8 +174,13 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
                                    const Eigen::Ref<const Points3> &source_in, const Pose3 &T_init,
                                    const IcpConfig &config, const Matrix6d &prior_information,
                                    const Pose3 &T_prior) {
+    if (!T_init.matrix().allFinite() || !T_prior.matrix().allFinite() ||
+        !prior_information.allFinite())
+        throw std::invalid_argument(
+            "icpPointToPlane: T_init, T_prior and prior_information "
+            "must be finite");
     RegistrationResult result;
-    result.T_target_source = T_init.matrix();
+    result.T_target_source = T_init;
     result.covariance = Matrix6d::Identity() * kUnobservedVariance;
     const Points3 source = finiteRows(source_in);
     if (target.size() < 3 || source.rows() == 0) return result;
@@ -202,7 +208,7 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     }
     result.iterations = it;
     result.inliers = eq.used;
-    result.T_target_source = T.matrix();
+    result.T_target_source = T;
     if (eq.used < config.min_correspondences) return result;
     result.converged = converged;
     result.rmse = std::sqrt(eq.sse / eq.used);

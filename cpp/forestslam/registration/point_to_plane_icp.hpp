@@ -59,6 +59,7 @@ double pointToPlaneResidual(const Pose3 &T, const Eigen::Vector3d &p, const Eige
 // Register source (N,3) onto target from T_init. prior_information (6x6, optional, may be zero)
 // pulls the pose towards T_prior (e.g. the constant-velocity prediction) in the same left
 // perturbation coordinates; it regularises directions the geometry does not constrain.
+// std::invalid_argument when T_init, T_prior or prior_information is not finite.
 RegistrationResult icpPointToPlane(const PlaneTarget &target,
                                    const Eigen::Ref<const Points3> &source, const Pose3 &T_init,
                                    const IcpConfig &config = {},

@@ -9,15 +9,12 @@
 
 namespace forestslam {
 
-using Matrix6d = Eigen::Matrix<double, 6, 6>;
-using Vector6d = Eigen::Matrix<double, 6, 1>;
-
 // T_target_source maps source-frame points into the target frame.
 // covariance: 6x6 over the left perturbation (tx, ty, tz, rx, ry, rz) of T_target_source;
 // planar methods fill the x, y, yaw block (indices 0, 1, 5) and leave z/roll/pitch at a large
 // variance so that consumers can tell which directions were observed.
 struct RegistrationResult {
-    Eigen::Matrix4d T_target_source = Eigen::Matrix4d::Identity();
+    Pose3 T_target_source = Pose3::Identity();
     Matrix6d covariance = Matrix6d::Identity();
     bool converged = false;
     bool degenerate = true;

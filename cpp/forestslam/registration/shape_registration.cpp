@@ -3,6 +3,8 @@
 #include <ceres/ceres.h>
 
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 namespace forestslam {
 namespace {
@@ -69,6 +71,27 @@ bool validRows(const Eigen::Ref<const Points3> &m, const Eigen::Ref<const Covari
     return m.row(i).allFinite() && c.row(i).allFinite();
 }
 
+// Pairs index rows of both sides (a wrong index is a caller's bug, not data to skip).
+void checkPairs(const char *where, const std::vector<std::pair<int, int>> &pairs,
+                Eigen::Index source_rows, Eigen::Index target_rows) {
+    for (const auto &p : pairs) {
+        if (p.first < 0 || p.first >= source_rows || p.second < 0 || p.second >= target_rows)
+            throw std::invalid_argument(std::string(where) + ": pair (" + std::to_string(p.first) +
+                                        ", " + std::to_string(p.second) + ") out of range for " +
+                                        std::to_string(source_rows) + " source and " +
+                                        std::to_string(target_rows) + " target stems");
+    }
+}
+
+// One 3x3 covariance row per mean.
+void checkCovariances(const char *where, const Eigen::Ref<const Points3> &means,
+                      const Eigen::Ref<const Covariances> &covs, const char *side) {
+    if (covs.rows() != means.rows())
+        throw std::invalid_argument(std::string(where) + ": " + std::to_string(covs.rows()) + " " +
+                                    side + " covariances for " + std::to_string(means.rows()) +
+                                    " means");
+}
+
 }  // namespace
 
 double shapeCost(const double pose[3], const Eigen::Ref<const Points3> &source_means,
@@ -77,6 +100,9 @@ double shapeCost(const double pose[3], const Eigen::Ref<const Points3> &source_m
                  const Eigen::Ref<const Covariances> &target_covs,
                  const std::vector<std::pair<int, int>> &pairs, double min_sigma_m,
                  double gradient[3]) {
+    checkCovariances("shapeCost", source_means, source_covs, "source");
+    checkCovariances("shapeCost", target_means, target_covs, "target");
+    checkPairs("shapeCost", pairs, source_means.rows(), target_means.rows());
     std::vector<int> use(pairs.size());
     for (size_t k = 0; k < pairs.size(); ++k) use[k] = static_cast<int>(k);
     ceres::AutoDiffFirstOrderFunction<ShapeCostFunctor, 3> fn(new ShapeCostFunctor(makeFunctor(
@@ -91,6 +117,7 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
                                                   const std::vector<std::pair<int, int>> &pairs,
                                                   const Pose3 &T_init,
                                                   const ShapeRegistrationConfig &config) {
+    checkPairs("consensusPairs", pairs, source.rows(), target.rows());
     const int n = static_cast<int>(pairs.size());
     const double thr2 = config.inlier_threshold_m * config.inlier_threshold_m;
     auto xy = [](const Eigen::Ref<const Points3> &p, int i) -> Eigen::Vector2d {
@@ -147,17 +174,16 @@ RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
                                   const Eigen::Ref<const Covariances> &target_covs,
                                   const std::vector<std::pair<int, int>> &pairs_in,
                                   const Pose3 &T_init, const ShapeRegistrationConfig &config) {
+    checkCovariances("registerShapes", source_means, source_covs, "source");
+    checkCovariances("registerShapes", target_means, target_covs, "target");
+    checkPairs("registerShapes", pairs_in, source_means.rows(), target_means.rows());
     RegistrationResult result;
     const Eigen::Vector3d init = poseToPlanar(T_init);
-    result.T_target_source = planarToPose(init.x(), init.y(), init.z()).matrix();
+    result.T_target_source = planarToPose(init.x(), init.y(), init.z());
     result.covariance = Matrix6d::Identity() * kUnobservedVariance;
-    // Keep only pairs with finite, in-range indices.
+    // Keep only pairs of finite stems.
     std::vector<std::pair<int, int>> pairs;
     for (const auto &p : pairs_in) {
-        if (p.first < 0 || p.first >= source_means.rows() || p.second < 0 ||
-            p.second >= target_means.rows() || source_covs.rows() != source_means.rows() ||
-            target_covs.rows() != target_means.rows())
-            continue;
         if (validRows(source_means, source_covs, p.first) &&
             validRows(target_means, target_covs, p.second))
             pairs.push_back(p);
@@ -190,7 +216,7 @@ RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
         result.converged = false;
         return result;
     }
-    result.T_target_source = planarToPose(params[0], params[1], params[2]).matrix();
+    result.T_target_source = planarToPose(params[0], params[1], params[2]);
 
     // Linearised covariance: (sum J_i^T Sigma_i^-1 J_i)^-1 with J_i = d mu_i / d(x, y, yaw).
     const double c = std::cos(params[2]), s = std::sin(params[2]);

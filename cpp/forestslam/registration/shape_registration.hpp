@@ -35,7 +35,8 @@ double shapeCost(const double pose[3], const Eigen::Ref<const Points3> &source_m
 
 // pairs (i source, j target) from matchTrees. Result T_target_source is planar; covariance holds
 // the linearised (Gauss-Newton) x, y, yaw covariance in indices 0, 1, 5; inliers = consistent
-// pairs.
+// pairs. Pairs with a non-finite stem are skipped. std::invalid_argument when a pair index is
+// out of range or a side has not one covariance row per mean (shapeCost, consensusPairs too).
 RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
                                   const Eigen::Ref<const Covariances> &source_covs,
                                   const Eigen::Ref<const Points3> &target_means,

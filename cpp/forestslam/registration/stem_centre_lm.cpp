@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -396,16 +397,22 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
-                                        const Eigen::Matrix4d &T_initial,
-                                        const StemCentreLmConfig &config, const SweepTimes *times) {
+                                        const Pose3 &T_initial, const StemCentreLmConfig &config,
+                                        const SweepTimes *times) {
     const int order = std::max(0, config.sweep_order);
     if (order > 0 && (times == nullptr || times->centres.size() != virtual_centres.rows() ||
                       times->real.size() != real_points.rows()))
         throw std::invalid_argument(
             "sweep_order > 0 needs one time per virtual centre and one per real feature");
+    if (radii.size() != virtual_centres.rows())
+        throw std::invalid_argument("registerStemCentreLm: " + std::to_string(radii.size()) +
+                                    " radii for " + std::to_string(virtual_centres.rows()) +
+                                    " virtual centres");
+    if (!T_initial.matrix().allFinite())
+        throw std::invalid_argument("registerStemCentreLm: T_initial is not finite");
     StemCentreLmResult result;
     result.T_target_source = T_initial;
-    if (target.size() < 3 || !T_initial.allFinite()) return result;
+    if (target.size() < 3) return result;
 
     // Keep only finite features (and centres with a usable radius), with their times.
     Points3 centres(0, 3);
@@ -413,8 +420,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     Points3 real(0, 3);
     {
         std::vector<int> keep;
-        const Eigen::Index nv = std::min(virtual_centres.rows(), radii.size());
-        for (Eigen::Index i = 0; i < nv; ++i) {
+        for (Eigen::Index i = 0; i < virtual_centres.rows(); ++i) {
             if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0 &&
                 (order == 0 || std::isfinite(times->centres[i]))) {
                 keep.push_back(static_cast<int>(i));
@@ -440,7 +446,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
         }
     }
 
-    Eigen::Matrix4d T_cur = T_initial;
+    Eigen::Matrix4d T_cur = T_initial.matrix();
     Eigen::MatrixXd sweep = Eigen::MatrixXd::Zero(order, 6);  // in-sweep coefficients so far
     Points3 qc(centres.rows(), 3), qr(real.rows(), 3);
     // Current positions of the features in the target frame (pose and in-sweep motion).
@@ -548,7 +554,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     T.block<3, 3>(0, 0) = Eigen::Quaterniond(Eigen::Matrix3d(T_cur.block<3, 3>(0, 0)))
                               .normalized()
                               .toRotationMatrix();
-    result.T_target_source = T;
+    result.T_target_source = Pose3(T);
     result.sweep = sweep;
 
     // Statistics and covariance at the solution with renewed pairs.

@@ -95,12 +95,13 @@ class StemCentreTarget {
 // points (R,3), both in the source frame. Either set may be empty; with too few pairs the
 // result is flagged not converged / degenerate and T stays at the initial guess. times (one
 // per feature) are needed when config.sweep_order > 0 (std::invalid_argument without them, or
-// with other lengths) and ignored otherwise.
+// with other lengths) and ignored otherwise. std::invalid_argument too when radii and
+// virtual_centres differ in length or T_initial is not finite.
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
-                                        const Eigen::Matrix4d &T_initial,
+                                        const Pose3 &T_initial,
                                         const StemCentreLmConfig &config = {},
                                         const SweepTimes *times = nullptr);
 

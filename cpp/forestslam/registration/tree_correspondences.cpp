@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace forestslam {
 
@@ -9,9 +11,15 @@ std::vector<std::pair<int, int>> matchTrees(const Eigen::Ref<const Points3> &sou
                                             const Eigen::Ref<const Points3> &target,
                                             const Pose3 &T_target_source_predicted, double gate_m,
                                             double ratio) {
+    if (!(gate_m > 0.0) || !std::isfinite(gate_m))
+        throw std::invalid_argument("matchTrees: gate_m must be > 0 (got " +
+                                    std::to_string(gate_m) + ")");
+    if (!(ratio > 0.0 && ratio <= 1.0))
+        throw std::invalid_argument("matchTrees: ratio must be in (0, 1] (got " +
+                                    std::to_string(ratio) + ")");
     std::vector<std::pair<int, int>> pairs;
     const Eigen::Index n = source.rows(), m = target.rows();
-    if (n == 0 || m == 0 || !(gate_m > 0.0)) return pairs;
+    if (n == 0 || m == 0) return pairs;
     const Points3 moved = transformPoints(T_target_source_predicted, source);
     constexpr double kInf = std::numeric_limits<double>::infinity();
     // Dense distance table: stems per scan are tens, so O(K*M) is the fast path.

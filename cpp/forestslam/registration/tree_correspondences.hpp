@@ -13,7 +13,8 @@ namespace forestslam {
 // predicted source positions is compared. A pair (i, j) is kept when target j is the nearest
 // target of source i, source i is the nearest source of target j (mutual), and their XY distance
 // is at most gate_m. ratio < 1 additionally drops ambiguous pairs whose second-nearest target is
-// within distance/ratio (1 disables). Non-finite rows never match.
+// within distance/ratio (1 disables). Non-finite rows never match. std::invalid_argument unless
+// gate_m > 0 and 0 < ratio <= 1.
 std::vector<std::pair<int, int>> matchTrees(const Eigen::Ref<const Points3> &source,
                                             const Eigen::Ref<const Points3> &target,
                                             const Pose3 &T_target_source_predicted, double gate_m,

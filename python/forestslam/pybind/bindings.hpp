@@ -1,8 +1,35 @@
 #pragma once
 
+#include <pybind11/eigen.h>
 #include <pybind11/pybind11.h>
 
+#include "forestslam/common/types.hpp"
 #include "forestslam/perception/detector.hpp"
+
+// Every C++ pose (forestslam::Pose3, an Eigen::Isometry3d) crosses the binding as a (4,4)
+// float64 array; a matrix whose last row is not 0 0 0 1 is a ValueError, not a silent shear.
+namespace pybind11::detail {
+template <>
+struct type_caster<forestslam::Pose3> {
+    PYBIND11_TYPE_CASTER(forestslam::Pose3, const_name("numpy.ndarray[float64[4, 4]]"));
+
+    bool load(handle src, bool convert) {
+        type_caster<Eigen::Matrix4d> matrix;
+        if (!matrix.load(src, convert)) return false;
+        const Eigen::Matrix4d &T = matrix;
+        const Eigen::RowVector4d last(0.0, 0.0, 0.0, 1.0);
+        if (!((T.row(3) - last).cwiseAbs().maxCoeff() <= 1e-9))
+            throw value_error("a pose is a (4,4) rigid transform whose last row is 0 0 0 1");
+        value.matrix() = T;
+        return true;
+    }
+
+    static handle cast(const forestslam::Pose3 &T, return_value_policy, handle parent) {
+        return type_caster<Eigen::Matrix4d>::cast(Eigen::Matrix4d(T.matrix()),
+                                                  return_value_policy::move, parent);
+    }
+};
+}  // namespace pybind11::detail
 
 namespace forestslam::python {
 

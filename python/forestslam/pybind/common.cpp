@@ -13,9 +13,8 @@ void define_common(py::module_ &m) {
           "Rows of points (N,3) float64 whose coordinates are all finite -> (M,3).");
     m.def(
         "transform_points",
-        [](const Eigen::Matrix4d &T, const Eigen::Ref<const Points3> &points) {
-            Pose3 pose(T);
-            return transformPoints(pose, points);
+        [](const Pose3 &T, const Eigen::Ref<const Points3> &points) {
+            return transformPoints(T, points);
         },
         py::arg("T"), py::arg("points"), "Apply a (4,4) pose to points (N,3) -> (N,3).");
 }

@@ -81,8 +81,7 @@ void defineMotionModel(py::module_ &m) {
         py::arg("twist"),
         "(4,4) pose of a twist (6,) = (translation, rotation vector); the translation as is.");
     m.def(
-        "pose_to_twist", [](const Eigen::Matrix4d &T) { return od::poseToTwist(Pose3(T)); },
-        py::arg("T"),
+        "pose_to_twist", [](const Pose3 &T) { return od::poseToTwist(T); }, py::arg("T"),
         "Twist (6,) = (translation, rotation vector) of a (4,4) pose; inverse of twist_to_pose.");
     py::class_<od::StampCheck>(m, "StampCheck",
                                "restarted: the velocity was forgotten (gap "
@@ -103,8 +102,8 @@ void defineMotionModel(py::module_ &m) {
         .def("deskew", &od::ConstantVelocityModel::deskew, py::arg("points"), py::arg("times"))
         .def(
             "update",
-            [](od::ConstantVelocityModel &mm, double t, const Eigen::Matrix4d &T, bool trusted) {
-                mm.update(t, Pose3(T), trusted);
+            [](od::ConstantVelocityModel &mm, double t, const Pose3 &T, bool trusted) {
+                mm.update(t, T, trusted);
             },
             py::arg("t"), py::arg("T_world_sensor"), py::arg("trusted") = true,
             "An untrusted pose is not kept (predictions from the last trusted one) and the next "

@@ -98,8 +98,8 @@ void define_registration(py::module_ &m) {
     m.def(
         "match_trees",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
-           const Eigen::Matrix4d &T_pred, double gate_m, double ratio) {
-            const auto pairs = matchTrees(source, target, Pose3(T_pred), gate_m, ratio);
+           const Pose3 &T_pred, double gate_m, double ratio) {
+            const auto pairs = matchTrees(source, target, T_pred, gate_m, ratio);
             PairArray out(pairs.size(), 2);
             for (size_t i = 0; i < pairs.size(); ++i) out.row(i) << pairs[i].first, pairs[i].second;
             return out;
@@ -113,10 +113,9 @@ void define_registration(py::module_ &m) {
         "register_shapes",
         [](const Eigen::Ref<const Points3> &source_means, const Covariances &source_covs,
            const Eigen::Ref<const Points3> &target_means, const Covariances &target_covs,
-           const PairArray &pairs, const Eigen::Matrix4d &T_init,
-           const ShapeRegistrationConfig &config) {
+           const PairArray &pairs, const Pose3 &T_init, const ShapeRegistrationConfig &config) {
             return registerShapes(source_means, source_covs, target_means, target_covs,
-                                  toPairs(pairs), Pose3(T_init), config);
+                                  toPairs(pairs), T_init, config);
         },
         py::arg("source_means"), py::arg("source_covs"), py::arg("target_means"),
         py::arg("target_covs"), py::arg("pairs"), py::arg("T_init"),
@@ -127,11 +126,9 @@ void define_registration(py::module_ &m) {
     m.def(
         "consensus_pairs",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
-           const PairArray &pairs, const Eigen::Matrix4d &T_init,
-           const ShapeRegistrationConfig &config) {
-            auto [T, inliers] =
-                consensusPairs(source, target, toPairs(pairs), Pose3(T_init), config);
-            return py::make_tuple(Eigen::Matrix4d(T.matrix()), inliers);
+           const PairArray &pairs, const Pose3 &T_init, const ShapeRegistrationConfig &config) {
+            auto [T, inliers] = consensusPairs(source, target, toPairs(pairs), T_init, config);
+            return py::make_tuple(T, inliers);
         },
         py::arg("source"), py::arg("target"), py::arg("pairs"), py::arg("T_init"),
         py::arg("config") = ShapeRegistrationConfig(),
@@ -153,27 +150,24 @@ void define_registration(py::module_ &m) {
 
     m.def(
         "icp_point_to_plane",
-        [](const PlaneTarget &target, const Eigen::Ref<const Points3> &source,
-           const Eigen::Matrix4d &T_init, const IcpConfig &config,
-           const Matrix6d &prior_information, const Eigen::Matrix4d &T_prior) {
+        [](const PlaneTarget &target, const Eigen::Ref<const Points3> &source, const Pose3 &T_init,
+           const IcpConfig &config, const Matrix6d &prior_information, const Pose3 &T_prior) {
             py::gil_scoped_release release;
-            return icpPointToPlane(target, source, Pose3(T_init), config, prior_information,
-                                   Pose3(T_prior));
+            return icpPointToPlane(target, source, T_init, config, prior_information, T_prior);
         },
         py::arg("target"), py::arg("source"), py::arg("T_init"), py::arg("config") = IcpConfig(),
-        py::arg("prior_information") = Matrix6d::Zero(),
-        py::arg("T_prior") = Eigen::Matrix4d::Identity(),
+        py::arg("prior_information") = Matrix6d::Zero(), py::arg("T_prior") = Pose3::Identity(),
         "Point-to-plane ICP, 6 DoF: source (N,3) onto a PlaneTarget from T_init (4,4); optional "
         "prior information (6,6) towards T_prior (4,4) -> RegistrationResult.");
 
     m.def(
         "register_fpfh",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
-           const Eigen::Matrix4d &T_init, const FpfhConfig &config) {
+           const Pose3 &T_init, const FpfhConfig &config) {
             py::gil_scoped_release release;
-            return registerFpfh(source, target, Pose3(T_init), config);
+            return registerFpfh(source, target, T_init, config);
         },
-        py::arg("source"), py::arg("target"), py::arg("T_init") = Eigen::Matrix4d::Identity(),
+        py::arg("source"), py::arg("target"), py::arg("T_init") = Pose3::Identity(),
         py::arg("config") = FpfhConfig(),
         "FPFH + RANSAC (SampleConsensusPrerejective) + point-to-plane ICP baseline: source (N,3), "
         "target (M,3) -> RegistrationResult (inliers = RANSAC inliers).");

@@ -37,7 +37,7 @@ void define_tls(py::module_ &m) {
         "register_stem_centre_lm",
         [](const StemCentreTarget &target, const Eigen::Ref<const Points3> &centres,
            const Eigen::Ref<const Eigen::VectorXd> &radii, const Eigen::Ref<const Points3> &real,
-           const Eigen::Matrix4d &T_initial, const py::kwargs &kwargs) {
+           const Pose3 &T_initial, const py::kwargs &kwargs) {
             StemCentreLmConfig cfg;
             using C = StemCentreLmConfig;
             SweepTimes times;  // checked by registerStemCentreLm when sweep_order > 0
@@ -112,7 +112,7 @@ void define_tls(py::module_ &m) {
     m.def(
         "register_ndt",
         [](const Eigen::Ref<const Points3> &target, const Eigen::Ref<const Points3> &source,
-           const Eigen::Matrix4d &T_initial, const py::kwargs &kwargs) {
+           const Pose3 &T_initial, const py::kwargs &kwargs) {
             NdtConfig cfg;
             using C = NdtConfig;
             for (const auto &item : kwargs) {
@@ -139,7 +139,7 @@ void define_tls(py::module_ &m) {
             out["fitness"] = r.fitness;
             return out;
         },
-        py::arg("target"), py::arg("source"), py::arg("T_initial") = Eigen::Matrix4d::Identity(),
+        py::arg("target"), py::arg("source"), py::arg("T_initial") = Pose3::Identity(),
         "3D-NDT (PCL) of source (N,3) onto target (M,3) from T_initial (4,4) -> dict "
         "T_target_source (4,4), converged, iterations, fitness (m^2). Options as keywords "
         "(NdtConfig field names).");
