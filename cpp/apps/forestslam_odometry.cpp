@@ -129,6 +129,7 @@ int run(const Arguments &args) {
               << " motion restarts, " << skipped << " unreadable, " << ignored_times
               << " with implausible per-point time (not deskewed); " << std::setprecision(3) << cpu
               << " CPU s, " << (cpu > 0 ? n / cpu : 0.0) << " scans per CPU second\n";
+    if (n == 0) std::cerr << "forestslam_odometry: " << args.scans << ": no readable scan\n";
     return n > 0 ? 0 : 1;
 }
 

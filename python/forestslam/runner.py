@@ -585,11 +585,25 @@ def _multisession(cfg, prior_map, initial_pose, inject_drift):
         if initial_pose is not None:
             pose = parse_initial_pose(initial_pose)
             pose[:2] -= prior.origin
+            _check_initial_pose_near(pose, prior.xy, initial_pose)
     if inject_drift is not None:
         from forestslam.multisession.drift import DriftInjector
 
         drift = DriftInjector.parse(inject_drift)
     return prior, pose, drift
+
+
+MAX_START_FROM_MAP_M = 500.0  # farther from every prior tree, the scans cannot see the map
+
+
+def _check_initial_pose_near(pose: np.ndarray, map_xy: np.ndarray, text: str) -> None:
+    """--initial-pose in another frame than the map (local vs UTM, swapped x/y) is refused."""
+    gap = float(np.min(np.linalg.norm(map_xy - pose[:2], axis=1)))
+    if gap > MAX_START_FROM_MAP_M:
+        raise InputError(
+            f"--initial-pose {text}: {gap:.0f} m from the nearest tree of the prior map; give "
+            "x,y in the map's coordinates (the frame of its x, y columns)"
+        )
 
 
 def _record_multisession(job, pipe: Pipeline) -> None:

@@ -176,7 +176,10 @@ def load_profile(name_or_path: str | Path | SensorProfile) -> SensorProfile:
     if path.suffix in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise InputError(f"{path}: sensor profile file not found")
-        return _from_mapping(_load_yaml(path.read_text(), str(path)), str(path))
+        from forestslam.io.text import read_input_text
+
+        text = read_input_text(path, "sensor profile")
+        return _from_mapping(_load_yaml(text, str(path)), str(path))
     if text not in available_profiles():
         raise InputError(
             f"unknown sensor {text!r}; shipped: {', '.join(available_profiles())}"
