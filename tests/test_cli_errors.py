@@ -215,3 +215,22 @@ def test_prior_map_rows_without_coordinates_are_counted(tmp_path, scans, run_mai
                    "--prior-map", prior)  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "4 rows without finite x, y ignored" in caplog.text
+
+
+def test_detect_breast_height_outside_the_cloud_is_refused(tmp_path, run_main):
+    """--breast-height-z 130 (cm for 1.3 m) measured 'stems' where the cloud has no points."""
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    np.save(folder / "000.npy", np.random.default_rng(0).uniform([-9, -9, -2], [9, 9, 8], (500, 3)))
+    args = ["detect", folder, "--sensor", "vlp16", "--out", tmp_path / "t.csv"]
+    one_line_error(run_main(*args, "--breast-height-z", "130"), "--breast-height-z 130", "z -2")
+    assert not (tmp_path / "t.csv").exists()
+    assert run_main(*args, "--breast-height-z", "1.3").returncode == 0
+
+
+@pytest.mark.parametrize("trees", [0, 2])
+def test_localize_map_of_too_few_trees_is_refused(tmp_path, scans, run_main, trees):
+    tree_map = tmp_path / "map.csv"
+    tree_map.write_text("x,y\n" + "".join(f"{i * 5},0\n" for i in range(trees)))
+    args = ["localize", scans, "--map", tree_map, "--sensor", "vlp16", "--out", tmp_path / "o"]
+    one_line_error(run_main(*args), f"{trees} trees; localization needs 3 or more")

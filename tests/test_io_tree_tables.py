@@ -172,3 +172,12 @@ def test_table_as_map_and_as_queries(tmp_path, world):
     assert result.exit_code == 0, result.output
     doc = json.loads((out / "localization.json").read_text())
     assert [q["scan"] for q in doc["queries"]] == [1, 2]
+
+
+def test_a_truncated_packed_table_is_one_line_naming_the_row(tmp_path):
+    """A copy cut off mid-row: numpy's multi-line message becomes one line (the CLI shows one)."""
+    path = tmp_path / "trees.csv"
+    path.write_text("frame,location_x,location_y,location_z\n0,1,2,3\n0,4,5,6\n1,7")
+    with pytest.raises(InputError, match=r"malformed tree table") as caught:
+        read_tree_table(path)
+    assert "\n" not in str(caught.value) and "Line #4 (got 2 columns" in str(caught.value)

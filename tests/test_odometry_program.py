@@ -101,10 +101,13 @@ def test_program_stamps_by_order_and_kitti_bins(sample_scans, tmp_path):
         (["nosuchdir", "--sensor", "vlp16", "--out", "x.tum"], "not a folder"),
         (["{tmp}", "--sensor", "banana", "--out", "x.tum"], "unknown sensor 'banana'"),
         (["{tmp}", "--sensor", "vlp16"], "required"),
+        (["{tmp}", "--sensor", "{tmp}/fast.yaml", "--out", "x.tum"], "rate_hz must be <= 100"),
     ],
 )
 def test_program_errors_are_one_line(tmp_path, args, message):
     (tmp_path / "0.0.bin").write_bytes(np.zeros((4, 4), "<f4").tobytes())
+    vlp16 = Path(__file__).parents[1] / "python/forestslam/sensors/profiles/vlp16.yaml"
+    (tmp_path / "fast.yaml").write_text(vlp16.read_text().replace("rate_hz: 10.0", "rate_hz: 1e5"))
     proc = _run(*[a.replace("{tmp}", str(tmp_path)) for a in args])
     assert proc.returncode == 2
     assert message in proc.stderr.splitlines()[0]

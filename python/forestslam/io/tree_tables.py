@@ -201,7 +201,8 @@ def _parse(text: str, where: Path) -> dict[str, np.ndarray]:
             io.StringIO(text), delimiter=",", skip_header=1, dtype=np.float64, filling_values=np.nan
         )
     except ValueError as exc:
-        raise InputError(f"{where}: malformed tree table ({exc})") from None
+        reason = " ".join(str(exc).split())  # numpy's message spans lines: the CLI shows one
+        raise InputError(f"{where}: malformed tree table ({reason})") from None
     data = data.reshape(-1, len(names))
     return {n: data[:, i] for i, n in enumerate(names)}
 
