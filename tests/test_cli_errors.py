@@ -234,3 +234,10 @@ def test_localize_map_of_too_few_trees_is_refused(tmp_path, scans, run_main, tre
     tree_map.write_text("x,y\n" + "".join(f"{i * 5},0\n" for i in range(trees)))
     args = ["localize", scans, "--map", tree_map, "--sensor", "vlp16", "--out", tmp_path / "o"]
     one_line_error(run_main(*args), f"{trees} trees; localization needs 3 or more")
+
+
+@pytest.mark.parametrize("drift", ["2,1", "-1,0", "0.02,1000"])
+def test_inject_drift_out_of_range_is_refused(tmp_path, scans, run_main, drift):
+    """`2,1` meant 2 %: a 200 % scale error is no test of anything, and -100 % stops the run."""
+    args = ["run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--inject-drift", drift]
+    one_line_error(run_main(*args), f"--inject-drift {drift}", "fraction in (-1, 1)")

@@ -122,6 +122,7 @@ int run(const Arguments &args) {
         }
         degraded += r.degraded;
         writeTumLine(out, r);
+        out.flush();  // whole lines on disk as we go: a killed run leaves a valid trajectory
     }
     const double cpu = processCpuSeconds() - cpu0;
     const int n = odometry.scans();
