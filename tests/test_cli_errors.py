@@ -241,3 +241,14 @@ def test_inject_drift_out_of_range_is_refused(tmp_path, scans, run_main, drift):
     """`2,1` meant 2 %: a 200 % scale error is no test of anything, and -100 % stops the run."""
     args = ["run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--inject-drift", drift]
     one_line_error(run_main(*args), f"--inject-drift {drift}", "fraction in (-1, 1)")
+
+
+def test_prior_map_of_a_run_that_did_not_complete_is_warned(tmp_path, scans, run_main, caplog):
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    _prior_map(earlier / "trees.csv")
+    (earlier / "run.yaml").write_text("command: run\nsummary:\n  status: failed\n  error: boom\n")
+    res = run_main("run", scans, "--sensor", "vlp16", "--no-progress", "--out", tmp_path / "o",
+                   "--prior-map", earlier)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "says status: failed (boom); using its last checkpoint" in caplog.text
