@@ -226,6 +226,7 @@ def test_detect_breast_height_outside_the_cloud_is_refused(tmp_path, run_main):
     one_line_error(run_main(*args, "--breast-height-z", "130"), "--breast-height-z 130", "z -2")
     assert not (tmp_path / "t.csv").exists()
     assert run_main(*args, "--breast-height-z", "1.3").returncode == 0
+    one_line_error(run_main(*args, "--breast-height-z", "nan"), "must be a finite number")
 
 
 @pytest.mark.parametrize("trees", [0, 2])

@@ -153,7 +153,7 @@ def _check_breast_height(points, z: float) -> None:
     from forestslam.errors import InputError
 
     heights = points[:, 2][np.isfinite(points[:, 2])]
-    if len(heights) and not heights.min() <= z <= heights.max():
+    if np.isfinite(z) and len(heights) and not heights.min() <= z <= heights.max():
         raise InputError(
             f"--breast-height-z {z:g} is outside the cloud's heights (z {heights.min():.2f} .. "
             f"{heights.max():.2f} in the input frame); give it in metres in that frame"
