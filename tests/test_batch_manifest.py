@@ -105,3 +105,9 @@ def test_finished_only_when_marker_matches_and_run_complete(tmp_path):
     assert finished_row(rec, out) == row
     config.write_text("odometry: {method: icp}\n")  # the configuration changed: redo
     assert finished_row(rec, out) is None
+
+
+def test_a_binary_manifest_is_an_error(tmp_path):
+    (tmp_path / "m.yaml").write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(InputError, match="m.yaml: not a manifest .not UTF-8"):
+        load_manifest(tmp_path / "m.yaml")

@@ -173,3 +173,83 @@ def test_evaluate_warns_about_a_run_that_did_not_complete(tmp_path, run_main):
     res = run_main("evaluate", out, "--truth", truth)
     assert res.returncode == 0, res.stderr
     assert "run.yaml says status: failed (RuntimeError: killed by a test)" in res.stderr
+
+
+def test_a_binary_file_where_text_belongs_is_one_line(tmp_path, scans, run_main, monkeypatch):
+    garbage = tmp_path / "map.csv"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    args = ["run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--no-progress"]
+    one_line_error(run_main(*args, "--prior-map", garbage), str(garbage), "not UTF-8")
+    profile = tmp_path / "p.yaml"
+    profile.write_bytes(bytes(range(256)) * 4)
+    one_line_error(run_main("run", scans, "--sensor", profile, "--out", tmp_path / "o"), "p.yaml")
+
+    def undecodable(*args, **kwargs):  # any reader not yet wrapped: still one line, exit 1
+        raise UnicodeDecodeError("utf-8", b"\x80", 0, 1, "invalid start byte")
+
+    monkeypatch.setattr("forestslam.multisession.prior.load_prior_map", undecodable)
+    one_line_error(run_main(*args, "--prior-map", garbage), "an input file is not UTF-8 text")
+
+
+def _prior_map(path, offset=(0.0, 0.0), nan_rows=0):
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(0, 60, (40, 2)) + offset
+    xy[:nan_rows, 1] = np.nan
+    rows = "".join(f"{x},{y},0.3\n" for x, y in xy)
+    path.write_text("x,y,dbh_m\n" + rows)
+    return path
+
+
+def test_initial_pose_far_from_the_prior_map_is_refused(tmp_path, scans, run_main):
+    utm = _prior_map(tmp_path / "utm.csv", offset=(500000.0, 6700000.0))
+    args = ["run", scans, "--sensor", "vlp16", "--no-progress", "--prior-map", utm]
+    res = run_main(*args, "--out", tmp_path / "o", "--initial-pose", "10,20,30")
+    one_line_error(res, "--initial-pose 10,20,30", "from the nearest tree of the prior map")
+    res = run_main(*args, "--out", tmp_path / "o2", "--initial-pose", "500010,6700020,30")
+    assert res.returncode == 0, res.stderr
+
+
+def test_prior_map_rows_without_coordinates_are_counted(tmp_path, scans, run_main, caplog):
+    prior = _prior_map(tmp_path / "p.csv", nan_rows=4)
+    res = run_main("run", scans, "--sensor", "vlp16", "--no-progress", "--out", tmp_path / "o",
+                   "--prior-map", prior)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "4 rows without finite x, y ignored" in caplog.text
+
+
+def test_detect_breast_height_outside_the_cloud_is_refused(tmp_path, run_main):
+    """--breast-height-z 130 (cm for 1.3 m) measured 'stems' where the cloud has no points."""
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    np.save(folder / "000.npy", np.random.default_rng(0).uniform([-9, -9, -2], [9, 9, 8], (500, 3)))
+    args = ["detect", folder, "--sensor", "vlp16", "--out", tmp_path / "t.csv"]
+    one_line_error(run_main(*args, "--breast-height-z", "130"), "--breast-height-z 130", "z -2")
+    assert not (tmp_path / "t.csv").exists()
+    assert run_main(*args, "--breast-height-z", "1.3").returncode == 0
+    one_line_error(run_main(*args, "--breast-height-z", "nan"), "must be a finite number")
+
+
+@pytest.mark.parametrize("trees", [0, 2])
+def test_localize_map_of_too_few_trees_is_refused(tmp_path, scans, run_main, trees):
+    tree_map = tmp_path / "map.csv"
+    tree_map.write_text("x,y\n" + "".join(f"{i * 5},0\n" for i in range(trees)))
+    args = ["localize", scans, "--map", tree_map, "--sensor", "vlp16", "--out", tmp_path / "o"]
+    one_line_error(run_main(*args), f"{trees} trees; localization needs 3 or more")
+
+
+@pytest.mark.parametrize("drift", ["2,1", "-1,0", "0.02,1000"])
+def test_inject_drift_out_of_range_is_refused(tmp_path, scans, run_main, drift):
+    """`2,1` meant 2 %: a 200 % scale error is no test of anything, and -100 % stops the run."""
+    args = ["run", scans, "--sensor", "vlp16", "--out", tmp_path / "o", "--inject-drift", drift]
+    one_line_error(run_main(*args), f"--inject-drift {drift}", "fraction in (-1, 1)")
+
+
+def test_prior_map_of_a_run_that_did_not_complete_is_warned(tmp_path, scans, run_main, caplog):
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    _prior_map(earlier / "trees.csv")
+    (earlier / "run.yaml").write_text("command: run\nsummary:\n  status: failed\n  error: boom\n")
+    res = run_main("run", scans, "--sensor", "vlp16", "--no-progress", "--out", tmp_path / "o",
+                   "--prior-map", earlier)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "says status: failed (boom); using its last checkpoint" in caplog.text

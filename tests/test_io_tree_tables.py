@@ -174,3 +174,23 @@ def test_table_as_map_and_as_queries(tmp_path, world):
     assert result.exit_code == 0, result.output
     doc = json.loads((out / "localization.json").read_text())
     assert [q["scan"] for q in doc["queries"]] == [1, 2]
+
+
+def test_a_truncated_packed_table_is_one_line_naming_the_row(tmp_path):
+    """A copy cut off mid-row: numpy's multi-line message becomes one line (the CLI shows one)."""
+    path = tmp_path / "trees.csv"
+    path.write_text("frame,location_x,location_y,location_z\n0,1,2,3\n0,4,5,6\n1,7")
+    with pytest.raises(InputError, match=r"malformed tree table") as caught:
+        read_tree_table(path)
+    assert "\n" not in str(caught.value) and "Line #4 (got 2 columns" in str(caught.value)
+
+
+def test_rows_without_location_are_counted_and_negative_frames_refused(tmp_path, caplog):
+    path = tmp_path / "trees.csv"
+    path.write_text("frame,location_x,location_y,location_z\n0,1,2,3\n0,nan,5,6\n1,7,8,9\n")
+    table = read_tree_table(path)
+    assert len(table.xyz) == 2 and "1 rows without a finite location ignored" in caplog.text
+    path.write_text("frame,location_x,location_y,location_z\n-1,1,2,3\n0,4,5,6\n")
+    (tmp_path / "trajectory.tum").write_text("0 0 0 0 0 0 0 1\n")
+    with pytest.raises(InputError, match="negative frame index"):  # poses[-1]: the last pose
+        read_tree_table(path)

@@ -72,3 +72,23 @@ def test_geojson(tmp_path, trees):
             assert props["dbh_m"] == pytest.approx(trees["dbh_m"][i])
     with pytest.raises(InputError, match="need x and y"):
         write_trees_geojson(tmp_path / "b.geojson", {"id": [1]})
+
+
+@pytest.mark.parametrize("scale, unit", [(100.0, "centimetres"), (1000.0, "millimetres")])
+def test_dbh_m_column_in_other_units_is_refused(tmp_path, scale, unit):
+    rng = np.random.default_rng(3)
+    n = 30
+    cols = {"x": rng.uniform(0, 50, n), "y": rng.uniform(0, 50, n)}
+    cols["dbh_m"] = rng.uniform(0.1, 0.6, n)
+    write_trees_csv(tmp_path / "m.csv", cols)
+    assert read_trees_csv(tmp_path / "m.csv")["dbh_m"].max() < 1  # metres pass
+    cols["dbh_m"] = cols["dbh_m"] * scale
+    write_trees_csv(tmp_path / "cm.csv", cols)
+    with pytest.raises(InputError, match=f"dbh_m has a median of .* looks like {unit}"):
+        read_trees_csv(tmp_path / "cm.csv")
+
+
+def test_a_binary_file_is_not_a_tree_csv(tmp_path):
+    (tmp_path / "t.csv").write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(InputError, match="t.csv: not a tree CSV .not UTF-8"):
+        read_trees_csv(tmp_path / "t.csv")

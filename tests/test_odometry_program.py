@@ -101,10 +101,30 @@ def test_program_stamps_by_order_and_kitti_bins(sample_scans, tmp_path):
         (["nosuchdir", "--sensor", "vlp16", "--out", "x.tum"], "not a folder"),
         (["{tmp}", "--sensor", "banana", "--out", "x.tum"], "unknown sensor 'banana'"),
         (["{tmp}", "--sensor", "vlp16"], "required"),
+        (["{tmp}", "--sensor", "{tmp}/fast.yaml", "--out", "x.tum"], "rate_hz must be <= 100"),
     ],
 )
 def test_program_errors_are_one_line(tmp_path, args, message):
     (tmp_path / "0.0.bin").write_bytes(np.zeros((4, 4), "<f4").tobytes())
+    vlp16 = Path(__file__).parents[1] / "python/forestslam/sensors/profiles/vlp16.yaml"
+    (tmp_path / "fast.yaml").write_text(vlp16.read_text().replace("rate_hz: 10.0", "rate_hz: 1e5"))
     proc = _run(*[a.replace("{tmp}", str(tmp_path)) for a in args])
     assert proc.returncode == 2
     assert message in proc.stderr.splitlines()[0]
+
+
+def test_a_file_that_is_not_a_pcd_is_skipped_not_a_crash(sample_scans, tmp_path):
+    """PCL's reader crashed (SIGSEGV) on a text file named .pcd; the program skips it."""
+    folder = tmp_path / "scans"
+    _write_pcd_folder(folder, sample_scans[1][:3])
+    (folder / "9999999999.0.pcd").write_text("junk\n")
+    (folder / "notes.txt").write_text("not a scan\n")
+    proc = _run(folder, "--sensor", "vlp16", "--out", tmp_path / "t.tum")
+    assert proc.returncode == 0, proc.stderr
+    assert "9999999999.0.pcd: not a PCD file" in proc.stderr and "1 unreadable" in proc.stderr
+    assert len((tmp_path / "t.tum").read_text().splitlines()) == 3
+    only_junk = tmp_path / "junk"
+    only_junk.mkdir()
+    (only_junk / "1.pcd").write_text("junk\n")
+    proc = _run(only_junk, "--sensor", "vlp16", "--out", tmp_path / "u.tum")
+    assert proc.returncode == 1 and "no readable scan" in proc.stderr.splitlines()[-1]

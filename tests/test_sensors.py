@@ -57,6 +57,7 @@ def test_user_yaml_profile(tmp_path):
         ({"channels": 2.5}, "integer"),
         ({"channels": -1}, "channels >= 1"),
         ({"rate_hz": 0}, "rate_hz > 0"),
+        ({"rate_hz": 1e5}, "rate_hz <= 100"),  # a point rate or a period, not sweeps/s
         ({"dropout_rate": 1.5}, "dropout_rate"),
         ({"vertical_fov_deg": 5}, "bad sensor profile value"),
         ({"vertical_fov_deg": [10, -10]}, "low, high"),

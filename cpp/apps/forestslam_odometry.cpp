@@ -122,6 +122,7 @@ int run(const Arguments &args) {
         }
         degraded += r.degraded;
         writeTumLine(out, r);
+        out.flush();  // whole lines on disk as we go: a killed run leaves a valid trajectory
     }
     const double cpu = processCpuSeconds() - cpu0;
     const int n = odometry.scans();
@@ -129,6 +130,7 @@ int run(const Arguments &args) {
               << " motion restarts, " << skipped << " unreadable, " << ignored_times
               << " with implausible per-point time (not deskewed); " << std::setprecision(3) << cpu
               << " CPU s, " << (cpu > 0 ? n / cpu : 0.0) << " scans per CPU second\n";
+    if (n == 0) std::cerr << "forestslam_odometry: " << args.scans << ": no readable scan\n";
     return n > 0 ? 0 : 1;
 }
 

@@ -81,8 +81,17 @@ Eigen::VectorXd column(const pcl::PCLPointCloud2 &cloud, const pcl::PCLPointFiel
 }
 
 odometry::LidarScan readPcd(const std::string &path) {
+    // The header first: PCL's reader crashes on a file without one (a text file named .pcd).
+    pcl::PCDReader reader;
     pcl::PCLPointCloud2 cloud;
-    if (pcl::io::loadPCDFile(path, cloud) < 0) throw std::runtime_error(path + ": unreadable PCD");
+    Eigen::Vector4f origin;
+    Eigen::Quaternionf orientation;
+    int version = 0, binary = 0;
+    unsigned int data_start = 0;
+    if (reader.readHeader(path, cloud, origin, orientation, version, binary, data_start) < 0 ||
+        cloud.fields.empty() || std::size_t(cloud.width) * cloud.height == 0)
+        throw std::runtime_error(path + ": not a PCD file with points (no valid header)");
+    if (reader.read(path, cloud) < 0) throw std::runtime_error(path + ": unreadable PCD");
     const auto *x = findField(cloud, "x"), *y = findField(cloud, "y"), *z = findField(cloud, "z");
     if (!x || !y || !z) throw std::runtime_error(path + ": PCD without fields x y z");
     odometry::LidarScan scan;

@@ -582,14 +582,40 @@ def _multisession(cfg, prior_map, initial_pose, inject_drift):
         from forestslam.multisession.prior import load_prior_map, parse_initial_pose
 
         prior = load_prior_map(prior_map, cfg.prior_map)
+        _warn_if_incomplete(prior_map)
         if initial_pose is not None:
             pose = parse_initial_pose(initial_pose)
             pose[:2] -= prior.origin
+            _check_initial_pose_near(pose, prior.xy, initial_pose)
     if inject_drift is not None:
         from forestslam.multisession.drift import DriftInjector
 
         drift = DriftInjector.parse(inject_drift)
     return prior, pose, drift
+
+
+def _warn_if_incomplete(prior_map) -> None:
+    """A prior map that is a run directory whose run did not complete: its last checkpoint."""
+    from forestslam.job import run_status
+
+    status, error = run_status(prior_map) if Path(prior_map).is_dir() else (None, None)
+    if status not in (None, "complete"):
+        why = f" ({error})" if error else ""
+        log.warning("--prior-map %s: run.yaml says status: %s%s; using its last checkpoint",
+                    prior_map, status, why)  # fmt: skip
+
+
+MAX_START_FROM_MAP_M = 500.0  # farther from every prior tree, the scans cannot see the map
+
+
+def _check_initial_pose_near(pose: np.ndarray, map_xy: np.ndarray, text: str) -> None:
+    """--initial-pose in another frame than the map (local vs UTM, swapped x/y) is refused."""
+    gap = float(np.min(np.linalg.norm(map_xy - pose[:2], axis=1)))
+    if gap > MAX_START_FROM_MAP_M:
+        raise InputError(
+            f"--initial-pose {text}: {gap:.0f} m from the nearest tree of the prior map; give "
+            "x,y in the map's coordinates (the frame of its x, y columns)"
+        )
 
 
 def _record_multisession(job, pipe: Pipeline) -> None:

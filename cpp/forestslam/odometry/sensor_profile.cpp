@@ -92,6 +92,7 @@ SensorProfile loadSensorProfile(const std::string &path) {
     const int channels = r.get<int>("channels");
     if (channels < (scanning ? 1 : 0)) r.fail("channels must be >= 1");
     if (scanning && !(p.rate_hz > 0)) r.fail("rate_hz must be > 0");
+    if (p.rate_hz > 100) r.fail("rate_hz must be <= 100 (sweeps per second)");
     auto &g = s.geometry;
     g.image_rows = r.get<int>("image_rows");
     g.image_cols = r.get<int>("image_cols");

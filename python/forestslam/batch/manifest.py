@@ -56,11 +56,13 @@ def load_manifest(path: str | Path) -> list[Recording]:
     """The recordings of a manifest file; any mistake is an InputError naming file and entry."""
     import yaml
 
+    from forestslam.io.text import read_input_text
+
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: manifest not found")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_input_text(path, "manifest"))
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from exc
     if not isinstance(data, dict) or set(data) != {"recordings"}:

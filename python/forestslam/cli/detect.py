@@ -138,9 +138,26 @@ def _detect_all(stream, first: int, profile, cfg, breast_height_z, bar) -> _Tall
     for k, sc in enumerate(stream, start=first):
         bar.update(1)
         t0 = time.perf_counter()
+        if k == first and breast_height_z is not None:
+            _check_breast_height(sc.points, breast_height_z)
         stems = detect(sc, profile, cfg, breast_height_z)
         tally.add(k, sc, stems, (time.perf_counter() - t0) * 1e3)
     return tally
+
+
+def _check_breast_height(points, z: float) -> None:
+    """--breast-height-z outside the first scan's heights (centimetres, another frame) is
+    refused: no stem has points there, and a slice outside the cloud is no measurement."""
+    import numpy as np
+
+    from forestslam.errors import InputError
+
+    heights = points[:, 2][np.isfinite(points[:, 2])]
+    if np.isfinite(z) and len(heights) and not heights.min() <= z <= heights.max():
+        raise InputError(
+            f"--breast-height-z {z:g} is outside the cloud's heights (z {heights.min():.2f} .. "
+            f"{heights.max():.2f} in the input frame); give it in metres in that frame"
+        )
 
 
 def _report(tally: _Tally, columns: dict, out: Path) -> None:

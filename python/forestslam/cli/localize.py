@@ -59,11 +59,17 @@ def register(app: typer.Typer) -> None:
             "trajectory (reference) or not at all (none).",
         ),
     ) -> None:
+        import logging
+
         from forestslam.errors import InputError
         from forestslam.io.tree_tables import is_tree_table
 
         tree_map = _load_map(map_path, config, save_map)
         if is_tree_table(input_path):
+            if sensor is not None:
+                logging.getLogger("forestslam.localize").warning(
+                    "--sensor %s ignored: %s is a tree table (no scans)", sensor, input_path
+                )
             _localize_table(
                 input_path,
                 tree_map,
@@ -103,6 +109,7 @@ def register(app: typer.Typer) -> None:
 
 def _load_map(map_path: Path, config: Path | None, save_map: Path | None):
     """The prior tree map (localization section of --config), saved as .npz if asked."""
+    from forestslam.errors import InputError
     from forestslam.localization import load_map
 
     loc_config = None
@@ -111,6 +118,8 @@ def _load_map(map_path: Path, config: Path | None, save_map: Path | None):
 
         loc_config = load_config(config).localization
     tree_map = load_map(map_path, loc_config)
+    if len(tree_map) < 3:
+        raise InputError(f"--map {map_path}: {len(tree_map)} trees; localization needs 3 or more")
     if save_map is not None:
         print(f"map saved to {tree_map.save(save_map)}")
     return tree_map

@@ -128,6 +128,8 @@ def _main() -> None:
             _fail(str(exc))
         if isinstance(exc, OSError):
             _fail(describe_os_error(exc))
+        if isinstance(exc, UnicodeDecodeError):  # a reader met a binary file where text belongs
+            _fail(f"an input file is not UTF-8 text ({exc.reason} at byte {exc.start})")
         # Usage errors of typer's (vendored) click: show its message.
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):
             exc.show()

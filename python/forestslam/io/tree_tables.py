@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gzip
 import io
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ import numpy as np
 
 from forestslam.errors import InputError
 
+log = logging.getLogger(__name__)
 STATE_PATTERN = re.compile(r"TreeManagerState_(\d+)\.csv$")
 REQUIRED = ("location_x", "location_y", "location_z")
 AXIS = ("axis_02", "axis_12", "axis_22")  # the stem direction: third column of the axis frame
@@ -89,8 +91,8 @@ def read_tree_table(path: str | Path) -> TreeTable:
 
 def _table(columns: dict[str, np.ndarray], trajectory: Path | None, where: Path) -> TreeTable:
     frame = columns["frame"]
-    if not np.isfinite(frame).all():
-        raise InputError(f"{where}: non-numeric frame index")
+    if not np.isfinite(frame).all() or (frame < 0).any():
+        raise InputError(f"{where}: non-numeric or negative frame index")
     frame = frame.astype(np.int64)
     xyz = np.column_stack([columns[c] for c in REQUIRED])
     n = len(frame)
@@ -105,6 +107,8 @@ def _table(columns: dict[str, np.ndarray], trajectory: Path | None, where: Path)
         axis = np.full((n, 3), np.nan)
     recon = columns.get("reconstructed", np.ones(n))
     keep = np.isfinite(xyz).all(axis=1)
+    if not keep.all():
+        log.warning("%s: %d rows without a finite location ignored", where, (~keep).sum())
     order = np.argsort(frame[keep], kind="stable")
     stamps = poses = None
     if trajectory is not None:
@@ -201,7 +205,8 @@ def _parse(text: str, where: Path) -> dict[str, np.ndarray]:
             io.StringIO(text), delimiter=",", skip_header=1, dtype=np.float64, filling_values=np.nan
         )
     except ValueError as exc:
-        raise InputError(f"{where}: malformed tree table ({exc})") from None
+        reason = " ".join(str(exc).split())  # numpy's message spans lines: the CLI shows one
+        raise InputError(f"{where}: malformed tree table ({reason})") from None
     data = data.reshape(-1, len(names))
     return {n: data[:, i] for i, n in enumerate(names)}
 

@@ -42,13 +42,18 @@ def write_trees_csv(path: str | Path, columns: dict[str, np.ndarray]) -> None:
     atomic_write_text(path, out.getvalue())
 
 
+MAX_MEDIAN_DBH_M = 3.0  # above it a dbh_m column is not in metres
+
+
 def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
     """CSV with a header -> {column: array}: float64 where every cell is a number or empty
     (empty -> NaN), else the column's text (a `source` or `status` flag, a species)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: tree CSV not found")
-    lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    from forestslam.io.text import read_input_text
+
+    lines = [ln for ln in read_input_text(path, "tree CSV").splitlines() if ln.strip()]
     if not lines:
         raise InputError(f"{path}: empty tree CSV")
     names = [n.strip() for n in lines[0].split(",")]
@@ -56,7 +61,24 @@ def read_trees_csv(path: str | Path) -> dict[str, np.ndarray]:
     if any(len(r) != len(names) for r in rows):
         raise InputError(f"{path}: rows with a number of cells other than {len(names)}")
     cells = np.array(rows, dtype=str).reshape(len(rows), len(names))
-    return {name: _column(cells[:, k]) for k, name in enumerate(names)}
+    table = {name: _column(cells[:, k]) for k, name in enumerate(names)}
+    _check_dbh_unit(table, path)
+    return table
+
+
+def _check_dbh_unit(table: dict[str, np.ndarray], path: Path) -> None:
+    """A `dbh_m` column whose median is above 3 m is not metres (no stand's median tree is that
+    thick): centimetres or millimetres. Refused rather than read as giant trees."""
+    dbh = table.get("dbh_m")
+    if dbh is None or dbh.dtype.kind != "f" or not np.isfinite(dbh).any():
+        return
+    median = float(np.nanmedian(dbh))
+    if median > MAX_MEDIAN_DBH_M:
+        unit = "millimetres" if median > 300 else "centimetres"
+        raise InputError(
+            f"{path}: column dbh_m has a median of {median:g}, which looks like {unit}; "
+            f"give the diameters in metres (or name a centimetre column dbh_cm)"
+        )
 
 
 def _column(cells: np.ndarray) -> np.ndarray:

@@ -46,6 +46,11 @@ class DriftInjector:
                 "--inject-drift must be scale,yaw_deg_per_10m[,jump_at_m,jump_m,jump_deg], "
                 f"not {text!r}"
             ) from None
+        if not -1.0 < values[0] < 1.0 or abs(values[1]) > 180.0:
+            raise InputError(
+                f"--inject-drift {text}: scale is a fraction in (-1, 1) (0.02 is 2 %) and "
+                "yaw_deg_per_10m at most 180"
+            )
         return cls(*values)
 
     def apply(self, T_world_sensor: np.ndarray) -> np.ndarray:

@@ -105,6 +105,8 @@ def load_prior_map(path: str | Path, config: PriorMapConfig | None = None) -> Pr
     keep = np.isfinite(xy).all(axis=1)
     if keep.sum() < 3:
         raise InputError(f"--prior-map {path}: fewer than 3 trees with coordinates")
+    if not keep.all():
+        log.warning("--prior-map %s: %d rows without finite x, y ignored", path, (~keep).sum())
     n = len(xy)
     dbh = _column(table, ("dbh_m",), n, np.nan)
     if "dbh_m" not in table and "dbh_cm" in table:

@@ -128,6 +128,7 @@ def _from_mapping(data: dict, where: str) -> SensorProfile:
         for ok, text in (
             (data["channels"] >= (1 if scanning else 0), "channels >= 1"),
             (data["rate_hz"] > 0 if scanning else data["rate_hz"] >= 0, "rate_hz > 0"),
+            (data["rate_hz"] <= MAX_RATE_HZ, f"rate_hz <= {MAX_RATE_HZ:g} (sweeps per second)"),
             (data["azimuth_resolution_deg"] > 0, "azimuth_resolution_deg > 0"),
             (0 < data["horizontal_fov_deg"] <= 360, "0 < horizontal_fov_deg <= 360"),
             (data["range_noise_m"] >= 0, "range_noise_m >= 0"),
@@ -142,6 +143,7 @@ def _from_mapping(data: dict, where: str) -> SensorProfile:
     return SensorProfile(**data)
 
 
+MAX_RATE_HZ = 100.0  # no spinning or solid-state LiDAR sweeps faster: a period or a point rate
 _INT_KEYS = ("channels", "image_rows", "image_cols")
 _FLOAT_KEYS = (
     "horizontal_fov_deg",
@@ -176,7 +178,10 @@ def load_profile(name_or_path: str | Path | SensorProfile) -> SensorProfile:
     if path.suffix in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise InputError(f"{path}: sensor profile file not found")
-        return _from_mapping(_load_yaml(path.read_text(), str(path)), str(path))
+        from forestslam.io.text import read_input_text
+
+        text = read_input_text(path, "sensor profile")
+        return _from_mapping(_load_yaml(text, str(path)), str(path))
     if text not in available_profiles():
         raise InputError(
             f"unknown sensor {text!r}; shipped: {', '.join(available_profiles())}"
