@@ -25,7 +25,7 @@
 #include "forestslam/odometry/sensor_profile.hpp"
 #include "forestslam/odometry/tree_odometry.hpp"
 #include "forestslam/perception/detector.hpp"
-#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/config.hpp"
 #include "forestslam/perception/preprocess.hpp"
 #include "forestslam/perception/segmentation.hpp"
 #include "forestslam/perception/stems.hpp"

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "forestslam/common/types.hpp"
-#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/config.hpp"
 #include "forestslam/perception/stems.hpp"
 
 namespace forestslam::perception {

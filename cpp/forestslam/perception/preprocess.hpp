@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "forestslam/common/types.hpp"
-#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/config.hpp"
 
 namespace forestslam::perception {
 

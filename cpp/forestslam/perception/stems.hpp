@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "forestslam/common/types.hpp"
-#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/config.hpp"
 #include "forestslam/perception/segmentation.hpp"
 
 namespace forestslam::perception {

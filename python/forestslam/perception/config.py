@@ -1,5 +1,5 @@
 """Perception parameters (Gupta et al. 2023, Sections 3.1-3.2). Lengths in metres, angles in
-radians; field names match the C++ option structs in cpp/forestslam/perception/options.hpp."""
+radians; field names match the C++ option structs in cpp/forestslam/perception/config.hpp."""
 
 from __future__ import annotations
 
