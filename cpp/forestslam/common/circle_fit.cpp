@@ -390,13 +390,16 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
         }
     }
     if (pts.size() < 3) return fit;
-    // The spread across the beams from the data (bark roughness, polygonal sections,
-    // registration jitter of accumulated scans): the robust spreads of facing and grazing beams'
-    // residuals solved for the range and lateral parts. A fixed small lateral sigma where the
-    // data spread wider made the miss residuals pull the circle large (+1 cm), and falling back
-    // to the orthogonal fit there shrank well-covered arcs by 2-3 cm (bench/dbh_bench.py).
+    // The range model holds as it is when the spread lies along the beams (facing beams'
+    // residuals at least min_range_anisotropy times grazing beams'). Where it is as wide across
+    // them (bark roughness, polygonal sections, registration jitter of accumulated scans) a
+    // small lateral sigma makes the beams that miss pull the circle large (+1 cm), and the
+    // orthogonal fit shrinks well-covered arcs by 2-3 cm (simulated 600-scan loops): the lateral
+    // sigma is then solved from the two bins' robust spreads.
     double st = std::max(opt.lateral_sigma_m, 1e-4);
-    if (facing.e.size() >= 5 && grazing.e.size() >= 5) st = std::max(st, lateralSigma(facing.e, facing.c2, grazing.e, grazing.c2));
+    if (facing.e.size() >= 5 && grazing.e.size() >= 5 &&
+        medianOf(facing.e) < opt.min_range_anisotropy * medianOf(grazing.e))
+        st = std::max(st, lateralSigma(facing.e, facing.c2, grazing.e, grazing.c2));
     std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
                      ortho.end());
     double sr = std::max(1.4826 * ortho[ortho.size() / 2], st);
