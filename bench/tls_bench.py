@@ -61,8 +61,16 @@ CACHE = ROOT / "data" / "cache" / "sim"
 REAL = ROOT / ".." / "shared" / "data" / "tls" / "treels_pine_plot.laz"
 
 
+def model_tag() -> str:
+    """The simulator's model version as a cache-name suffix: a sequence made by an older
+    simulator is never reused (stale caches hid model changes)."""
+    from forestslam.sim.simulate import MODEL_VERSION
+
+    return f"m{MODEL_VERSION}"
+
+
 def simulated(name: str) -> Path:
-    out = CACHE / name
+    out = CACHE / f"{name}-{model_tag()}"
     if not (out / "truth" / "trajectory.tum").is_file():
         from forestslam.sim import simulate
 
@@ -307,6 +315,8 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         f"(step {args.step}, from frame {args.start})"
     )
     cfg = TlsConfig()
+    if args.initial_pose:
+        cfg.registration.initial_pose = args.initial_pose
 
     t0 = time.perf_counter()
     try:
@@ -780,7 +790,7 @@ def simulate_plot(plot: dict, frames: int) -> tuple[Path, Path]:
     """Simulated TLS reference and MLS walk of a plot (cached) -> (tls dir, mls dir)."""
     from forestslam.sim import simulate
 
-    folder = CACHE / "plots" / f"{plot['name']}-{frames}"
+    folder = CACHE / "plots" / f"{plot['name']}-{model_tag()}-{frames}"
     tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames)
     for yaml_path, sub in ((tls_yaml, "tls"), (mls_yaml, "mls")):
         if not (folder / sub / "truth" / "trajectory.tum").is_file():
@@ -909,6 +919,12 @@ def main() -> None:
         "--wrong-reference",
         action="store_true",
         help="with --plots: each walk against another plot's reference (must be rejected)",
+    )
+    parser.add_argument(
+        "--initial-pose",
+        choices=["ndt", "velocity"],
+        default=None,
+        help="tls.registration.initial_pose (default: the config's)",
     )
     parser.add_argument("--skip-sim", action="store_true")
     parser.add_argument("--skip-real", action="store_true")

@@ -84,6 +84,25 @@ TEST(MotionModel, UntrustedPosesAreNotKept) {
     EXPECT_NEAR(m.twist()(0), 0.5, 1e-9);
 }
 
+// A trusted pose after a doubtful one keeps the velocity without measuring it again: the
+// velocity still expires max_gap_s after it was measured (the MLS-to-TLS walk's rule).
+TEST(MotionModel, AVelocityExpiresAfterMaxGapSinceItWasMeasured) {
+    MotionModelConfig c;
+    c.max_gap_s = 0.5;
+    ConstantVelocityModel m(c);
+    m.update(0.0, Pose3::Identity());
+    m.update(0.1, planar(0.1, 0, 0));  // 1 m/s, measured at 0.1
+    for (int k = 2; k <= 5; ++k) {     // doubtful, trusted, doubtful, trusted: not re-measured
+        EXPECT_FALSE(m.beginScan(0.1 * k).restarted);
+        m.update(0.1 * k, planar(0.1 * k, 0, 0), k % 2 == 1);
+    }
+    EXPECT_NEAR(m.twist()(0), 1.0, 1e-12);  // 0.4 s old: kept
+    EXPECT_FALSE(m.beginScan(0.7).restarted);
+    EXPECT_TRUE(m.twist().isZero());  // 0.6 s old: expired, while the pose is 0.2 s old
+    m.update(0.7, planar(0.8, 0, 0));
+    EXPECT_NEAR(m.twist()(0), 1.5, 1e-9);  // measured again from consecutive trusted poses
+}
+
 TEST(MotionModel, DeskewNeedsOneTimePerPoint) {
     ConstantVelocityModel m;
     m.update(0.0, Pose3::Identity());

@@ -33,6 +33,10 @@ StampCheck ConstantVelocityModel::beginScan(double t) {
         check.restarted = true;
         restarted_ = true;
         twist_.setZero();
+    } else if (t - twist_t_ > config_.max_gap_s) {
+        // A velocity expires max_gap_s after it was measured, also when trusted poses without
+        // a velocity of their own (each after a doubtful one) have kept the pose fresh.
+        twist_.setZero();
     }
     return check;
 }
@@ -57,8 +61,10 @@ void ConstantVelocityModel::update(double t, const Pose3 &T_world_sensor, bool t
         return;
     }
     const double dt = t - t_;
-    if (initialised_ && !restarted_ && previous_trusted_ && dt > 0.0)
+    if (initialised_ && !restarted_ && previous_trusted_ && dt > 0.0) {
         twist_ = clamped(poseToTwist(T_.inverse() * T_world_sensor) / dt);
+        twist_t_ = t;
+    }
     T_ = T_world_sensor;
     t_ = t;
     initialised_ = true;

@@ -61,6 +61,7 @@ class ConstantVelocityModel {
     bool previous_trusted_ = true;
     Pose3 T_ = Pose3::Identity();
     double t_ = 0.0;
+    double twist_t_ = 0.0;  // when twist_ was measured
     Vector6d twist_ = Vector6d::Zero();
 };
 

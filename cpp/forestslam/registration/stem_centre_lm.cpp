@@ -18,18 +18,23 @@
 namespace forestslam {
 
 namespace {
-constexpr double kCell = 0.2;  // hash cell of the target for the virtual-feature search
+constexpr double kCell = 0.2;  // x-y column of the target for the virtual-feature search
 std::int64_t cellIndex(double v) { return static_cast<std::int64_t>(std::floor(v / kCell)); }
-std::int64_t cellKey(std::int64_t ix, std::int64_t iy, std::int64_t iz) {
-    return ((ix & 0x1FFFFF) << 42) | ((iy & 0x1FFFFF) << 21) | (iz & 0x1FFFFF);
+std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
+    return ((ix & 0x7FFFFFFF) << 32) | (iy & 0x7FFFFFFF);
 }
+// The target points of one x-y column sorted by height: a height window is one binary search.
+struct Column {
+    std::vector<double> z;
+    std::vector<int> index;
+};
 }  // namespace
 
 struct StemCentreTarget::Impl {
     Points3 points;
     pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
     pcl::KdTreeFLANN<pcl::PointXYZ> tree;
-    std::unordered_map<std::int64_t, std::vector<int>> cells;
+    std::unordered_map<std::int64_t, Column> columns;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
@@ -37,10 +42,15 @@ StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     impl_->points = finiteRows(points);
     impl_->cloud = detail::toPcl(impl_->points);
     if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
-    for (Eigen::Index i = 0; i < impl_->points.rows(); ++i) {
-        const auto &p = impl_->points.row(i);
-        impl_->cells[cellKey(cellIndex(p(0)), cellIndex(p(1)), cellIndex(p(2)))].push_back(
+    const Points3 &pts = impl_->points;
+    for (Eigen::Index i = 0; i < pts.rows(); ++i)
+        impl_->columns[cellKey(cellIndex(pts(i, 0)), cellIndex(pts(i, 1)))].index.push_back(
             static_cast<int>(i));
+    for (auto &[key, column] : impl_->columns) {
+        auto &idx = column.index;
+        std::sort(idx.begin(), idx.end(), [&pts](int a, int b) { return pts(a, 2) < pts(b, 2); });
+        column.z.resize(idx.size());
+        for (std::size_t k = 0; k < idx.size(); ++k) column.z[k] = pts(idx[k], 2);
     }
 }
 
@@ -295,19 +305,24 @@ struct VirtualCandidates {
         }
         auto &out = members[i];
         out.clear();
-        const double reach = radius + cfg.virtual_max_gate_m + kSlack;
+        // The widest gate of this registration (its first round's), not the cap: a call that
+        // starts at the fine gates scans a quarter of the cells.
+        const double gate = std::min(cfg.virtual_max_gate_m,
+                                     cfg.virtual_gate_m * std::max(1.0, cfg.coarse_gate_factor));
+        const double reach = radius + gate + kSlack;
         const double window = cfg.virtual_window_m + kSlack;
+        const double reach2 = reach * reach;
         for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
             for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
-                for (auto iz = cellIndex(q.z() - window); iz <= cellIndex(q.z() + window); ++iz) {
-                    const auto it = target.cells.find(cellKey(ix, iy, iz));
-                    if (it == target.cells.end()) continue;
-                    for (int j : it->second) {
-                        const auto &p = target.points.row(j);
-                        if (std::abs(p(2) - q.z()) > window) continue;
-                        if (std::hypot(p(0) - q.x(), p(1) - q.y()) > reach) continue;
-                        out.push_back(j);
-                    }
+                const auto it = target.columns.find(cellKey(ix, iy));
+                if (it == target.columns.end()) continue;
+                const auto &z = it->second.z;
+                const auto lo = std::lower_bound(z.begin(), z.end(), q.z() - window);
+                const auto hi = std::upper_bound(lo, z.end(), q.z() + window);
+                for (auto k = lo - z.begin(); k < hi - z.begin(); ++k) {
+                    const int j = it->second.index[static_cast<std::size_t>(k)];
+                    const double dx = target.points(j, 0) - q.x(), dy = target.points(j, 1) - q.y();
+                    if (dx * dx + dy * dy <= reach2) out.push_back(j);
                 }
             }
         }
@@ -391,6 +406,292 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
     }
 }
 
+// The usable features (finite, centres with a positive radius, finite times when the in-sweep
+// motion is estimated) with their times (zero when rigid).
+struct LmFeatures {
+    Points3 centres = Points3(0, 3);
+    Eigen::VectorXd radii, centre_times;
+    Points3 real = Points3(0, 3);
+    Eigen::VectorXd real_times;
+};
+
+LmFeatures usableFeatures(const Eigen::Ref<const Points3> &virtual_centres,
+                          const Eigen::Ref<const Eigen::VectorXd> &radii,
+                          const Eigen::Ref<const Points3> &real_points, const SweepTimes *times) {
+    const bool timed = times != nullptr;
+    LmFeatures f;
+    std::vector<int> keep;
+    const Eigen::Index nv = virtual_centres.rows();
+    for (Eigen::Index i = 0; i < nv; ++i) {
+        if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0 &&
+            (!timed || std::isfinite(times->centres[i])))
+            keep.push_back(static_cast<int>(i));
+    }
+    f.centres = selectRows(virtual_centres, keep);
+    const auto nk = static_cast<Eigen::Index>(keep.size());
+    f.radii.resize(nk);
+    f.centre_times = Eigen::VectorXd::Zero(nk);
+    for (Eigen::Index k = 0; k < nk; ++k) {
+        f.radii[k] = radii[keep[k]];
+        if (timed) f.centre_times[k] = times->centres[keep[k]];
+    }
+    std::vector<int> keep_real;
+    for (Eigen::Index i = 0; i < real_points.rows(); ++i) {
+        if (real_points.row(i).allFinite() && (!timed || std::isfinite(times->real[i])))
+            keep_real.push_back(static_cast<int>(i));
+    }
+    f.real = selectRows(real_points, keep_real);
+    const auto nr = static_cast<Eigen::Index>(keep_real.size());
+    f.real_times = Eigen::VectorXd::Zero(nr);
+    for (Eigen::Index k = 0; timed && k < nr; ++k) f.real_times[k] = times->real[keep_real[k]];
+    return f;
+}
+
+// The solution so far: the pose and the in-sweep coefficients (order rows), and the current
+// positions of the features in the target frame (pose and in-sweep motion).
+struct LmState {
+    Eigen::Matrix4d T;
+    Eigen::MatrixXd sweep;
+    Points3 qc, qr;
+};
+
+void placeInto(const LmState &s, const Points3 &src, const Eigen::VectorXd &tau, Points3 &out) {
+    const Eigen::Matrix3d R = s.T.block<3, 3>(0, 0);
+    const Eigen::Vector3d t = s.T.block<3, 1>(0, 3);
+    const auto order = static_cast<int>(s.sweep.rows());
+    out.resize(src.rows(), 3);
+    for (Eigen::Index i = 0; i < src.rows(); ++i) {
+        Eigen::Vector3d q = R * src.row(i).transpose() + t;
+        if (order > 0) {
+            Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
+            double pw = tau[i];
+            for (int k = 0; k < order; ++k) {
+                c += pw * s.sweep.row(k).transpose();
+                pw *= tau[i];
+            }
+            const Eigen::Vector3d w = c.tail<3>();
+            const double angle = w.norm();
+            if (angle > 0) q = Eigen::AngleAxisd(angle, w / angle) * (q - t) + t;
+            q += c.head<3>();
+        }
+        out.row(i) = q.transpose();
+    }
+}
+
+void placeFeatures(const LmFeatures &f, LmState &s) {
+    placeInto(s, f.centres, f.centre_times, s.qc);
+    placeInto(s, f.real, f.real_times, s.qr);
+}
+
+// Coarse to fine: the gates and the loss scale of a round (coarse_gate_factor shrinking by
+// gate_decay per round down to 1x); returns the factor.
+double roundConfig(const StemCentreLmConfig &config, int round, StemCentreLmConfig &out) {
+    const double scale =
+        std::max(1.0, config.coarse_gate_factor * std::pow(config.gate_decay, round));
+    out = config;
+    out.virtual_gate_m *= scale;
+    out.real_gate_m *= scale;
+    out.plane_gate_m *= scale;
+    out.robust_scale_m *= scale;
+    return scale;
+}
+
+// One LM solve over fixed pairs -> the perturbation [dt, dw] of the pose, then per order k of
+// the in-sweep motion the perturbation of its coefficients (6 (order + 1) values).
+std::vector<double> solveRound(const std::vector<VirtualPair> &vpairs,
+                               const std::vector<PlanePair> &ppairs, const LmFeatures &f,
+                               const LmState &s, const StemCentreLmConfig &config,
+                               double robust_scale_m) {
+    const auto order = static_cast<int>(s.sweep.rows());
+    std::vector<double> delta(static_cast<std::size_t>(6 * (order + 1)), 0.0);
+    ceres::Problem problem;
+    if (order == 0) {
+        problem.AddResidualBlock(new PairsCost(vpairs, ppairs, s.T, robust_scale_m), nullptr,
+                                 delta.data());
+    } else {
+        const Eigen::Vector3d o = s.T.block<3, 1>(0, 3);
+        problem.AddResidualBlock(new SweepPairsCost(vpairs, ppairs, s.qc, s.qr, f.centre_times,
+                                                    f.real_times, o, order, robust_scale_m),
+                                 nullptr, delta.data());
+        problem.AddResidualBlock(
+            new SweepPriorCost(s.sweep, config.sweep_prior_tau_s, config.sweep_prior_m,
+                               config.sweep_prior_rad, config.robust_scale_m),
+            nullptr, delta.data());
+    }
+    ceres::Solver::Options options;
+    options.minimizer_type = ceres::TRUST_REGION;
+    options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+    options.linear_solver_type = ceres::DENSE_QR;
+    options.max_num_iterations = config.max_solver_iterations;
+    options.num_threads = 1;
+    options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &problem, &summary);
+    return delta;
+}
+
+// Applies a round's perturbation to the state; true when the step is below the convergence
+// thresholds (the pose step as seen from the sensor, independent of where the target origin
+// lies, and each in-sweep coefficient's change at the prior time).
+bool applyStep(const std::vector<double> &delta, const StemCentreLmConfig &config, LmState &s) {
+    const auto order = static_cast<int>(s.sweep.rows());
+    const Eigen::Matrix4d T_before = s.T;
+    const Eigen::Vector3d dw(delta[3], delta[4], delta[5]);
+    const double angle = dw.norm();
+    Eigen::Matrix3d dR = Eigen::Matrix3d::Identity();
+    if (angle > 0) dR = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
+    const Eigen::Vector3d dt(delta[0], delta[1], delta[2]);
+    s.T.block<3, 3>(0, 0) = dR * T_before.block<3, 3>(0, 0);
+    // Rigid: a left perturbation; with the in-sweep motion, about the sensor position.
+    s.T.block<3, 1>(0, 3) = (order == 0 ? Eigen::Vector3d(dR * T_before.block<3, 1>(0, 3))
+                                        : Eigen::Vector3d(T_before.block<3, 1>(0, 3))) +
+                            dt;
+    double sweep_step = 0.0;  // largest in-sweep change at the prior time, in threshold units
+    for (int k = 1; k <= order; ++k) {
+        double mt = 0.0, mr = 0.0;
+        for (int c = 0; c < 6; ++c) {
+            const double d = delta[static_cast<std::size_t>(6 * k + c)];
+            s.sweep(k - 1, c) += d;
+            (c < 3 ? mt : mr) += d * d;
+        }
+        const double pw = std::pow(config.sweep_prior_tau_s, k);
+        sweep_step = std::max({sweep_step, std::sqrt(mt) * pw / config.converged_translation_m,
+                               std::sqrt(mr) * pw / config.converged_rotation_rad});
+    }
+    const Eigen::Matrix4d step = T_before.inverse() * s.T;
+    return step.block<3, 1>(0, 3).norm() < config.converged_translation_m &&
+           angle < config.converged_rotation_rad && sweep_step < 1.0;
+}
+
+// Correspondence rounds (pairs renewed, then one LM solve) until converged at the fine
+// gates, too few pairs, or max_rounds.
+void iterateRounds(const StemCentreTarget::Impl &target, const LmFeatures &f,
+                   const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                   StemCentreLmResult &result) {
+    std::vector<VirtualPair> vpairs;
+    std::vector<PlanePair> ppairs;
+    StemCentreLmConfig round_cfg;
+    for (int round = 0; round < config.max_rounds; ++round) {
+        const double scale = roundConfig(config, round, round_cfg);
+        placeFeatures(f, s);
+        findPairs(target, f.centres, f.radii, f.real, s.qc, s.qr, round_cfg, candidates, vpairs,
+                  ppairs);
+        result.iterations = round + 1;
+        if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
+        const auto delta = solveRound(vpairs, ppairs, f, s, config, round_cfg.robust_scale_m);
+        if (applyStep(delta, config, s) && scale <= 1.0) {
+            result.converged = true;
+            break;
+        }
+    }
+}
+
+Eigen::Matrix4d orthonormalised(const Eigen::Matrix4d &T) {
+    Eigen::Matrix4d out = T;
+    out.block<3, 3>(0, 0) =
+        Eigen::Quaterniond(Eigen::Matrix3d(T.block<3, 3>(0, 0))).normalized().toRotationMatrix();
+    return out;
+}
+
+// One pair at the solution: transformed point q, residual direction, raw residual and its
+// Cauchy IRLS weight (times the pair's own weight).
+struct PairAtSolution {
+    Eigen::Vector3d q, dir;
+    double residual, weight;
+};
+
+// Pair statistics at the solution (inliers, RMS per feature kind, rmse) -> the pairs.
+std::vector<PairAtSolution> pairStatistics(const std::vector<VirtualPair> &vpairs,
+                                           const std::vector<PlanePair> &ppairs, const LmState &s,
+                                           const StemCentreLmConfig &config,
+                                           StemCentreLmResult &result) {
+    std::vector<PairAtSolution> pairs;
+    pairs.reserve(vpairs.size() + ppairs.size());
+    auto add = [&](const Eigen::Vector3d &q, const Eigen::Vector3d &dir, double r, double w) {
+        const double u = r / config.robust_scale_m;
+        pairs.push_back({q, dir, r, w / (1.0 + u * u)});
+    };
+    double vsum = 0.0, psum = 0.0;
+    for (const auto &v : vpairs) {
+        const Eigen::Vector3d q = s.qc.row(v.index).transpose();
+        const Eigen::Vector3d d(q.x() - v.target.x(), q.y() - v.target.y(), 0.0);
+        const double dn = std::max(d.norm(), 1e-9);
+        const double r = dn - v.radius;
+        vsum += r * r;
+        add(q, d / dn, r, v.weight);
+    }
+    for (const auto &p : ppairs) {
+        const Eigen::Vector3d q = s.qr.row(p.index).transpose();
+        const double r = p.normal.dot(q - p.origin);
+        psum += r * r;
+        add(q, p.normal, r, 1.0);
+    }
+    result.virtual_inliers = static_cast<int>(vpairs.size());
+    result.real_inliers = static_cast<int>(ppairs.size());
+    result.inliers = result.virtual_inliers + result.real_inliers;
+    result.virtual_rms_m = vpairs.empty() ? 0.0 : std::sqrt(vsum / vpairs.size());
+    result.real_rms_m = ppairs.empty() ? 0.0 : std::sqrt(psum / ppairs.size());
+    result.rmse =
+        pairs.empty() ? 0.0 : std::sqrt((vsum + psum) / static_cast<double>(pairs.size()));
+    return pairs;
+}
+
+// Covariance (Gauss-Newton information for a left perturbation [dt, dw], d q / d dw = -[q]x,
+// scaled by the residual variance) and the degeneracy test on the same information about the
+// centroid with rotation scaled by the feature spread (independent of where the frame origin
+// lies and of units).
+void covarianceAndDegeneracy(const std::vector<PairAtSolution> &pairs,
+                             const StemCentreLmConfig &config, StemCentreLmResult &result) {
+    const std::size_t m = pairs.size();
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto &p : pairs) centroid += p.q;
+    centroid /= static_cast<double>(m);
+    double spread = 0.0;
+    for (const auto &p : pairs) spread += (p.q - centroid).squaredNorm();
+    spread = std::max(std::sqrt(spread / m), 1e-6);
+    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+    Eigen::Matrix<double, 6, 6> Hn = Eigen::Matrix<double, 6, 6>::Zero();
+    double wr2 = 0.0, wsum = 0.0;
+    for (const auto &p : pairs) {
+        Eigen::Matrix<double, 1, 6> J, Jn;
+        J << p.dir.transpose(), p.q.cross(p.dir).transpose();
+        Jn << p.dir.transpose(), (p.q - centroid).cross(p.dir).transpose() / spread;
+        H += p.weight * J.transpose() * J;
+        Hn += p.weight * Jn.transpose() * Jn;
+        wr2 += p.weight * p.residual * p.residual;
+        wsum += p.weight;
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(Hn);
+    const double emax = eig.eigenvalues().maxCoeff();
+    const double emin = eig.eigenvalues().minCoeff();
+    result.degenerate = !(emax > 0.0) || emin / emax < config.degenerate_eigen_ratio;
+    const double dof = std::max(1.0, static_cast<double>(m) - 6.0);
+    const double sigma2 = std::max(wr2 / wsum * m / dof, 1e-8);
+    const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(H);
+    if (lu.isInvertible()) {
+        result.covariance = sigma2 * lu.inverse();
+    } else {
+        result.covariance = Matrix6d::Identity() * kUnobservedVariance;
+        result.degenerate = true;
+    }
+}
+
+// Statistics and covariance at the solution, with pairs renewed at the fine gates.
+void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
+                    const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                    StemCentreLmResult &result) {
+    std::vector<VirtualPair> vpairs;
+    std::vector<PlanePair> ppairs;
+    placeFeatures(f, s);
+    findPairs(target, f.centres, f.radii, f.real, s.qc, s.qr, config, candidates, vpairs, ppairs);
+    const auto pairs = pairStatistics(vpairs, ppairs, s, config, result);
+    if (result.inliers < config.min_inliers) {
+        result.converged = false;
+        return;
+    }
+    covarianceAndDegeneracy(pairs, config, result);
+}
+
 }  // namespace
 
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
@@ -414,225 +715,15 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     result.T_target_source = T_initial;
     if (target.size() < 3) return result;
 
-    // Keep only finite features (and centres with a usable radius), with their times.
-    Points3 centres(0, 3);
-    Eigen::VectorXd rad(0), tc(0), tr(0);
-    Points3 real(0, 3);
-    {
-        std::vector<int> keep;
-        for (Eigen::Index i = 0; i < virtual_centres.rows(); ++i) {
-            if (virtual_centres.row(i).allFinite() && std::isfinite(radii[i]) && radii[i] > 0 &&
-                (order == 0 || std::isfinite(times->centres[i]))) {
-                keep.push_back(static_cast<int>(i));
-            }
-        }
-        centres = selectRows(virtual_centres, keep);
-        rad.resize(static_cast<Eigen::Index>(keep.size()));
-        tc = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(keep.size()));
-        for (std::size_t k = 0; k < keep.size(); ++k) {
-            rad[k] = radii[keep[k]];
-            if (order > 0) tc[k] = times->centres[keep[k]];
-        }
-        std::vector<int> keep_real;
-        for (Eigen::Index i = 0; i < real_points.rows(); ++i) {
-            if (real_points.row(i).allFinite() && (order == 0 || std::isfinite(times->real[i]))) {
-                keep_real.push_back(static_cast<int>(i));
-            }
-        }
-        real = selectRows(real_points, keep_real);
-        tr = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(keep_real.size()));
-        for (std::size_t k = 0; k < keep_real.size(); ++k) {
-            if (order > 0) tr[k] = times->real[keep_real[k]];
-        }
-    }
-
-    Eigen::Matrix4d T_cur = T_initial.matrix();
-    Eigen::MatrixXd sweep = Eigen::MatrixXd::Zero(order, 6);  // in-sweep coefficients so far
-    Points3 qc(centres.rows(), 3), qr(real.rows(), 3);
-    // Current positions of the features in the target frame (pose and in-sweep motion).
-    auto place = [&](const Points3 &src, const Eigen::VectorXd &tau, Points3 &out) {
-        const Eigen::Matrix3d R = T_cur.block<3, 3>(0, 0);
-        const Eigen::Vector3d t = T_cur.block<3, 1>(0, 3);
-        for (Eigen::Index i = 0; i < src.rows(); ++i) {
-            Eigen::Vector3d q = R * src.row(i).transpose() + t;
-            if (order > 0) {
-                Eigen::Matrix<double, 6, 1> c = Eigen::Matrix<double, 6, 1>::Zero();
-                double pw = tau[i];
-                for (int k = 0; k < order; ++k) {
-                    c += pw * sweep.row(k).transpose();
-                    pw *= tau[i];
-                }
-                const Eigen::Vector3d w = c.tail<3>();
-                const double angle = w.norm();
-                if (angle > 0) q = Eigen::AngleAxisd(angle, w / angle) * (q - t) + t;
-                q += c.head<3>();
-            }
-            out.row(i) = q.transpose();
-        }
-    };
-    VirtualCandidates candidates;
-    std::vector<VirtualPair> vpairs;
-    std::vector<PlanePair> ppairs;
-    for (int round = 0; round < config.max_rounds; ++round) {
-        const Eigen::Matrix4d T_before = T_cur;
-        const double scale =
-            std::max(1.0, config.coarse_gate_factor * std::pow(config.gate_decay, round));
-        StemCentreLmConfig round_cfg = config;
-        round_cfg.virtual_gate_m *= scale;
-        round_cfg.real_gate_m *= scale;
-        round_cfg.plane_gate_m *= scale;
-        round_cfg.robust_scale_m *= scale;
-        place(centres, tc, qc);
-        place(real, tr, qr);
-        findPairs(target.impl(), centres, rad, real, qc, qr, round_cfg, candidates, vpairs, ppairs);
-        result.iterations = round + 1;
-        if (static_cast<int>(vpairs.size() + ppairs.size()) < config.min_inliers) break;
-
-        std::vector<double> delta(static_cast<std::size_t>(6 * (order + 1)), 0.0);
-        ceres::Problem::Options problem_options;
-        ceres::Problem problem(problem_options);
-        if (order == 0) {
-            problem.AddResidualBlock(
-                new PairsCost(vpairs, ppairs, T_before, round_cfg.robust_scale_m), nullptr,
-                delta.data());
-        } else {
-            const Eigen::Vector3d o = T_before.block<3, 1>(0, 3);
-            problem.AddResidualBlock(new SweepPairsCost(vpairs, ppairs, qc, qr, tc, tr, o, order,
-                                                        round_cfg.robust_scale_m),
-                                     nullptr, delta.data());
-            problem.AddResidualBlock(
-                new SweepPriorCost(sweep, config.sweep_prior_tau_s, config.sweep_prior_m,
-                                   config.sweep_prior_rad, config.robust_scale_m),
-                nullptr, delta.data());
-        }
-        ceres::Solver::Options options;
-        options.minimizer_type = ceres::TRUST_REGION;
-        options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-        options.linear_solver_type = ceres::DENSE_QR;
-        options.max_num_iterations = config.max_solver_iterations;
-        options.num_threads = 1;
-        options.logging_type = ceres::SILENT;
-        ceres::Solver::Summary summary;
-        ceres::Solve(options, &problem, &summary);
-
-        const Eigen::Vector3d dw(delta[3], delta[4], delta[5]);
-        const double angle = dw.norm();
-        Eigen::Matrix4d D = Eigen::Matrix4d::Identity();
-        if (angle > 0)
-            D.block<3, 3>(0, 0) = Eigen::AngleAxisd(angle, dw / angle).toRotationMatrix();
-        D.block<3, 1>(0, 3) = Eigen::Vector3d(delta[0], delta[1], delta[2]);
-        if (order == 0) {
-            T_cur = D * T_before;
-        } else {
-            // About the sensor position: the rotation leaves it in place.
-            T_cur = T_before;
-            T_cur.block<3, 3>(0, 0) = D.block<3, 3>(0, 0) * T_before.block<3, 3>(0, 0);
-            T_cur.block<3, 1>(0, 3) = T_before.block<3, 1>(0, 3) + D.block<3, 1>(0, 3);
-        }
-        double sweep_step = 0.0;  // largest in-sweep change at the prior time
-        for (int k = 1; k <= order; ++k) {
-            double mt = 0.0, mr = 0.0;
-            for (int c = 0; c < 6; ++c) {
-                sweep(k - 1, c) += delta[static_cast<std::size_t>(6 * k + c)];
-                (c < 3 ? mt : mr) += delta[static_cast<std::size_t>(6 * k + c)] *
-                                     delta[static_cast<std::size_t>(6 * k + c)];
-            }
-            const double pw = std::pow(config.sweep_prior_tau_s, k);
-            sweep_step = std::max({sweep_step, std::sqrt(mt) * pw / config.converged_translation_m,
-                                   std::sqrt(mr) * pw / config.converged_rotation_rad});
-        }
-        // The step as seen from the sensor (independent of where the target origin lies).
-        const Eigen::Matrix4d step = T_before.inverse() * T_cur;
-        if (scale <= 1.0 && step.block<3, 1>(0, 3).norm() < config.converged_translation_m &&
-            angle < config.converged_rotation_rad && sweep_step < 1.0) {
-            result.converged = true;
-            break;
-        }
-    }
-    // Re-orthonormalise (the left updates accumulate rounding).
-    Eigen::Matrix4d T = T_cur;
-    T.block<3, 3>(0, 0) = Eigen::Quaterniond(Eigen::Matrix3d(T_cur.block<3, 3>(0, 0)))
-                              .normalized()
-                              .toRotationMatrix();
-    result.T_target_source = Pose3(T);
-    result.sweep = sweep;
-
-    // Statistics and covariance at the solution with renewed pairs.
-    T_cur = T;
-    place(centres, tc, qc);
-    place(real, tr, qr);
-    findPairs(target.impl(), centres, rad, real, qc, qr, config, candidates, vpairs, ppairs);
-    result.virtual_inliers = static_cast<int>(vpairs.size());
-    result.real_inliers = static_cast<int>(ppairs.size());
-    result.inliers = result.virtual_inliers + result.real_inliers;
-    if (result.inliers < config.min_inliers) {
-        result.converged = false;
-        return result;
-    }
-    // Each pair: transformed point q, residual direction, residual, Cauchy IRLS weight.
-    std::vector<Eigen::Vector3d> qs, dirs;
-    std::vector<double> res, wts;
-    auto add = [&](const Eigen::Vector3d &q, const Eigen::Vector3d &dir, double r, double w) {
-        const double u = r / config.robust_scale_m;
-        qs.push_back(q);
-        dirs.push_back(dir);
-        res.push_back(r);
-        wts.push_back(w / (1.0 + u * u));
-    };
-    double vsum = 0.0, psum = 0.0;
-    for (const auto &v : vpairs) {
-        const Eigen::Vector3d q = qc.row(v.index).transpose();
-        const Eigen::Vector3d d(q.x() - v.target.x(), q.y() - v.target.y(), 0.0);
-        const double dn = std::max(d.norm(), 1e-9);
-        const double r = dn - v.radius;
-        vsum += r * r;
-        add(q, d / dn, r, v.weight);
-    }
-    for (const auto &p : ppairs) {
-        const Eigen::Vector3d q = qr.row(p.index).transpose();
-        const double r = p.normal.dot(q - p.origin);
-        psum += r * r;
-        add(q, p.normal, r, 1.0);
-    }
-    result.virtual_rms_m = vpairs.empty() ? 0.0 : std::sqrt(vsum / vpairs.size());
-    result.real_rms_m = ppairs.empty() ? 0.0 : std::sqrt(psum / ppairs.size());
-    result.rmse = std::sqrt((vsum + psum) / static_cast<double>(qs.size()));
-
-    const std::size_t m = qs.size();
-    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
-    for (const auto &q : qs) centroid += q;
-    centroid /= static_cast<double>(m);
-    double spread = 0.0;
-    for (const auto &q : qs) spread += (q - centroid).squaredNorm();
-    spread = std::max(std::sqrt(spread / m), 1e-6);
-    // H: information for a left perturbation [dt, dw] (d q / d dw = -[q]x). Hn: the same
-    // about the centroid with rotation scaled by the feature spread, so that the degeneracy
-    // test depends neither on where the frame origin lies nor on units.
-    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
-    Eigen::Matrix<double, 6, 6> Hn = Eigen::Matrix<double, 6, 6>::Zero();
-    double wr2 = 0.0, wsum = 0.0;
-    for (std::size_t i = 0; i < m; ++i) {
-        Eigen::Matrix<double, 1, 6> J, Jn;
-        J << dirs[i].transpose(), qs[i].cross(dirs[i]).transpose();
-        Jn << dirs[i].transpose(), (qs[i] - centroid).cross(dirs[i]).transpose() / spread;
-        H += wts[i] * J.transpose() * J;
-        Hn += wts[i] * Jn.transpose() * Jn;
-        wr2 += wts[i] * res[i] * res[i];
-        wsum += wts[i];
-    }
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(Hn);
-    const double emax = eig.eigenvalues().maxCoeff();
-    const double emin = eig.eigenvalues().minCoeff();
-    result.degenerate = !(emax > 0.0) || emin / emax < config.degenerate_eigen_ratio;
-    const double dof = std::max(1.0, static_cast<double>(m) - 6.0);
-    const double sigma2 = std::max(wr2 / wsum * m / dof, 1e-8);
-    const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(H);
-    if (lu.isInvertible()) {
-        result.covariance = sigma2 * lu.inverse();
-    } else {
-        result.covariance = Matrix6d::Identity() * kUnobservedVariance;
-        result.degenerate = true;
-    }
+    const LmFeatures features =
+        usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
+    LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
+    VirtualCandidates candidates;  // target points near each centre, shared by all rounds
+    iterateRounds(target.impl(), features, config, candidates, state, result);
+    state.T = orthonormalised(state.T);  // the left updates accumulate rounding
+    result.T_target_source = Pose3(state.T);
+    result.sweep = state.sweep;
+    assessSolution(target.impl(), features, config, candidates, state, result);
     return result;
 }
 

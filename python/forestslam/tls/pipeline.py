@@ -1,13 +1,16 @@
 """MLS-to-TLS plot mapping (Shao et al. 2020): each MLS frame gets an initial pose from a
-constant-velocity prediction off the last trusted pose, then the stem-centre LM (virtual + DoG
-features) against a local target: a voxelized copy of the global map (TLS reference + accepted
-MLS frames) cropped around the predicted pose. When the LM from the prediction is not trusted
-(not converged, degenerate, high residuals, or a correction too large for the motion model),
-3D-NDT against the last trusted frame chained onto its pose (the paper's Section 3.3) gives a
-second initial pose. Frames that still fail are rejected: not merged, not chained from.
-The velocity (deskew, prediction) is used only while fresh (RegistrationConfig
-.max_velocity_age_s). A trusted frame of a spinning scanner is registered again with its motion
-during the sweep (continuous time, see tls.sweep) and its points are moved with it.
+constant-velocity prediction off the last trusted pose (the odometry's motion model,
+forestslam::odometry::ConstantVelocityModel, which also deskews it), then the stem-centre LM
+(virtual + DoG features) against a local target: a voxelized copy of the global map (TLS
+reference + accepted MLS frames) cropped around the predicted pose. When the LM from the
+prediction is not trusted (not converged, degenerate, high residuals, or a correction too large
+for the motion model), 3D-NDT against the last trusted frame chained onto its pose (the paper's
+Section 3.3) gives a second initial pose. Frames that still fail are rejected: not merged, not
+chained from. The velocity (deskew, prediction) is used only while fresh (RegistrationConfig
+.max_velocity_age_s: the motion model's max_gap_s). register_mls_to_tls feeds the frames to
+_Walk, whose add() reads as the stages of one frame. A trusted frame of a spinning scanner is
+registered again with its motion during the sweep (continuous time, see tls.sweep) and its
+points are moved with it.
 
 What joins the map: a trusted frame whose in-sweep motion was estimated (when it has per-point
 times), whose stems sit on the reference's stems, that was not itself relocalized, and whose
@@ -349,9 +352,8 @@ class _ReferenceCheck:
 
     def __call__(self, feats, T: np.ndarray) -> tuple[bool, dict]:
         core = _core()
-        if self.target is None:
-            voxel = max(self.config.map.target_voxel_m, self.config.map.voxel_m)
-            self.target = core.StemCentreTarget(core.voxel_downsample(self.reference, voxel))
+        if self.target is None:  # the reference is the map's coarse copy: voxelized already
+            self.target = core.StemCentreTarget(self.reference)
         m = self.config.map
         r = _lm(
             core,
@@ -557,292 +559,414 @@ def register_mls_to_tls(
     of the walk can be placed in the reference (mismatched data) or the given initial pose
     does not register."""
     config = config or TlsConfig()
-    core = _core()
-    ref = _check_reference(reference)
-    gmap = _GlobalMap(ref, config)
-    # The reference voxelized as the map's coarse copy (before any frame joins): the target
-    # of the acceptance test and the ground heights of the placement (not the raw cloud).
-    ref_coarse = gmap.coarse.copy()
-    check_reference = _ReferenceCheck(ref_coarse, config)
-    ref_stems = None
-    init: Initializer | None = None
-    frames: list[FrameRecord] = []
-    unplaced: list[tuple[float, str]] = []
-    centres: list[np.ndarray] = []
-    # Previous frame (pose and points, trusted or not), whether it was trusted, and the
-    # per-frame velocity from the last pair of consecutive trusted frames.
-    T_good = None  # set once the first frame is anchored
-    lost = 0  # consecutive frames that did not join the map
-    t_good = 0.0
-    T_prev = None
-    prev_points = None
-    prev_good = False
-    # Before the placement: the NDT odometry of the pending frames (local frame).
-    T_local, rel_local = np.eye(4), np.eye(4)
-    # Velocity: body-frame twist (6,) per second (translation, rotation vector) between the
-    # mid-sweep frames of the last two consecutive frames; t_prev the previous mid-sweep time.
-    twist = np.zeros(6)
-    t_twist = None  # mid-sweep time of the frame that gave the twist
-    t_prev = None
-    seen = 0
-    method = "given" if initial_pose is not None else "stems"
-
-    def lm_with(T_start: np.ndarray, feats, z_points, ms=None, **options) -> dict:
-        """LM of features from T_start against the map target cropped around it."""
-        t0 = time.process_time()
-        target, _ = gmap.target_at(T_start[:2, 3], _z_range(z_points, T_start))
-        t1 = time.process_time()
-        result = _lm(core, target, feats, T_start, config, **options)
-        if ms is not None:
-            ms["target"] += (t1 - t0) * 1e3
-            ms["lm"] += (time.process_time() - t1) * 1e3
-        return result
-
+    walk = _Walk(_check_reference(reference), config, initial_pose, on_frame)
     for index, scan in enumerate(scans):
-        if index % max(1, config.frame_step):
-            continue
-        seen += 1
-        points, rings, times = _frame_points_times(scan, config)
+        if index % max(1, config.frame_step) == 0:
+            walk.add(index, scan)
+    return walk.finish()
+
+
+@dataclass
+class _Frame:
+    """One MLS frame on its way through the pipeline: usable points (deskewed to mid-sweep),
+    rings, per-point times, features and the CPU time spent on it."""
+
+    index: int
+    stamp: float
+    t_mid: float  # registration time: mid-sweep, seconds after the stamp
+    t_ref: float  # stamp + t_mid
+    points: np.ndarray
+    rings: np.ndarray | None
+    times: np.ndarray | None
+    feats: FrameFeatures
+    ms: dict
+    deskew_twist: np.ndarray  # the motion model's velocity it was deskewed with (6,)
+
+
+@dataclass
+class _Registration:
+    """How a frame was registered: the LM result, the initial pose it started from, the
+    prediction it is checked against (None before the walk is anchored), trusted or why not."""
+
+    lm: dict
+    T_init: np.ndarray
+    T_pred: np.ndarray | None
+    failure: str
+    fallback: bool = False
+    relocalized: bool = False
+    seed: tuple[np.ndarray, float] | None = None  # placed frame: the frame before it (T, t)
+
+    @property
+    def good(self) -> bool:
+        return not self.failure
+
+
+class _Walk:
+    """The walk's registration state: the growing map, the motion model (the odometry's
+    forestslam::odometry::ConstantVelocityModel), the placement of the walk and the records.
+    add() runs one frame through the stages; finish() returns the TlsRun."""
+
+    def __init__(self, ref: np.ndarray, config: TlsConfig, initial_pose, on_frame):
+        self.core = _core()
+        self.config = config
+        self.ref = ref
+        self.gmap = _GlobalMap(ref, config)
+        # The reference voxelized as the map's coarse copy (before any frame joins): the
+        # target of the acceptance test and the ground heights of the placement.
+        self.ref_coarse = self.gmap.coarse.copy()
+        self.check_reference = _ReferenceCheck(self.ref_coarse, config)
+        self.initial_pose = initial_pose
+        self.on_frame = on_frame
+        self.method = "given" if initial_pose is not None else "stems"
+        self._ref_stems = None
+        self.init: Initializer | None = None
+        self.frames: list[FrameRecord] = []
+        self.unplaced: list[tuple[float, str]] = []
+        self.centres: list[np.ndarray] = []
+        # The velocity (deskew, prediction, NDT guess) only while fresh: a longer gap since
+        # the last trusted frame restarts the model (RegistrationConfig.max_velocity_age_s).
+        mm = self.core.MotionModelConfig()
+        mm.max_gap_s = config.registration.max_velocity_age_s
+        self.motion = self.core.ConstantVelocityModel(mm)
+        self.anchored = False  # the walk has a pose in the TLS frame
+        self.lost = 0  # consecutive frames that did not join the map
+        self.T_prev = None  # previous frame's pose (trusted or not) and points: NDT chain
+        self.prev_points = None
+        self.seen = 0
+        # Before the placement: the NDT odometry of the pending frames (local frame).
+        self.T_local, self.rel_local = np.eye(4), np.eye(4)
+
+    # -- the stages of one frame ------------------------------------------------------------
+
+    def add(self, index: int, scan: Scan) -> None:
+        self.seen += 1
+        frame = self._prepare(index, scan)
+        if frame is None:
+            return
+        reg = self._register(frame) if self.anchored else self._place(frame)
+        if reg is None:
+            return
+        reg, sweep = self._refine_in_sweep(frame, reg)
+        T = self._pose(reg)
+        accepted, reason, ref_dt, ref_dr = self._merge(frame, reg, sweep, T)
+        self._update_motion(frame, reg, T)
+        self._emit(frame, reg, sweep, T, reason, ref_dt, ref_dr)
+        self.T_prev, self.prev_points = T, frame.points
+
+    def finish(self) -> TlsRun:
+        if self.seen == 0:
+            raise InputError("the MLS input holds no scans")
+        if not self.frames:
+            raise ProcessingError(_unplaced_message(self.seen, self.init))
+        self.gmap.flush()
+        return TlsRun(
+            frames=self.frames,
+            map_points=self.gmap.points,
+            reference=self.ref,
+            frame_centres=self.centres,
+            initial_method=self.method,
+            unplaced=self.unplaced,
+        )
+
+    def _prepare(self, index: int, scan: Scan) -> _Frame | None:
+        """Usable points, deskewed to mid-sweep by the motion model, and features; None (and
+        the frame listed as unplaced) when too few points are left."""
+        points, rings, times = _frame_points_times(scan, self.config)
         if len(points) < 100:
             log.warning(
                 "frame %d at %.3f has %d usable points: skipped", index, scan.stamp, len(points)
             )
-            unplaced.append((float(scan.stamp), f"no pose: {len(points)} usable points"))
-            continue
+            self.unplaced.append((float(scan.stamp), f"no pose: {len(points)} usable points"))
+            return None
         # Spinning scans are deskewed to, and registered at, the middle of their sweep: a
         # velocity error then distorts the frame symmetrically; the pose at the stamp is
         # extrapolated from it afterwards.
         t_mid = 0.0 if times is None else float(0.5 * (times.min() + times.max()))
         t_ref = float(scan.stamp) + t_mid
-        dt = 0.0 if t_prev is None else max(t_ref - t_prev, 1e-6)
-        if t_twist is None or t_ref - t_twist > config.registration.max_velocity_age_s:
-            twist = np.zeros(6)  # stale: no deskew, no extrapolation over a long gap
+        self.motion.begin_scan(t_ref)
+        twist = np.array(self.motion.twist) if self.motion.initialised else np.zeros(6)
         t0 = time.process_time()
-        if times is not None and t_prev is not None and np.any(twist):
-            points = deskew_points(points, times - t_mid, twist)
-        feats = frame_features(points, rings, config.features)
+        if times is not None and np.any(twist):
+            points = np.asarray(self.motion.deskew(points, times - t_mid))
+        feats = frame_features(points, rings, self.config.features)
         ms = {"features": (time.process_time() - t0) * 1e3, "ndt": 0.0, "target": 0.0, "lm": 0.0}
-
-        def lm_at(T_start: np.ndarray, points=points, feats=feats, ms=ms, **options) -> dict:
-            """LM of this frame from T_start against the map target cropped around it."""
-            return lm_with(T_start, feats, points, ms, **options)
-
-        def ndt_from_previous(
-            V: np.ndarray, points=points, ms=ms, prev_points=prev_points, T_prev=T_prev
-        ) -> np.ndarray | None:
-            """T_world_sensor by NDT against the previous frame chained onto its pose, or None."""
-            t0 = time.process_time()
-            ndt = core.register_ndt(
-                prev_points,
-                points,
-                np.ascontiguousarray(V),
-                voxel_m=config.registration.ndt_voxel_m,
-                resolution_m=config.registration.ndt_resolution_m,
-            )
-            ms["ndt"] += (time.process_time() - t0) * 1e3
-            return T_prev @ ndt["T_target_source"] if ndt["converged"] else None
-
-        T_pred = None
-        placed = seed = None
-        if T_good is None:
-            if initial_pose is not None:
-                T_init = np.asarray(initial_pose, dtype=np.float64)
-            else:
-                if ref_stems is None:
-                    ref_stems = reference_stems(ref, config.features)
-                    log.info("reference: %d stems", len(ref_stems[0]))
-                    init = Initializer(ref_stems[0][:, :2], ref_stems[1], ref_coarse, config)
-                # Odometry of the frames before the placement: NDT frame to frame (the last
-                # relative motion as the guess); a failure starts a new odometry segment.
-                ndt_ok = True
-                if prev_points is not None:
-                    T_rel = ndt_from_previous(rel_local, T_prev=np.eye(4))
-                    ndt_ok = T_rel is not None
-                    T_local = T_local @ T_rel if ndt_ok else np.eye(4)
-                    rel_local = T_rel if ndt_ok else np.eye(4)
-                pending = PendingFrame(
-                    index,
-                    float(scan.stamp),
-                    t_mid,
-                    feats,
-                    np.ascontiguousarray(points[:: max(1, len(points) // 500)]),
-                    T_local.copy(),
-                    _ground_z(points),
-                    ms,
-                )
-                T_local_prev = T_local
-                placed = init.push(pending, ndt_ok, lm_with)
-                # The stem-corrected odometry pose; its motion guesses the next NDT.
-                T_local = pending.T_local
-                if ndt_ok and prev_points is not None:
-                    rel_local = np.linalg.inv(T_local_prev) @ T_local
-                prev_points = points
-                if placed is None:
-                    continue
-                T_init = placed.T_tls_sensor
-                for f in init.dropped():
-                    unplaced.append((f.stamp, "no pose: odometry broke before the walk was placed"))
-                records, seed = _backfill(init, T_init, lm_with, config)
-                for rec in records:
-                    frames.append(rec)
-                    if on_frame is not None:
-                        on_frame(rec)
-                init.pending.clear()
-        else:
-            V = se3_exp(twist * dt)
-            T_pred = T_prev @ V
-            T_init = T_pred
-            if config.registration.initial_pose == "ndt":
-                T_ndt = ndt_from_previous(V)
-                if T_ndt is not None:
-                    T_pred = T_init = T_ndt
-
-        lm = placed.lm if placed is not None else lm_at(T_init)
-        failure = trust_failure(lm, T_pred, config)
-        good = not failure
-        fallback = relocalized = False
-        if not good and T_good is not None and config.registration.initial_pose != "ndt":
-            # Fallback: NDT against the previous frame, chained onto its pose.
-            T_ndt = ndt_from_previous(V)
-            if T_ndt is not None:
-                T_init = T_ndt
-                lm2 = lm_at(T_ndt)
-                if _trusted(lm2, T_ndt, config):
-                    lm, good, fallback = lm2, True, True
-        elif not good and T_good is not None:
-            # Fallback of the NDT mode (NDT can fail at sharp turns): the constant-velocity
-            # prediction from the last trusted pose.
-            T_vel = T_good @ se3_exp(twist * max(t_ref - t_good, 0.0))
-            lm2 = lm_at(T_vel)
-            if _trusted(lm2, T_vel, config):
-                lm, good, fallback = lm2, True, True
-        if T_good is not None and lost >= config.registration.relocalize_after_frames:
-            # Tracking lost (the last frames did not join the map: untrusted, or trusted but
-            # their stems off the reference's): place the frame afresh by its stems on the
-            # reference's stems; kept when trusted and its stems sit on the reference's.
-            if ref_stems is None:
-                ref_stems = reference_stems(ref, config.features)
-            T_c = _coarse_initial_pose(feats, points, ref, ref_stems, config)
-            if T_c is not None:
-                lm2 = lm_at(T_c)
-                if _trusted(lm2, None, config) and _stems_on_reference(
-                    feats, lm2["T_target_source"], ref_stems, config
-                ):
-                    lm, good, fallback, relocalized = lm2, True, True, True
-                    log.info("frame %d at %.3f: relocalized on the reference stems", index, t_ref)
-        # Motion during the sweep: the trusted frame registered again with it (continuous time).
-        sweep = np.zeros((0, 6))
-        if good and times is not None and config.registration.sweep_order > 0:
-            refined = _sweep_lm(lm, feats, points, times, t_mid, lm_at, config, ms)
-            if refined is not None:
-                lm, feats, sweep = refined
-                points = apply_sweep(points, times - t_mid, lm["T_target_source"], sweep)
-        # The pose: the LM's when trusted (in "ndt" mode, whenever it converged, as the
-        # paper); else the initial pose. Only trusted frames join the map.
-        lm_ok = lm["converged"] and not lm["degenerate"]
-        use_lm = good or (config.registration.initial_pose == "ndt" and lm_ok)
-        T = lm["T_target_source"] if use_lm else T_init
-        stems_agree = (
-            lm["virtual_inliers"] >= config.map.accept_min_virtual_inliers
-            and lm["virtual_rms_m"] <= config.map.accept_virtual_rms_m
+        return _Frame(
+            index, float(scan.stamp), t_mid, t_ref, points, rings, times, feats, ms, twist
         )
-        # A given first pose must register (a user's mistake otherwise); a placed walk was
-        # verified by the initializer.
-        if T_good is None and not good:
-            raise ProcessingError(
-                "the first MLS frame does not register onto the reference from the given "
-                f"initial pose ({failure}): mismatched data or a wrong initial pose"
+
+    def _lm(self, T_start: np.ndarray, feats, z_points, ms=None, **options) -> dict:
+        """LM of features from T_start against the map target cropped around it."""
+        t0 = time.process_time()
+        target, _ = self.gmap.target_at(T_start[:2, 3], _z_range(z_points, T_start))
+        t1 = time.process_time()
+        result = _lm(self.core, target, feats, T_start, self.config, **options)
+        if ms is not None:
+            ms["target"] += (t1 - t0) * 1e3
+            ms["lm"] += (time.process_time() - t1) * 1e3
+        return result
+
+    def _lm_at(self, frame: _Frame, T_start: np.ndarray, **options) -> dict:
+        return self._lm(T_start, frame.feats, frame.points, frame.ms, **options)
+
+    def _ndt(self, frame: _Frame, V: np.ndarray) -> np.ndarray | None:
+        """The relative pose T_prev_frame by NDT against the previous frame's points from the
+        guess V, or None."""
+        t0 = time.process_time()
+        ndt = self.core.register_ndt(
+            self.prev_points,
+            frame.points,
+            np.ascontiguousarray(V),
+            voxel_m=self.config.registration.ndt_voxel_m,
+            resolution_m=self.config.registration.ndt_resolution_m,
+        )
+        frame.ms["ndt"] += (time.process_time() - t0) * 1e3
+        return np.asarray(ndt["T_target_source"]) if ndt["converged"] else None
+
+    @property
+    def ref_stems(self):
+        if self._ref_stems is None:
+            self._ref_stems = reference_stems(self.ref, self.config.features)
+            log.info("reference: %d stems", len(self._ref_stems[0]))
+        return self._ref_stems
+
+    def _place(self, frame: _Frame) -> _Registration | None:
+        """The walk's first pose: the given initial pose (must register), else the frames so
+        far placed by their stems (tls.initialize); the frames before the placed one get
+        poses chained back. None while the walk cannot be placed yet."""
+        if self.initial_pose is not None:
+            T_init = np.asarray(self.initial_pose, dtype=np.float64)
+            lm = self._lm_at(frame, T_init)
+            failure = trust_failure(lm, None, self.config)
+            if failure:
+                raise ProcessingError(
+                    "the first MLS frame does not register onto the reference from the given "
+                    f"initial pose ({failure}): mismatched data or a wrong initial pose"
+                )
+            self.anchored = True
+            return _Registration(lm, T_init, None, failure)
+        placed = self._push_pending(frame)
+        if placed is None:
+            return None
+        for f in self.init.dropped():
+            self.unplaced.append((f.stamp, "no pose: odometry broke before the walk was placed"))
+        records, seed = _backfill(self.init, placed.T_tls_sensor, self._lm, self.config)
+        for rec in records:
+            self._append(rec)
+        self.init.pending.clear()
+        self.anchored = True
+        failure = trust_failure(placed.lm, None, self.config)
+        return _Registration(placed.lm, placed.T_tls_sensor, None, failure, seed=seed)
+
+    def _push_pending(self, frame: _Frame):
+        """The frame into the initializer's local stem map (NDT frame-to-frame odometry, the
+        last relative motion as the guess; a failure starts a new odometry segment) ->
+        the Placement or None."""
+        if self.init is None:
+            ref_xyz, ref_r = self.ref_stems
+            self.init = Initializer(ref_xyz[:, :2], ref_r, self.ref_coarse, self.config)
+        ndt_ok = True
+        if self.prev_points is not None:
+            T_rel = self._ndt(frame, self.rel_local)
+            ndt_ok = T_rel is not None
+            self.T_local = self.T_local @ T_rel if ndt_ok else np.eye(4)
+            self.rel_local = T_rel if ndt_ok else np.eye(4)
+        pending = PendingFrame(
+            frame.index,
+            frame.stamp,
+            frame.t_mid,
+            frame.feats,
+            np.ascontiguousarray(frame.points[:: max(1, len(frame.points) // 500)]),
+            self.T_local.copy(),
+            _ground_z(frame.points),
+            frame.ms,
+        )
+        T_local_prev = self.T_local
+        placed = self.init.push(pending, ndt_ok, self._lm)
+        # The stem-corrected odometry pose; its motion guesses the next NDT.
+        self.T_local = pending.T_local
+        if ndt_ok and self.prev_points is not None:
+            self.rel_local = np.linalg.inv(T_local_prev) @ self.T_local
+        if placed is None:
+            self.prev_points = frame.points
+        return placed
+
+    def _register(self, frame: _Frame) -> _Registration:
+        """The tracked frame: LM from the initial pose (motion-model prediction, or NDT against
+        the previous frame in "ndt" mode); when not trusted, the other initial pose; after
+        relocalize_after_frames frames off the map, a fresh placement on the reference's stems."""
+        reg_cfg = self.config.registration
+        T_pred = self._predicted(frame)
+        # The motion the prediction implies since the previous frame: the NDT guess.
+        V = np.linalg.inv(self.T_prev) @ T_pred
+        T_init = T_pred
+        if reg_cfg.initial_pose == "ndt":
+            rel = self._ndt(frame, V)
+            if rel is not None:
+                T_pred = T_init = self.T_prev @ rel
+        reg = _Registration(self._lm_at(frame, T_init), T_init, T_pred, "")
+        reg.failure = trust_failure(reg.lm, T_pred, self.config)
+        if not reg.good:
+            self._second_initial_pose(frame, reg, V)
+        if self.lost >= reg_cfg.relocalize_after_frames:
+            self._relocalize(frame, reg)
+        return reg
+
+    def _predicted(self, frame: _Frame) -> np.ndarray:
+        """T_tls_sensor at the frame's registration time by the motion model (from the last
+        trusted pose)."""
+        if not self.motion.initialised:
+            return self.T_prev
+        return np.asarray(self.motion.predict(frame.t_ref))
+
+    def _second_initial_pose(self, frame: _Frame, reg: _Registration, V: np.ndarray) -> None:
+        """Fallback: NDT chained onto the previous frame (velocity mode), or the motion-model
+        prediction from the last trusted pose (NDT mode: NDT can fail at sharp turns)."""
+        if self.config.registration.initial_pose != "ndt":
+            rel = self._ndt(frame, V)
+            if rel is None:
+                return
+            T2 = self.T_prev @ rel
+            reg.T_init = T2
+        else:
+            T2 = self._predicted(frame)
+        lm2 = self._lm_at(frame, T2)
+        if _trusted(lm2, T2, self.config):
+            reg.lm, reg.failure, reg.fallback = lm2, "", True
+
+    def _relocalize(self, frame: _Frame, reg: _Registration) -> None:
+        """Tracking lost (the last frames did not join the map: untrusted, or trusted but their
+        stems off the reference's): the frame placed afresh by its stems on the reference's
+        stems; kept when trusted and its stems sit on the reference's."""
+        T_c = _coarse_initial_pose(frame.feats, frame.points, self.ref, self.ref_stems, self.config)
+        if T_c is None:
+            return
+        lm2 = self._lm_at(frame, T_c)
+        if _trusted(lm2, None, self.config) and _stems_on_reference(
+            frame.feats, lm2["T_target_source"], self.ref_stems, self.config
+        ):
+            reg.lm, reg.failure, reg.fallback, reg.relocalized = lm2, "", True, True
+            log.info(
+                "frame %d at %.3f: relocalized on the reference stems", frame.index, frame.t_ref
             )
-        # Only frames whose stems sit on the reference's stems join the map: a frame that
-        # registered onto earlier wrongly placed frames must not spread the error.
-        if ref_stems is None:
-            ref_stems = reference_stems(ref, config.features)
-        on_reference = good and stems_agree and _stems_on_reference(feats, T, ref_stems, config)
-        # A relocalized frame restarts the tracking but does not join the map itself (a coarse
-        # placement can sit in a wrong minimum and still look trusted); a frame joins only when
-        # its pose also holds on the TLS reference alone (see MapConfig.accept_reference_*).
-        # With per-point times, only a frame whose in-sweep motion was estimated joins: a rigid
-        # frame of a vibrating scanner is distorted by centimetres (its ground above all).
-        swept = len(sweep) > 0 or times is None or config.registration.sweep_order <= 0
+
+    def _refine_in_sweep(self, frame: _Frame, reg: _Registration):
+        """A trusted frame registered again with its motion during the sweep (continuous time);
+        its points and features are moved with it -> (registration, sweep (K,6) or empty)."""
+        sweep = np.zeros((0, 6))
+        if reg.good and frame.times is not None and self.config.registration.sweep_order > 0:
+            lm_at = lambda T, **o: self._lm_at(frame, T, **o)  # noqa: E731
+            refined = _sweep_lm(
+                reg.lm,
+                frame.feats,
+                frame.points,
+                frame.times,
+                frame.t_mid,
+                lm_at,
+                self.config,
+                frame.ms,
+            )
+            if refined is not None:
+                reg.lm, frame.feats, sweep = refined
+                frame.points = apply_sweep(
+                    frame.points, frame.times - frame.t_mid, reg.lm["T_target_source"], sweep
+                )
+        return reg, sweep
+
+    def _pose(self, reg: _Registration) -> np.ndarray:
+        """The LM's pose when trusted (in "ndt" mode whenever it converged, as the paper);
+        else the initial pose."""
+        lm = reg.lm
+        lm_ok = lm["converged"] and not lm["degenerate"]
+        use_lm = reg.good or (self.config.registration.initial_pose == "ndt" and lm_ok)
+        return np.asarray(lm["T_target_source"] if use_lm else reg.T_init)
+
+    def _merge(self, frame: _Frame, reg: _Registration, sweep: np.ndarray, T: np.ndarray):
+        """Whether the frame joins the map (merged when it does) -> (accepted, reason,
+        reference correction m, deg). Only frames whose stems sit on the reference's stems
+        join: a frame registered onto earlier wrongly placed frames must not spread the
+        error. A relocalized frame restarts the tracking but does not join itself (a coarse
+        placement can sit in a wrong minimum and still look trusted); a frame joins only when
+        its pose also holds on the TLS reference alone (MapConfig.accept_reference_*). With
+        per-point times, only a frame whose in-sweep motion was estimated joins: a rigid frame
+        of a vibrating scanner is distorted by centimetres (its ground above all)."""
+        cfg, lm = self.config, reg.lm
+        stems_agree = (
+            lm["virtual_inliers"] >= cfg.map.accept_min_virtual_inliers
+            and lm["virtual_rms_m"] <= cfg.map.accept_virtual_rms_m
+        )
+        on_reference = (
+            reg.good and stems_agree and _stems_on_reference(frame.feats, T, self.ref_stems, cfg)
+        )
+        swept = len(sweep) > 0 or frame.times is None or cfg.registration.sweep_order <= 0
         accepted = False
         ref_dt = ref_dr = float("nan")
-        if on_reference and swept and not relocalized:
+        if on_reference and swept and not reg.relocalized:
             t0 = time.process_time()
-            accepted, check = check_reference(feats, T)
-            ms["lm"] += (time.process_time() - t0) * 1e3
+            accepted, check = self.check_reference(frame.feats, T)
+            frame.ms["lm"] += (time.process_time() - t0) * 1e3
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
-        lost = 0 if on_reference else lost + 1
+        self.lost = 0 if on_reference else self.lost + 1
         if accepted:
-            pts_tls = points @ T[:3, :3].T + T[:3, 3]
-            gmap.add(pts_tls)
-            centres.append(feats.centres @ T[:3, :3].T + T[:3, 3])
-        twist_used = twist.copy()
-        # The velocity (NDT guess, prediction and deskew) only from two consecutive trusted
-        # poses: a bad pose would distort the next frames through the deskew.
-        # A relocalized frame jumped: the motion from the previous pose is no velocity.
-        if relocalized:
-            twist, t_twist = np.zeros(6), None
-        elif T_prev is not None and good and prev_good:
-            twist = se3_log(np.linalg.inv(T_prev) @ T) / dt
-            t_twist = t_ref
-        elif seed is not None:
-            # The placed frame's velocity from the frame before it (chained back, LM refined).
-            dt_seed = t_ref - seed[1]
-            if 0 < dt_seed <= config.registration.max_velocity_age_s:
-                twist = se3_log(np.linalg.inv(seed[0]) @ T) / dt_seed
-                t_twist = t_ref
-        # The pose at the stamp (sweep start): from the frame's own in-sweep motion when
-        # estimated (on top of the deskew it was estimated after), else extrapolated.
-        if len(sweep):
-            T_stamp = sweep_pose(T, sweep, -t_mid) @ se3_exp(-twist_used * t_mid)
-        else:
-            T_stamp = T @ se3_exp(-twist * t_mid)
+            self.gmap.add(frame.points @ T[:3, :3].T + T[:3, 3])
+            self.centres.append(frame.feats.centres @ T[:3, :3].T + T[:3, 3])
         reason = _unmerged_reason(
-            good,
-            failure,
+            reg.good,
+            reg.failure,
             stems_agree,
             lm,
             on_reference,
-            relocalized,
+            reg.relocalized,
             swept,
             accepted,
             ref_dt,
             ref_dr,
         )
+        return accepted, reason, ref_dt, ref_dr
+
+    def _update_motion(self, frame: _Frame, reg: _Registration, T: np.ndarray) -> None:
+        """The motion model learns the velocity from consecutive trusted poses only (a bad
+        pose would distort the next frames through the deskew); a relocalized frame jumped,
+        so the motion from the previous pose is no velocity; the placed frame's velocity
+        comes from the frame chained back before it (LM refined)."""
+        if reg.relocalized:
+            self.motion.reset()
+        elif reg.seed is not None:
+            self.motion.update(reg.seed[1], reg.seed[0], True)
+            self.motion.begin_scan(frame.t_ref)
+        self.motion.update(frame.t_ref, T, reg.good)
+
+    def _emit(self, frame, reg, sweep, T, reason, ref_dt, ref_dr) -> None:
+        """The frame's record; the pose at the stamp (sweep start) from its own in-sweep
+        motion when estimated (on top of the deskew it was estimated after), else
+        extrapolated with the velocity."""
+        if len(sweep):
+            T_stamp = sweep_pose(T, sweep, -frame.t_mid) @ se3_exp(
+                -frame.deskew_twist * frame.t_mid
+            )
+        else:
+            twist = np.array(self.motion.twist)
+            T_stamp = T @ se3_exp(-twist * frame.t_mid)
         record = _record(
-            scan.stamp,
+            frame.stamp,
             T_stamp,
-            lm,
-            ms,
+            reg.lm,
+            frame.ms,
             reason,
-            fallback=fallback,
-            t_mid_s=t_mid,
-            deskew_twist=twist_used if times is not None else np.zeros(6),
+            fallback=reg.fallback,
+            t_mid_s=frame.t_mid,
+            deskew_twist=frame.deskew_twist if frame.times is not None else np.zeros(6),
             T_tls_mid=np.asarray(T),
-            relocalized=relocalized,
+            relocalized=reg.relocalized,
             reference_correction_m=ref_dt,
             reference_correction_deg=ref_dr,
             sweep=sweep,
         )
-        frames.append(record)
-        if on_frame is not None:
-            on_frame(record)
-        if good:
-            T_good, t_good = T, t_ref
-        T_prev, prev_points, prev_good, t_prev = T, points, good, t_ref
-    if seen == 0:
-        raise InputError("the MLS input holds no scans")
-    if not frames:
-        raise ProcessingError(_unplaced_message(seen, init))
-    gmap.flush()
-    return TlsRun(
-        frames=frames,
-        map_points=gmap.points,
-        reference=ref,
-        frame_centres=centres,
-        initial_method=method,
-        unplaced=unplaced,
-    )
+        self._append(record)
+
+    def _append(self, record: FrameRecord) -> None:
+        self.frames.append(record)
+        if self.on_frame is not None:
+            self.on_frame(record)
 
 
 def unmerged_frames(run: TlsRun) -> list[tuple[float, str]]:

@@ -73,8 +73,9 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
     grid = ground_grid(points, config.ground_cell_m)
     base = ground_at(grid, stems[:, :2])
     core = _core()
-    tree2d = cKDTree(points[:, :2])
     lo, hi = config.band_m
+    points = _band_slab(points, base, config.band_m)
+    tree2d = cKDTree(points[:, :2])
     xyz, dbh, dbh_std, bases, bands = [], [], [], [], []
     for s in range(len(stems)):
         idx = tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15)
@@ -116,6 +117,17 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
     )
 
 
+def _band_slab(points: np.ndarray, base_z: np.ndarray, band_m) -> np.ndarray:
+    """The points (M,3) at heights any stem's breast-height band can reach (between the
+    lowest base plus band_m[0] and the highest base plus band_m[1]): the spatial index is
+    built over this slab, not the whole plot cloud (crowns and ground are most of it)."""
+    if len(base_z) == 0:
+        return points[:0]
+    z = points[:, 2]
+    keep = (z >= np.min(base_z) + band_m[0]) & (z <= np.max(base_z) + band_m[1])
+    return points[keep]
+
+
 def circumference_coverage(points: np.ndarray, trees: PlotTrees, config: TreeConfig) -> np.ndarray:
     """Share (K,) of each stem's circumference at breast height holding points of `points`:
     occupied angular sectors within coverage_tolerance_m of the fitted circle."""
@@ -123,8 +135,11 @@ def circumference_coverage(points: np.ndarray, trees: PlotTrees, config: TreeCon
     out = np.zeros(len(trees))
     if len(points) == 0 or len(trees) == 0:
         return out
-    tree2d = cKDTree(points[:, :2])
     lo, hi = config.band_m
+    points = _band_slab(points, trees.base_z, config.band_m)
+    if len(points) == 0:
+        return out
+    tree2d = cKDTree(points[:, :2])
     n = config.coverage_sectors
     for k in range(len(trees)):
         r = 0.5 * trees.dbh_m[k]
