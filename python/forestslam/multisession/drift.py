@@ -68,7 +68,10 @@ class DriftInjector:
             step[1, 3] += self.jump_m  # sideways, in the sensor frame
             dyaw += self.jump
             self.jump_at_m = None  # once
-        turn = planar_pose(0.0, 0.0, dyaw)
+        # the heading error turns about the world vertical, not the (tilted) sensor z axis: a
+        # turn about sensor z would also tilt the drifted frame, more at each step
+        turned = self._drifted.copy()
+        turned[:3, :3] = planar_pose(0.0, 0.0, dyaw)[:3, :3] @ turned[:3, :3]
         self._true = T.copy()
-        self._drifted = self._drifted @ turn @ step
+        self._drifted = turned @ step
         return self._drifted.copy()
