@@ -1,16 +1,16 @@
 #include "forestslam/perception/preprocess.hpp"
 
-#include <pcl/segmentation/approximate_progressive_morphological_filter.h>
-
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <unordered_map>
+#include <unordered_set>
 
 #include "forestslam/common/kdtree.hpp"
 #include "forestslam/common/voxel_key.hpp"
+#include "forestslam/perception/morphological_ground.hpp"
 
 namespace forestslam::perception {
 namespace {
@@ -100,24 +100,10 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
     }
     if (cell_rows.size() < 3) return out;
 
-    pcl::PointCloud<pcl::PointXYZ>::Ptr cells(new pcl::PointCloud<pcl::PointXYZ>);
-    cells->reserve(cell_rows.size());
-    for (int row : cell_rows)
-        cells->push_back(pcl::PointXYZ(static_cast<float>(points(row, 0)),
-                                       static_cast<float>(points(row, 1)),
-                                       static_cast<float>(points(row, 2))));
-    pcl::ApproximateProgressiveMorphologicalFilter<pcl::PointXYZ> pmf;
-    pmf.setInputCloud(cells);
-    pmf.setCellSize(static_cast<float>(cell));
-    pmf.setMaxWindowSize(opt.max_window_cells);
-    pmf.setSlope(static_cast<float>(opt.slope));
-    pmf.setInitialDistance(static_cast<float>(opt.initial_distance_m));
-    pmf.setMaxDistance(static_cast<float>(opt.max_distance_m));
-    pmf.setBase(static_cast<float>(opt.base));
-    pmf.setExponential(opt.exponential);
-    pmf.setNumberOfThreads(1);  // one core: OpenMP teams only lose on a loaded field computer
-    pcl::Indices ground_cells;
-    pmf.extract(ground_cells);
+    std::vector<Eigen::Vector3f> cells;
+    cells.reserve(cell_rows.size());
+    for (int row : cell_rows) cells.push_back(points.row(row).transpose().cast<float>());
+    const std::vector<int> ground_cells = morphologicalGround(cells, static_cast<float>(cell), opt);
     if (ground_cells.empty()) return out;
 
     // Dense grid of ground-cell heights over their bounding box.
@@ -202,23 +188,20 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
 
 Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
                    double voxel_m) {
-    std::unordered_map<std::uint64_t, int> keep;
-    std::vector<std::uint64_t> order;  // keys in first-seen order: deterministic output
+    std::unordered_map<std::uint64_t, int> keep;  // voxel -> its slot in `rows`
+    std::vector<int> rows;  // lowest point per voxel, in first-seen order: deterministic output
+    keep.reserve(static_cast<size_t>(points.rows()) / 4 + 16);
     const double v = voxel_m > 0 ? voxel_m : 1e-6;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         if (!is_ground[static_cast<size_t>(i)]) continue;
         const std::uint64_t key = voxelKey(points(i, 0), points(i, 1), points(i, 2), v);
-        auto [it, inserted] = keep.emplace(key, static_cast<int>(i));
+        auto [it, inserted] = keep.emplace(key, static_cast<int>(rows.size()));
         if (inserted)
-            order.push_back(key);
-        else if (points(i, 2) < points(it->second, 2))
-            it->second = static_cast<int>(i);
+            rows.push_back(static_cast<int>(i));
+        else if (int &row = rows[static_cast<size_t>(it->second)]; points(i, 2) < points(row, 2))
+            row = static_cast<int>(i);
     }
-    Points3 out(static_cast<Eigen::Index>(order.size()), 3);
-    Eigen::Index k = 0;
-    for (const std::uint64_t key : order) out.row(k++) = points.row(keep.at(key));
-    out.conservativeResize(k, 3);
-    return out;
+    return selectRows(points, rows);
 }
 
 NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
@@ -228,7 +211,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
     rows.reserve(candidates.size());
-    std::unordered_map<std::uint64_t, char> voxels;
+    std::unordered_set<std::uint64_t> voxels;
+    voxels.reserve(candidates.size());
     const double v = opt.voxel_m;
     for (int i : candidates) {
         if (!finiteRow(points, i)) continue;
@@ -237,7 +221,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
             if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
         }
         if (v > 0) {
-            if (!voxels.emplace(voxelKey(points(i, 0), points(i, 1), points(i, 2), v), 1).second)
+            if (!voxels.insert(voxelKey(points(i, 0), points(i, 1), points(i, 2), v)).second)
                 continue;
         }
         rows.push_back(i);
