@@ -254,7 +254,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     for (const int i : rows) {
         double radius = out.radius_per_ring.front();
         if (opt.adaptive) {
-            const double r = std::hypot(points(i, 0), points(i, 1));
+            const double r = std::sqrt(points(i, 0) * points(i, 0) + points(i, 1) * points(i, 1));
             const auto ring = std::upper_bound(edges.begin(), edges.end(), r) - edges.begin() - 1;
             radius = out.radius_per_ring[static_cast<size_t>(
                 std::clamp<long>(ring, 0, static_cast<long>(out.radius_per_ring.size()) - 1))];
