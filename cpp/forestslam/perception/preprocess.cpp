@@ -6,7 +6,6 @@
 #include <cstdint>
 #include <limits>
 #include <unordered_map>
-#include <unordered_set>
 
 #include "forestslam/common/kdtree.hpp"
 #include "forestslam/common/voxel_key.hpp"
@@ -20,6 +19,37 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
     return std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2));
 }
+
+// Insert-only set of 3D voxel keys, open addressing with linear probing: no allocation per key
+// (std::unordered_set's node allocations were a visible share of the normal filter).
+class VoxelKeySet {
+  public:
+    explicit VoxelKeySet(size_t expected) {
+        size_t capacity = 16;
+        while (capacity < 2 * expected) capacity *= 2;
+        slots_.assign(capacity, kEmpty);
+        mask_ = capacity - 1;
+    }
+    bool insert(std::uint64_t key) {  // true when the key is new
+        for (size_t i = mix(key) & mask_;; i = (i + 1) & mask_) {
+            if (slots_[i] == key) return false;
+            if (slots_[i] == kEmpty) {
+                slots_[i] = key;
+                return true;
+            }
+        }
+    }
+
+  private:
+    static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};  // cellKey3 uses 63 bits
+    static size_t mix(std::uint64_t x) {                        // splitmix64 finaliser
+        x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+        x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+        return static_cast<size_t>(x ^ (x >> 31));
+    }
+    std::vector<std::uint64_t> slots_;
+    size_t mask_ = 0;
+};
 
 }  // namespace
 
@@ -211,8 +241,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
     rows.reserve(candidates.size());
-    std::unordered_set<std::uint64_t> voxels;
-    voxels.reserve(candidates.size());
+    VoxelKeySet voxels(opt.voxel_m > 0 ? candidates.size() : 0);
     const double v = opt.voxel_m;
     for (int i : candidates) {
         if (!finiteRow(points, i)) continue;
@@ -221,8 +250,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
             if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
         }
         if (v > 0) {
-            if (!voxels.insert(voxelKey(points(i, 0), points(i, 1), points(i, 2), v)).second)
-                continue;
+            if (!voxels.insert(voxelKey(points(i, 0), points(i, 1), points(i, 2), v))) continue;
         }
         rows.push_back(i);
     }
