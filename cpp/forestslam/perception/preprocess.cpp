@@ -20,23 +20,23 @@ inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
     return std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2));
 }
 
-// Insert-only set of 3D voxel keys, open addressing with linear probing: no allocation per key
-// (std::unordered_set's node allocations were a visible share of the normal filter).
-class VoxelKeySet {
+// Insert-only map of 3D voxel keys to ints, open addressing with linear probing: no allocation
+// per key (std::unordered_* node allocations were a visible share of the ground and normals).
+class VoxelIndex {
   public:
-    explicit VoxelKeySet(size_t expected) {
+    explicit VoxelIndex(size_t expected) {
         size_t capacity = 16;
         while (capacity < 2 * expected) capacity *= 2;
-        slots_.assign(capacity, kEmpty);
+        keys_.assign(capacity, kEmpty);
+        values_.resize(capacity);
         mask_ = capacity - 1;
     }
-    bool insert(std::uint64_t key) {  // true when the key is new
+    // The value of `key`, `value` inserted first when the key is new (then `inserted`).
+    int &emplace(std::uint64_t key, int value, bool &inserted) {
         for (size_t i = mix(key) & mask_;; i = (i + 1) & mask_) {
-            if (slots_[i] == key) return false;
-            if (slots_[i] == kEmpty) {
-                slots_[i] = key;
-                return true;
-            }
+            inserted = keys_[i] == kEmpty;
+            if (inserted) keys_[i] = key, values_[i] = value;
+            if (keys_[i] == key) return values_[i];
         }
     }
 
@@ -47,7 +47,8 @@ class VoxelKeySet {
         x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
         return static_cast<size_t>(x ^ (x >> 31));
     }
-    std::vector<std::uint64_t> slots_;
+    std::vector<std::uint64_t> keys_;
+    std::vector<int> values_;
     size_t mask_ = 0;
 };
 
@@ -218,17 +219,19 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
 
 Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
                    double voxel_m) {
-    std::unordered_map<std::uint64_t, int> keep;  // voxel -> its slot in `rows`
-    std::vector<int> rows;  // lowest point per voxel, in first-seen order: deterministic output
-    keep.reserve(static_cast<size_t>(points.rows()) / 4 + 16);
+    const auto n_ground = static_cast<size_t>(std::count(is_ground.begin(), is_ground.end(), 1));
+    VoxelIndex keep(n_ground);  // voxel -> its slot in `rows`
+    std::vector<int> rows;      // lowest point per voxel, in first-seen order: deterministic output
+    rows.reserve(n_ground);
+    bool inserted = false;
     const double v = voxel_m > 0 ? voxel_m : 1e-6;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         if (!is_ground[static_cast<size_t>(i)]) continue;
         const std::uint64_t key = voxelKey(points(i, 0), points(i, 1), points(i, 2), v);
-        auto [it, inserted] = keep.emplace(key, static_cast<int>(rows.size()));
+        const int slot = keep.emplace(key, static_cast<int>(rows.size()), inserted);
         if (inserted)
             rows.push_back(static_cast<int>(i));
-        else if (int &row = rows[static_cast<size_t>(it->second)]; points(i, 2) < points(row, 2))
+        else if (int &row = rows[static_cast<size_t>(slot)]; points(i, 2) < points(row, 2))
             row = static_cast<int>(i);
     }
     return selectRows(points, rows);
@@ -241,7 +244,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
     rows.reserve(candidates.size());
-    VoxelKeySet voxels(opt.voxel_m > 0 ? candidates.size() : 0);
+    VoxelIndex voxels(opt.voxel_m > 0 ? candidates.size() : 0);
+    bool fresh = false;
     const double v = opt.voxel_m;
     for (int i : candidates) {
         if (!finiteRow(points, i)) continue;
@@ -250,7 +254,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
             if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
         }
         if (v > 0) {
-            if (!voxels.insert(voxelKey(points(i, 0), points(i, 1), points(i, 2), v))) continue;
+            voxels.emplace(voxelKey(points(i, 0), points(i, 1), points(i, 2), v), 0, fresh);
+            if (!fresh) continue;
         }
         rows.push_back(i);
     }
