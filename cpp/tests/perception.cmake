@@ -1,4 +1,5 @@
 forestslam_add_test(circle_fit common)
+forestslam_add_test(morphological_ground perception)
 forestslam_add_test(preprocess perception)
 forestslam_add_test(segmentation perception)
 forestslam_add_test(stems perception)

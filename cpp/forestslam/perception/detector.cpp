@@ -179,9 +179,10 @@ NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation
     std::vector<int> candidates;
     candidates.reserve(static_cast<size_t>(pts.rows()));
     const double range_max = scan_centred ? opt.segmentation.max_range_m : 0.0;
+    const double range2 = range_max * range_max;  // squared: std::hypot is slow per point
     for (Eigen::Index i = 0; i < pts.rows(); ++i) {
         if (gs.is_ground[static_cast<size_t>(i)]) continue;
-        if (range_max > 0 && std::hypot(pts(i, 0), pts(i, 1)) > range_max) continue;
+        if (range_max > 0 && pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) > range2) continue;
         candidates.push_back(static_cast<int>(i));
     }
     NormalFilterOptions fopt = opt.filter;

@@ -1,7 +1,5 @@
 #include "forestslam/perception/preprocess.hpp"
 
-#include <pcl/segmentation/approximate_progressive_morphological_filter.h>
-
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
@@ -11,6 +9,7 @@
 
 #include "forestslam/common/kdtree.hpp"
 #include "forestslam/common/voxel_key.hpp"
+#include "forestslam/perception/morphological_ground.hpp"
 
 namespace forestslam::perception {
 namespace {
@@ -20,6 +19,38 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 inline bool finiteRow(const Eigen::Ref<const Points3> &p, Eigen::Index i) {
     return std::isfinite(p(i, 0)) && std::isfinite(p(i, 1)) && std::isfinite(p(i, 2));
 }
+
+// Insert-only map of 3D voxel keys to ints, open addressing with linear probing: no allocation
+// per key (std::unordered_* node allocations were a visible share of the ground and normals).
+class VoxelIndex {
+  public:
+    explicit VoxelIndex(size_t expected) {
+        size_t capacity = 16;
+        while (capacity < 2 * expected) capacity *= 2;
+        keys_.assign(capacity, kEmpty);
+        values_.resize(capacity);
+        mask_ = capacity - 1;
+    }
+    // The value of `key`, `value` inserted first when the key is new (then `inserted`).
+    int &emplace(std::uint64_t key, int value, bool &inserted) {
+        for (size_t i = mix(key) & mask_;; i = (i + 1) & mask_) {
+            inserted = keys_[i] == kEmpty;
+            if (inserted) keys_[i] = key, values_[i] = value;
+            if (keys_[i] == key) return values_[i];
+        }
+    }
+
+  private:
+    static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};  // cellKey3 uses 63 bits
+    static size_t mix(std::uint64_t x) {                        // splitmix64 finaliser
+        x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+        x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+        return static_cast<size_t>(x ^ (x >> 31));
+    }
+    std::vector<std::uint64_t> keys_;
+    std::vector<int> values_;
+    size_t mask_ = 0;
+};
 
 }  // namespace
 
@@ -100,24 +131,10 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
     }
     if (cell_rows.size() < 3) return out;
 
-    pcl::PointCloud<pcl::PointXYZ>::Ptr cells(new pcl::PointCloud<pcl::PointXYZ>);
-    cells->reserve(cell_rows.size());
-    for (int row : cell_rows)
-        cells->push_back(pcl::PointXYZ(static_cast<float>(points(row, 0)),
-                                       static_cast<float>(points(row, 1)),
-                                       static_cast<float>(points(row, 2))));
-    pcl::ApproximateProgressiveMorphologicalFilter<pcl::PointXYZ> pmf;
-    pmf.setInputCloud(cells);
-    pmf.setCellSize(static_cast<float>(cell));
-    pmf.setMaxWindowSize(opt.max_window_cells);
-    pmf.setSlope(static_cast<float>(opt.slope));
-    pmf.setInitialDistance(static_cast<float>(opt.initial_distance_m));
-    pmf.setMaxDistance(static_cast<float>(opt.max_distance_m));
-    pmf.setBase(static_cast<float>(opt.base));
-    pmf.setExponential(opt.exponential);
-    pmf.setNumberOfThreads(1);  // one core: OpenMP teams only lose on a loaded field computer
-    pcl::Indices ground_cells;
-    pmf.extract(ground_cells);
+    std::vector<Eigen::Vector3f> cells;
+    cells.reserve(cell_rows.size());
+    for (int row : cell_rows) cells.push_back(points.row(row).transpose().cast<float>());
+    const std::vector<int> ground_cells = morphologicalGround(cells, static_cast<float>(cell), opt);
     if (ground_cells.empty()) return out;
 
     // Dense grid of ground-cell heights over their bounding box.
@@ -202,23 +219,22 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
 
 Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
                    double voxel_m) {
-    std::unordered_map<std::uint64_t, int> keep;
-    std::vector<std::uint64_t> order;  // keys in first-seen order: deterministic output
+    const auto n_ground = static_cast<size_t>(std::count(is_ground.begin(), is_ground.end(), 1));
+    VoxelIndex keep(n_ground);  // voxel -> its slot in `rows`
+    std::vector<int> rows;      // lowest point per voxel, in first-seen order: deterministic output
+    rows.reserve(n_ground);
+    bool inserted = false;
     const double v = voxel_m > 0 ? voxel_m : 1e-6;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         if (!is_ground[static_cast<size_t>(i)]) continue;
         const std::uint64_t key = voxelKey(points(i, 0), points(i, 1), points(i, 2), v);
-        auto [it, inserted] = keep.emplace(key, static_cast<int>(i));
+        const int slot = keep.emplace(key, static_cast<int>(rows.size()), inserted);
         if (inserted)
-            order.push_back(key);
-        else if (points(i, 2) < points(it->second, 2))
-            it->second = static_cast<int>(i);
+            rows.push_back(static_cast<int>(i));
+        else if (int &row = rows[static_cast<size_t>(slot)]; points(i, 2) < points(row, 2))
+            row = static_cast<int>(i);
     }
-    Points3 out(static_cast<Eigen::Index>(order.size()), 3);
-    Eigen::Index k = 0;
-    for (const std::uint64_t key : order) out.row(k++) = points.row(keep.at(key));
-    out.conservativeResize(k, 3);
-    return out;
+    return selectRows(points, rows);
 }
 
 NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
@@ -228,7 +244,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
     rows.reserve(candidates.size());
-    std::unordered_map<std::uint64_t, char> voxels;
+    VoxelIndex voxels(opt.voxel_m > 0 ? candidates.size() : 0);
+    bool fresh = false;
     const double v = opt.voxel_m;
     for (int i : candidates) {
         if (!finiteRow(points, i)) continue;
@@ -237,8 +254,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
             if (std::isfinite(h) && (h < opt.min_height_m || h > opt.max_height_m)) continue;
         }
         if (v > 0) {
-            if (!voxels.emplace(voxelKey(points(i, 0), points(i, 1), points(i, 2), v), 1).second)
-                continue;
+            voxels.emplace(voxelKey(points(i, 0), points(i, 1), points(i, 2), v), 0, fresh);
+            if (!fresh) continue;
         }
         rows.push_back(i);
     }
@@ -270,7 +287,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     for (const int i : rows) {
         double radius = out.radius_per_ring.front();
         if (opt.adaptive) {
-            const double r = std::hypot(points(i, 0), points(i, 1));
+            const double r = std::sqrt(points(i, 0) * points(i, 0) + points(i, 1) * points(i, 1));
             const auto ring = std::upper_bound(edges.begin(), edges.end(), r) - edges.begin() - 1;
             radius = out.radius_per_ring[static_cast<size_t>(
                 std::clamp<long>(ring, 0, static_cast<long>(out.radius_per_ring.size()) - 1))];
