@@ -5,7 +5,7 @@
 #include <Eigen/Core>
 #include <vector>
 
-#include "forestslam/perception/options.hpp"
+#include "forestslam/perception/config.hpp"
 
 namespace forestslam::perception {
 
