@@ -345,25 +345,6 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
     return true;
 }
 
-double medianOf(std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-    return v[v.size() / 2];
-}
-
-// Lateral sigma st from two bins of orthogonal residuals e (beams facing the surface and
-// grazing it, with sums c2 of their squared incidence cosines): (1.4826 median e)^2 =
-// st^2 mean(1 - c^2) + sr^2 mean(c^2) in each bin, solved for st (0 when not identifiable).
-double lateralSigma(const std::vector<double> &ef, double c2f, const std::vector<double> &eg,
-                    double c2g) {
-    const double f = 1.4826 * medianOf(ef), g = 1.4826 * medianOf(eg);
-    const double cf = c2f / static_cast<double>(ef.size()),
-                 cg = c2g / static_cast<double>(eg.size());
-    const double det = (1.0 - cg) * cf - (1.0 - cf) * cg;  // > 0: grazing bin has smaller c^2
-    if (!(det > 1e-6)) return 0.0;
-    const double st2 = (g * g * cf - f * f * cg) / det;
-    return st2 > 0 ? std::sqrt(st2) : 0.0;
-}
-
 }  // namespace
 
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
@@ -376,11 +357,7 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
     // Beams of the points near the orthogonal fit (clutter stays out), range spread first
     // from the orthogonal residuals.
     std::vector<RayPoint> pts;
-    std::vector<double> ortho;
-    struct Bin {
-        std::vector<double> e;  // orthogonal residuals
-        double c2 = 0;          // sum of squared cosines of incidence
-    } facing, grazing;
+    std::vector<double> ortho, facing, grazing;
     for (int i :
          inliersOf(xy, finiteIndices(xy), fit.centre, fit.radius, 2.0 * opt.inlier_threshold_m)) {
         const Eigen::Vector2d o = origins.row(i).transpose(), p = xy.row(i).transpose();
@@ -389,26 +366,24 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
         pts.push_back({o, (p - o) / range, range});
         const double e = std::abs(dist - fit.radius);
         ortho.push_back(e);
-        // Beam against the surface normal (cosine c): a residual holds the range spread
-        // times c and the spread across the beam times sqrt(1 - c^2).
+        // Beam against the surface normal: residuals of beams facing the surface show the
+        // range spread, of grazing beams the spread across the beam.
         const double c = std::abs(pts.back().dir.dot((p - fit.centre) / dist));
-        Bin &bin = c > 0.8 ? facing : grazing;
-        if (c > 0.8 || c < 0.5) {
-            bin.e.push_back(e);
-            bin.c2 += c * c;
-        }
+        if (c > 0.8) facing.push_back(e);
+        if (c < 0.5) grazing.push_back(e);
     }
     if (pts.size() < 3) return fit;
-    // The range model holds as it is when the spread lies along the beams (facing beams'
-    // residuals at least min_range_anisotropy times grazing beams'). Where it is as wide across
-    // them (bark roughness, polygonal sections, registration jitter of accumulated scans) a
-    // small lateral sigma makes the beams that miss pull the circle large (+1 cm), and the
-    // orthogonal fit shrinks well-covered arcs by 2-3 cm (simulated 600-scan loops): the lateral
-    // sigma is then solved from the two bins' robust spreads.
-    double st = std::max(opt.lateral_sigma_m, 1e-4);
-    if (facing.e.size() >= 5 && grazing.e.size() >= 5 &&
-        medianOf(facing.e) < opt.min_range_anisotropy * medianOf(grazing.e))
-        st = std::max(st, lateralSigma(facing.e, facing.c2, grazing.e, grazing.c2));
+    // The range model holds when the spread lies along the beams. Where it is as wide across
+    // them (bark roughness, registration jitter, dense scanners) the orthogonal fit is the
+    // unbiased one, and the range model would run large (+1 cm on such arcs).
+    auto median = [](std::vector<double> v) {
+        std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+        return v[v.size() / 2];
+    };
+    if (facing.size() >= 5 && grazing.size() >= 5 &&
+        median(facing) < opt.min_range_anisotropy * median(grazing))
+        return fit;
+    const double st = std::max(opt.lateral_sigma_m, 1e-4);
     std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
                      ortho.end());
     double sr = std::max(1.4826 * ortho[ortho.size() / 2], st);

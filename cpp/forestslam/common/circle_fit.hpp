@@ -27,12 +27,11 @@ struct CircleFitOptions {
     int refine_iterations = 30;       // geometric LM iterations
     int arc_sectors = 36;             // angular sectors for the arc coverage (10 deg each)
     std::uint32_t seed = 42;          // RANSAC sampling is deterministic for a given seed
-    // fitCircleRays: least spread of the points across their beams (beam footprint, bark, pose
+    // fitCircleRays: spread of the points across their beams (beam footprint, bark, pose
     // jitter of accumulated scans); the range spread is estimated from the residuals.
     double lateral_sigma_m = 0.005;
-    // fitCircleRays keeps lateral_sigma_m while the residuals of beams facing the surface are
-    // at least this many times those of grazing beams (noise along the beam), else it solves
-    // the lateral sigma from the residuals of both.
+    // fitCircleRays keeps the orthogonal fit unless the residuals of beams facing the surface
+    // are at least this many times those of grazing beams (noise along the beam).
     double min_range_anisotropy = 1.2;
 };
 
@@ -56,10 +55,9 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions 
 // view origin origins.row(i) (the sensor position, same frame), its error lies along that beam.
 // Residual of a beam that hits the circle: measured range - range to the circle's near side;
 // of a beam that misses it: the range to the beam's closest approach and the miss distance
-// (over lateral_sigma_m). Range sigma from the residuals (MAD), Cauchy weights. Where the
-// spread is not along the beams (min_range_anisotropy), the lateral sigma is solved from the
-// residuals of facing and grazing beams. Returns the orthogonal fit
-// when the refinement fails or wanders off.
+// (over lateral_sigma_m). Range sigma from the residuals (MAD), Cauchy weights. Returns the
+// orthogonal fit when the spread is not along the beams (min_range_anisotropy) or the
+// refinement fails or wanders off.
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
                         const Eigen::Ref<const Points2> &origins,
                         const CircleFitOptions &options = {});

@@ -16,11 +16,10 @@ clump of stems or a stem and a branch behind it (+68 cm on a tree of a three-ste
 Measurements that pass the gates are fused by a weighted mean (weight: inliers x arc
 coverage^2) after dropping outliers beyond 3 MADs of the median. dbh_std_m adds up what the
 data says: the standard error of the window mean (Bessel-corrected weighted spread), the
-spread of perception's per-scan DBH of the stem over the root of the number of fused windows
-(how well the sensor resolves it, for trees with too few windows for their own spread; each
-window is its own group of scans) and a model floor for sections that are not circles
-(dbh_std_floor_rel of the DBH). Trees without any accepted window fall back to the median of the
-per-scan DBH when those agree.
+spread of perception's per-scan DBH of the stem (how well the sensor resolves it: the windows
+accumulate the same views, so their sampling and footprint errors do not average out) and a
+model floor for sections that are not circles (dbh_std_floor_rel of the DBH). Trees without
+any accepted window fall back to the median of the per-scan DBH when those agree.
 """
 
 from __future__ import annotations
@@ -210,7 +209,7 @@ class TreeMap:
         scans = np.asarray(tree.scan_dbh)
         scan_spread = _spread(scans) if len(scans) >= self.cfg.dbh_fallback_min_scans else 0.0
         floor = self.cfg.dbh_std_floor_rel * mean
-        return mean, float(np.sqrt(se**2 + scan_spread**2 / len(d) + floor**2)), len(d)
+        return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
     def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
         """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
