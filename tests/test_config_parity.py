@@ -18,7 +18,7 @@ ONLY_PYTHON = {"PerceptionConfig": {"intensity_filter"}}  # decides intensity_th
 ONLY_CPP = {
     "FpfhConfig": {"icp"},  # the odometry's registration.icp is used
     # from the sensor profile / from detect's breast_height_z argument
-    "PerceptionOptions": {"intensity_threshold", "breast_height_z"},
+    "PerceptionConfig": {"intensity_threshold", "breast_height_z"},
 }
 
 
@@ -40,7 +40,7 @@ def _pairs():
         (ShapeConfig, _core.ShapeRegistrationConfig),
         (IcpConfig, _core.IcpConfig),
         (FpfhConfig, _core.FpfhConfig),
-        (PerceptionConfig, _core.PerceptionOptions),
+        (PerceptionConfig, _core.PerceptionConfig),
     ]
 
 
@@ -109,7 +109,7 @@ def test_perception_options_cross_typed_with_the_key_named():
 
     profile = load_profile("vlp16")
     options = core_options(PerceptionConfig(), profile, breast_height_z=1.5)
-    assert isinstance(options, _core.PerceptionOptions) and options.breast_height_z == 1.5
+    assert isinstance(options, _core.PerceptionConfig) and options.breast_height_z == 1.5
     assert math.isnan(core_options(PerceptionConfig(), profile).breast_height_z)
     assert isinstance(sensor_geometry(profile), _core.SensorGeometry)
     bad = PerceptionConfig()

@@ -94,7 +94,7 @@ int run(const Arguments &args) {
     const odometry::SensorProfile profile =
         odometry::findSensorProfile(args.sensor, profileFolders());
     const auto files = apps::listScans(args.scans, profile.rate_hz);
-    perception::PerceptionOptions perception;
+    perception::PerceptionConfig perception;
     perception.intensity_threshold = profile.sensor.intensity_threshold;
     odometry::TreeOdometry odometry(profile.sensor, {}, perception);
     std::ofstream out(args.out);

@@ -9,12 +9,14 @@ using forestslam::Points2;
 
 TEST(Acceptance, PoissonTailKnownValues) {
     // P(X >= 1) = 1 - e^-mu; P(X >= 2) = 1 - e^-mu (1 + mu).
-    EXPECT_NEAR(forestslam::poissonTailLog10(0.5, 1), -std::log10(1 - std::exp(-0.5)), 1e-12);
-    EXPECT_NEAR(forestslam::poissonTailLog10(2.0, 2), -std::log10(1 - 3 * std::exp(-2.0)), 1e-12);
-    EXPECT_EQ(forestslam::poissonTailLog10(2.0, 0), 0.0);
+    EXPECT_NEAR(forestslam::localization::poissonTailLog10(0.5, 1), -std::log10(1 - std::exp(-0.5)),
+                1e-12);
+    EXPECT_NEAR(forestslam::localization::poissonTailLog10(2.0, 2),
+                -std::log10(1 - 3 * std::exp(-2.0)), 1e-12);
+    EXPECT_EQ(forestslam::localization::poissonTailLog10(2.0, 0), 0.0);
     // Far tail: P(X >= 30 | mu = 1) ~ e^-1 / 30! within a few percent.
-    EXPECT_NEAR(forestslam::poissonTailLog10(1.0, 30), (1 + std::lgamma(31.0)) / std::log(10.0),
-                0.02);
+    EXPECT_NEAR(forestslam::localization::poissonTailLog10(1.0, 30),
+                (1 + std::lgamma(31.0)) / std::log(10.0), 0.02);
 }
 
 TEST(Acceptance, DensityOfAUniformGrid) {
@@ -22,15 +24,16 @@ TEST(Acceptance, DensityOfAUniformGrid) {
     Points2 xy(50 * 50, 2);
     for (int i = 0; i < 50; ++i)
         for (int j = 0; j < 50; ++j) xy.row(i * 50 + j) << 2.0 * i + 1, 2.0 * j + 1;
-    const forestslam::DensityGrid grid(xy);
+    const forestslam::localization::DensityGrid grid(xy);
     EXPECT_NEAR(grid.at(50, 50), 0.25, 1e-9);
     EXPECT_LT(grid.at(1, 1), 0.25);
     EXPECT_EQ(grid.at(500, 500), 0.0);
-    EXPECT_NEAR(forestslam::chanceRate(0.25, 0.5), 1 - std::exp(-0.25 * M_PI * 0.25), 1e-12);
+    EXPECT_NEAR(forestslam::localization::chanceRate(0.25, 0.5), 1 - std::exp(-0.25 * M_PI * 0.25),
+                1e-12);
 }
 
 TEST(Acceptance, SeedsAndSearchAreDiscounted) {
-    using forestslam::chanceEvidence;
+    using forestslam::localization::chanceEvidence;
     const auto base = chanceEvidence(14, 20, 1.0, 6, 1);
     EXPECT_NEAR(base.expected, 1.0 * 14 / 20, 1e-12);  // the 6 seed trunks carry no evidence
     EXPECT_NEAR(chanceEvidence(14, 20, 1.0, 6, 1000).significance, base.significance - 3, 1e-9);
@@ -39,14 +42,17 @@ TEST(Acceptance, SeedsAndSearchAreDiscounted) {
 }
 
 TEST(Acceptance, JudgeGivesTheReason) {
-    forestslam::AcceptanceConfig cfg;
-    auto e = forestslam::chanceEvidence(20, 30, 0.5, 6, 10);
-    EXPECT_TRUE(forestslam::judge(e, 0.3, cfg).accepted);
-    EXPECT_NE(forestslam::judge(e, 0.9, cfg).reason.find("ambiguous"), std::string::npos);
-    e = forestslam::chanceEvidence(9, 30, 6.0, 6, 10);  // a dense map explains 9 inliers
-    EXPECT_NE(forestslam::judge(e, 0.0, cfg).reason.find("not significant"), std::string::npos);
-    e = forestslam::chanceEvidence(5, 5, 0.0, 3, 1);
-    EXPECT_EQ(forestslam::judge(e, 0.0, cfg).reason, "too few inliers");
+    forestslam::localization::AcceptanceConfig cfg;
+    auto e = forestslam::localization::chanceEvidence(20, 30, 0.5, 6, 10);
+    EXPECT_TRUE(forestslam::localization::judge(e, 0.3, cfg).accepted);
+    EXPECT_NE(forestslam::localization::judge(e, 0.9, cfg).reason.find("ambiguous"),
+              std::string::npos);
+    e = forestslam::localization::chanceEvidence(9, 30, 6.0, 6,
+                                                 10);  // a dense map explains 9 inliers
+    EXPECT_NE(forestslam::localization::judge(e, 0.0, cfg).reason.find("not significant"),
+              std::string::npos);
+    e = forestslam::localization::chanceEvidence(5, 5, 0.0, 3, 1);
+    EXPECT_EQ(forestslam::localization::judge(e, 0.0, cfg).reason, "too few inliers");
 }
 
 TEST(Acceptance, TruncatedProductTailKnownValue) {
@@ -54,17 +60,21 @@ TEST(Acceptance, TruncatedProductTailKnownValue) {
     // when two or more terms (each >= c) occur: P = mu e^-mu e^-w + P(N >= 2).
     const double mu = 0.1, c = 3.0, w = 2.0;
     const double p = mu * std::exp(-mu) * std::exp(-w) + 1 - std::exp(-mu) * (1 + mu);
-    EXPECT_NEAR(forestslam::truncatedProductTailLog10(mu, c, 1, w), -std::log10(p), 1e-9);
-    EXPECT_EQ(forestslam::truncatedProductTailLog10(mu, c, 0, 5.0), 0.0);
+    EXPECT_NEAR(forestslam::localization::truncatedProductTailLog10(mu, c, 1, w), -std::log10(p),
+                1e-9);
+    EXPECT_EQ(forestslam::localization::truncatedProductTailLog10(mu, c, 0, 5.0), 0.0);
     // Against the direct sum of Pois(j) P(Gamma(j) >= s - j c) (scipy.stats, 400 terms).
-    EXPECT_NEAR(forestslam::truncatedProductTailLog10(2.0, 2.1, 10, 12.5), 4.529518, 1e-5);
-    EXPECT_NEAR(forestslam::truncatedProductTailLog10(15.0, 1.9, 30, 40.0), 4.180385, 1e-5);
-    EXPECT_NEAR(forestslam::truncatedProductTailLog10(0.08, 4.5, 2, 9.0), 4.720768, 1e-5);
+    EXPECT_NEAR(forestslam::localization::truncatedProductTailLog10(2.0, 2.1, 10, 12.5), 4.529518,
+                1e-5);
+    EXPECT_NEAR(forestslam::localization::truncatedProductTailLog10(15.0, 1.9, 30, 40.0), 4.180385,
+                1e-5);
+    EXPECT_NEAR(forestslam::localization::truncatedProductTailLog10(0.08, 4.5, 2, 9.0), 4.720768,
+                1e-5);
     // Closer inliers are more significant; more of them too.
-    EXPECT_GT(forestslam::truncatedProductTailLog10(0.5, 3, 3, 9),
-              forestslam::truncatedProductTailLog10(0.5, 3, 3, 2));
-    EXPECT_GT(forestslam::truncatedProductTailLog10(0.5, 3, 4, 2),
-              forestslam::truncatedProductTailLog10(0.5, 3, 3, 2));
+    EXPECT_GT(forestslam::localization::truncatedProductTailLog10(0.5, 3, 3, 9),
+              forestslam::localization::truncatedProductTailLog10(0.5, 3, 3, 2));
+    EXPECT_GT(forestslam::localization::truncatedProductTailLog10(0.5, 3, 4, 2),
+              forestslam::localization::truncatedProductTailLog10(0.5, 3, 3, 2));
 }
 
 TEST(Acceptance, ClosenessOfChanceInliersIsExponential) {
@@ -77,22 +87,24 @@ TEST(Acceptance, ClosenessOfChanceInliersIsExponential) {
     int above3 = 0;
     const int n = 20000;
     for (int i = 0; i < n; ++i) {
-        const double v = forestslam::closeness(density, gate * std::sqrt(u(rng)), gate, 0.0);
+        const double v =
+            forestslam::localization::closeness(density, gate * std::sqrt(u(rng)), gate, 0.0);
         sum += v;
         above3 += v > 3;
     }
     EXPECT_NEAR(sum / n, 1.0, 0.03);
     EXPECT_NEAR(double(above3) / n, std::exp(-3.0), 0.005);
-    EXPECT_NEAR(forestslam::closeness(density, 0.0, gate, 0.05),
-                forestslam::closeness(density, 0.05, gate, 0.05), 1e-12);  // the noise floor
-    EXPECT_EQ(forestslam::closeness(density, 0.7, gate, 0.05), 0.0);
+    EXPECT_NEAR(forestslam::localization::closeness(density, 0.0, gate, 0.05),
+                forestslam::localization::closeness(density, 0.05, gate, 0.05),
+                1e-12);  // the noise floor
+    EXPECT_EQ(forestslam::localization::closeness(density, 0.7, gate, 0.05), 0.0);
 }
 
 TEST(Acceptance, ClosenessMakesAFewTightInliersSignificant) {
-    using forestslam::chanceEvidence;
+    using forestslam::localization::chanceEvidence;
     // A sparse map (chance rate 0.01 per trunk): 2 inliers beyond the seeds, with and without
     // knowing they landed within centimetres.
-    const double w = 2 * forestslam::closeness(0.0127, 0.05, 0.5, 0.02);
+    const double w = 2 * forestslam::localization::closeness(0.0127, 0.05, 0.5, 0.02);
     const auto counted = chanceEvidence(5, 8, 0.08, 3, 10);
     const auto close = chanceEvidence(5, 8, 0.08, 3, 10, w);
     EXPECT_GT(close.significance, counted.significance + 1.0);

@@ -9,7 +9,7 @@
 #include "forestslam/common/circle_fit.hpp"
 
 using forestslam::CircleFit;
-using forestslam::CircleFitOptions;
+using forestslam::CircleFitConfig;
 using forestslam::Points2;
 
 namespace {
@@ -50,7 +50,7 @@ TEST(CircleFit, NoisyThirdOfAStemAsALidarSeesIt) {
     double worst = 0.0;
     for (unsigned seed = 0; seed < 20; ++seed) {
         const Points2 p = arc(12.0, 7.0, 0.15, 1.0, 1.0 + 2 * M_PI / 3, 40, 0.005, seed);
-        CircleFitOptions o;
+        CircleFitConfig o;
         o.inlier_threshold_m = 0.015;
         const CircleFit f = forestslam::fitCircle(p, o);
         ASSERT_TRUE(f.valid);
@@ -68,7 +68,7 @@ TEST(CircleFit, RobustToOutliers) {
     std::mt19937 rng(3);
     std::uniform_real_distribution<double> u(0.5, 1.7);
     for (int i = 50; i < 80; ++i) all.row(i) << u(rng), u(rng);  // 37 % clutter (branches)
-    CircleFitOptions o;
+    CircleFitConfig o;
     o.inlier_threshold_m = 0.01;
     const CircleFit f = forestslam::fitCircle(all, o);
     ASSERT_TRUE(f.valid);
@@ -112,7 +112,7 @@ TEST(CircleFit, NonFiniteRowsAreIgnoredAndIndicesReferToInput) {
 
 TEST(CircleFit, RadiusBoundsRejectImpossibleFits) {
     const Points2 p = arc(0.0, 0.0, 2.0, 0.0, 1.0, 30, 0.0, 1);  // a 4 m "stem"
-    CircleFitOptions o;
+    CircleFitConfig o;
     o.max_radius_m = 1.0;
     EXPECT_FALSE(forestslam::fitCircle(p, o).valid);
     o.max_radius_m = 3.0;

@@ -14,7 +14,7 @@ TEST(Detector, FindsEveryVisibleStemWithItsDiameter) {
     const std::vector<test::Tree> trees{{4, 1, 0.3}, {-6, 3, 0.4}, {2, -7, 0.25}, {-3, -9, 0.35}};
     const auto scan = test::castScan(trees, 1.8, 0.01, 5);
     const Detection det = detectStems(scan.points, Eigen::VectorXd(), scan.ring,
-                                      test::vlp16Geometry(), true, PerceptionOptions{});
+                                      test::vlp16Geometry(), true, PerceptionConfig{});
     ASSERT_EQ(det.stems.size(), trees.size());
     for (const auto &t : trees) {
         double best = 1e9;
@@ -38,7 +38,7 @@ TEST(Detector, FindsEveryVisibleStemWithItsDiameter) {
 
 TEST(Detector, BadInputGivesEmptyResults) {
     const auto g = test::vlp16Geometry();
-    const PerceptionOptions o;
+    const PerceptionConfig o;
     const Eigen::VectorXd no_i;
     const Eigen::VectorXi no_r;
     EXPECT_TRUE(detectStems(Points3(0, 3), no_i, no_r, g, true, o).stems.empty());

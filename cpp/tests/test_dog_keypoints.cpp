@@ -29,8 +29,8 @@ TEST(DogKeypoints, CountBoundedAndSpread) {
     const auto scene = test::defaultScene();
     std::vector<std::uint16_t> rings;
     const Points3 scan = test::raycast(scene, Pose3::Identity(), rings);
-    DogKeypointsConfig cfg;
-    const DogKeypoints kp = detectDogKeypoints(scan, cfg);
+    features::DogKeypointsConfig cfg;
+    const features::DogKeypoints kp = features::detectDogKeypoints(scan, cfg);
     EXPECT_GE(kp.points.rows(), 50);
     EXPECT_LE(kp.points.rows(), cfg.max_keypoints);
     ASSERT_EQ(kp.response.size(), kp.points.rows());
@@ -53,24 +53,24 @@ TEST(DogKeypoints, StableUnderRigidTransform) {
         for (int k = 0; k < 3; ++k) map(i, k) += noise(rng);
     }
     const Pose3 T = test::makePose(3.7, -2.2, 0.4, 0.05, -0.04, 0.9);
-    DogKeypointsConfig cfg;
+    features::DogKeypointsConfig cfg;
     cfg.voxel_m = 0.0;
     cfg.sigma_small_m = 0.1;
     cfg.sigma_large_m = 0.2;
     cfg.nms_radius_m = 0.4;
     cfg.max_keypoints = 100000;
-    const DogKeypoints a = detectDogKeypoints(map, cfg);
-    const DogKeypoints b = detectDogKeypoints(transformPoints(T, map), cfg);
+    const features::DogKeypoints a = features::detectDogKeypoints(map, cfg);
+    const features::DogKeypoints b = features::detectDogKeypoints(transformPoints(T, map), cfg);
     ASSERT_GE(a.points.rows(), 30);
     EXPECT_GE(matchedShare(transformPoints(T, a.points), b.points, 0.02), 0.9);
     EXPECT_GE(matchedShare(b.points, transformPoints(T, a.points), 0.02), 0.9);
 }
 
 TEST(DogKeypoints, DegenerateInputs) {
-    EXPECT_EQ(detectDogKeypoints(Points3(0, 3)).points.rows(), 0);
+    EXPECT_EQ(features::detectDogKeypoints(Points3(0, 3)).points.rows(), 0);
     Points3 one(1, 3);
     one << 1.0, 2.0, 3.0;
-    EXPECT_EQ(detectDogKeypoints(one).points.rows(), 0);
+    EXPECT_EQ(features::detectDogKeypoints(one).points.rows(), 0);
     Points3 nan = Points3::Constant(100, 3, std::numeric_limits<double>::quiet_NaN());
-    EXPECT_EQ(detectDogKeypoints(nan).points.rows(), 0);
+    EXPECT_EQ(features::detectDogKeypoints(nan).points.rows(), 0);
 }

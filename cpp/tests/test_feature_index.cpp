@@ -9,10 +9,10 @@
 TEST(FeatureIndex, KnnMatchesBruteForce) {
     std::mt19937 rng(3);
     std::normal_distribution<double> g(0, 1);
-    forestslam::KdTree::Matrix pts(2000, 8);
+    forestslam::localization::KdTree::Matrix pts(2000, 8);
     for (Eigen::Index i = 0; i < pts.rows(); ++i)
         for (int d = 0; d < 8; ++d) pts(i, d) = g(rng);
-    const forestslam::KdTree tree(pts);
+    const forestslam::localization::KdTree tree(pts);
     std::vector<int> idx;
     std::vector<double> dist;
     for (int q = 0; q < 50; ++q) {
@@ -37,7 +37,7 @@ TEST(FeatureIndex, KnnMatchesBruteForce) {
 TEST(FeatureIndex, GridNearestWithinGate) {
     forestslam::Points2 xy(4, 2);
     xy << 0, 0, 10, 10, 10.3, 10, -5, 3;
-    const forestslam::PointGrid grid(xy, 1.0);
+    const forestslam::localization::PointGrid grid(xy, 1.0);
     double d2 = 0;
     EXPECT_EQ(grid.nearest(10.2, 10.0, 0.5, &d2), 2);
     EXPECT_NEAR(d2, 0.01, 1e-12);
@@ -48,7 +48,8 @@ TEST(FeatureIndex, GridNearestWithinGate) {
 }
 
 TEST(FeatureIndex, QueryOfAnotherDimensionThrows) {
-    const forestslam::KdTree tree(forestslam::KdTree::Matrix::Zero(5, 8));
+    const forestslam::localization::KdTree tree(
+        forestslam::localization::KdTree::Matrix::Zero(5, 8));
     std::vector<int> idx;
     std::vector<double> dist;
     EXPECT_THROW(tree.knn(Eigen::VectorXd::Zero(7), 3, 1.0, idx, dist), std::invalid_argument);

@@ -15,7 +15,7 @@ TEST(FpfhRansac, RecoversLargeTransformWithoutInitialGuess) {
     T.linear() = Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()).toRotationMatrix();
     T.translation() << 1.5, -1.0, 0.1;
     const Points3 source = transformPoints(T.inverse(), target);
-    const RegistrationResult r = registerFpfh(source, target);
+    const registration::RegistrationResult r = registration::registerFpfh(source, target);
     const Pose3 est(r.T_target_source);
     EXPECT_LT((est.translation() - T.translation()).norm(), 0.05);
     EXPECT_LT(Eigen::AngleAxisd(est.linear().transpose() * T.linear()).angle() * 180 / M_PI, 0.5);
@@ -26,11 +26,11 @@ TEST(FpfhRansac, RecoversLargeTransformWithoutInitialGuess) {
 TEST(FpfhRansac, VoxelDownsampleAndEmpty) {
     Points3 p(3, 3);
     p << 0.01, 0.01, 0.01, 0.02, 0.02, 0.02, 5, 5, 5;
-    EXPECT_EQ(voxelCentroids(p, 0.25).rows(), 2);
-    const RegistrationResult r = registerFpfh(Points3(0, 3), p);
+    EXPECT_EQ(registration::voxelCentroids(p, 0.25).rows(), 2);
+    const registration::RegistrationResult r = registration::registerFpfh(Points3(0, 3), p);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);
     Pose3 nan = Pose3::Identity();
     nan.linear()(0, 0) = std::numeric_limits<double>::quiet_NaN();
-    EXPECT_THROW(registerFpfh(p, p, nan), std::invalid_argument);
+    EXPECT_THROW(registration::registerFpfh(p, p, nan), std::invalid_argument);
 }

@@ -55,7 +55,7 @@ TEST(GlobalLocalizer, FitRigid2DRecoversExactTransform) {
     std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}, {4, -3}}, b;
     const double yaw = -2.5, c = std::cos(yaw), s = std::sin(yaw);
     for (const auto &p : a) b.emplace_back(c * p.x() - s * p.y() + 7, s * p.x() + c * p.y() - 4);
-    const Eigen::Vector3d pose = forestslam::fitRigid2D(a, b);
+    const Eigen::Vector3d pose = forestslam::localization::fitRigid2D(a, b);
     EXPECT_NEAR(pose[0], 7, 1e-12);
     EXPECT_NEAR(pose[1], -4, 1e-12);
     EXPECT_NEAR(pose[2], yaw, 1e-12);
@@ -63,7 +63,7 @@ TEST(GlobalLocalizer, FitRigid2DRecoversExactTransform) {
 
 TEST(GlobalLocalizer, RecoversKnownPoseWithNoiseOutliersAndMissingTrunks) {
     const Points2 map = stand(900, 200, 1);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     std::mt19937 rng(2);
     std::uniform_real_distribution<double> u(40, 160), a(-M_PI, M_PI);
     int accepted = 0;
@@ -85,7 +85,7 @@ TEST(GlobalLocalizer, RecoversKnownPoseWithNoiseOutliersAndMissingTrunks) {
 
 TEST(GlobalLocalizer, NoiseFreeRecoveryIsExact) {
     const Points2 map = stand(400, 150, 4);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     const Eigen::Vector3d truth(70, 80, 0.7);
     const Points2 local = observe(map, truth, 25.0, 0.0, 0.0, 0, 9);
     const auto res = tree_map.localize(local);
@@ -98,7 +98,7 @@ TEST(GlobalLocalizer, NoiseFreeRecoveryIsExact) {
 
 TEST(GlobalLocalizer, InvariantToTrunkOrder) {
     const Points2 map = stand(600, 180, 5);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     const Points2 local = observe(map, {90, 60, -1.2}, 20.0, 0.04, 0.15, 3, 6);
     const auto a = tree_map.localize(local);
     std::vector<int> perm(local.rows());
@@ -117,7 +117,7 @@ TEST(GlobalLocalizer, InvariantToTrunkOrder) {
 
 TEST(GlobalLocalizer, RejectsAPlaceThatIsNotInTheMap) {
     const Points2 map = stand(900, 200, 1);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     const Points2 elsewhere = stand(900, 200, 77);
     for (int q = 0; q < 10; ++q) {
         const Points2 local =
@@ -128,7 +128,7 @@ TEST(GlobalLocalizer, RejectsAPlaceThatIsNotInTheMap) {
 
 TEST(GlobalLocalizer, DegenerateQueriesAreRejectedNotThrown) {
     const Points2 map = stand(300, 120, 3);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     EXPECT_TRUE(tree_map.localize(Points2(0, 2)).rejected);
     Points2 two(2, 2);
     two << 0, 0, 3, 4;
@@ -142,35 +142,35 @@ TEST(GlobalLocalizer, DegenerateQueriesAreRejectedNotThrown) {
     dups << 1, 1, 1, 1, 1, 1, 5, 5, 5, 5, NAN, 2;
     EXPECT_TRUE(tree_map.localize(dups).rejected);
     // Empty map.
-    const forestslam::TreeMap empty(Points2(0, 2));
+    const forestslam::localization::TreeMap empty(Points2(0, 2));
     EXPECT_TRUE(empty.localize(observe(map, {60, 60, 0}, 20, 0, 0, 0, 1)).rejected);
 }
 
 TEST(GlobalLocalizer, ReportsStageSignificanceAndRunnerUp) {
     const Points2 map = stand(600, 150, 3);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     const Eigen::Vector3d truth(70, 80, 0.7);
     const auto res = tree_map.localize(observe(map, truth, 20, 0.05, 0.1, 2, 4));
     ASSERT_FALSE(res.rejected) << res.reason;
-    EXPECT_EQ(res.stage, forestslam::LocalizationStage::Star);
-    EXPECT_STREQ(forestslam::stageName(res.stage), "star");
-    EXPECT_GE(res.significance, forestslam::GlobalLocalizerConfig().min_significance);
+    EXPECT_EQ(res.stage, forestslam::localization::LocalizationStage::Star);
+    EXPECT_STREQ(forestslam::localization::stageName(res.stage), "star");
+    EXPECT_GE(res.significance, forestslam::localization::GlobalLocalizerConfig().min_significance);
     EXPECT_LT(res.expected_chance_inliers, 0.25 * res.inliers);
     if (res.runner_up.exists) {
         EXPECT_LT(res.runner_up.significance, res.significance);
         EXPECT_EQ(res.runner_up.inliers, res.second_inliers);
     }
     // No fallback: nothing is ever answered by the triangle stage.
-    forestslam::GlobalLocalizerConfig no_fallback;
+    forestslam::localization::GlobalLocalizerConfig no_fallback;
     no_fallback.triangle_fallback = false;
     const auto small = tree_map.localize(observe(map, truth, 8, 0.03, 0.3, 1, 5), no_fallback);
-    EXPECT_NE(small.stage, forestslam::LocalizationStage::Triangle);
+    EXPECT_NE(small.stage, forestslam::localization::LocalizationStage::Triangle);
 }
 
 TEST(GlobalLocalizer, AbsentPlacesAreNotSignificant) {
     const Points2 map = stand(600, 150, 3);
     const Points2 other = stand(600, 150, 77);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     for (int q = 0; q < 10; ++q) {
         const Eigen::Vector3d pose(30 + 9 * q, 75, 0.6 * q);
         const auto res = tree_map.localize(observe(other, pose, 20, 0.05, 0.1, 2, 10 + q));
@@ -184,7 +184,7 @@ TEST(GlobalLocalizer, AFewTightTrunksInASparseMapAreEnough) {
     // rejected.
     const Points2 map = stand(400, 200, 5, 4.0);
     const Points2 other = stand(400, 200, 55, 4.0);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     int found = 0, wrong = 0, absent_accepted = 0;
     for (int q = 0; q < 10; ++q) {
         const Eigen::Vector3d truth(40 + 12 * q, 100, 0.5 * q);
@@ -209,7 +209,7 @@ TEST(GlobalLocalizer, TwoCopiesOfAPlaceAreAmbiguous) {
     Points2 map(2 * patch.rows(), 2);
     map.topRows(patch.rows()) = patch;
     map.bottomRows(patch.rows()) = patch.rowwise() + Eigen::RowVector2d(100, 0);
-    const forestslam::TreeMap tree_map(map);
+    const forestslam::localization::TreeMap tree_map(map);
     const auto res = tree_map.localize(observe(patch, {20, 20, 0.4}, 15, 0.02, 0.1, 0, 3));
     EXPECT_TRUE(res.rejected);
     EXPECT_NE(res.reason.find("ambiguous"), std::string::npos) << res.reason;
@@ -219,5 +219,5 @@ TEST(GlobalLocalizer, TwoCopiesOfAPlaceAreAmbiguous) {
 
 TEST(GlobalLocalizer, FitRigid2DNeedsOnePartnerPerPoint) {
     const std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}}, b = {{0, 0}, {3, 1}};
-    EXPECT_THROW(forestslam::fitRigid2D(a, b), std::invalid_argument);
+    EXPECT_THROW(forestslam::localization::fitRigid2D(a, b), std::invalid_argument);
 }

@@ -11,7 +11,7 @@ MapFrame frameAt(double x, const Eigen::Vector3d &stem) {
     MapFrame f;
     f.T_world_sensor.translation() << x, 0, 0;
     f.stem_positions = stem.transpose();
-    f.stem_covariances = Covariances::Zero(1, 9);
+    f.stem_covariances = registration::Covariances::Zero(1, 9);
     f.cloud = Points3::Random(200, 3) * 5.0;
     return f;
 }

@@ -6,8 +6,8 @@
 
 #include "forestslam/io/lzf.hpp"
 
-using forestslam::lzfCompress;
-using forestslam::lzfDecompress;
+using forestslam::io::lzfCompress;
+using forestslam::io::lzfDecompress;
 using Bytes = std::vector<std::uint8_t>;
 
 TEST(Lzf, DecodesHandWrittenStream) {

@@ -40,12 +40,12 @@ TEST(LzfPcl, PclCompressedDecodesWithOurs) {
     const unsigned size = pcl::lzfCompress(data.data(), static_cast<unsigned>(data.size()),
                                            packed.data(), static_cast<unsigned>(packed.size()));
     ASSERT_GT(size, 0u);
-    EXPECT_EQ(forestslam::lzfDecompress(packed.data(), size, data.size()), data);
+    EXPECT_EQ(forestslam::io::lzfDecompress(packed.data(), size, data.size()), data);
 }
 
 TEST(LzfPcl, OursDecodesWithPcl) {
     const Bytes data = pointCloudLikeBytes(20000);
-    const Bytes packed = forestslam::lzfCompress(data.data(), data.size());
+    const Bytes packed = forestslam::io::lzfCompress(data.data(), data.size());
     EXPECT_LT(packed.size(), data.size());  // the constant z and ring columns compress
     Bytes out(data.size());
     const unsigned size = pcl::lzfDecompress(packed.data(), static_cast<unsigned>(packed.size()),

@@ -27,7 +27,7 @@ std::vector<Eigen::Vector3f> terrainCells(unsigned seed, float cell, int n) {
 }
 
 pcl::Indices pclGround(const std::vector<Eigen::Vector3f> &cells, float cell,
-                       const GroundOptions &o) {
+                       const GroundConfig &o) {
     pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
     for (const auto &p : cells) cloud->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
     pcl::ApproximateProgressiveMorphologicalFilter<pcl::PointXYZ> pmf;
@@ -49,13 +49,13 @@ pcl::Indices pclGround(const std::vector<Eigen::Vector3f> &cells, float cell,
 
 TEST(MorphologicalGround, SameCellsAsPclsFilter) {
     pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
-    GroundOptions wide;
+    GroundConfig wide;
     wide.max_window_cells = 17;  // windows 3, 5, 9, 17
-    GroundOptions linear;
+    GroundConfig linear;
     linear.exponential = false;
     linear.max_window_cells = 9;
     linear.slope = 0.3;
-    for (const GroundOptions &o : {GroundOptions{}, wide, linear}) {
+    for (const GroundConfig &o : {GroundConfig{}, wide, linear}) {
         for (unsigned seed = 1; seed <= 3; ++seed) {
             for (const float cell : {0.5f, 0.3f}) {
                 const auto cells = terrainCells(seed, cell, 4000);
@@ -70,5 +70,5 @@ TEST(MorphologicalGround, SameCellsAsPclsFilter) {
 }
 
 TEST(MorphologicalGround, EmptyInputHasNoGround) {
-    EXPECT_TRUE(morphologicalGround({}, 0.5f, GroundOptions{}).empty());
+    EXPECT_TRUE(morphologicalGround({}, 0.5f, GroundConfig{}).empty());
 }

@@ -16,7 +16,7 @@ TEST(Ndt, ConsecutiveFramesRelativeMotion) {
     const Points3 a = test::raycast(scene, T_a, rings);
     const Points3 b = test::raycast(scene, T_b, rings);
     const Pose3 T_ab_true = T_a.inverse() * T_b;
-    const NdtResult r = registerNdt(a, b);
+    const registration::NdtResult r = registration::registerNdt(a, b);
     ASSERT_TRUE(r.converged);
     EXPECT_LT((r.T_target_source.translation() - T_ab_true.translation()).norm(), 0.1);
 }
@@ -25,7 +25,7 @@ TEST(Ndt, TooFewPointsKeepsInitialGuess) {
     Points3 few(3, 3);
     few.setRandom();
     const Pose3 T0 = test::makePose(1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    const NdtResult r = registerNdt(few, few, T0);
+    const registration::NdtResult r = registration::registerNdt(few, few, T0);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.T_target_source.isApprox(T0));
 }
@@ -35,5 +35,5 @@ TEST(Ndt, NonFiniteInitialGuessThrows) {
     few.setRandom();
     Pose3 T0 = Pose3::Identity();
     T0.translation().x() = std::numeric_limits<double>::quiet_NaN();
-    EXPECT_THROW(registerNdt(few, few, T0), std::invalid_argument);
+    EXPECT_THROW(registration::registerNdt(few, few, T0), std::invalid_argument);
 }

@@ -8,8 +8,8 @@
 
 #include "forestslam/io/point_mask.hpp"
 
-using forestslam::realPointIndices;
-using forestslam::XyzLayout;
+using forestslam::io::realPointIndices;
+using forestslam::io::XyzLayout;
 
 namespace {
 template <typename Scalar>

@@ -34,13 +34,15 @@ TEST(PointToPlaneIcp, JacobianMatchesNumeric) {
     const Eigen::Vector3d p(2.0, -1.0, 0.7), q(2.5, -1.2, 0.6),
         n = Eigen::Vector3d(0.3, 0.5, 0.8).normalized();
     Eigen::Matrix<double, 1, 6> J;
-    pointToPlaneResidual(T, p, q, n, &J);
+    registration::pointToPlaneResidual(T, p, q, n, &J);
     const double h = 1e-6;
     for (int k = 0; k < 6; ++k) {
         Vector6d d = Vector6d::Zero();
         d(k) = h;
-        const double rp = pointToPlaneResidual(expSE3(d) * T, p, q, n, nullptr);
-        const double rm = pointToPlaneResidual(expSE3(-d) * T, p, q, n, nullptr);
+        const double rp =
+            registration::pointToPlaneResidual(registration::expSE3(d) * T, p, q, n, nullptr);
+        const double rm =
+            registration::pointToPlaneResidual(registration::expSE3(-d) * T, p, q, n, nullptr);
         EXPECT_NEAR(J(k), (rp - rm) / (2 * h), 1e-6) << "column " << k;
     }
 }
@@ -50,8 +52,9 @@ TEST(PointToPlaneIcp, ScanAgainstItselfMovedRecoversTransform) {
     const Points3 target = synth::sceneCloud(stems, 15.0, 2);
     const Pose3 T = knownPose();
     const Points3 source = transformPoints(T.inverse(), target);
-    const PlaneTarget plane_target(target, 10);
-    const RegistrationResult r = icpPointToPlane(plane_target, source, Pose3::Identity());
+    const registration::PlaneTarget plane_target(target, 10);
+    const registration::RegistrationResult r =
+        registration::icpPointToPlane(plane_target, source, Pose3::Identity());
     expectPoseNear(Pose3(r.T_target_source), T, 0.01, 0.1);
     EXPECT_TRUE(r.converged);
     EXPECT_FALSE(r.degenerate);
@@ -65,7 +68,8 @@ TEST(PointToPlaneIcp, NoisyResampledScanRecoversTransform) {
     const Points3 target = synth::sceneCloud(stems, 15.0, 5, 0.01);
     const Pose3 T = knownPose();
     const Points3 source = transformPoints(T.inverse(), synth::sceneCloud(stems, 15.0, 6, 0.01));
-    const RegistrationResult r = icpPointToPlane(PlaneTarget(target), source, Pose3::Identity());
+    const registration::RegistrationResult r =
+        registration::icpPointToPlane(registration::PlaneTarget(target), source, Pose3::Identity());
     expectPoseNear(Pose3(r.T_target_source), T, 0.03, 0.2);
 }
 
@@ -78,8 +82,8 @@ TEST(PointToPlaneIcp, FlatGroundOnlyIsDegenerateAndPriorHoldsIt) {
     for (size_t i = 0; i < pts.size(); ++i) ground.row(i) = pts[i].transpose();
     const Pose3 prior = Pose3(Eigen::Translation3d(0.4, 0.1, 0.0));
     Matrix6d info = Matrix6d::Identity() * 100.0;
-    const RegistrationResult r =
-        icpPointToPlane(PlaneTarget(ground), ground, prior, {}, info, prior);
+    const registration::RegistrationResult r = registration::icpPointToPlane(
+        registration::PlaneTarget(ground), ground, prior, {}, info, prior);
     EXPECT_TRUE(r.degenerate);
     // x, y, yaw unobserved by a plane: the prior keeps them.
     expectPoseNear(Pose3(r.T_target_source), prior, 1e-3, 0.01);
@@ -90,10 +94,11 @@ TEST(PointToPlaneIcp, EmptyInputs) {
     Points3 empty(0, 3);
     const auto stems = synth::randomStems(5, 10.0, 1);
     const Points3 cloud = synth::sceneCloud(stems, 10.0, 2);
-    RegistrationResult r = icpPointToPlane(PlaneTarget(empty), cloud, Pose3::Identity());
+    registration::RegistrationResult r =
+        registration::icpPointToPlane(registration::PlaneTarget(empty), cloud, Pose3::Identity());
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);
-    r = icpPointToPlane(PlaneTarget(cloud), empty, Pose3::Identity());
+    r = registration::icpPointToPlane(registration::PlaneTarget(cloud), empty, Pose3::Identity());
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.T_target_source.matrix().isIdentity());
 }
@@ -101,11 +106,12 @@ TEST(PointToPlaneIcp, EmptyInputs) {
 TEST(PointToPlaneIcp, NonFinitePosesThrow) {
     const auto stems = synth::randomStems(5, 10.0, 1);
     const Points3 cloud = synth::sceneCloud(stems, 10.0, 2);
-    const PlaneTarget target(cloud);
+    const registration::PlaneTarget target(cloud);
     Pose3 nan = Pose3::Identity();
     nan.translation().z() = std::numeric_limits<double>::quiet_NaN();
-    EXPECT_THROW(icpPointToPlane(target, cloud, nan), std::invalid_argument);
-    EXPECT_THROW(icpPointToPlane(target, cloud, Pose3::Identity(), {}, Matrix6d::Identity(), nan),
+    EXPECT_THROW(registration::icpPointToPlane(target, cloud, nan), std::invalid_argument);
+    EXPECT_THROW(registration::icpPointToPlane(target, cloud, Pose3::Identity(), {},
+                                               Matrix6d::Identity(), nan),
                  std::invalid_argument);
 }
 
@@ -115,7 +121,7 @@ TEST(PointToPlaneIcp, NearestMatchesBruteForceAndRespectsGate) {
     Points3 pts(3000, 3);
     for (Eigen::Index i = 0; i < pts.rows(); ++i) pts.row(i) << u(rng), u(rng), 0.2 * u(rng);
     pts.row(17) = pts.row(16);  // duplicates are fine
-    const PlaneTarget target(pts, 10);
+    const registration::PlaneTarget target(pts, 10);
     for (int q = 0; q < 500; ++q) {
         const Eigen::Vector3d query(1.2 * u(rng), 1.2 * u(rng), 0.5 * u(rng));
         Eigen::Index best = 0;
@@ -137,12 +143,12 @@ TEST(PointToPlaneIcp, NearestMatchesBruteForceAndRespectsGate) {
         }
     }
     double d2 = 0;
-    EXPECT_EQ(PlaneTarget(Points3(0, 3)).nearest(Eigen::Vector3d::Zero(), d2), -1);
+    EXPECT_EQ(registration::PlaneTarget(Points3(0, 3)).nearest(Eigen::Vector3d::Zero(), d2), -1);
     // Points on a tilted plane get its normal.
     Points3 plane(400, 3);
     for (int i = 0; i < 400; ++i)
         plane.row(i) << (i % 20) * 0.1, (i / 20) * 0.1, 0.5 * (i % 20) * 0.1;
-    const PlaneTarget pt(plane, 10);
+    const registration::PlaneTarget pt(plane, 10);
     const Eigen::Vector3d n = Eigen::Vector3d(-0.5, 0.0, 1.0).normalized();
     EXPECT_NEAR(std::abs(pt.normals().row(210).dot(n)), 1.0, 1e-9);
 }

@@ -20,7 +20,7 @@ TEST(Preprocess, IntensityFilterDropsBrightAndIsSkippedWithoutThreshold) {
 
 TEST(Preprocess, GroundIsThePlaneNotTheStems) {
     const auto scan = test::castScan({{4, 1, 0.3}, {-6, 3, 0.4}, {2, -7, 0.25}}, 1.8, 0.01, 1);
-    const GroundSegmentation gs = segmentGround(scan.points, GroundOptions{});
+    const GroundSegmentation gs = segmentGround(scan.points, GroundConfig{});
     int plane = 0, plane_ground = 0, stem = 0, stem_ground = 0;
     for (Eigen::Index i = 0; i < scan.points.rows(); ++i) {
         const double z = scan.points(i, 2);
@@ -37,10 +37,10 @@ TEST(Preprocess, GroundIsThePlaneNotTheStems) {
 }
 
 TEST(Preprocess, GroundOfEmptyOrTinyInputIsEmpty) {
-    EXPECT_EQ(segmentGround(Points3(0, 3), GroundOptions{}).ground_count, 0);
+    EXPECT_EQ(segmentGround(Points3(0, 3), GroundConfig{}).ground_count, 0);
     Points3 one(1, 3);
     one << 1, 2, 3;
-    EXPECT_EQ(segmentGround(one, GroundOptions{}).ground_count, 0);
+    EXPECT_EQ(segmentGround(one, GroundConfig{}).ground_count, 0);
 }
 
 TEST(Preprocess, ThinGroundKeepsOnePointPerVoxel) {
@@ -56,7 +56,7 @@ TEST(Preprocess, AdaptiveNormalFilterKeepsStemsAndDropsGround) {
     const auto scan = test::castScan({{4, 0, 0.3}, {0, 16, 0.4}}, 1.8, 0.0, 2);
     std::vector<int> all(static_cast<size_t>(scan.points.rows()));
     for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
-    NormalFilterOptions o;
+    NormalFilterConfig o;
     const auto res = normalFilter(scan.points, all, 2.0 * M_PI / 180, o, nullptr);
     int near = 0, far = 0, ground = 0;
     for (size_t k = 0; k < res.kept.size(); ++k) {

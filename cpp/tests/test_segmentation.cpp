@@ -55,7 +55,7 @@ TEST(Segmentation, DivideAndMergeSeparatesStemsAndJoinsAcrossBlocks) {
     const auto s = stemsOnly({{4, 0.0, 0.3}, {9, 0.35, 0.4}, {-3, -3, 0.6}});
     const auto g = test::vlp16Geometry();
     const auto proj = projectToRangeImage(s.points, s.ring, g);
-    SegmentationOptions o;
+    SegmentationConfig o;
     o.block_cols = 8;  // many block edges
     const Clusters c = rangeImageClusters(s.points, proj, g, o, 3);
     std::set<int> near, far, wide;
@@ -94,7 +94,7 @@ TEST(Segmentation, DbscanSplitsBlobsAndDropsNoise) {
 TEST(Segmentation, AdaptiveEpsScalesWithRangeAndIsClamped) {
     Points3 p(2, 3);
     p << 10, 0, 0, 10, 0.1, 1;
-    SegmentationOptions o;
+    SegmentationConfig o;
     const double eps = adaptiveEps(p, {0, 1}, 0.0349, o);
     EXPECT_NEAR(eps, 1.25 * 0.0349 * std::hypot(10, 0.05), 1e-9);
     Points3 q(1, 3);
@@ -127,7 +127,7 @@ TEST(Segmentation, ThinnedNearStemStaysWholeWithTheMetricColumnGap) {
     for (size_t k = 0; k < rows.size(); ++k) ring(static_cast<Eigen::Index>(k)) = s.ring(rows[k]);
     const auto g = test::vlp16Geometry();
     const auto proj = projectToRangeImage(thin, ring, g);
-    SegmentationOptions o;
+    SegmentationConfig o;
     o.block_cols = 512;  // one block: no merge votes involved
     const Clusters bridged = rangeImageClusters(thin, proj, g, o, 3);
     o.max_gap_m = 0.0;

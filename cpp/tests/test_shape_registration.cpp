@@ -14,7 +14,7 @@ namespace {
 
 struct Scene {
     Points3 src_means, tgt_means;
-    Covariances src_covs, tgt_covs;
+    registration::Covariances src_covs, tgt_covs;
 };
 
 // Target stems in the target frame; source = the same stems seen from T_target_source (noisy).
@@ -53,8 +53,8 @@ struct NumericCost {
     const Scene *s;
     std::vector<std::pair<int, int>> pairs;
     bool operator()(const double *x, double *cost) const {
-        *cost = shapeCost(x, s->src_means, s->src_covs, s->tgt_means, s->tgt_covs, pairs, 0.05,
-                          nullptr);
+        *cost = registration::shapeCost(x, s->src_means, s->src_covs, s->tgt_means, s->tgt_covs,
+                                        pairs, 0.05, nullptr);
         return true;
     }
 };
@@ -62,7 +62,7 @@ struct NumericCost {
 }  // namespace
 
 TEST(ShapeRegistration, AutodiffGradientMatchesNumeric) {
-    const Pose3 T = planarToPose(0.7, -0.4, 0.15);
+    const Pose3 T = registration::planarToPose(0.7, -0.4, 0.15);
     const Scene s = makeScene(8, T, 0.0, 3);
     const auto pairs = identityPairs(8);
     ceres::NumericDiffFirstOrderFunction<NumericCost, ceres::CENTRAL, 3> numeric(
@@ -71,8 +71,8 @@ TEST(ShapeRegistration, AutodiffGradientMatchesNumeric) {
          {Eigen::Vector3d(0.6, -0.3, 0.12), Eigen::Vector3d(0.75, -0.45, 0.17),
           Eigen::Vector3d(0.5, -0.2, 0.1)}) {
         double grad[3], ngrad[3], cost, ncost;
-        cost = shapeCost(x.data(), s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, 0.05,
-                         grad);
+        cost = registration::shapeCost(x.data(), s.src_means, s.src_covs, s.tgt_means, s.tgt_covs,
+                                       pairs, 0.05, grad);
         numeric.Evaluate(x.data(), &ncost, ngrad);
         EXPECT_NEAR(cost, ncost, 1e-12);
         for (int k = 0; k < 3; ++k)
@@ -83,14 +83,14 @@ TEST(ShapeRegistration, AutodiffGradientMatchesNumeric) {
 }
 
 TEST(ShapeRegistration, RecoversKnownPlanarPose) {
-    const Pose3 T = planarToPose(0.8, -0.5, 0.1);
+    const Pose3 T = registration::planarToPose(0.8, -0.5, 0.1);
     const Scene s = makeScene(12, T, 0.0, 5);
-    const Pose3 init = planarToPose(0.6, -0.3, 0.05);
-    const auto pairs = matchTrees(s.src_means, s.tgt_means, init, 1.0);
+    const Pose3 init = registration::planarToPose(0.6, -0.3, 0.05);
+    const auto pairs = registration::matchTrees(s.src_means, s.tgt_means, init, 1.0);
     ASSERT_GE(pairs.size(), 10u);
-    const RegistrationResult r =
-        registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, init);
-    const Eigen::Vector3d est = poseToPlanar(Pose3(r.T_target_source));
+    const registration::RegistrationResult r =
+        registration::registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, init);
+    const Eigen::Vector3d est = registration::poseToPlanar(Pose3(r.T_target_source));
     EXPECT_NEAR(est.x(), 0.8, 0.01);
     EXPECT_NEAR(est.y(), -0.5, 0.01);
     EXPECT_NEAR(est.z(), 0.1, 0.1 * M_PI / 180.0);
@@ -98,20 +98,20 @@ TEST(ShapeRegistration, RecoversKnownPlanarPose) {
     EXPECT_EQ(r.inliers, static_cast<int>(pairs.size()));
     EXPECT_GT(r.covariance(0, 0), 0.0);
     EXPECT_LT(r.covariance(0, 0), 0.01);
-    EXPECT_DOUBLE_EQ(r.covariance(2, 2), kUnobservedVariance);
+    EXPECT_DOUBLE_EQ(r.covariance(2, 2), registration::kUnobservedVariance);
 }
 
 TEST(ShapeRegistration, ConsensusRejectsWrongPairs) {
-    const Pose3 T = planarToPose(1.0, 0.3, -0.2);
+    const Pose3 T = registration::planarToPose(1.0, 0.3, -0.2);
     const Scene s = makeScene(10, T, 0.02, 9);
     auto pairs = identityPairs(10);
     // Three wrong pairs (rotated indices) among ten.
     pairs[0].second = 1;
     pairs[1].second = 2;
     pairs[2].second = 0;
-    const RegistrationResult r =
-        registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, Pose3::Identity());
-    const Eigen::Vector3d est = poseToPlanar(Pose3(r.T_target_source));
+    const registration::RegistrationResult r = registration::registerShapes(
+        s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, Pose3::Identity());
+    const Eigen::Vector3d est = registration::poseToPlanar(Pose3(r.T_target_source));
     EXPECT_EQ(r.inliers, 7);
     EXPECT_NEAR(est.x(), 1.0, 0.05);
     EXPECT_NEAR(est.y(), 0.3, 0.05);
@@ -119,38 +119,39 @@ TEST(ShapeRegistration, ConsensusRejectsWrongPairs) {
 }
 
 TEST(ShapeRegistration, TwoOrFewerStemsAreDegenerate) {
-    const Pose3 T = planarToPose(0.3, 0.1, 0.05);
+    const Pose3 T = registration::planarToPose(0.3, 0.1, 0.05);
     for (int n : {0, 1, 2}) {
         const Scene s = makeScene(std::max(n, 1), T, 0.0, 11);
         const auto pairs = identityPairs(n);
-        const RegistrationResult r =
-            registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, T);
+        const registration::RegistrationResult r = registration::registerShapes(
+            s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, pairs, T);
         EXPECT_TRUE(r.degenerate) << n << " stems";
         EXPECT_LE(r.inliers, n);
     }
     const Scene s = makeScene(3, T, 0.0, 11);
-    const RegistrationResult r =
-        registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, identityPairs(3), T);
+    const registration::RegistrationResult r = registration::registerShapes(
+        s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, identityPairs(3), T);
     EXPECT_FALSE(r.degenerate);
 }
 
 TEST(ShapeRegistration, InvalidInputThrows) {
-    const Scene s = makeScene(6, planarToPose(0.5, -0.3, 0.1), 0.0, 7);
+    const Scene s = makeScene(6, registration::planarToPose(0.5, -0.3, 0.1), 0.0, 7);
     // A pair beyond the stems and a covariance table of the wrong length are errors, not
     // silently skipped pairs.
     auto out_of_range = identityPairs(6);
     out_of_range.emplace_back(6, 0);
-    EXPECT_THROW(registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs, out_of_range,
-                                Pose3::Identity()),
+    EXPECT_THROW(registration::registerShapes(s.src_means, s.src_covs, s.tgt_means, s.tgt_covs,
+                                              out_of_range, Pose3::Identity()),
                  std::invalid_argument);
-    EXPECT_THROW(consensusPairs(s.src_means, s.tgt_means, {{0, 9}}, Pose3::Identity(), {}),
-                 std::invalid_argument);
-    const Covariances short_covs = s.src_covs.topRows(5);
-    EXPECT_THROW(registerShapes(s.src_means, short_covs, s.tgt_means, s.tgt_covs, identityPairs(5),
-                                Pose3::Identity()),
+    EXPECT_THROW(
+        registration::consensusPairs(s.src_means, s.tgt_means, {{0, 9}}, Pose3::Identity(), {}),
+        std::invalid_argument);
+    const registration::Covariances short_covs = s.src_covs.topRows(5);
+    EXPECT_THROW(registration::registerShapes(s.src_means, short_covs, s.tgt_means, s.tgt_covs,
+                                              identityPairs(5), Pose3::Identity()),
                  std::invalid_argument);
     const double pose[3] = {0.0, 0.0, 0.0};
-    EXPECT_THROW(shapeCost(pose, s.src_means, s.src_covs, s.tgt_means, short_covs.topRows(3),
-                           identityPairs(3), 0.05, nullptr),
+    EXPECT_THROW(registration::shapeCost(pose, s.src_means, s.src_covs, s.tgt_means,
+                                         short_covs.topRows(3), identityPairs(3), 0.05, nullptr),
                  std::invalid_argument);
 }

@@ -18,27 +18,28 @@ double rotationErrorDeg(const Pose3 &a, const Pose3 &b) {
 }
 
 struct Frame {
-    VirtualFeatures vf;
-    DogKeypoints kp;
+    features::VirtualFeatures vf;
+    features::DogKeypoints kp;
 };
 
 Frame makeFrame(const test::Scene &scene, const Pose3 &T_world_sensor) {
     std::vector<std::uint16_t> rings;
     const Points3 scan = test::raycast(scene, T_world_sensor, rings, 16, 0.2, 40.0, 0.003);
-    return {extractVirtualFeaturesRings(scan, rings), detectDogKeypoints(scan)};
+    return {features::extractVirtualFeaturesRings(scan, rings), features::detectDogKeypoints(scan)};
 }
 
 }  // namespace
 
 TEST(StemCentreLm, RecoversKnownSixDofPerturbation) {
     const auto scene = test::defaultScene();
-    const StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
+    const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_true = test::makePose(0.6, -0.4, 0.2, 0.02, -0.015, 0.3);
     const Frame f = makeFrame(scene, T_true);
     ASSERT_GE(f.vf.stems.rows(), 3);
     const Pose3 delta = test::makePose(0.2, -0.15, 0.08, 0.015, 0.01, 0.04);
     const Pose3 T_init = delta * T_true;
-    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_init);
+    const auto r =
+        registration::registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_init);
     EXPECT_TRUE(r.converged);
     EXPECT_FALSE(r.degenerate);
     EXPECT_GT(r.virtual_inliers, 10);
@@ -54,13 +55,13 @@ TEST(StemCentreLm, RecoversKnownSixDofPerturbation) {
 
 TEST(StemCentreLm, FrameWithoutStemsRegistersOnRealFeatures) {
     const auto scene = test::defaultScene(false);
-    const StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
+    const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_true = test::makePose(-0.5, 0.8, 0.1, -0.01, 0.02, -0.6);
     const Frame f = makeFrame(scene, T_true);
     EXPECT_EQ(f.vf.centres.rows(), 0);
     const Pose3 delta = test::makePose(0.15, 0.1, -0.05, 0.01, -0.01, 0.03);
-    const auto r =
-        registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, delta * T_true);
+    const auto r = registration::registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                                      delta * T_true);
     EXPECT_TRUE(r.converged);
     EXPECT_EQ(r.virtual_inliers, 0);
     EXPECT_LT((r.T_target_source.translation() - T_true.translation()).norm(), 0.02);
@@ -69,17 +70,18 @@ TEST(StemCentreLm, FrameWithoutStemsRegistersOnRealFeatures) {
 
 TEST(StemCentreLm, TooFewFeaturesIsDegenerateAndKeepsInitialGuess) {
     const auto scene = test::defaultScene();
-    const StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
+    const registration::StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
     const Pose3 T_init = test::makePose(1.0, 2.0, 0.0, 0.0, 0.0, 0.1);
-    const auto r =
-        registerStemCentreLm(target, Points3(0, 3), Eigen::VectorXd(0), Points3(0, 3), T_init);
+    const auto r = registration::registerStemCentreLm(target, Points3(0, 3), Eigen::VectorXd(0),
+                                                      Points3(0, 3), T_init);
     EXPECT_FALSE(r.converged);
     EXPECT_TRUE(r.degenerate);
     EXPECT_TRUE(r.T_target_source.isApprox(T_init));
-    const StemCentreTarget empty(Points3(0, 3));
+    const registration::StemCentreTarget empty(Points3(0, 3));
     Points3 one(1, 3);
     one << 0.0, 0.0, 0.0;
-    const auto e = registerStemCentreLm(empty, one, Eigen::VectorXd::Ones(1), one, T_init);
+    const auto e =
+        registration::registerStemCentreLm(empty, one, Eigen::VectorXd::Ones(1), one, T_init);
     EXPECT_FALSE(e.converged);
     EXPECT_TRUE(e.degenerate);
 }
@@ -148,19 +150,20 @@ Eigen::VectorXd featureTimes(const Points3 &features) {
 
 TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
     const auto scene = test::defaultScene();
-    const StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
+    const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_mid = test::makePose(0.6, -0.4, 0.2, 0.0, 0.0, 0.3);
     const VibratingFrame f = vibratingFrame(scene, T_mid);
-    const VirtualFeatures vf = extractVirtualFeaturesRings(f.points, f.rings);
-    const DogKeypoints kp = detectDogKeypoints(f.points);
+    const features::VirtualFeatures vf = features::extractVirtualFeaturesRings(f.points, f.rings);
+    const features::DogKeypoints kp = features::detectDogKeypoints(f.points);
     ASSERT_GE(vf.stems.rows(), 3);
     const Pose3 T_init = test::makePose(0.05, -0.04, 0.02, 0.004, 0.003, 0.01) * T_mid;
-    StemCentreLmConfig cfg;
-    const auto rigid = registerStemCentreLm(target, vf.centres, vf.radii, kp.points, T_init, cfg);
+    registration::StemCentreLmConfig cfg;
+    const auto rigid =
+        registration::registerStemCentreLm(target, vf.centres, vf.radii, kp.points, T_init, cfg);
     cfg.sweep_order = 2;
-    const SweepTimes times{featureTimes(vf.centres), featureTimes(kp.points)};
-    const auto sweep =
-        registerStemCentreLm(target, vf.centres, vf.radii, kp.points, T_init, cfg, &times);
+    const registration::SweepTimes times{featureTimes(vf.centres), featureTimes(kp.points)};
+    const auto sweep = registration::registerStemCentreLm(target, vf.centres, vf.radii, kp.points,
+                                                          T_init, cfg, &times);
     ASSERT_TRUE(sweep.converged);
     EXPECT_FALSE(sweep.degenerate);
     ASSERT_EQ(sweep.sweep.rows(), 2);
@@ -200,23 +203,25 @@ TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
 
 TEST(StemCentreLm, SweepOrderNeedsOneTimePerFeature) {
     const auto scene = test::defaultScene();
-    const StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
+    const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_true = test::makePose(0.6, -0.4, 0.2, 0.02, -0.015, 0.3);
     const Frame f = makeFrame(scene, T_true);
     const auto n_c = f.vf.centres.rows(), n_r = f.kp.points.rows();
-    StemCentreLmConfig cfg;
+    registration::StemCentreLmConfig cfg;
     cfg.sweep_order = 2;
     // No times, or a time missing: an error, not a silently rigid registration.
-    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg),
+    EXPECT_THROW(registration::registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                                    T_true, cfg),
                  std::invalid_argument);
-    const SweepTimes short_real{Eigen::VectorXd::Zero(n_c), Eigen::VectorXd::Zero(n_r - 1)};
-    EXPECT_THROW(registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg,
-                                      &short_real),
+    const registration::SweepTimes short_real{Eigen::VectorXd::Zero(n_c),
+                                              Eigen::VectorXd::Zero(n_r - 1)};
+    EXPECT_THROW(registration::registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                                    T_true, cfg, &short_real),
                  std::invalid_argument);
     // A rigid registration ignores times.
     cfg.sweep_order = 0;
-    const auto r = registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points, T_true, cfg,
-                                        &short_real);
+    const auto r = registration::registerStemCentreLm(target, f.vf.centres, f.vf.radii, f.kp.points,
+                                                      T_true, cfg, &short_real);
     EXPECT_TRUE(r.converged);
     EXPECT_EQ(r.sweep.rows(), 0);
     EXPECT_LT((r.T_target_source.translation() - T_true.translation()).norm(), 0.01);
@@ -224,16 +229,17 @@ TEST(StemCentreLm, SweepOrderNeedsOneTimePerFeature) {
 
 TEST(StemCentreLm, InvalidInputThrows) {
     const auto scene = test::defaultScene();
-    const StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
+    const registration::StemCentreTarget target(test::denseMap(scene, 6.0, 0.1));
     Points3 centres(2, 3);
     centres << 1.0, 0.0, 1.3, 0.0, 2.0, 1.3;
     // One radius for two centres: an error, not a registration on the first centre only.
-    EXPECT_THROW(registerStemCentreLm(target, centres, Eigen::VectorXd::Constant(1, 0.2),
-                                      Points3(0, 3), Pose3::Identity()),
-                 std::invalid_argument);
+    EXPECT_THROW(
+        registration::registerStemCentreLm(target, centres, Eigen::VectorXd::Constant(1, 0.2),
+                                           Points3(0, 3), Pose3::Identity()),
+        std::invalid_argument);
     Pose3 nan = Pose3::Identity();
     nan.translation().y() = std::numeric_limits<double>::quiet_NaN();
-    EXPECT_THROW(registerStemCentreLm(target, centres, Eigen::VectorXd::Constant(2, 0.2),
-                                      Points3(0, 3), nan),
+    EXPECT_THROW(registration::registerStemCentreLm(
+                     target, centres, Eigen::VectorXd::Constant(2, 0.2), Points3(0, 3), nan),
                  std::invalid_argument);
 }

@@ -42,7 +42,7 @@ std::vector<int> allRows(const Points3 &p) {
 }  // namespace
 
 TEST(Stems, SvdClassifiesVerticalStemsOnly) {
-    SegmentationOptions o;
+    SegmentationConfig o;
     const Eigen::Vector3d up = Eigen::Vector3d::UnitZ();
     const Points3 stem = cylinderArc(5, 0, 0.15, 0.3, 3.0, 0.2, 0.0, nullptr);
     const ClusterShape s = clusterShape(stem, allRows(stem), up);
@@ -71,7 +71,7 @@ TEST(Stems, PiecesOfOneTreeMergeNeighboursDoNot) {
     Clusters parts(3);
     for (int i = 0; i < all.rows(); ++i)
         parts[i < a.rows() ? 0 : i < a.rows() + b.rows() ? 1 : 2].push_back(i);
-    EXPECT_EQ(mergeStemClusters(all, parts, SegmentationOptions{}).size(), 2u);
+    EXPECT_EQ(mergeStemClusters(all, parts, SegmentationConfig{}).size(), 2u);
 }
 
 TEST(Stems, DiameterFromCircleAndCylinderOnAPartialNoisyStem) {
@@ -79,7 +79,7 @@ TEST(Stems, DiameterFromCircleAndCylinderOnAPartialNoisyStem) {
     // by about +-1.5 cm (1 sigma), so the bounds are on the mean and the worst of 10 seeds.
     // The cylinder runs with thorough RANSAC settings here (the per-scan defaults trade its
     // accuracy for speed; it is rarely the chosen estimate).
-    DiameterOptions o;
+    DiameterConfig o;
     o.cylinder_iterations = 200;
     o.cylinder_max_points = 200;
     double worst = 0, sum = 0;

@@ -8,7 +8,7 @@
 using forestslam::Points2;
 
 TEST(TriangleStar, DescriptorOfKnownTriangle) {
-    const auto d = forestslam::triangleDescriptor({0, 0}, {3, 0}, {0, 4});
+    const auto d = forestslam::localization::triangleDescriptor({0, 0}, {3, 0}, {0, 4});
     EXPECT_DOUBLE_EQ(d[0], 6.0);          // area
     EXPECT_DOUBLE_EQ(d[1], 12.0 * 12.0);  // squared perimeter
 }
@@ -17,8 +17,8 @@ TEST(TriangleStar, HexagonStarHasCentreAndThreeNeighbours) {
     // A triangle with one extra point beyond each edge: exactly one interior triangle.
     Points2 xy(6, 2);
     xy << 0, 0, 4, 0, 1.5, 3, 2, -2.5, 3.8, 2.6, -1.6, 2.0;
-    const auto tri = forestslam::delaunayTriangulation(xy);
-    const auto stars = forestslam::buildStars(tri, xy);
+    const auto tri = forestslam::localization::delaunayTriangulation(xy);
+    const auto stars = forestslam::localization::buildStars(tri, xy);
     ASSERT_EQ(stars.stars.size(), 1u);
     const auto &s = stars.stars[0];
     // The centre edge v0-v1 is the shortest one, and the apexes are the three outer points.
@@ -29,13 +29,13 @@ TEST(TriangleStar, HexagonStarHasCentreAndThreeNeighbours) {
     EXPECT_LE(e01, e20);
     for (int k = 3; k < 6; ++k) EXPECT_GE(s.vertices[k], 3);
     // Feature entries are the descriptors of the triangles they name.
-    const auto d0 = forestslam::triangleDescriptor(xy.row(0).transpose(), xy.row(1).transpose(),
-                                                   xy.row(2).transpose());
+    const auto d0 = forestslam::localization::triangleDescriptor(
+        xy.row(0).transpose(), xy.row(1).transpose(), xy.row(2).transpose());
     EXPECT_NEAR(s.feature[0], d0[0], 1e-12);
     EXPECT_NEAR(s.feature[1], d0[1], 1e-12);
-    const auto dn = forestslam::triangleDescriptor(xy.row(s.vertices[0]).transpose(),
-                                                   xy.row(s.vertices[1]).transpose(),
-                                                   xy.row(s.vertices[3]).transpose());
+    const auto dn = forestslam::localization::triangleDescriptor(xy.row(s.vertices[0]).transpose(),
+                                                                 xy.row(s.vertices[1]).transpose(),
+                                                                 xy.row(s.vertices[3]).transpose());
     EXPECT_NEAR(s.feature[2], dn[0], 1e-12);
     EXPECT_NEAR(s.feature[3], dn[1], 1e-12);
 }
@@ -56,8 +56,10 @@ TEST(TriangleStar, FeaturesInvariantToRotationTranslationAndOrder) {
     for (int i = 0; i < n; ++i)
         moved.row(i) = (R * xy.row(perm[i]).transpose() + Eigen::Vector2d(-40, 17)).transpose();
 
-    const auto a = forestslam::buildStars(forestslam::delaunayTriangulation(xy), xy);
-    const auto b = forestslam::buildStars(forestslam::delaunayTriangulation(moved), moved);
+    const auto a = forestslam::localization::buildStars(
+        forestslam::localization::delaunayTriangulation(xy), xy);
+    const auto b = forestslam::localization::buildStars(
+        forestslam::localization::delaunayTriangulation(moved), moved);
     ASSERT_EQ(a.stars.size(), b.stars.size());
     ASSERT_GT(a.stars.size(), 100u);
     // Every star of `a` appears in `b` with the same feature and the same (permuted) vertices.

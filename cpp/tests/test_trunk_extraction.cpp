@@ -28,7 +28,7 @@ TEST(TrunkExtraction, FindsVerticalStemsAboveGround) {
     forestslam::Points3 cloud(pts.size(), 3);
     for (size_t i = 0; i < pts.size(); ++i) cloud.row(i) = pts[i].transpose();
 
-    const auto trunks = forestslam::extractTrunks(cloud);
+    const auto trunks = forestslam::localization::extractTrunks(cloud);
     ASSERT_EQ(trunks.xy.rows(), 5);
     for (const auto &c : centres) {
         double best = 1e9;
@@ -39,8 +39,8 @@ TEST(TrunkExtraction, FindsVerticalStemsAboveGround) {
 }
 
 TEST(TrunkExtraction, EmptyAndNonFiniteInputs) {
-    EXPECT_EQ(forestslam::extractTrunks(forestslam::Points3(0, 3)).xy.rows(), 0);
+    EXPECT_EQ(forestslam::localization::extractTrunks(forestslam::Points3(0, 3)).xy.rows(), 0);
     forestslam::Points3 nan(3, 3);
     nan.setConstant(NAN);
-    EXPECT_EQ(forestslam::extractTrunks(nan).xy.rows(), 0);
+    EXPECT_EQ(forestslam::localization::extractTrunks(nan).xy.rows(), 0);
 }

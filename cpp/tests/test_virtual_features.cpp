@@ -10,8 +10,9 @@ using namespace forestslam;
 namespace {
 
 // For each true stem within max_range of the origin, the nearest extracted stem.
-void expectStems(const VirtualFeatures &vf, const test::Scene &scene, const Pose3 &T_world_frame,
-                 double max_range, double tol_centre, double tol_radius, int min_found) {
+void expectStems(const features::VirtualFeatures &vf, const test::Scene &scene,
+                 const Pose3 &T_world_frame, double max_range, double tol_centre, double tol_radius,
+                 int min_found) {
     int found = 0;
     for (const auto &st : scene.stems) {
         const Eigen::Vector3d c = T_world_frame.inverse() * Eigen::Vector3d(st.x, st.y, 0.0);
@@ -46,7 +47,7 @@ TEST(VirtualFeatures, RingsFindKnownStemCentres) {
     std::vector<std::uint16_t> rings;
     const Pose3 T = test::makePose(0.3, -0.2, 0.0, 0.0, 0.0, 0.4);
     const Points3 scan = test::raycast(scene, T, rings, 16, 0.2, 40.0, 0.005);
-    const VirtualFeatures vf = extractVirtualFeaturesRings(scan, rings);
+    const features::VirtualFeatures vf = features::extractVirtualFeaturesRings(scan, rings);
     ASSERT_EQ(vf.radii.size(), vf.centres.rows());
     ASSERT_EQ(vf.stem_ids.size(), vf.centres.rows());
     expectStems(vf, scene, T, 8.0, 0.03, 0.03, 5);
@@ -55,7 +56,7 @@ TEST(VirtualFeatures, RingsFindKnownStemCentres) {
 TEST(VirtualFeatures, LayersFindKnownStemCentres) {
     const auto scene = test::defaultScene();
     const Points3 map = test::denseMap(scene, 12.0, 0.03);
-    const VirtualFeatures vf = extractVirtualFeaturesLayers(map);
+    const features::VirtualFeatures vf = features::extractVirtualFeaturesLayers(map);
     expectStems(vf, scene, Pose3::Identity(), 12.0, 0.01, 0.01, 7);
     EXPECT_EQ(vf.stems.rows(), 7);
 }
@@ -64,7 +65,8 @@ TEST(VirtualFeatures, NoStemsAndBadInputs) {
     const auto scene = test::defaultScene(false);
     std::vector<std::uint16_t> rings;
     const Points3 scan = test::raycast(scene, Pose3::Identity(), rings);
-    EXPECT_EQ(extractVirtualFeaturesRings(scan, rings).centres.rows(), 0);
-    EXPECT_THROW(extractVirtualFeaturesRings(scan, {}), std::invalid_argument);  // ring size
-    EXPECT_EQ(extractVirtualFeaturesLayers(Points3(0, 3)).centres.rows(), 0);
+    EXPECT_EQ(features::extractVirtualFeaturesRings(scan, rings).centres.rows(), 0);
+    EXPECT_THROW(features::extractVirtualFeaturesRings(scan, {}),
+                 std::invalid_argument);  // ring size
+    EXPECT_EQ(features::extractVirtualFeaturesLayers(Points3(0, 3)).centres.rows(), 0);
 }

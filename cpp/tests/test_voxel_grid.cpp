@@ -5,7 +5,7 @@
 #include "forestslam/features/voxel_grid.hpp"
 
 using forestslam::Points3;
-using forestslam::voxelDownsample;
+using forestslam::features::voxelDownsample;
 
 TEST(VoxelGrid, CentroidPerVoxelAndNaNDropped) {
     Points3 p(5, 3);

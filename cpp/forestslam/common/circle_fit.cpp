@@ -161,7 +161,7 @@ std::vector<int> inliersOf(const Eigen::Ref<const Points2> &xy, const std::vecto
     return in;
 }
 
-void finish(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &opt, CircleFit &fit) {
+void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, CircleFit &fit) {
     double ss = 0;
     for (int i : fit.inlier_indices) {
         const double e = (xy.row(i).transpose() - fit.centre).norm() - fit.radius;
@@ -200,12 +200,12 @@ CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {
     fit.centre = c;
     fit.radius = r;
     fit.inlier_indices = rows;
-    CircleFitOptions opt;
+    CircleFitConfig opt;
     finish(xy, opt, fit);
     return fit;
 }
 
-CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &opt) {
+CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
     CircleFit fit;
     const std::vector<int> rows = finiteIndices(xy);
     const int n = static_cast<int>(rows.size());
@@ -348,7 +348,7 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
 }  // namespace
 
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
-                        const Eigen::Ref<const Points2> &origins, const CircleFitOptions &opt) {
+                        const Eigen::Ref<const Points2> &origins, const CircleFitConfig &opt) {
     if (origins.rows() != xy.rows())
         throw std::invalid_argument("fitCircleRays: " + std::to_string(origins.rows()) +
                                     " view origins for " + std::to_string(xy.rows()) + " points");

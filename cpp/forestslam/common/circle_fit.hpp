@@ -19,7 +19,7 @@
 
 namespace forestslam {
 
-struct CircleFitOptions {
+struct CircleFitConfig {
     double inlier_threshold_m = 0.03;  // |distance - radius| counted as an inlier
     double min_radius_m = 0.0;         // candidate circles outside the bounds are rejected
     double max_radius_m = std::numeric_limits<double>::infinity();
@@ -49,7 +49,7 @@ struct CircleFit {
 CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy);
 
 // Robust fit; non-finite rows are ignored (indices still refer to the input rows).
-CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions &options = {});
+CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &options = {});
 
 // Robust fit refined by maximum likelihood under range noise: point i was measured from the
 // view origin origins.row(i) (the sensor position, same frame), its error lies along that beam.
@@ -60,7 +60,7 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitOptions 
 // refinement fails or wanders off.
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
                         const Eigen::Ref<const Points2> &origins,
-                        const CircleFitOptions &options = {});
+                        const CircleFitConfig &options = {});
 
 // Fraction of `sectors` equal angular sectors around `centre` that hold at least one of `rows`.
 double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,

@@ -12,7 +12,7 @@
 #include "forestslam/common/pcl_adapter.hpp"
 #include "forestslam/features/voxel_grid.hpp"
 
-namespace forestslam {
+namespace forestslam::features {
 
 namespace {
 
@@ -134,4 +134,4 @@ DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::features

@@ -5,7 +5,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::features {
 
 struct DogKeypointsConfig {
     double voxel_m = 0.08;  // downsampling before smoothing (bounds the cost)
@@ -30,4 +30,4 @@ struct DogKeypoints {
 DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
                                 const DogKeypointsConfig &config = {});
 
-}  // namespace forestslam
+}  // namespace forestslam::features

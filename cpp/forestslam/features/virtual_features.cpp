@@ -10,7 +10,7 @@
 
 #include "forestslam/common/circle_fit.hpp"
 
-namespace forestslam {
+namespace forestslam::features {
 
 namespace {
 
@@ -45,7 +45,7 @@ void fitCluster(const Eigen::Ref<const Points3> &points, const std::vector<int> 
     z /= static_cast<double>(n);
     range /= static_cast<double>(n);
 
-    CircleFitOptions options;
+    CircleFitConfig options;
     options.inlier_threshold_m = cfg.fit_inlier_m;
     options.min_radius_m = 0.5 * cfg.min_diameter_m;
     options.max_radius_m = 0.5 * cfg.max_diameter_m;
@@ -263,4 +263,4 @@ VirtualFeatures extractVirtualFeaturesLayers(const Eigen::Ref<const Points3> &po
     return linkStems(cands, cfg);
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::features

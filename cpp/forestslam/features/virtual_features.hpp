@@ -9,7 +9,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::features {
 
 struct VirtualFeaturesConfig {
     double min_diameter_m = 0.06;  // expected stem diameters
@@ -62,4 +62,4 @@ VirtualFeatures extractVirtualFeaturesRings(const Eigen::Ref<const Points3> &poi
 VirtualFeatures extractVirtualFeaturesLayers(const Eigen::Ref<const Points3> &points,
                                              const VirtualFeaturesConfig &config = {});
 
-}  // namespace forestslam
+}  // namespace forestslam::features

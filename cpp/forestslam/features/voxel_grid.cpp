@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <unordered_map>
 
-namespace forestslam {
+namespace forestslam::features {
 
 namespace {
 
@@ -64,4 +64,4 @@ Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m)
     return voxelDownsample(points, voxel_m, unused);
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::features

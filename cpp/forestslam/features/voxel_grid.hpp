@@ -5,7 +5,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::features {
 
 // One point per occupied voxel: the centroid of its points. Non-finite rows are dropped;
 // voxel_m <= 0 returns the finite rows unchanged.
@@ -16,4 +16,4 @@ Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m)
 Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m,
                         std::vector<int> &representative);
 
-}  // namespace forestslam
+}  // namespace forestslam::features

@@ -5,7 +5,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace forestslam {
+namespace forestslam::io {
 
 namespace {
 constexpr std::size_t kMaxLiteral = 32;         // control byte 0..31 = run of 1..32 literals
@@ -104,4 +104,4 @@ std::vector<std::uint8_t> lzfCompress(const std::uint8_t *in, std::size_t in_siz
     return out;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::io

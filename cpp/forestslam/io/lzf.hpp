@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <vector>
 
-namespace forestslam {
+namespace forestslam::io {
 
 /// Decompress an LZF stream that must expand to exactly `expected_size` bytes.
 /// Throws std::runtime_error on a corrupt stream (back reference before the start, output
@@ -16,4 +16,4 @@ std::vector<std::uint8_t> lzfDecompress(const std::uint8_t *in, std::size_t in_s
 /// liblzf/PCL read back.
 std::vector<std::uint8_t> lzfCompress(const std::uint8_t *in, std::size_t in_size);
 
-}  // namespace forestslam
+}  // namespace forestslam::io

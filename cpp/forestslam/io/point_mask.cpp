@@ -4,7 +4,7 @@
 #include <cstring>
 #include <stdexcept>
 
-namespace forestslam {
+namespace forestslam::io {
 
 namespace {
 template <typename Scalar>
@@ -68,4 +68,4 @@ std::vector<std::int64_t> realPointIndices(const std::uint8_t *data, std::size_t
     return out;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::io

@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <vector>
 
-namespace forestslam {
+namespace forestslam::io {
 
 /// Layout of the x, y, z fields in a PointCloud2-style buffer: `height` rows of `row_step`
 /// bytes, each holding `width` points of `point_step` bytes; x, y, z at `offsets`, all float32
@@ -23,4 +23,4 @@ struct XyzLayout {
 std::vector<std::int64_t> realPointIndices(const std::uint8_t *data, std::size_t size,
                                            const XyzLayout &layout);
 
-}  // namespace forestslam
+}  // namespace forestslam::io

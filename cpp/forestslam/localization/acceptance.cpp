@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-namespace forestslam {
+namespace forestslam::localization {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
@@ -143,4 +143,4 @@ AcceptanceVerdict judge(const ChanceEvidence &best, double runner_up_fraction,
     return v;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -25,7 +25,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 // Map trunk density (trunks per m^2) averaged over a square window around any position.
 class DensityGrid {
@@ -93,4 +93,4 @@ struct AcceptanceVerdict {
 AcceptanceVerdict judge(const ChanceEvidence &best, double runner_up_fraction,
                         const AcceptanceConfig &config);
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <limits>
 
-namespace forestslam {
+namespace forestslam::localization {
 namespace {
 
 using Real = long double;  // extra mantissa for predicates that involve the far super vertices
@@ -275,4 +275,4 @@ Triangulation delaunayTriangulation(const Eigen::Ref<const Points2> &xy,
     return out;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -6,7 +6,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 // Triangles are counter-clockwise and index the rows of the input. neighbours[t][i] is the
 // triangle across the edge opposite triangles[t][i], or -1 on the convex hull.
@@ -36,4 +36,4 @@ double orient2d(const Eigen::Vector2d &a, const Eigen::Vector2d &b, const Eigen:
 double inCircle(const Eigen::Vector2d &a, const Eigen::Vector2d &b, const Eigen::Vector2d &c,
                 const Eigen::Vector2d &d);
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace forestslam {
+namespace forestslam::localization {
 
 KdTree::KdTree(Matrix points, int leaf_size) : points_(std::move(points)) {
     order_.resize(points_.rows());
@@ -146,4 +146,4 @@ int PointGrid::nearest(double x, double y, double gate_m, double *d2_out) const 
     return best_id;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -8,7 +8,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 class KdTree {
   public:
@@ -61,4 +61,4 @@ class PointGrid {
     std::vector<int> ids_;
 };
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -11,7 +11,7 @@
 
 #include "forestslam/common/voxel_key.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
@@ -675,4 +675,4 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     return res;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

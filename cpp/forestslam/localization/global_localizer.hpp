@@ -13,7 +13,7 @@
 #include "forestslam/localization/feature_index.hpp"
 #include "forestslam/localization/triangle_star.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 // Default: stars verified by edge lengths and the side test, least-squares pose per star match,
 // consensus scoring. Paper: Li et al. as written (see localizePaper).
@@ -152,4 +152,4 @@ class TreeMap {
     DensityGrid density_;
 };
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

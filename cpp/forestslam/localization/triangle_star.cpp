@@ -6,7 +6,7 @@
 
 #include "forestslam/localization/feature_index.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 Eigen::Vector2d triangleDescriptor(const Eigen::Vector2d &a, const Eigen::Vector2d &b,
                                    const Eigen::Vector2d &c) {
@@ -142,4 +142,4 @@ std::vector<std::array<int, 3>> neighbourTriangles(const Eigen::Ref<const Points
 
 StarFeature embedFeature(const StarFeature &feature) { return feature.cwiseMax(0.0).cwiseSqrt(); }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -8,7 +8,7 @@
 #include "forestslam/common/types.hpp"
 #include "forestslam/localization/delaunay.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 using StarFeature = Eigen::Matrix<double, 8, 1>;  // [A0, l0, A1, l1, A2, l2, A3, l3]
 using StarFeatures = Eigen::Matrix<double, Eigen::Dynamic, 8, Eigen::RowMajor>;
@@ -68,4 +68,4 @@ Eigen::Vector3d triangleSides(const Eigen::Ref<const Points2> &xy, const std::ar
 // trunk position noise moves every coordinate by a comparable amount.
 StarFeature embedFeature(const StarFeature &feature);
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -13,7 +13,7 @@
 
 #include "forestslam/common/pcl_adapter.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 Trunks extractTrunks(const Eigen::Ref<const Points3> &cloud_in, const TrunkExtractionConfig &cfg) {
     Trunks out;
@@ -109,4 +109,4 @@ Trunks extractTrunks(const Eigen::Ref<const Points3> &cloud_in, const TrunkExtra
     return out;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

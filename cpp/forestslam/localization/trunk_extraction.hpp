@@ -9,7 +9,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::localization {
 
 struct TrunkExtractionConfig {
     double voxel_m = 0.05;             // downsampling before the search; 0 = off
@@ -35,4 +35,4 @@ struct Trunks {
 Trunks extractTrunks(const Eigen::Ref<const Points3> &cloud,
                      const TrunkExtractionConfig &config = {});
 
-}  // namespace forestslam
+}  // namespace forestslam::localization

@@ -80,7 +80,8 @@ void LocalMap::buildCloud() {
     near.conservativeResize(n, 3);
     if (frames_.size() > 1 && n > 0) {
         const bool fpfh = config_.method == "fpfh";
-        near = voxelCentroids(near, fpfh ? config_.registration.fpfh.voxel_m : config_.map_voxel_m);
+        near = registration::voxelCentroids(
+            near, fpfh ? config_.registration.fpfh.voxel_m : config_.map_voxel_m);
     }
     cloud_ = std::move(near);
 }
@@ -90,9 +91,10 @@ void LocalMap::buildSearch() {
     stem_centre_.reset();
     if (cloud_.rows() == 0 || config_.method == "fpfh") return;
     if (config_.method == "stem_centre_lm")
-        stem_centre_ = std::make_unique<StemCentreTarget>(cloud_);
+        stem_centre_ = std::make_unique<registration::StemCentreTarget>(cloud_);
     else
-        plane_ = std::make_unique<PlaneTarget>(cloud_, config_.registration.icp.normal_k);
+        plane_ =
+            std::make_unique<registration::PlaneTarget>(cloud_, config_.registration.icp.normal_k);
 }
 
 }  // namespace forestslam::odometry

@@ -14,9 +14,9 @@ namespace forestslam::odometry {
 // World-frame content of one scan.
 struct MapFrame {
     Pose3 T_world_sensor = Pose3::Identity();
-    Points3 stem_positions;        // (K,3) breast-height centres
-    Covariances stem_covariances;  // (K,9) row-major 3x3
-    Points3 cloud;                 // stem + ground points (the whole scan for "fpfh")
+    Points3 stem_positions;                      // (K,3) breast-height centres
+    registration::Covariances stem_covariances;  // (K,9) row-major 3x3
+    Points3 cloud;                               // stem + ground points (the whole scan for "fpfh")
 };
 
 class LocalMap {
@@ -30,9 +30,9 @@ class LocalMap {
     bool empty() const { return cloud_.rows() == 0; }
     const Points3 &cloud() const { return cloud_; }
     const Points3 &stemPositions() const { return stem_positions_; }
-    const Covariances &stemCovariances() const { return stem_covariances_; }
-    const PlaneTarget *planeTarget() const { return plane_.get(); }
-    const StemCentreTarget *stemCentreTarget() const { return stem_centre_.get(); }
+    const registration::Covariances &stemCovariances() const { return stem_covariances_; }
+    const registration::PlaneTarget *planeTarget() const { return plane_.get(); }
+    const registration::StemCentreTarget *stemCentreTarget() const { return stem_centre_.get(); }
     std::size_t keyframes() const { return frames_.size(); }
 
   private:
@@ -44,10 +44,10 @@ class LocalMap {
     OdometryConfig config_;
     std::deque<MapFrame> frames_;
     Points3 stem_positions_ = Points3(0, 3);
-    Covariances stem_covariances_ = Covariances(0, 9);
+    registration::Covariances stem_covariances_ = registration::Covariances(0, 9);
     Points3 cloud_ = Points3(0, 3);
-    std::unique_ptr<PlaneTarget> plane_;
-    std::unique_ptr<StemCentreTarget> stem_centre_;
+    std::unique_ptr<registration::PlaneTarget> plane_;
+    std::unique_ptr<registration::StemCentreTarget> stem_centre_;
 };
 
 // Rows kept evenly spread (deterministic) when there are more than `limit`.

@@ -15,7 +15,7 @@ Vector6d poseToTwist(const Pose3 &T) {
     return xi;
 }
 
-Pose3 twistToPose(const Vector6d &twist) { return expSE3(twist); }
+Pose3 twistToPose(const Vector6d &twist) { return registration::expSE3(twist); }
 
 ConstantVelocityModel::ConstantVelocityModel(const MotionModelConfig &config) : config_(config) {
     if (!(config.max_gap_s > 0.0) || !(config.max_speed_mps > 0.0) ||
@@ -52,7 +52,7 @@ Points3 ConstantVelocityModel::deskew(const Eigen::Ref<const Points3> &points,
         throw std::invalid_argument("deskew: " + std::to_string(times.size()) + " times for " +
                                     std::to_string(points.rows()) + " points");
     if (!initialised_ || twist_.isZero(0.0)) return points;
-    return deskewPoints(points, times, twist_);
+    return registration::deskewPoints(points, times, twist_);
 }
 
 void ConstantVelocityModel::update(double t, const Pose3 &T_world_sensor, bool trusted) {

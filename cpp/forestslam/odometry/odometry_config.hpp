@@ -20,9 +20,9 @@ struct TreeMatchConfig {
 
 struct RegistrationConfig {
     TreeMatchConfig trees;
-    ShapeRegistrationConfig shape;
-    IcpConfig icp;
-    FpfhConfig fpfh;  // its own `icp` is replaced by the one above
+    registration::ShapeRegistrationConfig shape;
+    registration::IcpConfig icp;
+    registration::FpfhConfig fpfh;  // its own `icp` is replaced by the one above
 };
 
 // method: "trees" (tree correspondences + shape-to-shape + point-to-plane ICP), "icp" (ICP from

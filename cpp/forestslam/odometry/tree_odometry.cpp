@@ -51,8 +51,9 @@ std::pair<Pose3, Pose3> levelledPlanar(const Pose3 &T) {
     return {P, L};
 }
 
-Covariances rotateCovariances(const Eigen::Matrix3d &R, const Eigen::Ref<const Covariances> &c) {
-    Covariances out(c.rows(), 9);
+registration::Covariances rotateCovariances(const Eigen::Matrix3d &R,
+                                            const Eigen::Ref<const registration::Covariances> &c) {
+    registration::Covariances out(c.rows(), 9);
     for (Eigen::Index i = 0; i < c.rows(); ++i) {
         const Eigen::Matrix3d C =
             Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(c.row(i).data());
@@ -169,11 +170,11 @@ struct TreeOdometry::Work {
     Points3 points;                 // deskewed
     Points3 cloud = Points3(0, 3);  // registration source: stem + ground (whole scan: fpfh)
     Points3 stem_positions = Points3(0, 3);
-    Covariances stem_covariances = Covariances(0, 9);
+    registration::Covariances stem_covariances = registration::Covariances(0, 9);
 };
 
 TreeOdometry::TreeOdometry(const OdometrySensor &sensor, const OdometryConfig &config,
-                           const perception::PerceptionOptions &perception)
+                           const perception::PerceptionConfig &perception)
     : sensor_(sensor),
       config_(config),
       perception_(perception),
@@ -259,11 +260,12 @@ void TreeOdometry::selectSources(Work &work) const {
     all.bottomRows(work.out.detection.ground.rows()) = work.out.detection.ground;
     all = finiteRows(all);
     if (all.rows())
-        work.cloud =
-            thinEvenly(voxelCentroids(all, config_.source_voxel_m), config_.max_source_points);
+        work.cloud = thinEvenly(registration::voxelCentroids(all, config_.source_voxel_m),
+                                config_.max_source_points);
     if (config_.method == "fpfh" && work.points.rows())
-        work.cloud = thinEvenly(voxelCentroids(work.points, config_.registration.fpfh.voxel_m),
-                                config_.fpfh_max_points);
+        work.cloud =
+            thinEvenly(registration::voxelCentroids(work.points, config_.registration.fpfh.voxel_m),
+                       config_.fpfh_max_points);
     // Stem Gaussians for shape-to-shape: the breast-height centre (less view-dependent than
     // the mean of the visible arc) with the covariance of the stem points.
     work.stem_positions.resize(static_cast<Eigen::Index>(stems.size()), 3);
@@ -307,14 +309,14 @@ TreeOdometry::Registration TreeOdometry::registerTrees(Work &work) const {
         const Points3 &target = map_.stemPositions();
         std::vector<std::pair<int, int>> pairs;
         if (source.rows() && target.rows())
-            pairs = matchTrees(source, target, P, rc.trees.gate_m, rc.trees.ratio);
+            pairs = registration::matchTrees(source, target, P, rc.trees.gate_m, rc.trees.ratio);
         work.clock.lap(work.out, "match");
         matched = static_cast<int>(pairs.size());
         use_prior = matched < config_.min_stems;
         if (!use_prior) {
-            const RegistrationResult shape =
-                registerShapes(source, rotateCovariances(L.linear(), work.stem_covariances), target,
-                               map_.stemCovariances(), pairs, P, rc.shape);
+            const registration::RegistrationResult shape = registration::registerShapes(
+                source, rotateCovariances(L.linear(), work.stem_covariances), target,
+                map_.stemCovariances(), pairs, P, rc.shape);
             work.clock.lap(work.out, "shape");
             use_prior = shape.inliers < config_.min_stems;
             if (!use_prior) {
@@ -324,7 +326,7 @@ TreeOdometry::Registration TreeOdometry::registerTrees(Work &work) const {
             }
         }
     }
-    RegistrationResult icp;
+    registration::RegistrationResult icp;
     const bool has_icp = map_.planeTarget() && work.cloud.rows();
     if (has_icp) {
         Matrix6d info = Matrix6d::Zero();
@@ -332,8 +334,8 @@ TreeOdometry::Registration TreeOdometry::registerTrees(Work &work) const {
             info.diagonal() << Eigen::Vector3d::Constant(1.0 / std::pow(config_.prior_sigma_m, 2)),
                 Eigen::Vector3d::Constant(1.0 / std::pow(config_.prior_sigma_deg * kDeg, 2));
         }
-        icp = icpPointToPlane(*map_.planeTarget(), work.cloud, T_init, rc.icp, info,
-                              use_prior ? work.T_pred : T_init);
+        icp = registration::icpPointToPlane(*map_.planeTarget(), work.cloud, T_init, rc.icp, info,
+                                            use_prior ? work.T_pred : T_init);
     }
     work.clock.lap(work.out, "icp");
     const std::string name = use_prior ? "icp_prior" : config_.method;
@@ -342,12 +344,13 @@ TreeOdometry::Registration TreeOdometry::registerTrees(Work &work) const {
 }
 
 TreeOdometry::Registration TreeOdometry::registerFpfh(Work &work) const {
-    RegistrationResult result;
+    registration::RegistrationResult result;
     const bool ran = work.cloud.rows() && map_.cloud().rows();
     if (ran) {
-        FpfhConfig fpfh = config_.registration.fpfh;
+        registration::FpfhConfig fpfh = config_.registration.fpfh;
         fpfh.icp = config_.registration.icp;
-        result = forestslam::registerFpfh(work.cloud, map_.cloud(), work.T_pred, fpfh);
+        result =
+            forestslam::registration::registerFpfh(work.cloud, map_.cloud(), work.T_pred, fpfh);
     }
     work.clock.lap(work.out, "fpfh");
     return accept(ran ? &result : nullptr, work.T_pred, false, "fpfh", 0);
@@ -355,8 +358,8 @@ TreeOdometry::Registration TreeOdometry::registerFpfh(Work &work) const {
 
 // Stem-centre LM (Shao et al.): stem centres with their radius and DoG keypoints as features.
 TreeOdometry::Registration TreeOdometry::registerStemCentres(Work &work) const {
-    StemCentreLmResult result;
-    const StemCentreTarget *target = map_.stemCentreTarget();
+    registration::StemCentreLmResult result;
+    const registration::StemCentreTarget *target = map_.stemCentreTarget();
     if (target) {
         std::vector<int> rows;
         const auto &stems = work.out.detection.stems;
@@ -369,15 +372,15 @@ TreeOdometry::Registration TreeOdometry::registerStemCentres(Work &work) const {
             centres.row(k) = stems[rows[k]].breast.transpose();
             radii(k) = 0.5 * stems[rows[k]].diameter.dbh;
         }
-        const Points3 real = detectDogKeypoints(work.points).points;
-        result = registerStemCentreLm(*target, centres, radii, real, work.T_pred);
+        const Points3 real = features::detectDogKeypoints(work.points).points;
+        result = registration::registerStemCentreLm(*target, centres, radii, real, work.T_pred);
     }
     work.clock.lap(work.out, "stem_centre_lm");
     return accept(target ? &result : nullptr, work.T_pred, false, "stem_centre_lm", 0);
 }
 
 // A registration is kept unless it failed or jumped away from the prediction.
-TreeOdometry::Registration TreeOdometry::accept(const RegistrationResult *result,
+TreeOdometry::Registration TreeOdometry::accept(const registration::RegistrationResult *result,
                                                 const Pose3 &T_pred, bool degraded,
                                                 const std::string &method, int matched) const {
     Matrix6d prior = Matrix6d::Zero();

@@ -56,7 +56,7 @@ struct OdometryResult {
 class TreeOdometry {
   public:
     TreeOdometry(const OdometrySensor &sensor, const OdometryConfig &config = {},
-                 const perception::PerceptionOptions &perception = {});
+                 const perception::PerceptionConfig &perception = {});
 
     OdometryResult registerScan(const LidarScan &scan);
 
@@ -86,14 +86,14 @@ class TreeOdometry {
     Registration registerTrees(Work &work) const;
     Registration registerFpfh(Work &work) const;
     Registration registerStemCentres(Work &work) const;
-    Registration accept(const RegistrationResult *result, const Pose3 &T_pred, bool degraded,
-                        const std::string &method, int matched) const;
+    Registration accept(const registration::RegistrationResult *result, const Pose3 &T_pred,
+                        bool degraded, const std::string &method, int matched) const;
     void updateMap(const Work &work, const Registration &reg);
     OdometryResult output(Work &work, const Registration &reg);
 
     OdometrySensor sensor_;
     OdometryConfig config_;
-    perception::PerceptionOptions perception_;
+    perception::PerceptionConfig perception_;
     ConstantVelocityModel motion_;
     LocalMap map_;
     Pose3 W_ = Pose3::Identity();  // output world (first stamp) <- state world (first mid-sweep)

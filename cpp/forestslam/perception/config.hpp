@@ -22,7 +22,7 @@ struct SensorGeometry {
 // Approximate progressive morphological filter (PCL). It runs on the lowest point of every
 // `cell_size_m` grid cell (what the filter's min-grid sees anyway); every point is then ground
 // when its cell's lowest point is ground and it lies within `cell_height_m` above it.
-struct GroundOptions {
+struct GroundConfig {
     double cell_size_m = 0.5;
     int max_window_cells = 5;  // windows 3, 5 cells (2.5 m: wider than any stem)
     double slope = 0.5;        // terrain slope tolerance (rise / run)
@@ -37,7 +37,7 @@ struct GroundOptions {
 };
 
 // Adaptive ring-based normals and outlier filter (paper Algorithm 1).
-struct NormalFilterOptions {
+struct NormalFilterConfig {
     bool adaptive = true;     // false: one fixed radius (the paper's ablation)
     double ring_min_m = 1.0;  // rings: geomspace(ring_min_m, ring_max_m, rings)
     double ring_max_m = 40.0;
@@ -55,7 +55,7 @@ struct NormalFilterOptions {
     double map_voxel_m = 0.1;  // coarser thinning for map / tls clouds (dense, large)
 };
 
-struct SegmentationOptions {
+struct SegmentationConfig {
     // Range-image divide-and-merge (Zhao et al. 2022).
     int block_cols = 32;               // local sub-images are column blocks of this width
     double beta_min_rad = 0.1745;      // Bogoslavskyi angle criterion between neighbours (10 deg)
@@ -83,7 +83,7 @@ struct SegmentationOptions {
     double ground_search_m = 2.0;        // ground points within this XY radius give the base height
 };
 
-struct DiameterOptions {
+struct DiameterConfig {
     double band_low_m = 1.15;  // breast-height band above local ground
     double band_high_m = 1.45;
     double band_max_half_m = 1.0;  // widened around 1.3 m up to this half-height if too few points
@@ -104,12 +104,12 @@ struct DiameterOptions {
                              // (it is then only reported; costs time)
 };
 
-struct PerceptionOptions {
+struct PerceptionConfig {
     double intensity_threshold = std::numeric_limits<double>::quiet_NaN();  // NaN: no filter
-    GroundOptions ground;
-    NormalFilterOptions filter;
-    SegmentationOptions segmentation;
-    DiameterOptions diameter;
+    GroundConfig ground;
+    NormalFilterConfig filter;
+    SegmentationConfig segmentation;
+    DiameterConfig diameter;
     double ground_voxel_m = 0.25;  // ground points returned one per voxel (for ICP / maps)
     // Breast height (z, input frame) given by the user for every stem; NaN: from the local
     // ground, else from the stem's lowest points (see BreastHeightSource).

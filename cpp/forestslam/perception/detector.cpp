@@ -39,10 +39,10 @@ struct StageClock {
     }
 };
 
-double bandMiddle(const DiameterOptions &o) { return 0.5 * (o.band_low_m + o.band_high_m); }
+double bandMiddle(const DiameterConfig &o) { return 0.5 * (o.band_low_m + o.band_high_m); }
 
 // Base height (breast height - 1.3 m) of a stem whose ground is unknown.
-double baseWithoutGround(const Points3 &p, const PerceptionOptions &opt, BreastHeightSource &src) {
+double baseWithoutGround(const Points3 &p, const PerceptionConfig &opt, BreastHeightSource &src) {
     const double lo = p.col(2).minCoeff(), hi = p.col(2).maxCoeff();
     if (std::isfinite(opt.breast_height_z)) {
         src = BreastHeightSource::Explicit;
@@ -61,11 +61,11 @@ double baseWithoutGround(const Points3 &p, const PerceptionOptions &opt, BreastH
 // Stems of a map cloud without ground: each 3D cluster (points thinned to slice_voxel_m) whose
 // breast-height section is a circle (valid fit, arc coverage, most band points within its
 // gate). No SVD elongation test: a breast-height slice is wider than it is tall.
-std::vector<Stem> groundlessStems(const Points3 &pts, const PerceptionOptions &opt) {
+std::vector<Stem> groundlessStems(const Points3 &pts, const PerceptionConfig &opt) {
     // Thin to slice_voxel_m; cluster one representative per coarser voxel (a quarter of the
     // clustering tolerance: dense clouds make radius searches quadratic), then every thinned
     // point joins its representative's cluster.
-    const SegmentationOptions &so = opt.segmentation;
+    const SegmentationConfig &so = opt.segmentation;
     const double fine = std::max(opt.slice_voxel_m, 1e-4);
     const double coarse = std::max(fine, 0.25 * so.euclidean_tolerance_m);
     std::unordered_map<std::uint64_t, char> fine_seen;
@@ -90,7 +90,7 @@ std::vector<Stem> groundlessStems(const Points3 &pts, const PerceptionOptions &o
         const int k = cluster_of[static_cast<size_t>(rep_of[j])];
         if (k >= 0) clusters[static_cast<size_t>(k)].push_back(rows[j]);
     }
-    DiameterOptions dopt = opt.diameter;
+    DiameterConfig dopt = opt.diameter;
     dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
     std::vector<Stem> out;
     for (const auto &c : clusters) {
@@ -138,7 +138,7 @@ struct Input {
 Input selectInput(const Eigen::Ref<const Points3> &points,
                   const Eigen::Ref<const Eigen::VectorXd> &intensity,
                   const Eigen::Ref<const Eigen::VectorXi> &ring, bool scan_centred,
-                  const PerceptionOptions &opt, Detection &det) {
+                  const PerceptionConfig &opt, Detection &det) {
     std::vector<int> keep = intensityFilter(intensity, opt.intensity_threshold, points.rows());
     det.after_intensity = static_cast<int>(keep.size());
     std::vector<int> finite;
@@ -161,9 +161,9 @@ Input selectInput(const Eigen::Ref<const Points3> &points,
 }
 
 // 2. Ground: segmentation, thinned ground points and the ground normal.
-GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const PerceptionOptions &opt,
+GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const PerceptionConfig &opt,
                               Detection &det) {
-    GroundOptions gopt = opt.ground;
+    GroundConfig gopt = opt.ground;
     if (!scan_centred) gopt.max_range_m = 0;
     GroundSegmentation gs = segmentGround(pts, gopt);
     det.ground_points = gs.ground_count;
@@ -175,7 +175,7 @@ GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const Perce
 // 3. Adaptive normals and filter on the non-ground points within range.
 NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation &gs,
                                     const SensorGeometry &sensor, bool scan_centred,
-                                    const PerceptionOptions &opt) {
+                                    const PerceptionConfig &opt) {
     std::vector<int> candidates;
     candidates.reserve(static_cast<size_t>(pts.rows()));
     const double range_max = scan_centred ? opt.segmentation.max_range_m : 0.0;
@@ -185,7 +185,7 @@ NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation
         if (range_max > 0 && pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) > range2) continue;
         candidates.push_back(static_cast<int>(i));
     }
-    NormalFilterOptions fopt = opt.filter;
+    NormalFilterConfig fopt = opt.filter;
     if (!scan_centred) {
         fopt.adaptive = false;
         fopt.voxel_m = std::max(fopt.voxel_m, fopt.map_voxel_m);
@@ -197,7 +197,7 @@ NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation
 // 4. Coarse clusters: range image for single scans, 3D otherwise.
 Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
                         const Eigen::VectorXi &ring, const SensorGeometry &sensor,
-                        bool scan_centred, const SegmentationOptions &so) {
+                        bool scan_centred, const SegmentationConfig &so) {
     if (!(sensor.has_range_image && scan_centred))
         return euclideanClusters(filtered, so.euclidean_tolerance_m,
                                  std::max(2, so.min_points / 2));
@@ -214,7 +214,7 @@ Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
 // 5. DBSCAN refinement, SVD classification and the merge of one tree's pieces.
 Clusters classifyStems(const Points3 &filtered, const Clusters &coarse,
                        const SensorGeometry &sensor, bool scan_centred,
-                       const SegmentationOptions &so, Detection &det) {
+                       const SegmentationConfig &so, Detection &det) {
     Clusters stems;
     for (const auto &c : coarse) {
         const double eps = (sensor.has_range_image && scan_centred)
@@ -232,7 +232,7 @@ Clusters classifyStems(const Points3 &filtered, const Clusters &coarse,
 // Local ground height under a stem at `xy` (nearest ground points, wider, the ground grid, the
 // plane of the ground seen farther out for the blind circle around the sensor); NaN if none.
 double stemGroundHeight(const Detection &det, const GroundSegmentation &gs,
-                        const Eigen::Vector2d &xy, const SegmentationOptions &so) {
+                        const Eigen::Vector2d &xy, const SegmentationConfig &so) {
     double base = localGroundHeight(det.ground, xy, so.ground_search_m);
     if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
     if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
@@ -254,10 +254,10 @@ SilhouetteSensor silhouetteSensor(const SensorGeometry &sensor) {
 // 6. Per stem: shape, local ground, breast-height centre and diameter.
 void measureStems(const Points3 &filtered, const NormalFilterResult &nf, const Clusters &stems,
                   const GroundSegmentation &gs, const SensorGeometry &sensor, bool scan_centred,
-                  const PerceptionOptions &opt, Detection &det) {
-    const SegmentationOptions &so = opt.segmentation;
+                  const PerceptionConfig &opt, Detection &det) {
+    const SegmentationConfig &so = opt.segmentation;
     const SilhouetteSensor silhouette = silhouetteSensor(sensor);
-    DiameterOptions dopt = opt.diameter;
+    DiameterConfig dopt = opt.diameter;
     if (!scan_centred)
         dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
     const bool use_silhouette = opt.diameter.silhouette && scan_centred && sensor.has_range_image &&
@@ -316,7 +316,7 @@ void toInputFrame(const Eigen::RowVector3d &origin, Detection &det) {
 Detection detectStems(const Eigen::Ref<const Points3> &points,
                       const Eigen::Ref<const Eigen::VectorXd> &intensity,
                       const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
-                      bool scan_centred, const PerceptionOptions &opt) {
+                      bool scan_centred, const PerceptionConfig &opt) {
     requirePerPoint("detectStems", "intensities", intensity.size(), points.rows(), true);
     requirePerPoint("detectStems", "rings", ring.size(), points.rows(), true);
     // PCL reports every RANSAC without a model on stderr; a stem without a cylinder is normal.

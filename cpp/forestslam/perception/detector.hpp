@@ -31,7 +31,7 @@ struct Detection {
 Detection detectStems(const Eigen::Ref<const Points3> &points,
                       const Eigen::Ref<const Eigen::VectorXd> &intensity,
                       const Eigen::Ref<const Eigen::VectorXi> &ring, const SensorGeometry &sensor,
-                      bool scan_centred, const PerceptionOptions &options);
+                      bool scan_centred, const PerceptionConfig &options);
 
 // Ground normal from ground points (PCA), or +z when there are too few or it tilts > 30 deg.
 Eigen::Vector3d groundNormal(const Eigen::Ref<const Points3> &ground);

@@ -11,7 +11,7 @@ namespace forestslam::perception {
 // (most of the ground stage); here row and column passes over a row-major grid, same float
 // arithmetic, same rules for empty cells.
 std::vector<int> morphologicalGround(const std::vector<Eigen::Vector3f> &cells, float cell,
-                                     const GroundOptions &opt) {
+                                     const GroundConfig &opt) {
     if (cells.empty()) return {};
     // Window half sizes and height thresholds, as PCL computes them.
     std::vector<int> half_sizes;

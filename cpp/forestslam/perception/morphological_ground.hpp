@@ -13,6 +13,6 @@ namespace forestslam::perception {
 // pcl::ApproximateProgressiveMorphologicalFilter, with `options` (window, slope, distances,
 // base, exponential) and cell size `cell`, keeps as ground, in input order.
 std::vector<int> morphologicalGround(const std::vector<Eigen::Vector3f> &cells, float cell,
-                                     const GroundOptions &options);
+                                     const GroundConfig &options);
 
 }  // namespace forestslam::perception

@@ -75,8 +75,7 @@ double GroundGrid::heightAt(double x, double y) const {
     return z(r, c);
 }
 
-GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
-                                 const GroundOptions &opt) {
+GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points, const GroundConfig &opt) {
     GroundSegmentation out;
     const Eigen::Index n = points.rows();
     out.is_ground.assign(static_cast<size_t>(n), 0);
@@ -239,7 +238,7 @@ Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<ch
 
 NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
                                 const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterOptions &opt, const GroundGrid *grid) {
+                                const NormalFilterConfig &opt, const GroundGrid *grid) {
     NormalFilterResult out;
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;

@@ -32,9 +32,9 @@ struct GroundSegmentation {
 };
 
 // Approximate progressive morphological filter (PCL) on the lowest point per cell, then every
-// point labelled by its height above its cell's ground point (see GroundOptions).
+// point labelled by its height above its cell's ground point (see GroundConfig).
 GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points,
-                                 const GroundOptions &options);
+                                 const GroundConfig &options);
 
 // Ground rows thinned to one point (the lowest) per voxel: the ground output for ICP and maps.
 Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<char> &is_ground,
@@ -52,6 +52,6 @@ struct NormalFilterResult {
 // limits candidates to the height band above ground when it knows the ground there.
 NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
                                 const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterOptions &options, const GroundGrid *grid);
+                                const NormalFilterConfig &options, const GroundGrid *grid);
 
 }  // namespace forestslam::perception

@@ -90,7 +90,7 @@ RangeImageProjection projectToRangeImage(const Eigen::Ref<const Points3> &points
 
 Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
                             const RangeImageProjection &proj, const SensorGeometry &s,
-                            const SegmentationOptions &opt, int min_size) {
+                            const SegmentationConfig &opt, int min_size) {
     Clusters out;
     const int R = s.image_rows, C = s.image_cols;
     const Eigen::Index n = points.rows();
@@ -245,7 +245,7 @@ Clusters euclideanClusters(const Eigen::Ref<const Points3> &points, double toler
 }
 
 double adaptiveEps(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows,
-                   double theta_v_rad, const SegmentationOptions &opt) {
+                   double theta_v_rad, const SegmentationConfig &opt) {
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
     for (int i : rows) mean += points.block<1, 2>(i, 0).transpose();
     if (!rows.empty()) mean /= static_cast<double>(rows.size());

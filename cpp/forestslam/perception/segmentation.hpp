@@ -29,7 +29,7 @@ RangeImageProjection projectToRangeImage(const Eigen::Ref<const Points3> &points
 // enough pixel pairs on their shared edge vote for it. Clusters smaller than `min_size` dropped.
 Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
                             const RangeImageProjection &projection, const SensorGeometry &sensor,
-                            const SegmentationOptions &options, int min_size);
+                            const SegmentationConfig &options, int min_size);
 
 // 3D Euclidean clustering (PCL) for clouds without a range image.
 Clusters euclideanClusters(const Eigen::Ref<const Points3> &points, double tolerance_m,
@@ -42,6 +42,6 @@ Clusters dbscan(const Eigen::Ref<const Points3> &points, const std::vector<int> 
 
 // The adaptive eps of the paper: k * theta_V * |mean_xy(cluster)|, clamped to [min, max].
 double adaptiveEps(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows,
-                   double theta_v_rad, const SegmentationOptions &options);
+                   double theta_v_rad, const SegmentationConfig &options);
 
 }  // namespace forestslam::perception

@@ -25,7 +25,7 @@ double median(std::vector<double> v) {
 }
 
 // Quality of a circle (centre on an axis through `centre` along `axis`, radius r) on `band`.
-void evaluate(const Eigen::Ref<const Points3> &band, const DiameterOptions &opt, DiameterFit &f) {
+void evaluate(const Eigen::Ref<const Points3> &band, const DiameterConfig &opt, DiameterFit &f) {
     const Eigen::Vector3d a = f.axis.normalized();
     Eigen::Vector3d u = a.unitOrthogonal(), v = a.cross(u);
     Points2 plane(band.rows(), 2);
@@ -91,14 +91,14 @@ ClusterShape clusterShape(const Eigen::Ref<const Points3> &points, const std::ve
     return s;
 }
 
-bool isStem(const ClusterShape &s, int count, const SegmentationOptions &o) {
+bool isStem(const ClusterShape &s, int count, const SegmentationConfig &o) {
     return count >= o.min_points && s.length >= o.min_length_m &&
            s.axis_angle <= o.max_axis_angle_rad && s.width <= o.max_width_m &&
            s.singular(0) >= o.min_sv_ratio * std::max(s.singular(1), 1e-9);
 }
 
 Clusters mergeStemClusters(const Eigen::Ref<const Points3> &points, const Clusters &stems,
-                           const SegmentationOptions &o) {
+                           const SegmentationConfig &o) {
     const size_t n = stems.size();
     std::vector<Eigen::Vector2d> xy(n, Eigen::Vector2d::Zero());
     for (size_t k = 0; k < n; ++k) {
@@ -169,7 +169,7 @@ namespace {
 
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
 DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
-                          const SilhouetteSensor &sensor, const DiameterOptions &opt) {
+                          const SilhouetteSensor &sensor, const DiameterConfig &opt) {
     DiameterFit f;
     const auto &va = sensor.vertical_angles_rad;
     if (p.rows() < 4 || va.empty() || !(sensor.azimuth_step_rad > 0)) return f;
@@ -221,7 +221,7 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
 
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
-                              const Eigen::Vector3d &up, const DiameterOptions &opt,
+                              const Eigen::Vector3d &up, const DiameterConfig &opt,
                               const SilhouetteSensor *sensor, const Eigen::Vector3d *view_origin) {
     requirePerPoint("estimateDiameter", "normals", normals.rows(), points.rows(), true);
     StemDiameter out;
@@ -240,7 +240,7 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
 
     // Robust circle fit of the band in the horizontal plane.
     if (band.rows() >= 3) {
-        CircleFitOptions co;
+        CircleFitConfig co;
         co.inlier_threshold_m = opt.inlier_threshold_m;
         co.min_radius_m = opt.min_radius_m;
         co.max_radius_m = opt.max_radius_m;

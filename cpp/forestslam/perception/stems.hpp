@@ -29,11 +29,11 @@ ClusterShape clusterShape(const Eigen::Ref<const Points3> &points, const std::ve
                           const Eigen::Vector3d &up);
 
 // The paper's heuristics: count, length, angle to up, s0/s1, plus a width cap.
-bool isStem(const ClusterShape &shape, int count, const SegmentationOptions &options);
+bool isStem(const ClusterShape &shape, int count, const SegmentationConfig &options);
 
 // Union of stem clusters whose XY means are closer than options.merge_xy_m.
 Clusters mergeStemClusters(const Eigen::Ref<const Points3> &points, const Clusters &stems,
-                           const SegmentationOptions &options);
+                           const SegmentationConfig &options);
 
 // One diameter estimate with its quality (evaluated on the same breast-height band points).
 struct DiameterFit {
@@ -73,7 +73,7 @@ struct StemDiameter {
 // sensor of a single scan) the band circle is fitted under range noise (fitCircleRays).
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
-                              const Eigen::Vector3d &up, const DiameterOptions &options,
+                              const Eigen::Vector3d &up, const DiameterConfig &options,
                               const SilhouetteSensor *sensor = nullptr,
                               const Eigen::Vector3d *view_origin = nullptr);
 
@@ -82,7 +82,7 @@ enum class BreastHeightSource {
     Ground = 0,       // local ground under the stem
     LowestPoint = 1,  // no ground: the stem's lowest point is taken as its base
     Slice = 2,        // no ground and the stem is shorter than the band: its middle height
-    Explicit = 3,     // given by the user (PerceptionOptions::breast_height_z)
+    Explicit = 3,     // given by the user (PerceptionConfig::breast_height_z)
 };
 
 struct Stem {

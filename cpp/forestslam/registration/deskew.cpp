@@ -4,7 +4,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace forestslam {
+namespace forestslam::registration {
 
 Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
                      const Eigen::Ref<const Eigen::VectorXd> &times, const Vector6d &twist_per_s) {
@@ -31,4 +31,4 @@ Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
     return out;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -6,7 +6,7 @@
 #include "forestslam/common/types.hpp"
 #include "forestslam/registration/result.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 // Points (N,3) measured at times (N,) seconds after the reference time, moved into the sensor
 // frame at the reference time for a sensor moving with the body-frame twist (6,) per second
@@ -15,4 +15,4 @@ namespace forestslam {
 Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
                      const Eigen::Ref<const Eigen::VectorXd> &times, const Vector6d &twist_per_s);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

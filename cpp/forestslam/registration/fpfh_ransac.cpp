@@ -11,7 +11,7 @@
 
 #include "forestslam/common/pcl_adapter.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 namespace {
 
 using CloudN = pcl::PointCloud<pcl::PointNormal>;
@@ -113,4 +113,4 @@ RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source_in,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -4,7 +4,7 @@
 
 #include "forestslam/registration/point_to_plane_icp.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 struct FpfhConfig {
     double voxel_m = 0.25;
@@ -32,4 +32,4 @@ RegistrationResult registerFpfh(const Eigen::Ref<const Points3> &source,
 // returns the finite rows unchanged.
 Points3 voxelCentroids(const Eigen::Ref<const Points3> &points, double voxel_m);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -7,12 +7,12 @@
 #include "forestslam/common/pcl_adapter.hpp"
 #include "forestslam/features/voxel_grid.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 namespace {
 
 Points3 prepare(const Eigen::Ref<const Points3> &points, const NdtConfig &config) {
-    Points3 sampled = voxelDownsample(points, config.voxel_m);
+    Points3 sampled = features::voxelDownsample(points, config.voxel_m);
     std::vector<int> keep;
     const double r2 = config.max_range_m * config.max_range_m;
     for (Eigen::Index i = 0; i < sampled.rows(); ++i) {
@@ -55,4 +55,4 @@ NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

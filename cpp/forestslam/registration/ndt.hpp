@@ -4,7 +4,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 struct NdtConfig {
     double voxel_m = 0.3;       // both clouds are voxel-downsampled first
@@ -30,4 +30,4 @@ NdtResult registerNdt(const Eigen::Ref<const Points3> &target,
                       const Eigen::Ref<const Points3> &source,
                       const Pose3 &T_initial = Pose3::Identity(), const NdtConfig &config = {});
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

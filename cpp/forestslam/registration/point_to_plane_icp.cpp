@@ -10,7 +10,7 @@
 
 #include "forestslam/common/kdtree.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 struct PlaneTarget::Impl {
     Points3 points;
@@ -217,4 +217,4 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

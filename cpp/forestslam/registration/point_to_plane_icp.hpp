@@ -7,7 +7,7 @@
 
 #include "forestslam/registration/result.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 class PlaneTarget {
   public:
@@ -66,4 +66,4 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
                                    const Matrix6d &prior_information = Matrix6d::Zero(),
                                    const Pose3 &T_prior = Pose3::Identity());
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

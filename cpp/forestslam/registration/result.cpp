@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-namespace forestslam {
+namespace forestslam::registration {
 
 Pose3 planarToPose(double x, double y, double yaw) {
     Pose3 T = Pose3::Identity();
@@ -25,4 +25,4 @@ Pose3 expSE3(const Vector6d &delta) {
     return T;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

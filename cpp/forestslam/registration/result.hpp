@@ -7,7 +7,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 // T_target_source maps source-frame points into the target frame.
 // covariance: 6x6 over the left perturbation (tx, ty, tz, rx, ry, rz) of T_target_source;
@@ -33,4 +33,4 @@ Eigen::Vector3d poseToPlanar(const Pose3 &T);
 // Rotation-vector exponential for small pose increments (left perturbation).
 Pose3 expSE3(const Vector6d &delta);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

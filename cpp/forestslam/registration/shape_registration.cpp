@@ -6,7 +6,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace forestslam {
+namespace forestslam::registration {
 namespace {
 
 struct Gaussian2 {
@@ -247,4 +247,4 @@ RegistrationResult registerShapes(const Eigen::Ref<const Points3> &source_means,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -11,7 +11,7 @@
 
 #include "forestslam/registration/result.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 // Stem Gaussians: means (K,3), covariances (K,9) row-major 3x3 each.
 using Covariances = Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor>;
@@ -52,4 +52,4 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
                                                   const Pose3 &T_init,
                                                   const ShapeRegistrationConfig &config);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -15,7 +15,7 @@
 
 #include "forestslam/common/pcl_adapter.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 namespace {
 constexpr double kCell = 0.2;  // x-y column of the target for the virtual-feature search
@@ -727,4 +727,4 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     return result;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -14,7 +14,7 @@
 
 #include "forestslam/registration/result.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 struct StemCentreLmConfig {
     int max_rounds = 15;              // correspondence renewals
@@ -105,4 +105,4 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const StemCentreLmConfig &config = {},
                                         const SweepTimes *times = nullptr);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

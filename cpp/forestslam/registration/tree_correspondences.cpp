@@ -5,7 +5,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace forestslam {
+namespace forestslam::registration {
 
 std::vector<std::pair<int, int>> matchTrees(const Eigen::Ref<const Points3> &source,
                                             const Eigen::Ref<const Points3> &target,
@@ -53,4 +53,4 @@ std::vector<std::pair<int, int>> matchTrees(const Eigen::Ref<const Points3> &sou
     return pairs;
 }
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -7,7 +7,7 @@
 
 #include "forestslam/common/types.hpp"
 
-namespace forestslam {
+namespace forestslam::registration {
 
 // source, target: (K,3)/(M,3) stem positions (x, y, z), each in its own frame; only XY of the
 // predicted source positions is compared. A pair (i, j) is kept when target j is the nearest
@@ -20,4 +20,4 @@ std::vector<std::pair<int, int>> matchTrees(const Eigen::Ref<const Points3> &sou
                                             const Pose3 &T_target_source_predicted, double gate_m,
                                             double ratio = 1.0);
 
-}  // namespace forestslam
+}  // namespace forestslam::registration

@@ -70,7 +70,7 @@ def core_sensor(profile: SensorProfile) -> Any:
 
 
 def core_perception(profile: SensorProfile, config: Any | None) -> Any:
-    """The C++ PerceptionOptions of a PerceptionConfig (default: its defaults)."""
+    """The C++ PerceptionConfig of a PerceptionConfig (default: its defaults)."""
     from forestslam.perception.config import PerceptionConfig
     from forestslam.perception.pipeline import core_options
 

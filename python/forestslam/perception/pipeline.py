@@ -54,12 +54,12 @@ def core_options(
     has_intensity: bool = True,
     breast_height_z: float | None = None,
 ):
-    """The C++ PerceptionOptions of `config` through the one config bridge (unknown keys and
+    """The C++ PerceptionConfig of `config` through the one config bridge (unknown keys and
     wrong types raise InputError naming the key). The profile's intensity threshold applies when
     the config enables the filter and the scan has intensity; `breast_height_z` None: NaN."""
     from forestslam.odometry.bridge import fill_core
 
-    options = fill_core(config, _core().PerceptionOptions(), "perception", skip=_PYTHON_ONLY)
+    options = fill_core(config, _core().PerceptionConfig(), "perception", skip=_PYTHON_ONLY)
     threshold = profile.intensity_threshold
     use = config.intensity_filter and threshold is not None and has_intensity
     options.intensity_threshold = float(threshold) if use else math.nan
@@ -175,7 +175,7 @@ def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -
     config = config or PerceptionConfig()
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     out = _core().perception_segment_ground(
-        points, _stage_options(config.ground, "ground", "GroundOptions")
+        points, _stage_options(config.ground, "ground", "GroundConfig")
     )
     return np.asarray(out["is_ground"], dtype=bool)
 
@@ -229,7 +229,7 @@ def ground_surface(
         extent = float(np.abs(finite[:, :2] - shift[:2]).max()) + 1.0
         ground = dataclasses.replace(ground, max_range_m=max(ground.max_range_m, extent))
     out = _core().perception_segment_ground(
-        np.ascontiguousarray(finite - shift), _stage_options(ground, "ground", "GroundOptions")
+        np.ascontiguousarray(finite - shift), _stage_options(ground, "ground", "GroundConfig")
     )
     return GroundSurface(
         z=np.asarray(out["grid_z"], dtype=np.float64),
@@ -254,7 +254,7 @@ def filter_normals(
         points,
         np.asarray(rows, dtype=np.int32),
         profile.theta_v_rad,
-        _stage_options(config.filter, "filter", "NormalFilterOptions"),
+        _stage_options(config.filter, "filter", "NormalFilterConfig"),
     )
     return np.asarray(out["kept"], dtype=np.int64), np.asarray(out["normals"]).reshape(-1, 3)
 
@@ -270,7 +270,7 @@ def coarse_clusters(
     config = config or PerceptionConfig()
     profile = load_profile(sensor)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    seg = _stage_options(config.segmentation, "segmentation", "SegmentationOptions")
+    seg = _stage_options(config.segmentation, "segmentation", "SegmentationConfig")
     min_size = max(2, config.segmentation.min_points // 2)
     if profile.has_range_image:
         ring32 = None if ring is None else np.asarray(ring, dtype=np.int32)
@@ -308,7 +308,7 @@ def classify_cluster(
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    seg = _stage_options(config.segmentation, "segmentation", "SegmentationOptions")
+    seg = _stage_options(config.segmentation, "segmentation", "SegmentationConfig")
     return _core().perception_cluster_shape(points, up, seg)
 
 
@@ -332,7 +332,7 @@ def estimate_diameter(
         normals,
         float(base_z),
         up,
-        _stage_options(config.diameter, "diameter", "DiameterOptions"),
+        _stage_options(config.diameter, "diameter", "DiameterConfig"),
     )
 
 

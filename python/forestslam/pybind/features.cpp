@@ -38,7 +38,7 @@ void define_features(py::module_ &m) {
         "voxel_downsample",
         [](const Eigen::Ref<const Points3> &points, double voxel_m) {
             py::gil_scoped_release release;
-            return voxelDownsample(points, voxel_m);
+            return features::voxelDownsample(points, voxel_m);
         },
         py::arg("points"), py::arg("voxel_m"),
         "Centroid per occupied voxel of points (N,3) -> (M,3); non-finite rows dropped.");
@@ -46,8 +46,8 @@ void define_features(py::module_ &m) {
     m.def(
         "detect_dog_keypoints",
         [](const Eigen::Ref<const Points3> &points, const py::kwargs &kwargs) {
-            DogKeypointsConfig cfg;
-            using C = DogKeypointsConfig;
+            features::DogKeypointsConfig cfg;
+            using C = features::DogKeypointsConfig;
             applyKwargs(cfg, kwargs,
                         {{"voxel_m", &C::voxel_m},
                          {"sigma_small_m", &C::sigma_small_m},
@@ -57,10 +57,10 @@ void define_features(py::module_ &m) {
                         {{"outlier_neighbours", &C::outlier_neighbours},
                          {"min_neighbours", &C::min_neighbours},
                          {"max_keypoints", &C::max_keypoints}});
-            DogKeypoints kp;
+            features::DogKeypoints kp;
             {
                 py::gil_scoped_release release;
-                kp = detectDogKeypoints(points, cfg);
+                kp = features::detectDogKeypoints(points, cfg);
             }
             return py::make_tuple(kp.points, kp.response);
         },
@@ -73,8 +73,8 @@ void define_features(py::module_ &m) {
         "extract_virtual_features",
         [](const Eigen::Ref<const Points3> &points, std::optional<std::vector<std::uint16_t>> rings,
            const py::kwargs &kwargs) {
-            VirtualFeaturesConfig cfg;
-            using C = VirtualFeaturesConfig;
+            features::VirtualFeaturesConfig cfg;
+            using C = features::VirtualFeaturesConfig;
             applyKwargs(
                 cfg, kwargs,
                 {{"min_diameter_m", &C::min_diameter_m},
@@ -98,11 +98,11 @@ void define_features(py::module_ &m) {
             if (rings && static_cast<Eigen::Index>(rings->size()) != points.rows()) {
                 throw py::value_error("rings must have one entry per point");
             }
-            VirtualFeatures vf;
+            features::VirtualFeatures vf;
             {
                 py::gil_scoped_release release;
-                vf = rings ? extractVirtualFeaturesRings(points, *rings, cfg)
-                           : extractVirtualFeaturesLayers(points, cfg);
+                vf = rings ? features::extractVirtualFeaturesRings(points, *rings, cfg)
+                           : features::extractVirtualFeaturesLayers(points, cfg);
             }
             py::dict out;
             out["centres"] = vf.centres;

@@ -21,7 +21,7 @@ void define_io(py::module_ &m) {
         [](const py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast> &data,
            std::size_t height, std::size_t width, std::size_t point_step, std::size_t row_step,
            const std::array<std::size_t, 3> &offsets, int scalar_bytes, bool big_endian) {
-            XyzLayout layout;
+            io::XyzLayout layout;
             layout.height = height;
             layout.width = width;
             layout.point_step = point_step;
@@ -32,7 +32,8 @@ void define_io(py::module_ &m) {
             std::vector<std::int64_t> idx;
             try {
                 py::gil_scoped_release release;
-                idx = realPointIndices(data.data(), static_cast<std::size_t>(data.size()), layout);
+                idx = io::realPointIndices(data.data(), static_cast<std::size_t>(data.size()),
+                                           layout);
             } catch (const std::invalid_argument &err) {
                 throw py::value_error(err.what());
             }
@@ -51,8 +52,8 @@ void define_io(py::module_ &m) {
             std::vector<std::uint8_t> out;
             try {
                 py::gil_scoped_release release;
-                out = lzfDecompress(reinterpret_cast<const std::uint8_t *>(in.data()), in.size(),
-                                    expected_size);
+                out = io::lzfDecompress(reinterpret_cast<const std::uint8_t *>(in.data()),
+                                        in.size(), expected_size);
             } catch (const std::runtime_error &err) {
                 throw py::value_error(err.what());
             }
@@ -67,7 +68,7 @@ void define_io(py::module_ &m) {
             std::vector<std::uint8_t> out;
             {
                 py::gil_scoped_release release;
-                out = lzfCompress(reinterpret_cast<const std::uint8_t *>(in.data()), in.size());
+                out = io::lzfCompress(reinterpret_cast<const std::uint8_t *>(in.data()), in.size());
             }
             return py::bytes(reinterpret_cast<const char *>(out.data()), out.size());
         },

@@ -24,7 +24,7 @@ IntRows toRows(const std::vector<std::array<int, 3>> &v) {
     return out;
 }
 
-py::dict starsToDict(const StarSet &set) {
+py::dict starsToDict(const localization::StarSet &set) {
     IntRows6 vertices(set.stars.size(), 6);
     Eigen::VectorXi centre(set.stars.size());
     for (size_t i = 0; i < set.stars.size(); ++i) {
@@ -45,7 +45,8 @@ void define_localization(py::module_ &m) {
     m.def(
         "delaunay",
         [](const Eigen::Ref<const Points2> &xy, double duplicate_tolerance) {
-            const Triangulation tri = delaunayTriangulation(xy, duplicate_tolerance);
+            const localization::Triangulation tri =
+                localization::delaunayTriangulation(xy, duplicate_tolerance);
             return py::make_tuple(toRows(tri.triangles), toRows(tri.neighbours));
         },
         py::arg("xy"), py::arg("duplicate_tolerance") = 1e-6,
@@ -56,8 +57,8 @@ void define_localization(py::module_ &m) {
     m.def(
         "triangle_stars",
         [](const Eigen::Ref<const Points2> &xy) {
-            const Triangulation tri = delaunayTriangulation(xy);
-            return starsToDict(buildStars(tri, xy));
+            const localization::Triangulation tri = localization::delaunayTriangulation(xy);
+            return starsToDict(localization::buildStars(tri, xy));
         },
         py::arg("xy"),
         "Triangle stars of the Delaunay triangulation of xy (N,2) -> dict: descriptors (T,2) "
@@ -65,130 +66,161 @@ void define_localization(py::module_ &m) {
         "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
         "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
 
-    py::enum_<Matcher>(m, "Matcher")
-        .value("default", Matcher::Default)
-        .value("paper", Matcher::Paper);
+    py::enum_<localization::Matcher>(m, "Matcher")
+        .value("default", localization::Matcher::Default)
+        .value("paper", localization::Matcher::Paper);
 
-    py::class_<GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
+    py::class_<localization::GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
         .def(py::init<>())
-        .def_readwrite("matcher", &GlobalLocalizerConfig::matcher)
-        .def_readwrite("paper_angle_bin_rad", &GlobalLocalizerConfig::paper_angle_bin_rad)
-        .def_readwrite("paper_translation_bin_m", &GlobalLocalizerConfig::paper_translation_bin_m)
-        .def_readwrite("candidates_per_star", &GlobalLocalizerConfig::candidates_per_star)
-        .def_readwrite("max_feature_distance_m", &GlobalLocalizerConfig::max_feature_distance_m)
-        .def_readwrite("rotation_ambiguity", &GlobalLocalizerConfig::rotation_ambiguity)
-        .def_readwrite("edge_tolerance_m", &GlobalLocalizerConfig::edge_tolerance_m)
-        .def_readwrite("inlier_gate_m", &GlobalLocalizerConfig::inlier_gate_m)
-        .def_readwrite("min_inliers", &GlobalLocalizerConfig::min_inliers)
-        .def_readwrite("min_inlier_fraction", &GlobalLocalizerConfig::min_inlier_fraction)
-        .def_readwrite("ambiguity_ratio", &GlobalLocalizerConfig::ambiguity_ratio)
-        .def_readwrite("min_significance", &GlobalLocalizerConfig::min_significance)
-        .def_readwrite("closeness_evidence", &GlobalLocalizerConfig::closeness_evidence)
-        .def_readwrite("distinct_translation_m", &GlobalLocalizerConfig::distinct_translation_m)
-        .def_readwrite("distinct_yaw_rad", &GlobalLocalizerConfig::distinct_yaw_rad)
-        .def_readwrite("refine_iterations", &GlobalLocalizerConfig::refine_iterations)
-        .def_readwrite("min_sigma_m", &GlobalLocalizerConfig::min_sigma_m)
-        .def_readwrite("duplicate_tolerance_m", &GlobalLocalizerConfig::duplicate_tolerance_m)
-        .def_readwrite("skip_hull_stars", &GlobalLocalizerConfig::skip_hull_stars)
-        .def_readwrite("triangle_fallback", &GlobalLocalizerConfig::triangle_fallback)
-        .def_readwrite("candidates_per_triangle", &GlobalLocalizerConfig::candidates_per_triangle)
-        .def_readwrite("triangle_neighbours", &GlobalLocalizerConfig::triangle_neighbours)
-        .def_readwrite("max_query_trunks", &GlobalLocalizerConfig::max_query_trunks)
-        .def_readwrite("max_fallback_trunks", &GlobalLocalizerConfig::max_fallback_trunks)
-        .def_readwrite("max_fallback_matches", &GlobalLocalizerConfig::max_fallback_matches);
+        .def_readwrite("matcher", &localization::GlobalLocalizerConfig::matcher)
+        .def_readwrite("paper_angle_bin_rad",
+                       &localization::GlobalLocalizerConfig::paper_angle_bin_rad)
+        .def_readwrite("paper_translation_bin_m",
+                       &localization::GlobalLocalizerConfig::paper_translation_bin_m)
+        .def_readwrite("candidates_per_star",
+                       &localization::GlobalLocalizerConfig::candidates_per_star)
+        .def_readwrite("max_feature_distance_m",
+                       &localization::GlobalLocalizerConfig::max_feature_distance_m)
+        .def_readwrite("rotation_ambiguity",
+                       &localization::GlobalLocalizerConfig::rotation_ambiguity)
+        .def_readwrite("edge_tolerance_m", &localization::GlobalLocalizerConfig::edge_tolerance_m)
+        .def_readwrite("inlier_gate_m", &localization::GlobalLocalizerConfig::inlier_gate_m)
+        .def_readwrite("min_inliers", &localization::GlobalLocalizerConfig::min_inliers)
+        .def_readwrite("min_inlier_fraction",
+                       &localization::GlobalLocalizerConfig::min_inlier_fraction)
+        .def_readwrite("ambiguity_ratio", &localization::GlobalLocalizerConfig::ambiguity_ratio)
+        .def_readwrite("min_significance", &localization::GlobalLocalizerConfig::min_significance)
+        .def_readwrite("closeness_evidence",
+                       &localization::GlobalLocalizerConfig::closeness_evidence)
+        .def_readwrite("distinct_translation_m",
+                       &localization::GlobalLocalizerConfig::distinct_translation_m)
+        .def_readwrite("distinct_yaw_rad", &localization::GlobalLocalizerConfig::distinct_yaw_rad)
+        .def_readwrite("refine_iterations", &localization::GlobalLocalizerConfig::refine_iterations)
+        .def_readwrite("min_sigma_m", &localization::GlobalLocalizerConfig::min_sigma_m)
+        .def_readwrite("duplicate_tolerance_m",
+                       &localization::GlobalLocalizerConfig::duplicate_tolerance_m)
+        .def_readwrite("skip_hull_stars", &localization::GlobalLocalizerConfig::skip_hull_stars)
+        .def_readwrite("triangle_fallback", &localization::GlobalLocalizerConfig::triangle_fallback)
+        .def_readwrite("candidates_per_triangle",
+                       &localization::GlobalLocalizerConfig::candidates_per_triangle)
+        .def_readwrite("triangle_neighbours",
+                       &localization::GlobalLocalizerConfig::triangle_neighbours)
+        .def_readwrite("max_query_trunks", &localization::GlobalLocalizerConfig::max_query_trunks)
+        .def_readwrite("max_fallback_trunks",
+                       &localization::GlobalLocalizerConfig::max_fallback_trunks)
+        .def_readwrite("max_fallback_matches",
+                       &localization::GlobalLocalizerConfig::max_fallback_matches);
 
-    py::class_<RunnerUp>(m, "RunnerUp")
-        .def_readonly("exists", &RunnerUp::exists)
-        .def_readonly("x", &RunnerUp::x)
-        .def_readonly("y", &RunnerUp::y)
-        .def_readonly("yaw", &RunnerUp::yaw)
-        .def_readonly("inliers", &RunnerUp::inliers)
-        .def_readonly("significance", &RunnerUp::significance);
+    py::class_<localization::RunnerUp>(m, "RunnerUp")
+        .def_readonly("exists", &localization::RunnerUp::exists)
+        .def_readonly("x", &localization::RunnerUp::x)
+        .def_readonly("y", &localization::RunnerUp::y)
+        .def_readonly("yaw", &localization::RunnerUp::yaw)
+        .def_readonly("inliers", &localization::RunnerUp::inliers)
+        .def_readonly("significance", &localization::RunnerUp::significance);
 
-    m.def("poisson_tail_log10", &poissonTailLog10, py::arg("mu"), py::arg("k"),
+    m.def("poisson_tail_log10", &localization::poissonTailLog10, py::arg("mu"), py::arg("k"),
           "-log10 P(X >= k) for X ~ Poisson(mu).");
     m.def(
         "chance_significance",
         [](int inliers, int trials, double expected, int seed_points, int hypotheses) {
-            return chanceEvidence(inliers, trials, expected, seed_points, hypotheses).significance;
+            return localization::chanceEvidence(inliers, trials, expected, seed_points, hypotheses)
+                .significance;
         },
         py::arg("inliers"), py::arg("trials"), py::arg("expected"), py::arg("seed_points"),
         py::arg("hypotheses"),
         "-log10(hypotheses * P(chance inliers >= inliers - seeds)) with the chance inliers "
         "Poisson around `expected` (summed over `trials` trunks, seeds removed pro rata).");
 
-    py::class_<GlobalLocalization>(m, "GlobalLocalization")
-        .def_readonly("rejected", &GlobalLocalization::rejected)
-        .def_readonly("reason", &GlobalLocalization::reason)
-        .def_readonly("x", &GlobalLocalization::x)
-        .def_readonly("y", &GlobalLocalization::y)
-        .def_readonly("yaw", &GlobalLocalization::yaw)
-        .def_readonly("covariance", &GlobalLocalization::covariance, "(3,3) over x, y, yaw")
-        .def_readonly("inliers", &GlobalLocalization::inliers)
-        .def_readonly("second_inliers", &GlobalLocalization::second_inliers)
+    py::class_<localization::GlobalLocalization>(m, "GlobalLocalization")
+        .def_readonly("rejected", &localization::GlobalLocalization::rejected)
+        .def_readonly("reason", &localization::GlobalLocalization::reason)
+        .def_readonly("x", &localization::GlobalLocalization::x)
+        .def_readonly("y", &localization::GlobalLocalization::y)
+        .def_readonly("yaw", &localization::GlobalLocalization::yaw)
+        .def_readonly("covariance", &localization::GlobalLocalization::covariance,
+                      "(3,3) over x, y, yaw")
+        .def_readonly("inliers", &localization::GlobalLocalization::inliers)
+        .def_readonly("second_inliers", &localization::GlobalLocalization::second_inliers)
         .def_property_readonly(
-            "stage", [](const GlobalLocalization &r) { return std::string(stageName(r.stage)); },
+            "stage",
+            [](const localization::GlobalLocalization &r) {
+                return std::string(localization::stageName(r.stage));
+            },
             "'star', 'triangle' or '' (no hypothesis)")
-        .def_readonly("significance", &GlobalLocalization::significance)
-        .def_readonly("expected_chance_inliers", &GlobalLocalization::expected_chance_inliers)
-        .def_readonly("runner_up", &GlobalLocalization::runner_up)
-        .def_readonly("hypotheses", &GlobalLocalization::hypotheses)
-        .def_readonly("query_stars", &GlobalLocalization::query_stars)
-        .def_readonly("matched_triangles", &GlobalLocalization::matched_triangles)
-        .def_readonly("local_trunks", &GlobalLocalization::local_trunks)
-        .def_readonly("rms_m", &GlobalLocalization::rms_m)
+        .def_readonly("significance", &localization::GlobalLocalization::significance)
+        .def_readonly("expected_chance_inliers",
+                      &localization::GlobalLocalization::expected_chance_inliers)
+        .def_readonly("runner_up", &localization::GlobalLocalization::runner_up)
+        .def_readonly("hypotheses", &localization::GlobalLocalization::hypotheses)
+        .def_readonly("query_stars", &localization::GlobalLocalization::query_stars)
+        .def_readonly("matched_triangles", &localization::GlobalLocalization::matched_triangles)
+        .def_readonly("local_trunks", &localization::GlobalLocalization::local_trunks)
+        .def_readonly("rms_m", &localization::GlobalLocalization::rms_m)
         .def_property_readonly(
             "matches",
-            [](const GlobalLocalization &r) {
+            [](const localization::GlobalLocalization &r) {
                 Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor> out(r.matches.size(), 2);
                 for (size_t i = 0; i < r.matches.size(); ++i)
                     out.row(i) << r.matches[i].first, r.matches[i].second;
                 return out;
             },
             "(K,2) int32 inlier pairs (local row, map row)")
-        .def("transform", &GlobalLocalization::transform, "(3,3) homogeneous T_map_local");
+        .def("transform", &localization::GlobalLocalization::transform,
+             "(3,3) homogeneous T_map_local");
 
-    py::class_<TreeMap>(m, "TreeMapIndex")
+    py::class_<localization::TreeMap>(m, "TreeMapIndex")
         .def(py::init<const Eigen::Ref<const Points2> &, double>(), py::arg("xy"),
              py::arg("duplicate_tolerance_m") = 0.01,
              "Triangulate map trunks xy (M,2) float64 and index their triangle stars.")
-        .def("localize", &TreeMap::localize, py::arg("local_xy"),
-             py::arg("config") = GlobalLocalizerConfig(), py::call_guard<py::gil_scoped_release>(),
+        .def("localize", &localization::TreeMap::localize, py::arg("local_xy"),
+             py::arg("config") = localization::GlobalLocalizerConfig(),
+             py::call_guard<py::gil_scoped_release>(),
              "Pose of the local frame in the map from local trunks (K,2) -> GlobalLocalization.")
-        .def_property_readonly("points", &TreeMap::points, "(M,2) map trunks")
-        .def_property_readonly("triangles",
-                               [](const TreeMap &t) { return toRows(t.triangulation().triangles); })
+        .def_property_readonly("points", &localization::TreeMap::points, "(M,2) map trunks")
         .def_property_readonly(
-            "neighbours", [](const TreeMap &t) { return toRows(t.triangulation().neighbours); })
-        .def_property_readonly("stars", [](const TreeMap &t) { return starsToDict(t.stars()); });
+            "triangles",
+            [](const localization::TreeMap &t) { return toRows(t.triangulation().triangles); })
+        .def_property_readonly(
+            "neighbours",
+            [](const localization::TreeMap &t) { return toRows(t.triangulation().neighbours); })
+        .def_property_readonly(
+            "stars", [](const localization::TreeMap &t) { return starsToDict(t.stars()); });
 
-    py::class_<TrunkExtractionConfig>(m, "TrunkExtractionConfig")
+    py::class_<localization::TrunkExtractionConfig>(m, "TrunkExtractionConfig")
         .def(py::init<>())
-        .def_readwrite("voxel_m", &TrunkExtractionConfig::voxel_m)
-        .def_readwrite("height_offset_m", &TrunkExtractionConfig::height_offset_m)
-        .def_readwrite("neighbour_radius_m", &TrunkExtractionConfig::neighbour_radius_m)
-        .def_readwrite("cluster_tolerance_m", &TrunkExtractionConfig::cluster_tolerance_m)
-        .def_readwrite("min_cluster_points", &TrunkExtractionConfig::min_cluster_points)
-        .def_readwrite("max_cluster_points", &TrunkExtractionConfig::max_cluster_points)
-        .def_readwrite("ground_cell_m", &TrunkExtractionConfig::ground_cell_m)
-        .def_readwrite("band_min_m", &TrunkExtractionConfig::band_min_m)
-        .def_readwrite("band_max_m", &TrunkExtractionConfig::band_max_m)
-        .def_readwrite("min_cluster_height_m", &TrunkExtractionConfig::min_cluster_height_m)
-        .def_readwrite("max_cluster_radius_m", &TrunkExtractionConfig::max_cluster_radius_m);
+        .def_readwrite("voxel_m", &localization::TrunkExtractionConfig::voxel_m)
+        .def_readwrite("height_offset_m", &localization::TrunkExtractionConfig::height_offset_m)
+        .def_readwrite("neighbour_radius_m",
+                       &localization::TrunkExtractionConfig::neighbour_radius_m)
+        .def_readwrite("cluster_tolerance_m",
+                       &localization::TrunkExtractionConfig::cluster_tolerance_m)
+        .def_readwrite("min_cluster_points",
+                       &localization::TrunkExtractionConfig::min_cluster_points)
+        .def_readwrite("max_cluster_points",
+                       &localization::TrunkExtractionConfig::max_cluster_points)
+        .def_readwrite("ground_cell_m", &localization::TrunkExtractionConfig::ground_cell_m)
+        .def_readwrite("band_min_m", &localization::TrunkExtractionConfig::band_min_m)
+        .def_readwrite("band_max_m", &localization::TrunkExtractionConfig::band_max_m)
+        .def_readwrite("min_cluster_height_m",
+                       &localization::TrunkExtractionConfig::min_cluster_height_m)
+        .def_readwrite("max_cluster_radius_m",
+                       &localization::TrunkExtractionConfig::max_cluster_radius_m);
 
     m.def(
         "extract_trunks",
-        [](const Eigen::Ref<const Points3> &cloud, const TrunkExtractionConfig &config) {
-            Trunks t;
+        [](const Eigen::Ref<const Points3> &cloud,
+           const localization::TrunkExtractionConfig &config) {
+            localization::Trunks t;
             {
                 py::gil_scoped_release release;  // numpy results are built with the GIL held
-                t = extractTrunks(cloud, config);
+                t = localization::extractTrunks(cloud, config);
             }
             Eigen::VectorXi sizes =
                 Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
             return py::make_tuple(t.xy, sizes);
         },
-        py::arg("cloud"), py::arg("config") = TrunkExtractionConfig(),
+        py::arg("cloud"), py::arg("config") = localization::TrunkExtractionConfig(),
         "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> (xy (K,2), "
         "points per trunk cluster (K,)).");
 }

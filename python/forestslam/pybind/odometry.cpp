@@ -146,9 +146,9 @@ void defineTreeOdometry(py::module_ &m) {
                                  "Per-scan tree odometry (deskew, perception, tree matching, "
                                  "shape-to-shape, ICP, local map) with its motion model.")
         .def(py::init<const od::OdometrySensor &, const od::OdometryConfig &,
-                      const pc::PerceptionOptions &>(),
+                      const pc::PerceptionConfig &>(),
              py::arg("sensor"), py::arg("config") = od::OdometryConfig(),
-             py::arg("perception") = pc::PerceptionOptions())
+             py::arg("perception") = pc::PerceptionConfig())
         .def(
             "register_scan",
             [](od::TreeOdometry &odo, double stamp, const Eigen::Ref<const Points3> &points,

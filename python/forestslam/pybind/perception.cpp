@@ -49,95 +49,95 @@ void defineSensorGeometry(py::module_ &m) {
 
 // The options of the ground and normal filters.
 void defineFilterOptions(py::module_ &m) {
-    py::class_<pc::GroundOptions> gr(m, "GroundOptions");
+    py::class_<pc::GroundConfig> gr(m, "GroundConfig");
     gr.def(py::init<>());
-    FS_FIELD(gr, pc::GroundOptions, cell_size_m);
-    FS_FIELD(gr, pc::GroundOptions, max_window_cells);
-    FS_FIELD(gr, pc::GroundOptions, slope);
-    FS_FIELD(gr, pc::GroundOptions, initial_distance_m);
-    FS_FIELD(gr, pc::GroundOptions, max_distance_m);
-    FS_FIELD(gr, pc::GroundOptions, base);
-    FS_FIELD(gr, pc::GroundOptions, exponential);
-    FS_FIELD(gr, pc::GroundOptions, cell_height_m);
-    FS_FIELD(gr, pc::GroundOptions, min_component_cells);
-    FS_FIELD(gr, pc::GroundOptions, max_range_m);
+    FS_FIELD(gr, pc::GroundConfig, cell_size_m);
+    FS_FIELD(gr, pc::GroundConfig, max_window_cells);
+    FS_FIELD(gr, pc::GroundConfig, slope);
+    FS_FIELD(gr, pc::GroundConfig, initial_distance_m);
+    FS_FIELD(gr, pc::GroundConfig, max_distance_m);
+    FS_FIELD(gr, pc::GroundConfig, base);
+    FS_FIELD(gr, pc::GroundConfig, exponential);
+    FS_FIELD(gr, pc::GroundConfig, cell_height_m);
+    FS_FIELD(gr, pc::GroundConfig, min_component_cells);
+    FS_FIELD(gr, pc::GroundConfig, max_range_m);
 
-    py::class_<pc::NormalFilterOptions> f(m, "NormalFilterOptions");
+    py::class_<pc::NormalFilterConfig> f(m, "NormalFilterConfig");
     f.def(py::init<>());
-    FS_FIELD(f, pc::NormalFilterOptions, adaptive);
-    FS_FIELD(f, pc::NormalFilterOptions, ring_min_m);
-    FS_FIELD(f, pc::NormalFilterOptions, ring_max_m);
-    FS_FIELD(f, pc::NormalFilterOptions, rings);
-    FS_FIELD(f, pc::NormalFilterOptions, radius_scale);
-    FS_FIELD(f, pc::NormalFilterOptions, min_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, fixed_radius_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_normal_angle_rad);
-    FS_FIELD(f, pc::NormalFilterOptions, min_neighbours);
-    FS_FIELD(f, pc::NormalFilterOptions, max_neighbours);
-    FS_FIELD(f, pc::NormalFilterOptions, min_height_m);
-    FS_FIELD(f, pc::NormalFilterOptions, max_height_m);
-    FS_FIELD(f, pc::NormalFilterOptions, voxel_m);
-    FS_FIELD(f, pc::NormalFilterOptions, map_voxel_m);
+    FS_FIELD(f, pc::NormalFilterConfig, adaptive);
+    FS_FIELD(f, pc::NormalFilterConfig, ring_min_m);
+    FS_FIELD(f, pc::NormalFilterConfig, ring_max_m);
+    FS_FIELD(f, pc::NormalFilterConfig, rings);
+    FS_FIELD(f, pc::NormalFilterConfig, radius_scale);
+    FS_FIELD(f, pc::NormalFilterConfig, min_radius_m);
+    FS_FIELD(f, pc::NormalFilterConfig, max_radius_m);
+    FS_FIELD(f, pc::NormalFilterConfig, fixed_radius_m);
+    FS_FIELD(f, pc::NormalFilterConfig, max_normal_angle_rad);
+    FS_FIELD(f, pc::NormalFilterConfig, min_neighbours);
+    FS_FIELD(f, pc::NormalFilterConfig, max_neighbours);
+    FS_FIELD(f, pc::NormalFilterConfig, min_height_m);
+    FS_FIELD(f, pc::NormalFilterConfig, max_height_m);
+    FS_FIELD(f, pc::NormalFilterConfig, voxel_m);
+    FS_FIELD(f, pc::NormalFilterConfig, map_voxel_m);
 }
 
 // The options of segmentation and DBH, and the chain's options holding all of them.
 void defineStemOptions(py::module_ &m) {
-    py::class_<pc::SegmentationOptions> s(m, "SegmentationOptions");
+    py::class_<pc::SegmentationConfig> s(m, "SegmentationConfig");
     s.def(py::init<>());
-    FS_FIELD(s, pc::SegmentationOptions, block_cols);
-    FS_FIELD(s, pc::SegmentationOptions, beta_min_rad);
-    FS_FIELD(s, pc::SegmentationOptions, max_neighbour_gap_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_pixel_gap);
-    FS_FIELD(s, pc::SegmentationOptions, max_gap_m);
-    FS_FIELD(s, pc::SegmentationOptions, min_votes);
-    FS_FIELD(s, pc::SegmentationOptions, euclidean_tolerance_m);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_k);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_neighbours);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_min_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, dbscan_max_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, map_dbscan_eps_m);
-    FS_FIELD(s, pc::SegmentationOptions, min_points);
-    FS_FIELD(s, pc::SegmentationOptions, min_length_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_axis_angle_rad);
-    FS_FIELD(s, pc::SegmentationOptions, min_sv_ratio);
-    FS_FIELD(s, pc::SegmentationOptions, max_width_m);
-    FS_FIELD(s, pc::SegmentationOptions, merge_xy_m);
-    FS_FIELD(s, pc::SegmentationOptions, max_range_m);
-    FS_FIELD(s, pc::SegmentationOptions, ground_search_m);
+    FS_FIELD(s, pc::SegmentationConfig, block_cols);
+    FS_FIELD(s, pc::SegmentationConfig, beta_min_rad);
+    FS_FIELD(s, pc::SegmentationConfig, max_neighbour_gap_m);
+    FS_FIELD(s, pc::SegmentationConfig, max_pixel_gap);
+    FS_FIELD(s, pc::SegmentationConfig, max_gap_m);
+    FS_FIELD(s, pc::SegmentationConfig, min_votes);
+    FS_FIELD(s, pc::SegmentationConfig, euclidean_tolerance_m);
+    FS_FIELD(s, pc::SegmentationConfig, dbscan_k);
+    FS_FIELD(s, pc::SegmentationConfig, dbscan_min_neighbours);
+    FS_FIELD(s, pc::SegmentationConfig, dbscan_min_eps_m);
+    FS_FIELD(s, pc::SegmentationConfig, dbscan_max_eps_m);
+    FS_FIELD(s, pc::SegmentationConfig, map_dbscan_eps_m);
+    FS_FIELD(s, pc::SegmentationConfig, min_points);
+    FS_FIELD(s, pc::SegmentationConfig, min_length_m);
+    FS_FIELD(s, pc::SegmentationConfig, max_axis_angle_rad);
+    FS_FIELD(s, pc::SegmentationConfig, min_sv_ratio);
+    FS_FIELD(s, pc::SegmentationConfig, max_width_m);
+    FS_FIELD(s, pc::SegmentationConfig, merge_xy_m);
+    FS_FIELD(s, pc::SegmentationConfig, max_range_m);
+    FS_FIELD(s, pc::SegmentationConfig, ground_search_m);
 
-    py::class_<pc::DiameterOptions> d(m, "DiameterOptions");
+    py::class_<pc::DiameterConfig> d(m, "DiameterConfig");
     d.def(py::init<>());
-    FS_FIELD(d, pc::DiameterOptions, band_low_m);
-    FS_FIELD(d, pc::DiameterOptions, band_high_m);
-    FS_FIELD(d, pc::DiameterOptions, band_max_half_m);
-    FS_FIELD(d, pc::DiameterOptions, min_band_points);
-    FS_FIELD(d, pc::DiameterOptions, min_radius_m);
-    FS_FIELD(d, pc::DiameterOptions, max_radius_m);
-    FS_FIELD(d, pc::DiameterOptions, inlier_threshold_m);
-    FS_FIELD(d, pc::DiameterOptions, min_arc_coverage);
-    FS_FIELD(d, pc::DiameterOptions, map_min_arc_coverage);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_iterations);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_max_points);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_normal_weight);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_section_low_m);
-    FS_FIELD(d, pc::DiameterOptions, cylinder_section_high_m);
-    FS_FIELD(d, pc::DiameterOptions, max_lean_rad);
-    FS_FIELD(d, pc::DiameterOptions, silhouette);
-    FS_FIELD(d, pc::DiameterOptions, fit_all);
+    FS_FIELD(d, pc::DiameterConfig, band_low_m);
+    FS_FIELD(d, pc::DiameterConfig, band_high_m);
+    FS_FIELD(d, pc::DiameterConfig, band_max_half_m);
+    FS_FIELD(d, pc::DiameterConfig, min_band_points);
+    FS_FIELD(d, pc::DiameterConfig, min_radius_m);
+    FS_FIELD(d, pc::DiameterConfig, max_radius_m);
+    FS_FIELD(d, pc::DiameterConfig, inlier_threshold_m);
+    FS_FIELD(d, pc::DiameterConfig, min_arc_coverage);
+    FS_FIELD(d, pc::DiameterConfig, map_min_arc_coverage);
+    FS_FIELD(d, pc::DiameterConfig, cylinder_iterations);
+    FS_FIELD(d, pc::DiameterConfig, cylinder_max_points);
+    FS_FIELD(d, pc::DiameterConfig, cylinder_normal_weight);
+    FS_FIELD(d, pc::DiameterConfig, cylinder_section_low_m);
+    FS_FIELD(d, pc::DiameterConfig, cylinder_section_high_m);
+    FS_FIELD(d, pc::DiameterConfig, max_lean_rad);
+    FS_FIELD(d, pc::DiameterConfig, silhouette);
+    FS_FIELD(d, pc::DiameterConfig, fit_all);
 
-    py::class_<pc::PerceptionOptions> p(m, "PerceptionOptions",
-                                        "intensity_threshold NaN: no intensity filter.");
+    py::class_<pc::PerceptionConfig> p(m, "PerceptionConfig",
+                                       "intensity_threshold NaN: no intensity filter.");
     p.def(py::init<>());
-    FS_FIELD(p, pc::PerceptionOptions, intensity_threshold);
-    FS_FIELD(p, pc::PerceptionOptions, ground_voxel_m);
-    FS_FIELD(p, pc::PerceptionOptions, breast_height_z);
-    FS_FIELD(p, pc::PerceptionOptions, ground);
-    FS_FIELD(p, pc::PerceptionOptions, filter);
-    FS_FIELD(p, pc::PerceptionOptions, segmentation);
-    FS_FIELD(p, pc::PerceptionOptions, diameter);
-    FS_FIELD(p, pc::PerceptionOptions, slice_voxel_m);
-    FS_FIELD(p, pc::PerceptionOptions, slice_min_inlier_ratio);
+    FS_FIELD(p, pc::PerceptionConfig, intensity_threshold);
+    FS_FIELD(p, pc::PerceptionConfig, ground_voxel_m);
+    FS_FIELD(p, pc::PerceptionConfig, breast_height_z);
+    FS_FIELD(p, pc::PerceptionConfig, ground);
+    FS_FIELD(p, pc::PerceptionConfig, filter);
+    FS_FIELD(p, pc::PerceptionConfig, segmentation);
+    FS_FIELD(p, pc::PerceptionConfig, diameter);
+    FS_FIELD(p, pc::PerceptionConfig, slice_voxel_m);
+    FS_FIELD(p, pc::PerceptionConfig, slice_min_inlier_ratio);
 }
 
 py::dict fitDict(const pc::DiameterFit &f) {
@@ -238,7 +238,7 @@ namespace {
 
 // Circle fits on their own (also used by the evaluation and the TLS tree fits).
 void defineCircleFits(py::module_ &m) {
-    const CircleFitOptions d;  // the keyword defaults are the C++ struct's
+    const CircleFitConfig d;  // the keyword defaults are the C++ struct's
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
@@ -246,7 +246,7 @@ void defineCircleFits(py::module_ &m) {
            double lateral_sigma_m, std::uint32_t seed) {
             if (origins.rows() != xy.rows())
                 throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
-            CircleFitOptions o;
+            CircleFitConfig o;
             o.inlier_threshold_m = inlier_threshold_m;
             o.min_radius_m = min_radius_m;
             o.max_radius_m = max_radius_m;
@@ -269,7 +269,7 @@ void defineCircleFits(py::module_ &m) {
         "fit_circle",
         [](const Eigen::Ref<const Points2> &xy, double inlier_threshold_m, double min_radius_m,
            double max_radius_m, int max_ransac_iterations, int arc_sectors, std::uint32_t seed) {
-            CircleFitOptions o;
+            CircleFitConfig o;
             o.inlier_threshold_m = inlier_threshold_m;
             o.min_radius_m = min_radius_m;
             o.max_radius_m = max_radius_m;
@@ -303,8 +303,8 @@ void defineDetect(py::module_ &m) {
         "perception_detect",
         [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXd> intensity,
            std::optional<Eigen::VectorXi> ring, const pc::SensorGeometry &g, bool scan_centred,
-           const pc::PerceptionOptions &options) {
-            const pc::PerceptionOptions o = options;  // a copy: used without the GIL
+           const pc::PerceptionConfig &options) {
+            const pc::PerceptionConfig o = options;  // a copy: used without the GIL
             const Eigen::VectorXd in = intensity ? *intensity : Eigen::VectorXd();
             const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
             pc::Detection det;
@@ -317,7 +317,7 @@ void defineDetect(py::module_ &m) {
         py::arg("points"), py::arg("intensity"), py::arg("ring"), py::arg("sensor"),
         py::arg("scan_centred"), py::arg("options"),
         "Whole perception chain on points (N,3) (intensity (N,)|None, ring (N,)|None).\n"
-        "sensor: SensorGeometry; options: PerceptionOptions.\n"
+        "sensor: SensorGeometry; options: PerceptionConfig.\n"
         "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
         "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
         "diameters list[dict], ground (G,3), up (3,), timing dict ms (wall), cpu_ms dict\n"
@@ -336,7 +336,7 @@ void defineFilterStages(py::module_ &m) {
         "Rows (list[int]) with intensity <= threshold (all rows when threshold is NaN).");
     m.def(
         "perception_segment_ground",
-        [](const Eigen::Ref<const Points3> &points, const pc::GroundOptions &options) {
+        [](const Eigen::Ref<const Points3> &points, const pc::GroundConfig &options) {
             const pc::GroundSegmentation gs = pc::segmentGround(points, options);
             py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
             auto mm = mask.mutable_unchecked<1>();
@@ -356,7 +356,7 @@ void defineFilterStages(py::module_ &m) {
     m.def(
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
-           const pc::NormalFilterOptions &options) {
+           const pc::NormalFilterConfig &options) {
             const pc::NormalFilterResult r =
                 pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
             py::dict d;
@@ -375,7 +375,7 @@ void defineClusterStages(py::module_ &m) {
     m.def(
         "perception_range_image_clusters",
         [](const Eigen::Ref<const Points3> &points, std::optional<Eigen::VectorXi> ring,
-           const pc::SensorGeometry &g, const pc::SegmentationOptions &options, int min_size) {
+           const pc::SensorGeometry &g, const pc::SegmentationConfig &options, int min_size) {
             const Eigen::VectorXi rg = ring ? *ring : Eigen::VectorXi();
             const auto proj = pc::projectToRangeImage(points, rg, g);
             return clustersList(pc::rangeImageClusters(points, proj, g, options, min_size));
@@ -401,7 +401,7 @@ void defineClusterStages(py::module_ &m) {
     m.def(
         "perception_cluster_shape",
         [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up,
-           const pc::SegmentationOptions &options) {
+           const pc::SegmentationConfig &options) {
             std::vector<int> rows(static_cast<size_t>(points.rows()));
             for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
             const pc::ClusterShape s = pc::clusterShape(points, rows, up);
@@ -422,7 +422,7 @@ void defineClusterStages(py::module_ &m) {
     m.def(
         "perception_estimate_diameter",
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
-           const Eigen::Vector3d &up, const pc::DiameterOptions &options) {
+           const Eigen::Vector3d &up, const pc::DiameterConfig &options) {
             const Points3 n = normals ? *normals : Points3(0, 3);
             return diameterDict(pc::estimateDiameter(points, n, base_z, up, options));
         },

@@ -31,75 +31,79 @@ void define_registration(py::module_ &m) {
         [](const Eigen::Ref<const Points3> &points, const Eigen::Ref<const Eigen::VectorXd> &times,
            const Vector6d &twist_per_s) {
             py::gil_scoped_release release;
-            return deskewPoints(points, times, twist_per_s);
+            return registration::deskewPoints(points, times, twist_per_s);
         },
         py::arg("points"), py::arg("times"), py::arg("twist_per_s"),
         "Constant-velocity motion compensation: points (N,3) float64 measured at times (N,) s\n"
         "after the reference, moved into the sensor frame at the reference for the body twist\n"
         "(6,) per second (translation, rotation vector): p0 = R(t w) p + t v. Rows with a\n"
         "non-finite time are unchanged. Returns (N,3).");
-    py::class_<RegistrationResult>(
+    py::class_<registration::RegistrationResult>(
         m, "RegistrationResult",
         "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
         "left perturbation (planar methods fill x,y,yaw = 0,1,5); "
         "converged, degenerate, inliers, iterations, rmse (m).")
         .def(py::init<>())
-        .def_readwrite("T_target_source", &RegistrationResult::T_target_source)
-        .def_readwrite("covariance", &RegistrationResult::covariance)
-        .def_readwrite("converged", &RegistrationResult::converged)
-        .def_readwrite("degenerate", &RegistrationResult::degenerate)
-        .def_readwrite("inliers", &RegistrationResult::inliers)
-        .def_readwrite("iterations", &RegistrationResult::iterations)
-        .def_readwrite("rmse", &RegistrationResult::rmse)
-        .def("__repr__", [](const RegistrationResult &r) {
+        .def_readwrite("T_target_source", &registration::RegistrationResult::T_target_source)
+        .def_readwrite("covariance", &registration::RegistrationResult::covariance)
+        .def_readwrite("converged", &registration::RegistrationResult::converged)
+        .def_readwrite("degenerate", &registration::RegistrationResult::degenerate)
+        .def_readwrite("inliers", &registration::RegistrationResult::inliers)
+        .def_readwrite("iterations", &registration::RegistrationResult::iterations)
+        .def_readwrite("rmse", &registration::RegistrationResult::rmse)
+        .def("__repr__", [](const registration::RegistrationResult &r) {
             return "RegistrationResult(converged=" + std::to_string(r.converged) +
                    ", degenerate=" + std::to_string(r.degenerate) +
                    ", inliers=" + std::to_string(r.inliers) + ", rmse=" + std::to_string(r.rmse) +
                    ")";
         });
 
-    py::class_<ShapeRegistrationConfig>(m, "ShapeRegistrationConfig")
+    py::class_<registration::ShapeRegistrationConfig>(m, "ShapeRegistrationConfig")
         .def(py::init<>())
-        .def_readwrite("min_sigma_m", &ShapeRegistrationConfig::min_sigma_m)
-        .def_readwrite("consensus_tolerance_m", &ShapeRegistrationConfig::consensus_tolerance_m)
-        .def_readwrite("inlier_threshold_m", &ShapeRegistrationConfig::inlier_threshold_m)
-        .def_readwrite("max_consensus_pairs", &ShapeRegistrationConfig::max_consensus_pairs)
-        .def_readwrite("max_iterations", &ShapeRegistrationConfig::max_iterations)
+        .def_readwrite("min_sigma_m", &registration::ShapeRegistrationConfig::min_sigma_m)
+        .def_readwrite("consensus_tolerance_m",
+                       &registration::ShapeRegistrationConfig::consensus_tolerance_m)
+        .def_readwrite("inlier_threshold_m",
+                       &registration::ShapeRegistrationConfig::inlier_threshold_m)
+        .def_readwrite("max_consensus_pairs",
+                       &registration::ShapeRegistrationConfig::max_consensus_pairs)
+        .def_readwrite("max_iterations", &registration::ShapeRegistrationConfig::max_iterations)
         .def_readwrite("min_inliers_not_degenerate",
-                       &ShapeRegistrationConfig::min_inliers_not_degenerate);
+                       &registration::ShapeRegistrationConfig::min_inliers_not_degenerate);
 
-    py::class_<IcpConfig>(m, "IcpConfig")
+    py::class_<registration::IcpConfig>(m, "IcpConfig")
         .def(py::init<>())
-        .def_readwrite("max_iterations", &IcpConfig::max_iterations)
-        .def_readwrite("max_correspondence_m", &IcpConfig::max_correspondence_m)
-        .def_readwrite("final_correspondence_m", &IcpConfig::final_correspondence_m)
-        .def_readwrite("shrink_iterations", &IcpConfig::shrink_iterations)
-        .def_readwrite("huber_m", &IcpConfig::huber_m)
-        .def_readwrite("translation_tolerance_m", &IcpConfig::translation_tolerance_m)
-        .def_readwrite("rotation_tolerance_rad", &IcpConfig::rotation_tolerance_rad)
-        .def_readwrite("min_correspondences", &IcpConfig::min_correspondences)
-        .def_readwrite("degeneracy_threshold", &IcpConfig::degeneracy_threshold)
-        .def_readwrite("degeneracy_length_m", &IcpConfig::degeneracy_length_m)
-        .def_readwrite("normal_k", &IcpConfig::normal_k);
+        .def_readwrite("max_iterations", &registration::IcpConfig::max_iterations)
+        .def_readwrite("max_correspondence_m", &registration::IcpConfig::max_correspondence_m)
+        .def_readwrite("final_correspondence_m", &registration::IcpConfig::final_correspondence_m)
+        .def_readwrite("shrink_iterations", &registration::IcpConfig::shrink_iterations)
+        .def_readwrite("huber_m", &registration::IcpConfig::huber_m)
+        .def_readwrite("translation_tolerance_m", &registration::IcpConfig::translation_tolerance_m)
+        .def_readwrite("rotation_tolerance_rad", &registration::IcpConfig::rotation_tolerance_rad)
+        .def_readwrite("min_correspondences", &registration::IcpConfig::min_correspondences)
+        .def_readwrite("degeneracy_threshold", &registration::IcpConfig::degeneracy_threshold)
+        .def_readwrite("degeneracy_length_m", &registration::IcpConfig::degeneracy_length_m)
+        .def_readwrite("normal_k", &registration::IcpConfig::normal_k);
 
-    py::class_<FpfhConfig>(m, "FpfhConfig")
+    py::class_<registration::FpfhConfig>(m, "FpfhConfig")
         .def(py::init<>())
-        .def_readwrite("voxel_m", &FpfhConfig::voxel_m)
-        .def_readwrite("normal_radius_m", &FpfhConfig::normal_radius_m)
-        .def_readwrite("feature_radius_m", &FpfhConfig::feature_radius_m)
-        .def_readwrite("ransac_iterations", &FpfhConfig::ransac_iterations)
-        .def_readwrite("correspondence_randomness", &FpfhConfig::correspondence_randomness)
-        .def_readwrite("similarity_threshold", &FpfhConfig::similarity_threshold)
-        .def_readwrite("inlier_distance_m", &FpfhConfig::inlier_distance_m)
-        .def_readwrite("inlier_fraction", &FpfhConfig::inlier_fraction)
-        .def_readwrite("seed", &FpfhConfig::seed)
-        .def_readwrite("icp", &FpfhConfig::icp);
+        .def_readwrite("voxel_m", &registration::FpfhConfig::voxel_m)
+        .def_readwrite("normal_radius_m", &registration::FpfhConfig::normal_radius_m)
+        .def_readwrite("feature_radius_m", &registration::FpfhConfig::feature_radius_m)
+        .def_readwrite("ransac_iterations", &registration::FpfhConfig::ransac_iterations)
+        .def_readwrite("correspondence_randomness",
+                       &registration::FpfhConfig::correspondence_randomness)
+        .def_readwrite("similarity_threshold", &registration::FpfhConfig::similarity_threshold)
+        .def_readwrite("inlier_distance_m", &registration::FpfhConfig::inlier_distance_m)
+        .def_readwrite("inlier_fraction", &registration::FpfhConfig::inlier_fraction)
+        .def_readwrite("seed", &registration::FpfhConfig::seed)
+        .def_readwrite("icp", &registration::FpfhConfig::icp);
 
     m.def(
         "match_trees",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
            const Pose3 &T_pred, double gate_m, double ratio) {
-            const auto pairs = matchTrees(source, target, T_pred, gate_m, ratio);
+            const auto pairs = registration::matchTrees(source, target, T_pred, gate_m, ratio);
             PairArray out(pairs.size(), 2);
             for (size_t i = 0; i < pairs.size(); ++i) out.row(i) << pairs[i].first, pairs[i].second;
             return out;
@@ -111,51 +115,58 @@ void define_registration(py::module_ &m) {
 
     m.def(
         "register_shapes",
-        [](const Eigen::Ref<const Points3> &source_means, const Covariances &source_covs,
-           const Eigen::Ref<const Points3> &target_means, const Covariances &target_covs,
-           const PairArray &pairs, const Pose3 &T_init, const ShapeRegistrationConfig &config) {
-            return registerShapes(source_means, source_covs, target_means, target_covs,
-                                  toPairs(pairs), T_init, config);
+        [](const Eigen::Ref<const Points3> &source_means,
+           const registration::Covariances &source_covs,
+           const Eigen::Ref<const Points3> &target_means,
+           const registration::Covariances &target_covs, const PairArray &pairs,
+           const Pose3 &T_init, const registration::ShapeRegistrationConfig &config) {
+            return registration::registerShapes(source_means, source_covs, target_means,
+                                                target_covs, toPairs(pairs), T_init, config);
         },
         py::arg("source_means"), py::arg("source_covs"), py::arg("target_means"),
         py::arg("target_covs"), py::arg("pairs"), py::arg("T_init"),
-        py::arg("config") = ShapeRegistrationConfig(),
+        py::arg("config") = registration::ShapeRegistrationConfig(),
         "Shape-to-shape Gaussian registration over x, y, yaw (Eq. 3): means (K,3), covs (K,9) "
         "row-major 3x3, pairs (P,2) -> RegistrationResult.");
 
     m.def(
         "consensus_pairs",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
-           const PairArray &pairs, const Pose3 &T_init, const ShapeRegistrationConfig &config) {
-            auto [T, inliers] = consensusPairs(source, target, toPairs(pairs), T_init, config);
+           const PairArray &pairs, const Pose3 &T_init,
+           const registration::ShapeRegistrationConfig &config) {
+            auto [T, inliers] =
+                registration::consensusPairs(source, target, toPairs(pairs), T_init, config);
             return py::make_tuple(T, inliers);
         },
         py::arg("source"), py::arg("target"), py::arg("pairs"), py::arg("T_init"),
-        py::arg("config") = ShapeRegistrationConfig(),
+        py::arg("config") = registration::ShapeRegistrationConfig(),
         "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair "
         "indices).");
 
-    py::class_<PlaneTarget>(
+    py::class_<registration::PlaneTarget>(
         m, "PlaneTarget",
         "ICP target: points (M,3) with a KD-tree and PCA normals (M,3; NaN rows "
         "where the neighbourhood is not planar).")
         .def(py::init([](const Eigen::Ref<const Points3> &points, int normal_k) {
                  py::gil_scoped_release release;
-                 return std::make_unique<PlaneTarget>(points, normal_k);
+                 return std::make_unique<registration::PlaneTarget>(points, normal_k);
              }),
              py::arg("points"), py::arg("normal_k") = 10)
-        .def_property_readonly("points", &PlaneTarget::points)
-        .def_property_readonly("normals", &PlaneTarget::normals)
-        .def("__len__", [](const PlaneTarget &t) { return t.size(); });
+        .def_property_readonly("points", &registration::PlaneTarget::points)
+        .def_property_readonly("normals", &registration::PlaneTarget::normals)
+        .def("__len__", [](const registration::PlaneTarget &t) { return t.size(); });
 
     m.def(
         "icp_point_to_plane",
-        [](const PlaneTarget &target, const Eigen::Ref<const Points3> &source, const Pose3 &T_init,
-           const IcpConfig &config, const Matrix6d &prior_information, const Pose3 &T_prior) {
+        [](const registration::PlaneTarget &target, const Eigen::Ref<const Points3> &source,
+           const Pose3 &T_init, const registration::IcpConfig &config,
+           const Matrix6d &prior_information, const Pose3 &T_prior) {
             py::gil_scoped_release release;
-            return icpPointToPlane(target, source, T_init, config, prior_information, T_prior);
+            return registration::icpPointToPlane(target, source, T_init, config, prior_information,
+                                                 T_prior);
         },
-        py::arg("target"), py::arg("source"), py::arg("T_init"), py::arg("config") = IcpConfig(),
+        py::arg("target"), py::arg("source"), py::arg("T_init"),
+        py::arg("config") = registration::IcpConfig(),
         py::arg("prior_information") = Matrix6d::Zero(), py::arg("T_prior") = Pose3::Identity(),
         "Point-to-plane ICP, 6 DoF: source (N,3) onto a PlaneTarget from T_init (4,4); optional "
         "prior information (6,6) towards T_prior (4,4) -> RegistrationResult.");
@@ -163,16 +174,16 @@ void define_registration(py::module_ &m) {
     m.def(
         "register_fpfh",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
-           const Pose3 &T_init, const FpfhConfig &config) {
+           const Pose3 &T_init, const registration::FpfhConfig &config) {
             py::gil_scoped_release release;
-            return registerFpfh(source, target, T_init, config);
+            return registration::registerFpfh(source, target, T_init, config);
         },
         py::arg("source"), py::arg("target"), py::arg("T_init") = Pose3::Identity(),
-        py::arg("config") = FpfhConfig(),
+        py::arg("config") = registration::FpfhConfig(),
         "FPFH + RANSAC (SampleConsensusPrerejective) + point-to-plane ICP baseline: source (N,3), "
         "target (M,3) -> RegistrationResult (inliers = RANSAC inliers).");
 
-    m.def("voxel_centroids", &voxelCentroids, py::arg("points"), py::arg("voxel_m"),
+    m.def("voxel_centroids", &registration::voxelCentroids, py::arg("points"), py::arg("voxel_m"),
           "Voxel-grid centroids of points (N,3) -> (M,3).");
 }
 

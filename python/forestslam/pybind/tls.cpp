@@ -23,24 +23,25 @@ bool setField(Config &cfg, const std::string &key, const py::handle &value, cons
 }  // namespace
 
 void define_tls(py::module_ &m) {
-    py::class_<StemCentreTarget>(m, "StemCentreTarget",
-                                 "KD-tree and height cells over a target cloud (M,3) for "
-                                 "register_stem_centre_lm; build once, reuse for many frames.")
+    py::class_<registration::StemCentreTarget>(
+        m, "StemCentreTarget",
+        "KD-tree and height cells over a target cloud (M,3) for "
+        "register_stem_centre_lm; build once, reuse for many frames.")
         .def(py::init([](const Eigen::Ref<const Points3> &points) {
                  py::gil_scoped_release release;
-                 return std::make_unique<StemCentreTarget>(points);
+                 return std::make_unique<registration::StemCentreTarget>(points);
              }),
              py::arg("points"))
-        .def("__len__", [](const StemCentreTarget &t) { return t.size(); });
+        .def("__len__", [](const registration::StemCentreTarget &t) { return t.size(); });
 
     m.def(
         "register_stem_centre_lm",
-        [](const StemCentreTarget &target, const Eigen::Ref<const Points3> &centres,
+        [](const registration::StemCentreTarget &target, const Eigen::Ref<const Points3> &centres,
            const Eigen::Ref<const Eigen::VectorXd> &radii, const Eigen::Ref<const Points3> &real,
            const Pose3 &T_initial, const py::kwargs &kwargs) {
-            StemCentreLmConfig cfg;
-            using C = StemCentreLmConfig;
-            SweepTimes times;  // checked by registerStemCentreLm when sweep_order > 0
+            registration::StemCentreLmConfig cfg;
+            using C = registration::StemCentreLmConfig;
+            registration::SweepTimes times;  // checked by registerStemCentreLm when sweep_order > 0
             for (const auto &item : kwargs) {
                 const auto key = item.first.cast<std::string>();
                 const auto &v = item.second;
@@ -79,10 +80,11 @@ void define_tls(py::module_ &m) {
             if (centres.rows() != radii.size()) {
                 throw py::value_error("centres and radii must have the same length");
             }
-            StemCentreLmResult r;
+            registration::StemCentreLmResult r;
             {
                 py::gil_scoped_release release;
-                r = registerStemCentreLm(target, centres, radii, real, T_initial, cfg, &times);
+                r = registration::registerStemCentreLm(target, centres, radii, real, T_initial, cfg,
+                                                       &times);
             }
             py::dict out;
             out["T_target_source"] = r.T_target_source;
@@ -113,8 +115,8 @@ void define_tls(py::module_ &m) {
         "register_ndt",
         [](const Eigen::Ref<const Points3> &target, const Eigen::Ref<const Points3> &source,
            const Pose3 &T_initial, const py::kwargs &kwargs) {
-            NdtConfig cfg;
-            using C = NdtConfig;
+            registration::NdtConfig cfg;
+            using C = registration::NdtConfig;
             for (const auto &item : kwargs) {
                 const auto key = item.first.cast<std::string>();
                 const auto &v = item.second;
@@ -127,10 +129,10 @@ void define_tls(py::module_ &m) {
                                 setField(cfg, key, v, "min_points", &C::min_points);
                 if (!ok) throw py::value_error("unknown option '" + key + "'");
             }
-            NdtResult r;
+            registration::NdtResult r;
             {
                 py::gil_scoped_release release;
-                r = registerNdt(target, source, T_initial, cfg);
+                r = registration::registerNdt(target, source, T_initial, cfg);
             }
             py::dict out;
             out["T_target_source"] = r.T_target_source;
