@@ -13,11 +13,18 @@ N_SCANS = 12
 
 
 def _program() -> Path:
+    """The program of this checkout's build (`make test` builds build/py with the C++ tests and
+    installs the package from it), or next to a `_core` loaded from a build tree (dev.sh)."""
     core = pytest.importorskip("forestslam._core")
-    path = Path(core.__file__).resolve().parents[2] / "cpp" / "apps" / "forestslam_odometry"
-    if not path.is_file():
-        pytest.skip(f"{path} not built")
-    return path
+    app = Path("cpp") / "apps" / "forestslam_odometry"
+    candidates = [
+        Path(__file__).resolve().parents[1] / "build" / "py" / app,
+        Path(core.__file__).resolve().parents[2] / app,
+    ]
+    for path in candidates:
+        if path.is_file():
+            return path
+    pytest.skip(f"forestslam_odometry not built (looked at {', '.join(map(str, candidates))})")
 
 
 def _run(*args) -> subprocess.CompletedProcess:
