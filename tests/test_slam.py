@@ -255,6 +255,21 @@ def test_height_graph_known_answer():
     assert HeightGraph().solve(4)[1].shape == (4,)  # empty: NaN heights, no crash
 
 
+def test_tree_heights_without_height_correction_are_the_observed_means():
+    """The default (no height correction) still gives every tree a height: the mean of its
+    observed centre heights (the prior-map placement levels a run's map on them)."""
+    rng = np.random.default_rng(4)
+    truth = square_path(side=20.0)
+    trees = forest(rng, 60)
+    heights = 1.3 + 0.3 * np.sin(trees[:, 0] / 7.0)
+    slam = run(truth, trees, rng, obs_noise=0.03, heights=heights, cfg=SlamConfig())
+    lm, _ = slam.landmarks()
+    h = slam.landmark_heights()
+    nearest = np.argmin(np.linalg.norm(lm[:, None] - trees[None], axis=2), axis=1)
+    assert np.isfinite(h).all()
+    assert np.median(np.abs(h - heights[nearest])) < 0.02  # no z drift here
+
+
 def test_height_correction_removes_odometry_z_drift():
     rng = np.random.default_rng(3)
     truth = square_path(side=20.0)
