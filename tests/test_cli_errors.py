@@ -4,32 +4,11 @@ traceback unless `--debug`; `--version`; `simulate --list` without --out."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from test_run import install_fake, make_input
 
 import forestslam
-
-
-@pytest.fixture
-def run_main(capsys, monkeypatch):
-    """The console entry in this process: (exit code, stdout, stderr)."""
-    from forestslam.cli.main import main
-
-    def run(*args: str) -> subprocess.CompletedProcess:
-        monkeypatch.setattr(sys, "argv", ["forestslam", *map(str, args)])
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = exc.code
-        out = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out.out, out.err)
-
-    return run
 
 
 @pytest.fixture

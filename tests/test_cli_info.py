@@ -31,24 +31,6 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     )
 
 
-@pytest.fixture
-def run_main(capsys, monkeypatch):
-    """The same entry in this process (fast): returns (exit code, stdout, stderr)."""
-    from forestslam.cli.main import main
-
-    def run(*args: str) -> subprocess.CompletedProcess:
-        monkeypatch.setattr(sys, "argv", ["forestslam", *args])
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = exc.code
-        out = capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out.out, out.err)
-
-    return run
-
-
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory) -> Path:
     rng = np.random.default_rng(4)

@@ -128,8 +128,8 @@ class LandmarkSlam:
         self._lm_run_obs = np.zeros(0, dtype=np.int64)  # observations made by this run
         self._lm_last_kf = np.zeros(0, dtype=np.int64)  # last keyframe that saw it (-1: none)
         self._lm_first_kf = np.zeros(0, dtype=np.int64)  # first keyframe that saw it (-1: none)
-        # mean observed centre height and its count (the heights without `height_correction`)
-        self._lm_z = np.zeros(0)
+        # sum and count of observed centre heights (the heights without `height_correction`)
+        self._lm_zsum = np.zeros(0)
         self._lm_nz = np.zeros(0, dtype=np.int64)
         self._lm_alias = np.zeros(0, dtype=np.int64)  # the older copy a tree was tied to, or -1
         self._tentative: list[_Tentative] = []
@@ -183,19 +183,15 @@ class LandmarkSlam:
         data): corrected for the odometry's z drift with `height_correction`, else the mean of
         its observed heights (the prior-map placement levels B's map on them)."""
         if self.height is None:
-            return self._lm_z.copy()
+            with np.errstate(invalid="ignore"):  # 0 / 0: no height seen -> NaN
+                return self._lm_zsum / self._lm_nz
         return self.height.solve(self.n_landmarks)[1]
 
     def _add_heights(self, lms: np.ndarray, z: np.ndarray) -> None:
-        """Running mean of the observed centre heights of landmarks `lms` (one per row)."""
+        """Count the observed centre heights z of landmarks `lms` (one per row)."""
         ok = np.isfinite(z)
-        for lm, zi in zip(lms[ok].astype(np.int64), z[ok], strict=True):  # a few per keyframe
-            self._lm_nz[lm] += 1
-            self._lm_z[lm] = (
-                zi
-                if self._lm_nz[lm] == 1
-                else (self._lm_z[lm] + (zi - self._lm_z[lm]) / self._lm_nz[lm])
-            )
+        np.add.at(self._lm_zsum, lms[ok].astype(np.int64), z[ok])
+        np.add.at(self._lm_nz, lms[ok].astype(np.int64), 1)
 
     def landmark_sigma(self) -> np.ndarray:
         """Position sigma (L,) of every tree: its observations', combined with its prior's for a
@@ -299,7 +295,7 @@ class LandmarkSlam:
         self._lm_run_obs = np.append(self._lm_run_obs, np.zeros(len(new), dtype=np.int64))
         self._lm_last_kf = np.append(self._lm_last_kf, np.full(len(new), -1, dtype=np.int64))
         self._lm_first_kf = np.append(self._lm_first_kf, np.full(len(new), -1, dtype=np.int64))
-        self._lm_z = np.append(self._lm_z, np.full(len(new), np.nan))
+        self._lm_zsum = np.append(self._lm_zsum, np.zeros(len(new)))
         self._lm_nz = np.append(self._lm_nz, np.zeros(len(new), dtype=np.int64))
         self._lm_alias = np.append(self._lm_alias, np.full(len(new), -1, dtype=np.int64))
         self._update(graph, values, before, "adding prior trees")
@@ -755,7 +751,7 @@ class LandmarkSlam:
                 self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
                 zs = np.array([z for _, z in t.z], dtype=np.float64)
                 zs = zs[np.isfinite(zs)]
-                self._lm_z = np.append(self._lm_z, zs.mean() if len(zs) else np.nan)
+                self._lm_zsum = np.append(self._lm_zsum, zs.sum())
                 self._lm_nz = np.append(self._lm_nz, len(zs))
                 self._lm_alias = np.append(self._lm_alias, -1)
                 self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
