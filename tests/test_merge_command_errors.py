@@ -12,7 +12,7 @@ import shutil
 import numpy as np
 import pytest
 import yaml
-from test_cli_errors import one_line_error, run_main  # noqa: F401 - fixture
+from test_cli_errors import one_line_error
 
 from forestslam.io import write_trees_csv, write_tum
 
