@@ -2,7 +2,6 @@
 killed, --out onto an input run, a binary trees.csv: one line and a non-zero exit, or a warning;
 its --out is owned as a job (run.yaml with status complete)."""
 
-# ruff: noqa: F811 - run_main is a fixture imported from test_cli_errors
 from __future__ import annotations
 
 import fcntl
