@@ -111,3 +111,49 @@ TEST(Acceptance, ClosenessMakesAFewTightInliersSignificant) {
     // Inliers spread over the gate (closeness ~ 1 each, its mean by chance) gain little.
     EXPECT_LT(chanceEvidence(5, 8, 0.08, 3, 10, 2.0).significance, counted.significance + 0.5);
 }
+
+TEST(Acceptance, SeedEvidenceOfChanceMatchesIsExponential) {
+    // A chance seed match: its m edge differences anywhere in the ball of the tolerance, so
+    // P(norm <= d) = (d / R)^m and -ln of it is Exp(1); the noise floor bounds a true match.
+    using forestslam::localization::seedEvidence;
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0, 1);
+    for (const int m : {3, 9}) {
+        double sum = 0;
+        int above2 = 0;
+        const int n = 20000;
+        for (int i = 0; i < n; ++i) {
+            // Uniform in the m-ball of radius 0.35: the norm is R u^(1/m).
+            const double norm = 0.35 * std::pow(u(rng), 1.0 / m);
+            const double v = seedEvidence(norm, 0.35, m, 0.0);
+            sum += v;
+            above2 += v > 2;
+        }
+        EXPECT_NEAR(sum / n, 1.0, 0.03) << m;
+        EXPECT_NEAR(double(above2) / n, std::exp(-2.0), 0.006) << m;
+    }
+    EXPECT_NEAR(seedEvidence(0.035, 0.35, 3, 0.0), 3 * std::log(10.0), 1e-12);
+    EXPECT_EQ(seedEvidence(0.0, 0.35, 3, 0.02), seedEvidence(0.02 * std::sqrt(3.0), 0.35, 3, 0));
+    EXPECT_EQ(seedEvidence(0.5, 0.35, 3, 0.02), 0.0);
+}
+
+TEST(Acceptance, SeedEvidenceJoinsTheTailAsOneMoreTerm) {
+    using forestslam::localization::chanceEvidence;
+    using forestslam::localization::truncatedProductTailLog10;
+    // No chance inliers possible (mu = 0): the tail is the seed term's own, P(Exp(1) >= w).
+    EXPECT_NEAR(truncatedProductTailLog10(0.0, 3.0, 0, 4.0, 1), 4.0 / std::log(10.0), 1e-9);
+    // k = 0 chance inliers, one extra term: P = e^-mu e^-w + sum_{j>=1} Pois(j) Q(j+1, w - j c);
+    // with w < c every j >= 1 term exceeds w surely: P = e^-mu e^-w + 1 - e^-mu.
+    const double mu = 0.05, c = 3.0, w = 2.0;
+    const double p = std::exp(-mu) * std::exp(-w) + 1 - std::exp(-mu);
+    EXPECT_NEAR(truncatedProductTailLog10(mu, c, 0, w, 1), -std::log10(p), 1e-9);
+    // A tight seed match makes the same inliers more significant, in both tails; none: as before.
+    const auto plain = chanceEvidence(5, 8, 0.08, 3, 10, 4.0);
+    EXPECT_GT(chanceEvidence(5, 8, 0.08, 3, 10, 4.0, 4.0).significance, plain.significance + 0.5);
+    EXPECT_EQ(chanceEvidence(5, 8, 0.08, 3, 10, 4.0, 0.0).significance, plain.significance);
+    const auto counted = chanceEvidence(5, 8, 0.08, 3, 10);
+    EXPECT_GT(chanceEvidence(5, 8, 0.08, 3, 10, -1.0, 4.0).significance,
+              counted.significance + 0.5);
+    // An uninformative seed (evidence ~ its mean, 1 nat) costs a little: the search pays for it.
+    EXPECT_LT(chanceEvidence(5, 8, 0.08, 3, 10, 4.0, 1.0).significance, plain.significance + 0.3);
+}

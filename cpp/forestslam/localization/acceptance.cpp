@@ -56,13 +56,14 @@ double poissonTailLog10(double mu, int k) {
     return std::max(0.0, -(log_first + std::log(sum)) / kLn10);
 }
 
-double truncatedProductTailLog10(double mu, double c, int k, double w) {
-    if (k <= 0) return 0.0;
-    if (mu <= 0) return 300.0;
+double truncatedProductTailLog10(double mu, double c, int k, double w, int extra_terms) {
+    extra_terms = std::max(0, extra_terms);
+    if (k + extra_terms <= 0) return 0.0;
+    if (mu <= 0 && extra_terms == 0) return 300.0;
     c = std::max(0.0, c);
-    const double s = k * c + std::max(0.0, w);
-    // P(S >= s) = sum_j Pois(j; mu) Q(j, s - j c), Q(j, x) = P(Gamma(j, 1) >= x)
-    // = P(Poisson(x) <= j - 1) for integer j; summed in log space.
+    const double s = std::max(0, k) * c + std::max(0.0, w);
+    // P(S >= s) = sum_j Pois(j; mu) Q(j + e, s - j c), Q(n, x) = P(Gamma(n, 1) >= x)
+    // = P(Poisson(x) <= n - 1) for integer n (e extra Exp(1) terms); summed in log space.
     auto logsumexp = [](double a, double b) {
         if (a == kNegInf) return b;
         if (b == kNegInf) return a;
@@ -71,16 +72,19 @@ double truncatedProductTailLog10(double mu, double c, int k, double w) {
     };
     const int jmax = static_cast<int>(std::max<double>(k, mu) + 10 * std::sqrt(mu + 1) + 60);
     double total = kNegInf;
-    for (int j = 1; j <= jmax; ++j) {
-        const double log_pois = -mu + j * std::log(mu) - std::lgamma(j + 1.0);
+    for (int j = extra_terms > 0 ? 0 : 1; j <= jmax; ++j) {
+        const double log_pois =
+            mu > 0 ? -mu + j * std::log(mu) - std::lgamma(j + 1.0) : (j == 0 ? 0.0 : kNegInf);
+        if (log_pois == kNegInf) break;
         if (log_pois < total - 40) continue;  // Q <= 1: this term cannot matter
+        const int n = j + extra_terms;        // Exp(1) terms in the sum
         const double x = s - j * c;
         double log_q = 0.0;  // x <= 0: the j terms exceed s surely
         if (x > 0) {
-            // log sum_{m < j} e^-x x^m / m!, terms built by recurrence, summed against the
-            // largest (at m = min(j - 1, floor(x))).
+            // log sum_{m < n} e^-x x^m / m!, terms built by recurrence, summed against the
+            // largest (at m = min(n - 1, floor(x))).
             const double lx = std::log(x);
-            const int mode = std::min(j - 1, static_cast<int>(x));
+            const int mode = std::min(n - 1, static_cast<int>(x));
             const double log_mode = -x + mode * lx - std::lgamma(mode + 1.0);
             double sum = 1.0, t = 0.0;
             for (int m = mode - 1; m >= 0; --m) {  // t = log(term_m / term_mode)
@@ -89,7 +93,7 @@ double truncatedProductTailLog10(double mu, double c, int k, double w) {
                 sum += std::exp(t);
             }
             t = 0.0;
-            for (int m = mode + 1; m < j; ++m) {
+            for (int m = mode + 1; m < n; ++m) {
                 t += lx - std::log(double(m));
                 if (t < -40) break;
                 sum += std::exp(t);
@@ -101,6 +105,12 @@ double truncatedProductTailLog10(double mu, double c, int k, double w) {
     return std::max(0.0, -total / kLn10);
 }
 
+double seedEvidence(double deviation_m, double radius_m, int m, double floor_m) {
+    if (m <= 0 || !(radius_m > 0) || !std::isfinite(deviation_m)) return 0.0;
+    const double d = std::max(deviation_m, std::max(0.0, floor_m) * std::sqrt(double(m)));
+    return d >= radius_m ? 0.0 : m * std::log(radius_m / d);
+}
+
 double closeness(double density, double d_m, double gate_m, double floor_m) {
     const double p = chanceRate(density, gate_m);
     if (p <= 0) return 0.0;
@@ -110,7 +120,7 @@ double closeness(double density, double d_m, double gate_m, double floor_m) {
 }
 
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
-                              int hypotheses, double closeness_sum) {
+                              int hypotheses, double closeness_sum, double seed) {
     ChanceEvidence e;
     e.inliers = inliers;
     e.trials = trials;
@@ -121,9 +131,17 @@ ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed
     const int k = inliers - e.seed_points;
     e.closeness = closeness_sum;
     const double c = per_trunk > 0 ? -std::log(std::min(1.0, per_trunk)) : 0.0;
-    const double tail = closeness_sum < 0 || per_trunk <= 0
-                            ? poissonTailLog10(e.expected, k)
-                            : truncatedProductTailLog10(e.expected, c, k, closeness_sum);
+    e.seed = std::max(0.0, seed);
+    double tail = 0.0;
+    if (closeness_sum < 0 || per_trunk <= 0) {
+        tail = poissonTailLog10(e.expected, k);
+        if (e.seed > 0) {  // Fisher: P(p1 p2 <= x) = x (1 - ln x) for independent p-values
+            const double ln_x = -(tail * kLn10 + e.seed);
+            tail = std::max(0.0, -(ln_x + std::log1p(-ln_x)) / kLn10);
+        }
+    } else {
+        tail = truncatedProductTailLog10(e.expected, c, k, closeness_sum + e.seed, e.seed > 0);
+    }
     e.significance = tail - std::log10(std::max(1, hypotheses));
     return e;
 }

@@ -16,6 +16,15 @@
 // the null a Poisson(mu) number of terms c + Exp(1). A true pose puts its inliers within the
 // positioning noise (centimetres) of their trunks, far inside the gate: in a sparse map 5
 // trunks fitted within 7 cm are as significant as 12 counted in the 0.5 m gate.
+//
+// The seed match itself is evidence too: a hypothesis is verified when its seed shape (3 side
+// lengths of a triangle, 9 edge lengths of a star) agrees with a map shape within the edge
+// tolerance. A chance match agrees anywhere in that tolerance (the map's shapes are smooth at
+// that scale: locally uniform), a true one within the positioning noise. With d the norm of the
+// m edge differences and R the radius of the region searched (the tolerance, or the k-th
+// neighbour's distance when the index returned all k), P(norm <= d) <= (d / R)^m under the null:
+// the ball of radius R lies inside the region searched (conservative). -ln of it is one more
+// Exp(1) term of the sum above (as in Fisher's method: the search pays for both).
 #pragma once
 
 #include <cstdint>
@@ -49,12 +58,17 @@ class DensityGrid {
 double poissonTailLog10(double mu, int k);
 
 // -log10 P(S >= k c + w) for S = sum of N ~ Poisson(mu) terms c + Exp(1) (truncated product of
-// k chance inliers whose closeness sum is w, see above); 0 when k <= 0.
-double truncatedProductTailLog10(double mu, double c, int k, double w);
+// k chance inliers whose closeness sum is w, see above), plus extra_terms independent Exp(1)
+// terms (the seed match's evidence, counted in w); 0 when k + extra_terms <= 0.
+double truncatedProductTailLog10(double mu, double c, int k, double w, int extra_terms = 0);
 
 // -ln(U / p) of one inlier at distance d_m from its map trunk (U = P(D <= d), p = P(D <= gate)
 // at density lambda); distances below floor_m (the positioning noise) count as floor_m.
 double closeness(double density, double d_m, double gate_m, double floor_m);
+
+// -ln P(norm of m chance edge differences <= deviation_m) = m ln(R / d), d at least
+// floor_m * sqrt(m) (the positioning noise), 0 when d >= R (see above).
+double seedEvidence(double deviation_m, double radius_m, int m, double floor_m);
 
 // Chance probability that one trunk lands within gate_m of a map trunk at density lambda.
 double chanceRate(double density, double gate_m);
@@ -72,15 +86,17 @@ struct ChanceEvidence {
     double expected = 0.0;      // sum of p_i over the local trunks tested
     int trials = 0;             // local trunks tested
     double closeness = -1.0;    // sum of -ln(U_i / p_i) over the non-seed inliers; < 0: unknown
+    double seed = 0.0;          // the seed match's evidence (seedEvidence), nats
     double significance = 0.0;  // -log10(hypotheses * P(chance inliers >= inliers - seeds))
 };
 
 // Evidence of `inliers` among `trials` local trunks whose chance rates sum to `expected`, the
 // best of `hypotheses` searched, fitted to `seed_points`. With `closeness` >= 0 (the sum of
 // closeness() over the inliers that are not seeds: the seed_points closest inliers left out)
-// the truncated-product tail, otherwise the count's Poisson tail.
+// the truncated-product tail, otherwise the count's Poisson tail; with seed > 0 (nats) the seed
+// match's evidence joins it (one more Exp(1) term, Fisher's combination for the Poisson tail).
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
-                              int hypotheses, double closeness = -1.0);
+                              int hypotheses, double closeness = -1.0, double seed = 0.0);
 
 struct AcceptanceVerdict {
     bool accepted = false;

@@ -108,16 +108,22 @@ std::vector<double> leaveOneOutResiduals(const Points2 &local, const Points2 &ma
 }
 
 // Vertex correspondence check of two stars: the nine edges agree in length and every triangle
-// of the star has the same orientation on both sides (the side test).
+// of the star has the same orientation on both sides (the side test). *deviation: the norm of
+// the nine edge-length differences.
 bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
-                const Eigen::Ref<const Points2> &map, const Star &ms, double tol) {
+                const Eigen::Ref<const Points2> &map, const Star &ms, double tol,
+                double *deviation) {
     auto L = [&](int k) { return Eigen::Vector2d(local.row(ls.vertices[k]).transpose()); };
     auto M = [&](int k) { return Eigen::Vector2d(map.row(ms.vertices[k]).transpose()); };
     static const int edges[9][2] = {{0, 1}, {1, 2}, {2, 0}, {0, 3}, {1, 3},
                                     {1, 4}, {2, 4}, {2, 5}, {0, 5}};
+    double sq = 0;
     for (const auto &e : edges) {
-        if (std::abs((L(e[0]) - L(e[1])).norm() - (M(e[0]) - M(e[1])).norm()) > tol) return false;
+        const double d = std::abs((L(e[0]) - L(e[1])).norm() - (M(e[0]) - M(e[1])).norm());
+        if (d > tol) return false;
+        sq += d * d;
     }
+    *deviation = std::sqrt(sq);
     // Side test: the apex across edge (a, b) lies on the other side of it from the centre.
     static const int sides[4][3] = {{0, 1, 2}, {1, 0, 3}, {2, 1, 4}, {0, 2, 5}};
     for (const auto &s : sides) {
@@ -138,7 +144,7 @@ struct Hypotheses {
     std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
-             LocalizationStage stage) {
+             LocalizationStage stage, double seed_evidence) {
         ++verified;
         matches.push_back(pose);
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
@@ -146,7 +152,7 @@ struct Hypotheses {
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
         const uint64_t h = cellKey3(qx, qy, qa);
         if (!seen.insert(h).second) return;
-        list.push_back({pose, consensus(local, pose, grid, gate), stage});
+        list.push_back({pose, consensus(local, pose, grid, gate), stage, seed_evidence});
         best = std::max(best, list.back().score);
     }
 };
@@ -330,15 +336,25 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
             if (stars_.stars.empty()) break;
             index_.knn(embedFeature(star.feature), cfg.candidates_per_star,
                        cfg.max_feature_distance_m, idx, dist);
+            // All k returned: the nearest stars in feature space were kept, chance matches are
+            // no longer spread over the whole tolerance; their edges are not tested for it.
+            const bool saturated = int(idx.size()) >= cfg.candidates_per_star;
             for (int m : idx) {
                 const Star &ms = stars_.stars[m];
-                if (!starsAgree(local_in, star, xy_, ms, cfg.edge_tolerance_m)) continue;
+                double deviation = 0;
+                if (!starsAgree(local_in, star, xy_, ms, cfg.edge_tolerance_m, &deviation))
+                    continue;
                 for (int k = 0; k < 6; ++k) {
                     lp[k] = local_in.row(star.vertices[k]).transpose();
                     mp[k] = xy_.row(ms.vertices[k]).transpose();
                 }
+                const double seed =
+                    cfg.seed_evidence && !saturated
+                        ? seedEvidence(deviation, cfg.edge_tolerance_m, 9, 2 * cfg.min_sigma_m)
+                        : 0.0;
                 if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star,
+                             seed);
             }
         }
     }
@@ -386,15 +402,24 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
             const Eigen::Vector3d e = triangleSides(local_in, t, r);
             if (r > 0 && e[0] > s0[0] * (1 + cfg.rotation_ambiguity) + tol) continue;
             triangle_index_.knn(e, cfg.candidates_per_triangle, std::sqrt(3.0) * tol, idx, dist);
+            // The side differences searched: within tol each, or within the k-th neighbour's
+            // distance when all k were returned (a dense map: only the nearest were kept).
+            const double radius =
+                int(idx.size()) >= cfg.candidates_per_triangle ? std::min(tol, dist.back()) : tol;
             for (int m : idx) {
                 const auto &mt = triplets_[m];
-                if ((triangleSides(xy_, mt) - e).cwiseAbs().maxCoeff() > tol) continue;
+                const Eigen::Vector3d diff = triangleSides(xy_, mt) - e;
+                if (diff.cwiseAbs().maxCoeff() > tol) continue;
                 for (int k = 0; k < 3; ++k) {
                     lp[k] = local_in.row(t[(r + k) % 3]).transpose();
                     mp[k] = xy_.row(mt[k]).transpose();
                 }
+                const double seed = cfg.seed_evidence
+                                        ? seedEvidence(diff.norm(), radius, 3, 2 * cfg.min_sigma_m)
+                                        : 0.0;
                 if (fitConsistent(lp, mp, tol, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle);
+                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle,
+                             seed);
             }
         }
     }
@@ -510,7 +535,8 @@ int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalL
 }
 
 ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
-                                 int searched, const GlobalLocalizerConfig &cfg) const {
+                                 int searched, double seed_evidence,
+                                 const GlobalLocalizerConfig &cfg) const {
     // Inliers one-to-one (two detections of a split stem near one map trunk are one).
     std::vector<double> d2s;
     const auto pairs = associate(scoring, pose, grid_, cfg.inlier_gate_m, &d2s);
@@ -536,7 +562,7 @@ ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::Vector3d &
     }
     return chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
                           expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
-                          closeness_sum);
+                          closeness_sum, seed_evidence);
 }
 
 double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
@@ -568,7 +594,7 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     // the most significant distinct one of them, else the best-scoring distinct hypothesis.
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
     auto evidenceOf = [&](const Hypothesis &h) {
-        return evidence(scoring, h.pose, seeds(h.stage), searched, cfg);
+        return evidence(scoring, h.pose, seeds(h.stage), searched, h.seed_evidence, cfg);
     };
     std::vector<ChanceEvidence> top;
     for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)

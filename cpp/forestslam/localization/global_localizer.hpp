@@ -34,6 +34,10 @@ struct GlobalLocalizerConfig {
     // Test how close the inliers land too (truncated product, see acceptance.hpp); residuals
     // below min_sigma_m count as min_sigma_m.
     bool closeness_evidence = true;
+    // Test how closely the seed shape (star edges, triangle sides) matches its map shape too:
+    // a chance match anywhere within edge_tolerance_m, a true one within the noise (see
+    // acceptance.hpp); edge differences below 2 min_sigma_m count as 2 min_sigma_m.
+    bool seed_evidence = true;
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
@@ -60,6 +64,7 @@ struct Hypothesis {
     Eigen::Vector3d pose;  // x, y, yaw of T_map_local
     int score = 0;         // consensus: local trunks within the gate of a map trunk
     LocalizationStage stage = LocalizationStage::Star;
+    double seed_evidence = 0.0;  // of the seed match's shape agreement, nats (acceptance.hpp)
 };
 
 // The best hypothesis distinct from the answer (further than distinct_translation_m or
@@ -136,9 +141,10 @@ class TreeMap {
     int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
                  const GlobalLocalizerConfig &cfg) const;
     // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points,
-    // the best of `searched`.
+    // the best of `searched`, its seed match's own evidence seed_evidence (nats).
     ChanceEvidence evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
-                            int searched, const GlobalLocalizerConfig &cfg) const;
+                            int searched, double seed_evidence,
+                            const GlobalLocalizerConfig &cfg) const;
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
     double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 

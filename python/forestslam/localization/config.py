@@ -44,6 +44,10 @@ class LocalizationConfig:
     # them within the positioning noise, chance ones anywhere in the gate); residuals below
     # min_sigma_m count as min_sigma_m.
     closeness_evidence: bool = True
+    # Test how closely the seed shape (a star's 9 edges, a triangle's 3 sides) matches its map
+    # shape too: a chance match lies anywhere within edge_tolerance_m, a true one within the
+    # noise; edge differences below 2 min_sigma_m count as 2 min_sigma_m.
+    seed_evidence: bool = True
     distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: NonNegative = 5.0
     refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers

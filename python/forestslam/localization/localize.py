@@ -107,6 +107,7 @@ def _core_config(config: LocalizationConfig):
         "ambiguity_ratio",
         "min_significance",
         "closeness_evidence",
+        "seed_evidence",
         "distinct_translation_m",
         "refine_iterations",
         "min_sigma_m",

@@ -92,6 +92,7 @@ void define_localization(py::module_ &m) {
         .def_readwrite("min_significance", &localization::GlobalLocalizerConfig::min_significance)
         .def_readwrite("closeness_evidence",
                        &localization::GlobalLocalizerConfig::closeness_evidence)
+        .def_readwrite("seed_evidence", &localization::GlobalLocalizerConfig::seed_evidence)
         .def_readwrite("distinct_translation_m",
                        &localization::GlobalLocalizerConfig::distinct_translation_m)
         .def_readwrite("distinct_yaw_rad", &localization::GlobalLocalizerConfig::distinct_yaw_rad)
