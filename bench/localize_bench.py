@@ -77,12 +77,18 @@ def drivable_pose(
 
 
 def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
-    """Local trunks (K,2) in the last frame's sensor frame and its true pose (x, y, yaw).
+    """Local trunks (K,2) in the last frame's sensor frame, its true pose (x, y, yaw) and the
+    trunks' measured DBH (K,) (NaN where not measured).
 
     Frames lie `args.spacing` m apart along a drivable straight path; their odometry poses
     carry a random-walk error (2 cm, 0.2 deg per frame). False trunks: `args.false_trunks`
     persistent objects near the path (stumps, posts: seen like trees) plus
-    `args.transient_false` per frame on average (clutter that does not repeat)."""
+    `args.transient_false` per frame on average (clutter that does not repeat). DBH per
+    detection (drawn from `args.dbh_rng`, so the positions do not depend on it): the true one
+    plus N(0, `args.dbh_noise`), a gross error (0.05-0.8 m) with `args.dbh_outliers`, none with
+    `args.dbh_missing`; a trunk seen in several frames gets the median of its measurements."""
+    from scipy.spatial import cKDTree
+
     from forestslam.localization import LocalizationConfig, aggregate_stems
 
     lo = float(xy.min()) + args.margin if lo is None else lo
@@ -92,13 +98,16 @@ def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
     rr = args.range * np.sqrt(rng.uniform(size=n_fake))
     aa = rng.uniform(-math.pi, math.pi, n_fake)
     fakes = path[-1] + np.column_stack([rr * np.cos(aa), rr * np.sin(aa)])
-    xys, poses = [], []
+    drng = args.dbh_rng
+    fake_dbh = drng.uniform(0.05, 0.5, n_fake)
+    xys, poses, dbhs = [], [], []
     drift = np.zeros(3)
     true_pose = None
     for k, pos in enumerate(path):
         yaw = heading + rng.normal(0, 0.05)
         idx = visible_trees(xy, dbh, pos, rng, args.range, args.dropout, args.sapling_dropout)
-        fake_seen = fakes[np.hypot(*(fakes - pos).T) < args.range]
+        near_fake = np.hypot(*(fakes - pos).T) < args.range
+        fake_seen = fakes[near_fake]
         d = np.vstack([xy[idx], fake_seen]) - pos
         local = d @ rot2(yaw)  # world offsets in the frame turned by yaw
         local += rng.normal(0, args.noise, local.shape)
@@ -106,6 +115,8 @@ def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
         rt = args.range * np.sqrt(rng.uniform(size=nt))
         at = rng.uniform(-math.pi, math.pi, nt)
         local = np.vstack([local, np.column_stack([rt * np.cos(at), rt * np.sin(at)])])
+        true_dbh = np.concatenate([dbh[idx], fake_dbh[near_fake], drng.uniform(0.05, 0.5, nt)])
+        dbhs.append(measured_dbh(true_dbh, drng, args))
         if k > 0:
             drift += [rng.normal(0, 0.02), rng.normal(0, 0.02), rng.normal(0, math.radians(0.2))]
         if k == len(path) - 1:
@@ -115,7 +126,31 @@ def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
         xys.append(local)
         poses.append(T)
     config = LocalizationConfig(min_observations=args.min_observations)
-    return aggregate_stems(xys, poses, config), true_pose
+    centres = aggregate_stems(xys, poses, config)
+    # Each aggregated trunk's DBH: the median of the detections merged into it.
+    T_last = np.linalg.inv(poses[-1])
+    det = np.vstack(
+        [
+            (np.column_stack([p, np.zeros(len(p)), np.ones(len(p))]) @ (T_last @ T).T)[:, :2]
+            for p, T in zip(xys, poses, strict=True)
+        ]
+    )
+    det_dbh = np.concatenate(dbhs)
+    near = cKDTree(det).query_ball_point(centres, config.merge_radius_m + 1e-6)
+    with np.errstate(all="ignore"):
+        centre_dbh = np.array(
+            [np.nanmedian(det_dbh[n]) if np.isfinite(det_dbh[n]).any() else np.nan for n in near]
+        )
+    return centres, true_pose, centre_dbh
+
+
+def measured_dbh(true_dbh: np.ndarray, rng: np.random.Generator, args) -> np.ndarray:
+    """One frame's DBH estimates: noisy, sometimes grossly wrong, sometimes missing."""
+    out = true_dbh + rng.normal(0, args.dbh_noise, len(true_dbh))
+    gross = rng.uniform(size=len(out)) < args.dbh_outliers
+    out[gross] = rng.uniform(0.05, 0.8, gross.sum())
+    out[rng.uniform(size=len(out)) < args.dbh_missing] = np.nan
+    return np.maximum(out, 0.02)
 
 
 def pose_error(loc, truth):
@@ -125,7 +160,7 @@ def pose_error(loc, truth):
 
 
 def run_simulated(args) -> None:
-    from forestslam.localization import build_map, localize
+    from forestslam.localization import build_map
 
     xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
     tree_map = build_map(xy, dbh)
@@ -137,56 +172,78 @@ def run_simulated(args) -> None:
         f"with odometry noise; poses >= {args.margin} m inside the stand"
     )
     print(
-        f"{'range m':>7} {'frames':>6} {'queries':>7} {'success':>8} {'rejected':>8} "
-        f"{'wrong acc':>9} {'median err m':>12} {'median deg':>10} {'trunks':>6} {'ms/query':>8}"
+        f"query DBH (rows 'xy+dbh'): true + N(0, {args.dbh_noise} m), {args.dbh_outliers:.0%} "
+        f"gross errors, {args.dbh_missing:.0%} missing; rows 'xy': positions only (same views)"
+    )
+    print(
+        f"{'range m':>7} {'frames':>6} {'input':>6} {'queries':>7} {'success':>8} "
+        f"{'rejected':>8} {'wrong acc':>9} {'median err m':>12} {'median deg':>10} "
+        f"{'trunks':>6} {'ms/query':>8}"
     )
     for max_range in args.ranges:
         args.range = max_range
         for frames in (1, 5):
             rng = np.random.default_rng(args.seed + frames)
-            ok = rej = wrong = 0
-            errs, degs, trunks, times = [], [], [], []
-            for _ in range(args.queries):
-                local, truth = simulate_query(xy, dbh, rng, frames, args)
-                loc = localize(tree_map, local)
-                trunks.append(len(local))
-                times.append(loc.time_ms)
-                if loc.rejected:
-                    rej += 1
-                    continue
-                e, d = pose_error(loc, truth)
-                if e < 0.5 and d < 2.0:
-                    ok += 1
-                    errs.append(e)
-                    degs.append(d)
-                else:
-                    wrong += 1
-            n = args.queries
-            print(
-                f"{max_range:>7.0f} {frames:>6} {n:>7} {ok / n:>8.1%} {rej / n:>8.1%} "
-                f"{wrong / n:>9.1%} {np.median(errs) if errs else float('nan'):>12.3f} "
-                f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
-                f"{np.median(times):>8.2f}"
-            )
+            args.dbh_rng = np.random.default_rng(args.seed + 50 + frames)
+            queries = [simulate_query(xy, dbh, rng, frames, args) for _ in range(args.queries)]
+            for with_dbh in (False, True):
+                print_simulated_row(tree_map, queries, with_dbh, max_range, frames)
     print(
         "targets (issue 16): 1-frame views >= 99 % right (issue's 3,604-tree stand: 189/200 = "
         "94.5 % before), 0 wrong"
     )
 
 
-def count_absent(name, frames, tree_map, query, args, total, accepted_total):
-    """Localize `args.absent_queries` queries of a place not in `tree_map` (`query()` makes
-    one), print the row and return the updated (queries, accepted) totals."""
+def print_simulated_row(tree_map, queries, with_dbh, max_range, frames) -> None:
     from forestslam.localization import localize
 
-    acc = tri = 0
+    ok = rej = wrong = 0
+    errs, degs, trunks, times = [], [], [], []
+    for local, truth, local_dbh in queries:
+        c0 = time.process_time()
+        loc = localize(tree_map, local, local_dbh_m=local_dbh if with_dbh else None)
+        times.append(1e3 * (time.process_time() - c0))
+        trunks.append(len(local))
+        if loc.rejected:
+            rej += 1
+            continue
+        e, d = pose_error(loc, truth)
+        if e < 0.5 and d < 2.0:
+            ok += 1
+            errs.append(e)
+            degs.append(d)
+        else:
+            wrong += 1
+    n = len(queries)
+    print(
+        f"{max_range:>7.0f} {frames:>6} {'xy+dbh' if with_dbh else 'xy':>6} {n:>7} "
+        f"{ok / n:>8.1%} {rej / n:>8.1%} {wrong / n:>9.1%} "
+        f"{np.median(errs) if errs else float('nan'):>12.3f} "
+        f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
+        f"{np.mean(times):>8.2f}"
+    )
+
+
+def count_absent(name, frames, tree_map, query, args, totals):
+    """Localize `args.absent_queries` queries of a place not in `tree_map` (`query()` makes
+    one), with positions only and with DBH, print the row and add to `totals` (queries,
+    accepted xy, accepted xy+dbh)."""
+    from forestslam.localization import localize
+
+    acc = tri = acc_dbh = 0
     for _ in range(args.absent_queries):
-        local, _truth = query()
+        local, _truth, local_dbh = query()
         loc = localize(tree_map, local)
         acc += loc.accepted
         tri += loc.accepted and loc.stage == "triangle"
-    print(f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} {tri:>8}")
-    return total + args.absent_queries, accepted_total + acc
+        acc_dbh += localize(tree_map, local, local_dbh_m=local_dbh).accepted
+    print(
+        f"{name:>28} {args.range:>7.0f} {frames:>6} {args.absent_queries:>7} {acc:>8} {tri:>8} "
+        f"{acc_dbh:>10}"
+    )
+    totals[0] += args.absent_queries
+    totals[1] += acc
+    totals[2] += acc_dbh
 
 
 def run_simulated_absent(args) -> None:
@@ -203,8 +260,10 @@ def run_simulated_absent(args) -> None:
     rng = np.random.default_rng(args.seed + 100)
     print("\n== Absent places (simulated views; accepted = wrong) ==")
     print(
-        f"{'case':>28} {'range m':>7} {'frames':>6} {'queries':>7} {'accepted':>8} {'triangle':>8}"
+        f"{'case':>28} {'range m':>7} {'frames':>6} {'queries':>7} {'accepted':>8} {'triangle':>8} "
+        f"{'acc w/ dbh':>10}"
     )
+    args.dbh_rng = np.random.default_rng(args.seed + 150)
     mid = float(np.median(xy[:, 0]))
     whole = build_map(xy, dbh)
     halves = {
@@ -217,14 +276,12 @@ def run_simulated_absent(args) -> None:
             (float(xy[:, 0].min()) + 5, mid - args.range - 5),
         ),
     }
-    total = accepted_total = 0
+    totals = [0, 0, 0]
     for name, (in_map, (xlo, xhi)) in halves.items():
         tree_map = build_map(xy[in_map], dbh[in_map])
         for frames in (1, 5):
             query = partial(simulate_query_x, xy, dbh, rng, frames, args, xlo, xhi)
-            total, accepted_total = count_absent(
-                name, frames, tree_map, query, args, total, accepted_total
-            )
+            count_absent(name, frames, tree_map, query, args, totals)
     others = {"spruces in longleaf": (sp_xy, sp_dbh, 2.0)}
     for density in (0.01, 0.02, 0.05):
         sxy = random_stand(3000, density, rng)
@@ -233,12 +290,11 @@ def run_simulated_absent(args) -> None:
         lo, hi = float(oxy.min()) + margin, float(oxy.max()) - margin
         for frames in (1, 5):
             query = partial(simulate_query, oxy, odbh, rng, frames, args, lo, hi)
-            total, accepted_total = count_absent(
-                name, frames, whole, query, args, total, accepted_total
-            )
+            count_absent(name, frames, whole, query, args, totals)
+    total = max(totals[0], 1)
     print(
-        f"absent places accepted: {accepted_total}/{max(total, 1)} = "
-        f"{accepted_total / max(total, 1):.2%} (target <= 0.5 %)"
+        f"absent places accepted: xy {totals[1]}/{total} = {totals[1] / total:.2%}, with DBH "
+        f"{totals[2]}/{total} = {totals[2] / total:.2%} (target <= 0.5 %)"
     )
 
 
@@ -246,9 +302,9 @@ def simulate_query_x(xy, dbh, rng, frames, args, xlo, xhi):
     """simulate_query with the path's x inside [xlo, xhi] (a strip of the stand)."""
     ylo, yhi = float(xy[:, 1].min()) + 5, float(xy[:, 1].max()) - 5
     for _ in range(1000):
-        local, truth = simulate_query(xy, dbh, rng, frames, args, min(xlo, ylo), max(xhi, yhi))
-        if xlo <= truth[0] <= xhi and ylo <= truth[1] <= yhi:
-            return local, truth
+        q = simulate_query(xy, dbh, rng, frames, args, min(xlo, ylo), max(xhi, yhi))
+        if xlo <= q[1][0] <= xhi and ylo <= q[1][1] <= yhi:
+            return q
     raise RuntimeError("no drivable pose in the strip")
 
 
@@ -284,7 +340,7 @@ def run_treeloc(args) -> None:
 
     from forestslam.io.tree_tables import read_tree_table
     from forestslam.localization import LocalizationConfig, build_map, localize
-    from forestslam.localization.tables import query_xy, table_map_xy, true_planar_pose
+    from forestslam.localization.tables import query_trees, table_map_xy, true_planar_pose
 
     root = DATA / "treeloc"
     if not (root / "wild_v03").is_dir():
@@ -303,7 +359,10 @@ def run_treeloc(args) -> None:
     config = LocalizationConfig()
     if args.treeloc_range is not None:
         config.max_range_m = args.treeloc_range
-    print(f"query trees within {config.max_range_m:.0f} m of the frame's pose")
+    print(
+        f"query trees within {config.max_range_m:.0f} m of the frame's pose; DBH evidence "
+        f"{'on (the tables DBH, both sides)' if args.treeloc_dbh else 'off (positions only)'}"
+    )
     for q_name, m_name in (("v03", "v04"), ("v04", "v03")):
         qt, mt = tables[q_name], tables[m_name]
         c0 = time.process_time()
@@ -320,9 +379,11 @@ def run_treeloc(args) -> None:
         rows = []
         for kind, ks in (("test", test), ("absent", absent)):
             for k in ks:
-                local, R = query_xy(qt, int(k), args.treeloc_gravity, config.max_range_m)
+                local, local_dbh, R = query_trees(
+                    qt, int(k), args.treeloc_gravity, config.max_range_m
+                )
                 c0 = time.process_time()
-                loc = localize(tree_map, local, config)
+                loc = localize(tree_map, local, config, local_dbh if args.treeloc_dbh else None)
                 ms = 1e3 * (time.process_time() - c0)
                 tx, ty, tyaw = true_planar_pose(qt, int(k), R)
                 rows.append(
@@ -391,12 +452,11 @@ def run_treeloc(args) -> None:
         west = map_xy[:, 0] < np.median(map_xy[:, 0])
         half = build_map(map_xy[west], map_dbh[west])
         away = frames[cKDTree(map_xy[west]).query(q_pos[frames])[0] > reach]
-        half_acc = sum(
-            localize(
-                half, query_xy(qt, int(k), args.treeloc_gravity, config.max_range_m)[0]
-            ).accepted
-            for k in away
-        )
+        half_acc = 0
+        for k in away:
+            local, local_dbh, _R = query_trees(qt, int(k), args.treeloc_gravity, config.max_range_m)
+            loc = localize(half, local, config, local_dbh if args.treeloc_dbh else None)
+            half_acc += loc.accepted
         print(
             f"  absent places in the map's western half ({west.sum()} trees; queries > "
             f"{reach:.0f} m from all of them): accepted {half_acc}/{len(away)} = "
@@ -426,6 +486,7 @@ def run_paper_table(args) -> None:
     xy, dbh = load_stand(DATA / "stands" / "longleaf.csv")
     tree_map = build_map(xy, dbh)
     args.range = args.ranges[0]
+    args.dbh_rng = np.random.default_rng(args.seed + 250)
     print("\n== Li et al. Table I: aggregated frames (simulated views, longleaf map) ==")
     print(
         f"{'frames':>6} | {'paper: trunks':>13} {'matched tri':>11} {'success':>7} | "
@@ -438,7 +499,7 @@ def run_paper_table(args) -> None:
         for matcher in ("paper", "default"):
             config = LocalizationConfig(matcher=matcher)
             tri, ok, wrong, ms = [], 0, 0, []
-            for local, truth in queries:
+            for local, truth, _dbh in queries:
                 c0 = time.process_time()
                 loc = localize(tree_map, local, config)
                 ms.append(1e3 * (time.process_time() - c0))
@@ -475,16 +536,20 @@ def run_fortls() -> None:
     map_xy = np.vstack(
         [np.column_stack([field["x"], field["y"]])[field["plot"] == p] + offsets[p] for p in plots]
     )
-    tree_map = build_map(map_xy)
+    map_dbh = np.concatenate([field["dbh_cm"][field["plot"] == p] / 100 for p in plots])
+    tree_map = build_map(map_xy, map_dbh)
     print(f"\n== FORTLS: TLS trees of each plot in one map of {len(plots)} field plots ==")
     print(f"global map: {tree_map}, plot p centred at ({spacing:.0f}*(p-1), 0)")
     print(
         f"{'plot':>4} {'field':>5} {'tls':>4} {'found':>6} {'plot hit':>8} {'inliers':>7} "
         f"{'rot deg':>8} {'dx m':>7} {'dy m':>7} {'rms m':>6} {'ms':>6}"
     )
-    correct = 0
+    correct = correct_dbh = 0
     for p in plots:
         local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
+        local_dbh = tls["dbh_cm"][tls["plot"] == p] / 100
+        with_dbh = localize(tree_map, local, local_dbh_m=local_dbh)
+        correct_dbh += with_dbh.accepted and np.hypot(with_dbh.x - offsets[p][0], with_dbh.y) < 5
         loc = localize(tree_map, local)
         # Which plot did the local centre land in?
         hit = int(np.argmin([np.hypot(loc.x - o[0], loc.y - o[1]) for o in offsets.values()]))
@@ -499,7 +564,10 @@ def run_fortls() -> None:
             f"{loc.rms_m:>6.3f} {loc.time_ms:>6.2f} {loc.stage or '-':>8} "
             f"{loc.significance:>6.1f}"
         )
-    print(f"right plot found for {correct}/{len(plots)} plots (target: all)")
+    print(
+        f"right plot found for {correct}/{len(plots)} plots, with the TLS and field DBH "
+        f"{correct_dbh}/{len(plots)} (target: all)"
+    )
     run_fortls_leave_one_out(field, tls, plots)
 
 
@@ -540,47 +608,68 @@ def run_fortls_leave_one_out(field: dict, tls: dict, plots: list[int]) -> None:
     stand = np.vstack(
         [np.column_stack([field["x"], field["y"]])[field["plot"] == p] + centres[p] for p in plots]
     )
+    stand_dbh = np.concatenate([field["dbh_cm"][field["plot"] == p] / 100 for p in plots])
     from forestslam.localization import merge_close
 
-    stand = merge_close(stand, 0.05)  # the same tree measured in two plots
+    # The same tree measured in two plots is one (same position and DBH).
+    stand, labels = merge_close(stand, 0.05, return_labels=True)
+    stand_dbh = np.bincount(labels, stand_dbh) / np.bincount(labels)
+    tls_xy = {p: np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p] for p in plots}
+    tls_dbh = {p: tls["dbh_cm"][tls["plot"] == p] / 100 for p in plots}
     print(f"\nFORTLS stand rebuilt from the overlapping plots: {len(stand)} distinct trees")
     # Present: each plot's TLS trees in the whole stand (right within 3 m of its centre).
-    tree_map = build_map(stand)
-    right = 0
+    tree_map = build_map(stand, stand_dbh)
+    right = right_dbh = 0
     for p in plots:
-        loc = localize(tree_map, np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p])
-        right += loc.accepted and float(np.hypot(*(np.array([loc.x, loc.y]) - centres[p]))) < 3
-    print(f"present: TLS plot found in the whole stand {right}/{len(plots)}")
+        for dbh in (None, tls_dbh[p]):
+            loc = localize(tree_map, tls_xy[p], local_dbh_m=dbh)
+            hit = loc.accepted and float(np.hypot(*(np.array([loc.x, loc.y]) - centres[p]))) < 3
+            right += hit and dbh is None
+            right_dbh += hit and dbh is not None
+    print(
+        f"present: TLS plot found in the whole stand {right}/{len(plots)}, with DBH "
+        f"{right_dbh}/{len(plots)}"
+    )
     print("leave-one-plot-out (map: stand minus 25 m around the plot; accepted = wrong)")
     print(
-        f"{'plot':>4} {'map':>4} {'accepted':>8} {'stage':>8} {'inliers':>7} {'signif':>7} reason"
+        f"{'plot':>4} {'map':>4} {'accepted':>8} {'stage':>8} {'inliers':>7} {'signif':>7} "
+        f"{'w/ dbh':>6} {'signif':>6} reason"
     )
-    wrong = 0
+    wrong = wrong_dbh = 0
     for p in plots:
         keep = np.hypot(*(stand - centres[p]).T) > 25.0
-        local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
-        loc = localize(build_map(stand[keep]), local)
+        left_out = build_map(stand[keep], stand_dbh[keep])
+        loc = localize(left_out, tls_xy[p])
+        loc_dbh = localize(left_out, tls_xy[p], local_dbh_m=tls_dbh[p])
         wrong += loc.accepted
+        wrong_dbh += loc_dbh.accepted
         print(
             f"{p:>4} {int(keep.sum()):>4} {'YES' if loc.accepted else 'no':>8} "
-            f"{loc.stage or '-':>8} {loc.inliers:>7} {loc.significance:>7.2f} {loc.reason}"
+            f"{loc.stage or '-':>8} {loc.inliers:>7} {loc.significance:>7.2f} "
+            f"{'YES' if loc_dbh.accepted else 'no':>6} {loc_dbh.significance:>6.2f} {loc.reason}"
         )
-    print(f"absent plot accepted {wrong}/{len(plots)} (target <= 0.5 %)")
+    print(
+        f"absent plot accepted {wrong}/{len(plots)}, with DBH {wrong_dbh}/{len(plots)} "
+        "(target <= 0.5 %)"
+    )
     # Ten queries cannot show a rate of 0.5 %: each left-out plot is also queried with 20 random
     # partial views (80 % of its TLS trees, another scan position's misses), 200 queries.
     rng = np.random.default_rng(16)
-    subsets = accepted = 0
+    subsets = accepted = accepted_dbh = 0
     for p in plots:
         keep = np.hypot(*(stand - centres[p]).T) > 25.0
-        tree_map = build_map(stand[keep])
-        local = np.column_stack([tls["x"], tls["y"]])[tls["plot"] == p]
+        tree_map = build_map(stand[keep], stand_dbh[keep])
         for _ in range(20):
-            part = local[rng.uniform(size=len(local)) < 0.8]
-            accepted += localize(tree_map, part).accepted
+            part = rng.uniform(size=len(tls_xy[p])) < 0.8
+            accepted += localize(tree_map, tls_xy[p][part]).accepted
+            accepted_dbh += localize(
+                tree_map, tls_xy[p][part], local_dbh_m=tls_dbh[p][part]
+            ).accepted
             subsets += 1
     print(
         f"absent plot, partial views (80 % of the TLS trees, 20 per plot): accepted "
-        f"{accepted}/{subsets} = {accepted / subsets:.2%} (target <= 0.5 %)"
+        f"{accepted}/{subsets} = {accepted / subsets:.2%}, with DBH {accepted_dbh}/{subsets} "
+        f"= {accepted_dbh / subsets:.2%} (target <= 0.5 %)"
     )
 
 
@@ -687,7 +776,7 @@ def run_speed_queries(args, rng, xy) -> None:
         times, cpu, sizes, ok = [], [], [], 0
         lo, hi = float(xy.min() + 5), float(xy.max() - 5)
         for _ in range(args.speed_queries):
-            local, truth = simulate_query(xy, dbh, rng, frames, args, lo, hi)
+            local, truth, _dbh = simulate_query(xy, dbh, rng, frames, args, lo, hi)
             c0 = time.process_time()
             loc = localize(tree_map, local)
             cpu.append(1e3 * (time.process_time() - c0))
@@ -722,6 +811,9 @@ def main() -> int:
     parser.add_argument("--transient-false", type=float, default=1.0, help="per frame")
     parser.add_argument("--spacing", type=float, default=3.0, help="metres between frames")
     parser.add_argument("--min-observations", type=int, default=1)
+    parser.add_argument("--dbh-noise", type=float, default=0.03, help="query DBH sigma, m")
+    parser.add_argument("--dbh-outliers", type=float, default=0.1, help="gross DBH errors")
+    parser.add_argument("--dbh-missing", type=float, default=0.2, help="DBH not measured")
     parser.add_argument(
         "--margin", type=float, default=20.0, help="poses this far inside the stand"
     )
@@ -731,6 +823,9 @@ def main() -> int:
         choices=["stems", "reference", "none"],
         default="stems",
         help="levelling of the tree-table queries",
+    )
+    parser.add_argument(
+        "--treeloc-dbh", action="store_true", help="pass the query trees' DBH (tree tables)"
     )
     parser.add_argument(
         "--treeloc-range", type=float, default=None, help="query range (default: the config's)"
@@ -749,6 +844,7 @@ def main() -> int:
         default=None,
     )
     args = parser.parse_args()
+    args.dbh_rng = np.random.default_rng(args.seed + 350)
     if not (DATA / "stands" / "longleaf.csv").is_file():
         print("../shared/data absent: nothing to benchmark", file=sys.stderr)
         return 1

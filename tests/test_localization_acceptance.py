@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from test_localization import observe, stand, yaw_error
 
+from forestslam.errors import InputError
 from forestslam.localization import LocalizationConfig, build_map, localize
 
 
@@ -180,3 +181,58 @@ def test_seed_match_closeness_is_evidence_in_a_sparse_view():
             absent = localize(tree_map, observe(other, truth, 12.0, 0.05, 0.3, 1, seed=q), config)
             assert absent.rejected
     assert found[True] >= found[False] + 4
+
+
+def _view_with_dbh(trees, dbh, truth, seed, dbh_noise):
+    """A sparse view (14 m, half the trunks missed) and the trunks' measured DBH (a fake
+    trunk's is random)."""
+    from scipy.spatial import cKDTree
+
+    local = observe(trees, truth, 14.0, 0.05, 0.5, 1, seed=seed)
+    c, s = math.cos(truth[2]), math.sin(truth[2])
+    world = local @ np.array([[c, s], [-s, c]]) + truth[:2]
+    d, i = cKDTree(trees).query(world)
+    rng = np.random.default_rng(seed)
+    measured = np.where(d < 0.5, dbh[i], rng.uniform(0.08, 0.6, len(world)))
+    return local, measured + rng.normal(0, dbh_noise, len(world))
+
+
+def test_dbh_agreement_is_evidence_when_both_sides_have_it():
+    """With a DBH on both sides, agreeing diameters raise the significance of a true pose;
+    random ones do not (they agree no better than chance); views of another stand with
+    their DBH stay rejected; nothing wrong is accepted (fixed seeds)."""
+    rng = np.random.default_rng(4)
+    xy = stand(400, 200.0, seed=3, spacing=4.0)
+    other = stand(400, 200.0, seed=33, spacing=4.0)
+    dbh, other_dbh = rng.uniform(0.08, 0.6, len(xy)), rng.uniform(0.08, 0.6, len(other))
+    tree_map = build_map(xy, dbh)
+    gain, random_gain = [], []
+    for q in range(24):
+        truth = (40.0 + 5 * q, 50.0 + 4 * q, 0.5 * q)
+        local, local_dbh = _view_with_dbh(xy, dbh, truth, q, 0.02)
+        plain = localize(tree_map, local)
+        with_dbh = localize(tree_map, local, local_dbh_m=local_dbh)
+        noise = localize(tree_map, local, local_dbh_m=rng.uniform(0.08, 0.6, len(local)))
+        assert plain.dbh_pairs == 0
+        for loc in (plain, with_dbh, noise):
+            if loc.accepted:
+                assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.3
+        if plain.inliers >= 4 and with_dbh.inliers == plain.inliers:
+            assert with_dbh.dbh_pairs > 0
+            gain.append(with_dbh.significance - plain.significance)
+            random_gain.append(noise.significance - plain.significance)
+        absent, absent_dbh = _view_with_dbh(other, other_dbh, truth, q, 0.02)
+        assert localize(tree_map, absent, local_dbh_m=absent_dbh).rejected
+    assert len(gain) >= 10
+    assert np.mean(gain) > 0.4
+    assert np.mean(random_gain) < 0.25  # chance agreement: about nothing gained
+    assert np.mean(gain) > np.mean(random_gain) + 0.3
+
+
+def test_dbh_needs_both_sides_and_one_value_per_trunk(forest):
+    xy, tree_map = forest  # a map without DBH
+    local = observe(xy, (100.0, 100.0, 0.3), 20.0, 0.03, 0.1, 1, seed=2)
+    loc = localize(tree_map, local, local_dbh_m=np.full(len(local), 0.3))
+    assert loc.accepted and loc.dbh_pairs == 0
+    with pytest.raises(InputError, match="one value per trunk"):
+        localize(tree_map, local, local_dbh_m=np.full(len(local) + 1, 0.3))

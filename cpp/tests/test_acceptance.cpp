@@ -157,3 +157,17 @@ TEST(Acceptance, SeedEvidenceJoinsTheTailAsOneMoreTerm) {
     // An uninformative seed (evidence ~ its mean, 1 nat) costs a little: the search pays for it.
     EXPECT_LT(chanceEvidence(5, 8, 0.08, 3, 10, 4.0, 1.0).significance, plain.significance + 0.3);
 }
+
+TEST(Acceptance, DbhEvidenceIsTheGammaTail) {
+    using forestslam::localization::dbhEvidence;
+    using forestslam::localization::gammaTailLn;
+    // P(Gamma(1) >= x) = e^-x; P(Gamma(2) >= x) = e^-x (1 + x); P(Gamma(3) >= x) adds x^2 / 2.
+    EXPECT_NEAR(gammaTailLn(1, 3.0), -3.0, 1e-12);
+    EXPECT_NEAR(gammaTailLn(2, 3.0), -3.0 + std::log(4.0), 1e-12);
+    EXPECT_NEAR(gammaTailLn(3, 5.0), -5.0 + std::log(1 + 5.0 + 12.5), 1e-12);
+    EXPECT_EQ(gammaTailLn(3, 0.0), 0.0);
+    // n chance agreements sum to about n nats: no evidence; 4 pairs of 2.5 nats each: some.
+    EXPECT_LT(dbhEvidence(4, 4.0), 1.0);
+    EXPECT_NEAR(dbhEvidence(4, 10.0), 10.0 - std::log(1 + 10.0 + 50.0 + 1000.0 / 6), 1e-9);
+    EXPECT_EQ(dbhEvidence(0, 10.0), 0.0);
+}

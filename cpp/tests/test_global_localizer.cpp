@@ -221,3 +221,15 @@ TEST(GlobalLocalizer, FitRigid2DNeedsOnePartnerPerPoint) {
     const std::vector<Eigen::Vector2d> a = {{0, 0}, {3, 1}, {-2, 5}}, b = {{0, 0}, {3, 1}};
     EXPECT_THROW(forestslam::localization::fitRigid2D(a, b), std::invalid_argument);
 }
+
+TEST(GlobalLocalizer, DbhLengthsMustMatch) {
+    Points2 map(40, 2);
+    for (int i = 0; i < 40; ++i) map.row(i) << (i % 7) * 3.1 + 0.2 * (i % 3), (i / 7) * 2.9;
+    EXPECT_THROW(forestslam::localization::TreeMap(map, 0.01, Eigen::VectorXd::Constant(39, 0.3)),
+                 std::invalid_argument);
+    const forestslam::localization::TreeMap tree_map(map, 0.01, Eigen::VectorXd::Constant(40, 0.3));
+    EXPECT_TRUE(tree_map.hasDbh());
+    EXPECT_THROW(tree_map.localize(map, {}, Eigen::VectorXd::Constant(3, 0.3)),
+                 std::invalid_argument);
+    EXPECT_FALSE(forestslam::localization::TreeMap(map).hasDbh());
+}

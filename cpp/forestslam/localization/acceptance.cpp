@@ -42,6 +42,32 @@ double chanceRate(double density, double gate_m) {
     return 1.0 - std::exp(-std::max(0.0, density) * kPi * gate_m * gate_m);
 }
 
+double gammaTailLn(int n, double x) {
+    if (x <= 0 || n <= 0) return 0.0;
+    // ln sum_{m < n} e^-x x^m / m!, terms built by recurrence, summed against the largest (at
+    // m = min(n - 1, floor(x))).
+    const double lx = std::log(x);
+    const int mode = std::min(n - 1, static_cast<int>(x));
+    const double log_mode = -x + mode * lx - std::lgamma(mode + 1.0);
+    double sum = 1.0, t = 0.0;
+    for (int m = mode - 1; m >= 0; --m) {  // t = log(term_m / term_mode)
+        t += std::log(m + 1.0) - lx;
+        if (t < -40) break;
+        sum += std::exp(t);
+    }
+    t = 0.0;
+    for (int m = mode + 1; m < n; ++m) {
+        t += lx - std::log(double(m));
+        if (t < -40) break;
+        sum += std::exp(t);
+    }
+    return std::min(0.0, log_mode + std::log(sum));
+}
+
+double dbhEvidence(int n, double sum_nats) {
+    return n > 0 ? std::max(0.0, -gammaTailLn(n, sum_nats)) : 0.0;
+}
+
 double poissonTailLog10(double mu, int k) {
     if (k <= 0) return 0.0;
     if (mu <= 0) return 300.0;  // no chance at all: as significant as representable
@@ -76,30 +102,9 @@ double truncatedProductTailLog10(double mu, double c, int k, double w, int extra
         const double log_pois =
             mu > 0 ? -mu + j * std::log(mu) - std::lgamma(j + 1.0) : (j == 0 ? 0.0 : kNegInf);
         if (log_pois == kNegInf) break;
-        if (log_pois < total - 40) continue;  // Q <= 1: this term cannot matter
-        const int n = j + extra_terms;        // Exp(1) terms in the sum
-        const double x = s - j * c;
-        double log_q = 0.0;  // x <= 0: the j terms exceed s surely
-        if (x > 0) {
-            // log sum_{m < n} e^-x x^m / m!, terms built by recurrence, summed against the
-            // largest (at m = min(n - 1, floor(x))).
-            const double lx = std::log(x);
-            const int mode = std::min(n - 1, static_cast<int>(x));
-            const double log_mode = -x + mode * lx - std::lgamma(mode + 1.0);
-            double sum = 1.0, t = 0.0;
-            for (int m = mode - 1; m >= 0; --m) {  // t = log(term_m / term_mode)
-                t += std::log(m + 1.0) - lx;
-                if (t < -40) break;
-                sum += std::exp(t);
-            }
-            t = 0.0;
-            for (int m = mode + 1; m < n; ++m) {
-                t += lx - std::log(double(m));
-                if (t < -40) break;
-                sum += std::exp(t);
-            }
-            log_q = std::min(0.0, log_mode + std::log(sum));
-        }
+        if (log_pois < total - 40) continue;             // Q <= 1: this term cannot matter
+        const int n = j + extra_terms;                   // Exp(1) terms in the sum
+        const double log_q = gammaTailLn(n, s - j * c);  // 0 when the j terms exceed s surely
         total = logsumexp(total, log_pois + log_q);
     }
     return std::max(0.0, -total / kLn10);
@@ -120,7 +125,7 @@ double closeness(double density, double d_m, double gate_m, double floor_m) {
 }
 
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
-                              int hypotheses, double closeness_sum, double seed) {
+                              int hypotheses, double closeness_sum, double seed, double dbh) {
     ChanceEvidence e;
     e.inliers = inliers;
     e.trials = trials;
@@ -132,15 +137,15 @@ ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed
     e.closeness = closeness_sum;
     const double c = per_trunk > 0 ? -std::log(std::min(1.0, per_trunk)) : 0.0;
     e.seed = std::max(0.0, seed);
+    e.dbh = std::max(0.0, dbh);
+    const int extra = (e.seed > 0) + (e.dbh > 0);  // Exp(1) terms beside the inliers'
     double tail = 0.0;
     if (closeness_sum < 0 || per_trunk <= 0) {
         tail = poissonTailLog10(e.expected, k);
-        if (e.seed > 0) {  // Fisher: P(p1 p2 <= x) = x (1 - ln x) for independent p-values
-            const double ln_x = -(tail * kLn10 + e.seed);
-            tail = std::max(0.0, -(ln_x + std::log1p(-ln_x)) / kLn10);
-        }
+        // Fisher: -ln of the product of 1 + extra independent p-values is Gamma(1 + extra).
+        if (extra > 0) tail = -gammaTailLn(1 + extra, tail * kLn10 + e.seed + e.dbh) / kLn10;
     } else {
-        tail = truncatedProductTailLog10(e.expected, c, k, closeness_sum + e.seed, e.seed > 0);
+        tail = truncatedProductTailLog10(e.expected, c, k, closeness_sum + e.seed + e.dbh, extra);
     }
     e.significance = tail - std::log10(std::max(1, hypotheses));
     return e;

@@ -25,6 +25,13 @@
 // neighbour's distance when the index returned all k), P(norm <= d) <= (d / R)^m under the null:
 // the ball of radius R lies inside the region searched (conservative). -ln of it is one more
 // Exp(1) term of the sum above (as in Fisher's method: the search pays for both).
+//
+// Optional: stem diameters, when both the map and the query have them. A chance inlier's map
+// trunk is any trunk of the neighbourhood, so its DBH is a draw from the neighbourhood's DBHs:
+// the fraction of them within the observed difference of the query's DBH (at least the DBH
+// resolution) is the p-value of that pair's agreement. The pairs' -ln p sum to a Gamma(n, 1)
+// under the null, whose tail is one more Exp(1) term. A DBH that is biased or noisy agrees no
+// better than chance and only costs that one term.
 #pragma once
 
 #include <cstdint>
@@ -53,6 +60,12 @@ class DensityGrid {
     double window_area_ = 400.0;
     std::unordered_map<uint64_t, int> counts_;  // trunks in the window around each cell
 };
+
+// ln P(Gamma(n, 1) >= x) for integer n >= 1 (0 when x <= 0).
+double gammaTailLn(int n, double x);
+
+// -ln p of n DBH agreements whose -ln p sum to sum_nats: -ln P(Gamma(n, 1) >= sum_nats).
+double dbhEvidence(int n, double sum_nats);
 
 // -log10 P(X >= k) for X ~ Poisson(mu); 0 when k <= 0.
 double poissonTailLog10(double mu, int k);
@@ -87,6 +100,8 @@ struct ChanceEvidence {
     int trials = 0;             // local trunks tested
     double closeness = -1.0;    // sum of -ln(U_i / p_i) over the non-seed inliers; < 0: unknown
     double seed = 0.0;          // the seed match's evidence (seedEvidence), nats
+    double dbh = 0.0;           // the inliers' DBH agreement (dbhEvidence), nats; 0: none
+    int dbh_pairs = 0;          // inlier pairs with a DBH on both sides
     double significance = 0.0;  // -log10(hypotheses * P(chance inliers >= inliers - seeds))
 };
 
@@ -94,9 +109,11 @@ struct ChanceEvidence {
 // best of `hypotheses` searched, fitted to `seed_points`. With `closeness` >= 0 (the sum of
 // closeness() over the inliers that are not seeds: the seed_points closest inliers left out)
 // the truncated-product tail, otherwise the count's Poisson tail; with seed > 0 (nats) the seed
-// match's evidence joins it (one more Exp(1) term, Fisher's combination for the Poisson tail).
+// match's evidence joins it, and so does dbh > 0 (one more Exp(1) term each, Fisher's
+// combination for the Poisson tail).
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
-                              int hypotheses, double closeness = -1.0, double seed = 0.0);
+                              int hypotheses, double closeness = -1.0, double seed = 0.0,
+                              double dbh = 0.0);
 
 struct AcceptanceVerdict {
     bool accepted = false;

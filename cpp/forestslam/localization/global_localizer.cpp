@@ -19,6 +19,7 @@ constexpr int kMapTriangleNeighbours = 8;   // map triangles: each trunk with 2 
 constexpr double kMaxTriangleEdge = 30.0;   // metres
 constexpr int kMinStarsBeforeExit = 30;     // query stars tried before a decisive early exit
 constexpr size_t kEvaluatedHypotheses = 4;  // best-scoring hypotheses given the full test
+constexpr int kDbhNeighbours = 30;          // the DBH neighbourhood of a map trunk
 
 double wrapAngle(double a) {
     a = std::fmod(a + kPi, 2 * kPi);
@@ -234,7 +235,12 @@ Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
     return {t.x(), t.y(), yaw};
 }
 
-TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m) : xy_(xy) {
+TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m,
+                 const Eigen::VectorXd &dbh)
+    : xy_(xy) {
+    if (dbh.size() != 0 && dbh.size() != xy.rows())
+        throw std::invalid_argument("TreeMap: " + std::to_string(dbh.size()) + " DBH values for " +
+                                    std::to_string(xy.rows()) + " trees");
     tri_ = delaunayTriangulation(xy_, duplicate_tolerance_m);
     stars_ = buildStars(tri_, xy_);
     KdTree::Matrix feats(stars_.stars.size(), 8);
@@ -248,10 +254,51 @@ TreeMap::TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance
     triangle_index_ = KdTree(std::move(sides));
     grid_ = PointGrid(xy_, 1.0);
     density_ = DensityGrid(xy_);
+    buildDbhNeighbourhoods(dbh);
+}
+
+void TreeMap::buildDbhNeighbourhoods(const Eigen::VectorXd &dbh) {
+    std::vector<int> rows;  // trees with a usable DBH
+    for (Eigen::Index i = 0; i < dbh.size(); ++i)
+        if (std::isfinite(dbh[i]) && dbh[i] > 0 && std::isfinite(xy_(i, 0)) &&
+            std::isfinite(xy_(i, 1)))
+            rows.push_back(static_cast<int>(i));
+    if (static_cast<int>(rows.size()) < kDbhNeighbours) return;  // too few to tell chance
+    dbh_ = dbh;
+    KdTree::Matrix pts(rows.size(), 2);
+    for (size_t k = 0; k < rows.size(); ++k) pts.row(k) = xy_.row(rows[k]);
+    const KdTree tree(std::move(pts));
+    dbh_neighbours_.assign(xy_.rows(), {});
+    std::vector<int> idx;
+    std::vector<double> dist;
+    for (int r : rows) {
+        tree.knn(xy_.row(r).transpose(), kDbhNeighbours, std::numeric_limits<double>::infinity(),
+                 idx, dist);
+        auto &nb = dbh_neighbours_[r];
+        for (int k : idx) nb.push_back(static_cast<float>(dbh[rows[k]]));
+        std::sort(nb.begin(), nb.end());
+    }
+}
+
+double TreeMap::dbhAgreement(int j, double local_dbh, double resolution) const {
+    if (!hasDbh() || !std::isfinite(local_dbh) || local_dbh <= 0) return -1.0;
+    const auto &nb = dbh_neighbours_[j];
+    if (nb.empty()) return -1.0;  // this map trunk has no DBH
+    const double e = std::max(std::abs(local_dbh - dbh_[j]), resolution);
+    const auto lo = std::lower_bound(nb.begin(), nb.end(), static_cast<float>(local_dbh - e));
+    const auto hi = std::upper_bound(nb.begin(), nb.end(), static_cast<float>(local_dbh + e));
+    // The fraction of the neighbourhood as close (+1: never certain; conservative).
+    const double p = (double(hi - lo) + 1.0) / (double(nb.size()) + 1.0);
+    return std::max(0.0, -std::log(std::min(1.0, p)));
 }
 
 GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
-                                     const GlobalLocalizerConfig &cfg) const {
+                                     const GlobalLocalizerConfig &cfg,
+                                     const Eigen::VectorXd &local_dbh) const {
+    if (local_dbh.size() != 0 && local_dbh.size() != local_in.rows())
+        throw std::invalid_argument("localize: " + std::to_string(local_dbh.size()) +
+                                    " DBH values for " + std::to_string(local_in.rows()) +
+                                    " local trunks");
     GlobalLocalization res;
     const Triangulation tri = delaunayTriangulation(local_in, cfg.duplicate_tolerance_m);
     // Usable local trunks: finite and de-duplicated (the rows the triangulation kept).
@@ -269,6 +316,11 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         near_rows.resize(cfg.max_query_trunks);
     Points2 scoring(near_rows.size(), 2);
     for (size_t k = 0; k < near_rows.size(); ++k) scoring.row(k) = local_in.row(near_rows[k]);
+    Eigen::VectorXd scoring_dbh;  // empty unless both sides have DBH and the test uses it
+    if (cfg.dbh_evidence && hasDbh() && local_dbh.size() != 0) {
+        scoring_dbh.resize(near_rows.size());
+        for (size_t k = 0; k < near_rows.size(); ++k) scoring_dbh[k] = local_dbh[near_rows[k]];
+    }
     if (tri.size() == 0) {
         res.reason = local_in.rows() < 3 ? "fewer than 3 trunks"
                                          : "fewer than 3 distinct, non-collinear trunks";
@@ -280,7 +332,7 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     }
 
     if (cfg.matcher == Matcher::Paper)
-        return localizePaper(res, local_in, tri, local, scoring, cfg);
+        return localizePaper(res, local_in, tri, local, scoring, scoring_dbh, cfg);
 
     std::vector<bool> on_hull(local_in.rows(), false);
     for (size_t t = 0; t < tri.size(); ++t)
@@ -360,7 +412,7 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
     GlobalLocalization stage1 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
-                                       scoring, tri.used_points, cfg);
+                                       scoring, scoring_dbh, tri.used_points, cfg);
     stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
@@ -425,7 +477,7 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
     }
     res.hypotheses = static_cast<int>(hyps.list.size());
     GlobalLocalization stage2 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
-                                       scoring, tri.used_points, cfg);
+                                       scoring, scoring_dbh, tri.used_points, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
@@ -435,6 +487,7 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
                                           const Eigen::Ref<const Points2> &local,
                                           const Triangulation &tri, const Points2 &usable,
                                           const Points2 &scoring,
+                                          const Eigen::VectorXd &scoring_dbh,
                                           const GlobalLocalizerConfig &cfg) const {
     std::vector<bool> on_hull(local.rows(), false);
     for (size_t t = 0; t < tri.size(); ++t)
@@ -516,7 +569,8 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
     });
     res.hypotheses = static_cast<int>(hyps.size());
     const int searched = static_cast<int>(hyps.size());  // the bins tested
-    GlobalLocalization out = decide(res, hyps, searched, usable, scoring, tri.used_points, cfg);
+    GlobalLocalization out =
+        decide(res, hyps, searched, usable, scoring, scoring_dbh, tri.used_points, cfg);
     out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
     if (out.rejected && hyps.empty())
         out.reason = res.query_stars == 0 ? "no interior non-peripheral triangle star"
@@ -534,9 +588,9 @@ int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalL
     return n;
 }
 
-ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
-                                 int searched, double seed_evidence,
-                                 const GlobalLocalizerConfig &cfg) const {
+ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
+                                 const Eigen::Vector3d &pose, int seeds, int searched,
+                                 double seed_evidence, const GlobalLocalizerConfig &cfg) const {
     // Inliers one-to-one (two detections of a split stem near one map trunk are one).
     std::vector<double> d2s;
     const auto pairs = associate(scoring, pose, grid_, cfg.inlier_gate_m, &d2s);
@@ -560,9 +614,22 @@ ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::Vector3d &
         for (size_t k = std::min<size_t>(std::max(0, seeds), close.size()); k < close.size(); ++k)
             closeness_sum += close[k];
     }
-    return chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
-                          expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
-                          closeness_sum, seed_evidence);
+    // DBH agreement of every inlier pair, seeds included (they were chosen by position only).
+    double dbh_sum = 0.0;
+    int dbh_pairs = 0;
+    for (size_t k = 0; scoring_dbh.size() != 0 && k < pairs.size(); ++k) {
+        const double a =
+            dbhAgreement(pairs[k].second, scoring_dbh[pairs[k].first], cfg.dbh_resolution_m);
+        if (a < 0) continue;
+        dbh_sum += a;
+        ++dbh_pairs;
+    }
+    ChanceEvidence e =
+        chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
+                       expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
+                       closeness_sum, seed_evidence, dbhEvidence(dbh_pairs, dbh_sum));
+    e.dbh_pairs = dbh_pairs;
+    return e;
 }
 
 double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
@@ -577,6 +644,7 @@ double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose
 
 GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                                    int searched, const Points2 &local, const Points2 &scoring,
+                                   const Eigen::VectorXd &scoring_dbh,
                                    const std::vector<int> &local_rows,
                                    const GlobalLocalizerConfig &cfg) const {
     GlobalLocalization res = base;
@@ -594,7 +662,8 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
     // the most significant distinct one of them, else the best-scoring distinct hypothesis.
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
     auto evidenceOf = [&](const Hypothesis &h) {
-        return evidence(scoring, h.pose, seeds(h.stage), searched, h.seed_evidence, cfg);
+        return evidence(scoring, scoring_dbh, h.pose, seeds(h.stage), searched, h.seed_evidence,
+                        cfg);
     };
     std::vector<ChanceEvidence> top;
     for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)
@@ -681,6 +750,7 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
 
     res.significance = best_evidence.significance;
     res.expected_chance_inliers = best_evidence.expected;
+    res.dbh_pairs = best_evidence.dbh_pairs;
     AcceptanceConfig acfg;
     acfg.min_significance = cfg.min_significance;
     acfg.ambiguity_ratio = cfg.ambiguity_ratio;

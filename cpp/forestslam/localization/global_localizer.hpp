@@ -38,6 +38,11 @@ struct GlobalLocalizerConfig {
     // a chance match anywhere within edge_tolerance_m, a true one within the noise (see
     // acceptance.hpp); edge differences below 2 min_sigma_m count as 2 min_sigma_m.
     bool seed_evidence = true;
+    // When the map and the query both have stem diameters: test how well the inliers' DBHs
+    // agree against the neighbourhood's DBHs (acceptance.hpp); differences below
+    // dbh_resolution_m count as dbh_resolution_m.
+    bool dbh_evidence = true;
+    double dbh_resolution_m = 0.02;
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
@@ -91,6 +96,7 @@ struct GlobalLocalization {
     // to be accepted.
     double significance = 0.0;
     double expected_chance_inliers = 0.0;  // chance inliers expected beyond the seed points
+    int dbh_pairs = 0;  // inliers of the tested pose with a DBH on both sides (DBH evidence)
     RunnerUp runner_up;
     int hypotheses = 0;  // verified distinct-by-hash hypotheses
     int query_stars = 0;
@@ -111,13 +117,19 @@ Eigen::Vector3d fitRigid2D(const std::vector<Eigen::Vector2d> &local,
 class TreeMap {
   public:
     TreeMap() = default;
-    // Triangulates xy (M,2), builds the star features and their index.
-    explicit TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m = 0.01);
+    // Triangulates xy (M,2), builds the star features and their index. dbh (M,) stem
+    // diameters (m, NaN where unknown; empty: none) make DBH evidence possible.
+    explicit TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m = 0.01,
+                     const Eigen::VectorXd &dbh = {});
 
+    // local_dbh (K,) the local trunks' diameters (m, NaN where unknown; empty: none); another
+    // length than local_xy's is std::invalid_argument.
     GlobalLocalization localize(const Eigen::Ref<const Points2> &local_xy,
-                                const GlobalLocalizerConfig &config = {}) const;
+                                const GlobalLocalizerConfig &config = {},
+                                const Eigen::VectorXd &local_dbh = {}) const;
 
     const Points2 &points() const { return xy_; }
+    bool hasDbh() const { return !dbh_neighbours_.empty(); }
     const Triangulation &triangulation() const { return tri_; }
     const StarSet &stars() const { return stars_; }
 
@@ -129,12 +141,13 @@ class TreeMap {
     // Then the same refinement and acceptance test as the default matcher.
     GlobalLocalization localizePaper(GlobalLocalization res, const Eigen::Ref<const Points2> &local,
                                      const Triangulation &tri, const Points2 &usable,
-                                     const Points2 &scoring,
+                                     const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
                                      const GlobalLocalizerConfig &cfg) const;
     // searched: the hypotheses tested (the multiple-testing count of the acceptance test):
     // verified matches whose poses are distinct by hash (a repeat is not tested again).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
                               int searched, const Points2 &local, const Points2 &scoring,
+                              const Eigen::VectorXd &scoring_dbh,
                               const std::vector<int> &local_rows,
                               const GlobalLocalizerConfig &cfg) const;
     // Verified matches whose pose agrees with the answer (within the distinct thresholds).
@@ -142,9 +155,14 @@ class TreeMap {
                  const GlobalLocalizerConfig &cfg) const;
     // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points,
     // the best of `searched`, its seed match's own evidence seed_evidence (nats).
-    ChanceEvidence evidence(const Points2 &scoring, const Eigen::Vector3d &pose, int seeds,
-                            int searched, double seed_evidence,
-                            const GlobalLocalizerConfig &cfg) const;
+    // scoring_dbh: the scoring trunks' diameters (empty: none).
+    ChanceEvidence evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
+                            const Eigen::Vector3d &pose, int seeds, int searched,
+                            double seed_evidence, const GlobalLocalizerConfig &cfg) const;
+    // -ln p of one pair's DBH agreement against map trunk j's neighbourhood (acceptance.hpp).
+    // -1 when either side has no DBH.
+    double dbhAgreement(int j, double local_dbh, double resolution) const;
+    void buildDbhNeighbourhoods(const Eigen::VectorXd &dbh);
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
     double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;
 
@@ -156,6 +174,9 @@ class TreeMap {
     KdTree triangle_index_;                     // their side lengths, ccw from the shortest
     PointGrid grid_;
     DensityGrid density_;
+    Eigen::VectorXd dbh_;  // per map row, NaN where unknown (empty: no DBH)
+    // Per map row with a DBH: the sorted DBHs of its kDbhNeighbours nearest trunks with one.
+    std::vector<std::vector<float>> dbh_neighbours_;
 };
 
 }  // namespace forestslam::localization

@@ -48,6 +48,12 @@ class LocalizationConfig:
     # shape too: a chance match lies anywhere within edge_tolerance_m, a true one within the
     # noise; edge differences below 2 min_sigma_m count as 2 min_sigma_m.
     seed_evidence: bool = True
+    # When the map and the query both carry stem diameters (localize(..., local_dbh_m=)): test
+    # how well the inliers' DBHs agree, against the DBHs of the map trunk's 30 neighbours (a
+    # biased or noisy DBH agrees no better than chance and costs little); differences below
+    # dbh_resolution_m count as dbh_resolution_m.
+    dbh_evidence: bool = True
+    dbh_resolution_m: Positive = 0.02
     distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: NonNegative = 5.0
     refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers

@@ -47,6 +47,7 @@ class Localization:
     # density, corrected for the hypotheses searched; accepted only >= min_significance.
     significance: float = 0.0
     expected_chance_inliers: float = 0.0
+    dbh_pairs: int = 0  # inliers with a DBH on both sides (0: no DBH evidence)
     runner_up: RunnerUp = field(default_factory=RunnerUp)
     hypotheses: int = 0
     matched_triangles: int = 0  # star matches agreeing with the answer (Li et al.'s count)
@@ -78,6 +79,7 @@ class Localization:
             "stage": self.stage,
             "significance": self.significance,
             "expected_chance_inliers": self.expected_chance_inliers,
+            "dbh_pairs": self.dbh_pairs,
             "runner_up": {
                 "x": self.runner_up.x if self.runner_up.exists else None,
                 "y": self.runner_up.y if self.runner_up.exists else None,
@@ -108,6 +110,8 @@ def _core_config(config: LocalizationConfig):
         "min_significance",
         "closeness_evidence",
         "seed_evidence",
+        "dbh_evidence",
+        "dbh_resolution_m",
         "distinct_translation_m",
         "refine_iterations",
         "min_sigma_m",
@@ -139,12 +143,17 @@ def _runner_up(r) -> RunnerUp:
 
 
 def localize(
-    tree_map: TreeMap, local_xy: np.ndarray, config: LocalizationConfig | None = None
+    tree_map: TreeMap,
+    local_xy: np.ndarray,
+    config: LocalizationConfig | None = None,
+    local_dbh_m: np.ndarray | None = None,
 ) -> Localization:
     """Pose of the frame of ``local_xy`` (K,2) trunk positions in ``tree_map``'s frame.
 
+    ``local_dbh_m`` (K,) the trunks' diameters in metres (NaN where unknown): when the map has
+    DBH too, their agreement is evidence of the acceptance test (``config.dbh_evidence``).
     Never raises for few, collinear, duplicate or NaN trunks: the result is ``rejected`` with a
-    ``reason``. A ``(K,2)`` shape is required (InputError otherwise).
+    ``reason``. A ``(K,2)`` shape is required, and one DBH per trunk (InputError otherwise).
     """
     import time
 
@@ -153,8 +162,14 @@ def localize(
     if local.ndim != 2 or (local.shape[1] != 2 and len(local) > 0):
         raise InputError(f"localize: local trunks must have shape (K,2), got {local.shape}")
     local = np.ascontiguousarray(local.reshape(-1, 2))
+    dbh = np.zeros(0) if local_dbh_m is None else np.asarray(local_dbh_m, dtype=np.float64)
+    if local_dbh_m is not None and dbh.shape != (len(local),):
+        raise InputError(
+            f"localize: local_dbh_m must have one value per trunk ({len(local)},), got {dbh.shape}"
+        )
+    core_config = _core_config(config)
     t0 = time.perf_counter()
-    r = tree_map.index.localize(local, _core_config(config))
+    r = tree_map.index.localize(local, core_config, np.ascontiguousarray(dbh))
     ms = 1e3 * (time.perf_counter() - t0)
     result = Localization(
         x=r.x,
@@ -168,6 +183,7 @@ def localize(
         stage=getattr(r, "stage", ""),
         significance=getattr(r, "significance", 0.0),
         expected_chance_inliers=getattr(r, "expected_chance_inliers", 0.0),
+        dbh_pairs=r.dbh_pairs,
         runner_up=_runner_up(getattr(r, "runner_up", None)),
         hypotheses=r.hypotheses,
         matched_triangles=getattr(r, "matched_triangles", 0),

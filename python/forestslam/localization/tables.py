@@ -81,6 +81,14 @@ def query_xy(
     """Levelled (K,2) trees of frame k and R_level_frame (3,3). ``gravity``: "stems" (the
     frame's stem axes; identity when fewer than 3 are known), "reference" (the table's
     trajectory) or "none"."""
+    xy, _dbh, R = query_trees(table, k, gravity, max_range_m)
+    return xy, R
+
+
+def query_trees(
+    table: TreeTable, k: int, gravity: str = "stems", max_range_m: float = 40.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``query_xy`` with the trees' DBH (K,) (m, NaN where not fitted) beside them."""
     rows = table.rows(int(k))
     xyz = table.xyz[rows]
     if gravity == "reference":
@@ -95,7 +103,8 @@ def query_xy(
     else:
         raise InputError(f"gravity must be stems, reference or none, not {gravity!r}")
     xy = (xyz @ R.T)[:, :2]
-    return xy[np.hypot(xy[:, 0], xy[:, 1]) <= max_range_m], R
+    near = np.hypot(xy[:, 0], xy[:, 1]) <= max_range_m
+    return xy[near], np.asarray(table.dbh_m[rows], dtype=np.float64)[near], R
 
 
 def true_planar_pose(table: TreeTable, k: int, R_level: np.ndarray) -> tuple[float, float, float]:

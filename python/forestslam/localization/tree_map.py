@@ -58,7 +58,9 @@ class TreeMap:
         self.xy = np.ascontiguousarray(xy[finite])
         self.dbh_m = dbh[finite]
         self.ids = ident[finite]
-        self._index = _core.TreeMapIndex(self.xy, duplicate_tolerance_m)
+        self._index = _core.TreeMapIndex(
+            self.xy, duplicate_tolerance_m, np.ascontiguousarray(self.dbh_m, dtype=np.float64)
+        )
         if len(self.xy) >= 3 and len(self._index.triangles) == 0:
             log.warning("tree map: trunks are collinear, nothing to localize against")
 

@@ -93,6 +93,8 @@ void define_localization(py::module_ &m) {
         .def_readwrite("closeness_evidence",
                        &localization::GlobalLocalizerConfig::closeness_evidence)
         .def_readwrite("seed_evidence", &localization::GlobalLocalizerConfig::seed_evidence)
+        .def_readwrite("dbh_evidence", &localization::GlobalLocalizerConfig::dbh_evidence)
+        .def_readwrite("dbh_resolution_m", &localization::GlobalLocalizerConfig::dbh_resolution_m)
         .def_readwrite("distinct_translation_m",
                        &localization::GlobalLocalizerConfig::distinct_translation_m)
         .def_readwrite("distinct_yaw_rad", &localization::GlobalLocalizerConfig::distinct_yaw_rad)
@@ -152,6 +154,7 @@ void define_localization(py::module_ &m) {
         .def_readonly("significance", &localization::GlobalLocalization::significance)
         .def_readonly("expected_chance_inliers",
                       &localization::GlobalLocalization::expected_chance_inliers)
+        .def_readonly("dbh_pairs", &localization::GlobalLocalization::dbh_pairs)
         .def_readonly("runner_up", &localization::GlobalLocalization::runner_up)
         .def_readonly("hypotheses", &localization::GlobalLocalization::hypotheses)
         .def_readonly("query_stars", &localization::GlobalLocalization::query_stars)
@@ -171,13 +174,16 @@ void define_localization(py::module_ &m) {
              "(3,3) homogeneous T_map_local");
 
     py::class_<localization::TreeMap>(m, "TreeMapIndex")
-        .def(py::init<const Eigen::Ref<const Points2> &, double>(), py::arg("xy"),
-             py::arg("duplicate_tolerance_m") = 0.01,
-             "Triangulate map trunks xy (M,2) float64 and index their triangle stars.")
+        .def(py::init<const Eigen::Ref<const Points2> &, double, const Eigen::VectorXd &>(),
+             py::arg("xy"), py::arg("duplicate_tolerance_m") = 0.01,
+             py::arg("dbh") = Eigen::VectorXd(),
+             "Triangulate map trunks xy (M,2) float64 and index their triangle stars; dbh (M,) "
+             "stem diameters in m (NaN unknown, empty none) for the DBH evidence.")
         .def("localize", &localization::TreeMap::localize, py::arg("local_xy"),
              py::arg("config") = localization::GlobalLocalizerConfig(),
-             py::call_guard<py::gil_scoped_release>(),
-             "Pose of the local frame in the map from local trunks (K,2) -> GlobalLocalization.")
+             py::arg("local_dbh") = Eigen::VectorXd(), py::call_guard<py::gil_scoped_release>(),
+             "Pose of the local frame in the map from local trunks (K,2) and optionally their "
+             "diameters (K,) -> GlobalLocalization.")
         .def_property_readonly("points", &localization::TreeMap::points, "(M,2) map trunks")
         .def_property_readonly(
             "triangles",
