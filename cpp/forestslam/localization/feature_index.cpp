@@ -118,17 +118,54 @@ PointGrid::PointGrid(const Eigen::Ref<const Points2> &xy, double cell_m)
         else
             it->second.second = static_cast<int>(i) + 1;
     }
+    buildOccupancy();
+}
+
+void PointGrid::buildOccupancy() {
+    constexpr int64_t kMaxBits = int64_t(1) << 27;  // 16 MB at most
+    if (ids_.empty()) return;
+    auto cell = [&](double v) { return static_cast<int64_t>(std::floor(v / cell_)); };
+    int64_t x1 = 0, y1 = 0;
+    for (size_t k = 0; k < ids_.size(); ++k) {
+        const int64_t ix = cell(xy_(ids_[k], 0)), iy = cell(xy_(ids_[k], 1));
+        if (k == 0) {
+            x0_ = x1 = ix;
+            y0_ = y1 = iy;
+        }
+        x0_ = std::min(x0_, ix);
+        x1 = std::max(x1, ix);
+        y0_ = std::min(y0_, iy);
+        y1 = std::max(y1, iy);
+    }
+    nx_ = x1 - x0_ + 1;
+    ny_ = y1 - y0_ + 1;
+    if (nx_ > kMaxBits / ny_) return;  // too large: the hash look-up alone
+    occupied_.assign((nx_ * ny_ + 63) / 64, 0);
+    for (int id : ids_) {
+        const int64_t bit = (cell(xy_(id, 0)) - x0_) * ny_ + (cell(xy_(id, 1)) - y0_);
+        occupied_[bit / 64] |= uint64_t(1) << (bit % 64);
+    }
+}
+
+bool PointGrid::maybeOccupied(int64_t ix, int64_t iy) const {
+    if (occupied_.empty()) return true;
+    if (ix < x0_ || iy < y0_ || ix >= x0_ + nx_ || iy >= y0_ + ny_) return false;
+    const int64_t bit = (ix - x0_) * ny_ + (iy - y0_);
+    return (occupied_[bit / 64] >> (bit % 64)) & 1;
 }
 
 int PointGrid::nearest(double x, double y, double gate_m, double *d2_out) const {
     if (!std::isfinite(x) || !std::isfinite(y) || cells_.empty()) return -1;
-    const int reach = std::max(1, static_cast<int>(std::ceil(gate_m / cell_)));
-    const auto cx = static_cast<int64_t>(std::floor(x / cell_));
-    const auto cy = static_cast<int64_t>(std::floor(y / cell_));
+    // Only the cells the gate's square overlaps (4 at most when the gate is half a cell).
+    const auto x0 = static_cast<int64_t>(std::floor((x - gate_m) / cell_));
+    const auto x1 = static_cast<int64_t>(std::floor((x + gate_m) / cell_));
+    const auto y0 = static_cast<int64_t>(std::floor((y - gate_m) / cell_));
+    const auto y1 = static_cast<int64_t>(std::floor((y + gate_m) / cell_));
     double best = gate_m * gate_m;
     int best_id = -1;
-    for (int64_t ix = cx - reach; ix <= cx + reach; ++ix) {
-        for (int64_t iy = cy - reach; iy <= cy + reach; ++iy) {
+    for (int64_t ix = x0; ix <= x1; ++ix) {
+        for (int64_t iy = y0; iy <= y1; ++iy) {
+            if (!maybeOccupied(ix, iy)) continue;
             const auto it = cells_.find(key(ix, iy));
             if (it == cells_.end()) continue;
             for (int k = it->second.first; k < it->second.second; ++k) {

@@ -55,10 +55,17 @@ class PointGrid {
     static uint64_t key(int64_t ix, int64_t iy) {
         return (static_cast<uint64_t>(static_cast<uint32_t>(ix)) << 32) | static_cast<uint32_t>(iy);
     }
+    void buildOccupancy();
+    bool maybeOccupied(int64_t ix, int64_t iy) const;
+
     Points2 xy_;
     double cell_ = 1.0;
     std::unordered_map<uint64_t, std::pair<int, int>> cells_;  // key -> [begin, end) in ids_
     std::vector<int> ids_;
+    // Occupancy bits over the bounding box (when it has at most kMaxBits cells): most cells of
+    // a forest are empty, and a bit test is much cheaper than a hash look-up that misses.
+    std::vector<uint64_t> occupied_;
+    int64_t x0_ = 0, y0_ = 0, nx_ = 0, ny_ = 0;
 };
 
 }  // namespace forestslam::localization

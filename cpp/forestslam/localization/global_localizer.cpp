@@ -60,10 +60,12 @@ std::vector<std::pair<int, int>> associate(const Points2 &local, const Eigen::Ve
 // Consensus score only (cheap): local trunks landing within the gate of some map trunk.
 int consensus(const Points2 &local, const Eigen::Vector3d &pose, const PointGrid &grid,
               double gate) {
+    const double c = std::cos(pose[2]), s = std::sin(pose[2]);  // once, not per trunk
     int count = 0;
     for (Eigen::Index i = 0; i < local.rows(); ++i) {
-        const Eigen::Vector2d q = apply(pose, local.row(i).transpose());
-        if (grid.nearest(q.x(), q.y(), gate) >= 0) ++count;
+        const double x = c * local(i, 0) - s * local(i, 1) + pose[0];
+        const double y = s * local(i, 0) + c * local(i, 1) + pose[1];
+        if (grid.nearest(x, y, gate) >= 0) ++count;
     }
     return count;
 }
