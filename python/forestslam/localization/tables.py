@@ -128,7 +128,8 @@ def run_table_localization(
     """Localize every ``every``-th frame of a tree table in ``tree_map`` as a `localize` job
     (lock, run.yaml, outputs: see ``forestslam.job``); writes ``localization.json`` and
     ``localization.tum`` like ``run_localization`` (the pose written is the levelled frame of
-    pose k in the map frame; ``stamp`` from the table's trajectory, else the frame index)."""
+    pose k in the map frame; ``stamp`` from the table's trajectory, else the frame index). The
+    table's DBH goes with each query (evidence when the map has DBH too)."""
     from forestslam.config_utils import to_dict
     from forestslam.io.tree_tables import read_tree_table
     from forestslam.localization.localize import localize
@@ -165,8 +166,9 @@ def run_table_localization(
 
     def loop(run: LocalizationRun) -> None:
         for k in frames:
-            local, _R = query_xy(table, int(k), gravity, cfg.max_range_m)
-            loc = localize(the_map, local, cfg)
+            # The table's DBH is evidence when the map has DBH too (config dbh_evidence).
+            local, local_dbh, _R = query_trees(table, int(k), gravity, cfg.max_range_m)
+            loc = localize(the_map, local, cfg, local_dbh)
             stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
             run.scans += 1
             run.queries.append(_query_record(stamp, int(k), len(local), loc))
