@@ -153,7 +153,8 @@ def test_localization_yaw_in_degrees_matches_the_cpp_radians():
 # TLS sections feed several C++ structs through name maps (forestslam.tls.bridge); these TLS
 # defaults differ from the C++ ones on purpose (the TLS LM stops earlier: sub-mm rounds do not
 # change a plot map at 3 cm voxels).
-TLS_TUNED = {"lm_converged_translation_m", "lm_converged_rotation_rad"}
+# max_velocity_age_s: a TLS walk forgets its velocity sooner than the odometry's stamp gap.
+TLS_TUNED = {"lm_converged_translation_m", "lm_converged_rotation_rad", "max_velocity_age_s"}
 
 
 def _tls_maps():
@@ -163,6 +164,7 @@ def _tls_maps():
     return [
         (RegistrationConfig, bridge.LM_FIELDS, _core.StemCentreLmConfig),
         (RegistrationConfig, bridge.NDT_FIELDS, _core.NdtConfig),
+        (RegistrationConfig, bridge.MOTION_FIELDS, _core.MotionModelConfig),
         (FeatureConfig, bridge.KEYPOINT_FIELDS, _core.DogKeypointsConfig),
         (FeatureConfig, bridge.VIRTUAL_FIELDS, _core.VirtualFeaturesConfig),
     ]
@@ -181,6 +183,27 @@ def test_tls_fields_reach_cpp_fields_with_the_cpp_defaults(py_cls, names, cpp_cl
     for py_name, cpp_name in names.items():
         if py_name not in TLS_TUNED:
             assert math.isclose(getattr(py, py_name), getattr(cpp, cpp_name)), py_name
+
+
+# Bound structs filled from something other than a config dataclass of the same shape.
+FILLED_ELSEWHERE = {
+    "SensorGeometry": "perception.pipeline.sensor_geometry (the sensor profile)",
+    "OdometrySensor": "odometry (the sensor profile)",
+    "ScanModel": "sim.sensor_model.scan_model (core_struct)",
+    "TrunkExtractionConfig": "localization.localize.extract_trunks (keyword options)",
+}
+
+
+def test_every_bound_config_struct_has_one_declared_bridge():
+    """A new option struct bound in C++ must be mirrored by a dataclass, reached by a TLS name
+    map or declared above; otherwise nothing checks its defaults."""
+    bound = {n for n in dir(_core) if n.endswith(("Config", "Sensor", "Geometry", "ScanModel"))}
+    mirrored = {c.__name__ for _, c in _pairs()}
+    # nested in PerceptionConfig, compared field by field with it
+    mirrored |= {"GroundConfig", "NormalFilterConfig", "SegmentationConfig", "DiameterConfig"}
+    mapped = {c.__name__ for _, _, c in _tls_maps()}
+    assert bound - mirrored - mapped - set(FILLED_ELSEWHERE) == set()
+    assert set(FILLED_ELSEWHERE) <= bound
 
 
 def test_tls_bridge_builds_typed_structs_and_names_bad_keys():

@@ -25,6 +25,7 @@ KEYPOINT_FIELDS = {
     "max_keypoints": "max_keypoints",
 }
 VIRTUAL_FIELDS = {"min_diameter_m": "min_diameter_m", "max_diameter_m": "max_diameter_m"}
+MOTION_FIELDS = {"max_velocity_age_s": "max_gap_s"}
 
 
 def lm_config(reg: RegistrationConfig, **overrides: Any) -> Any:
@@ -37,6 +38,11 @@ def lm_config(reg: RegistrationConfig, **overrides: Any) -> Any:
 def ndt_config(reg: RegistrationConfig) -> Any:
     """``_core.NdtConfig`` of the ``ndt_*`` fields."""
     return core_struct("NdtConfig", renamed(reg, NDT_FIELDS), "tls.registration")
+
+
+def motion_model_config(reg: RegistrationConfig) -> Any:
+    """``_core.MotionModelConfig``: the velocity is forgotten after max_velocity_age_s."""
+    return core_struct("MotionModelConfig", renamed(reg, MOTION_FIELDS), "tls.registration")
 
 
 def keypoint_config(features: FeatureConfig) -> Any:

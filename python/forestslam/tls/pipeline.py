@@ -37,7 +37,7 @@ import numpy as np
 from forestslam.errors import InputError, ProcessingError
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
-from forestslam.tls.bridge import lm_config, ndt_config
+from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
     FrameFeatures,
@@ -621,9 +621,7 @@ class _Walk:
         self.centres: list[np.ndarray] = []
         # The velocity (deskew, prediction, NDT guess) only while fresh: a longer gap since
         # the last trusted frame restarts the model (RegistrationConfig.max_velocity_age_s).
-        mm = self.core.MotionModelConfig()
-        mm.max_gap_s = config.registration.max_velocity_age_s
-        self.motion = self.core.ConstantVelocityModel(mm)
+        self.motion = self.core.ConstantVelocityModel(motion_model_config(config.registration))
         self.anchored = False  # the walk has a pose in the TLS frame
         self.lost = 0  # consecutive frames that did not join the map
         self.T_prev = None  # previous frame's pose (trusted or not) and points: NDT chain
