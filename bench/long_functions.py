@@ -55,7 +55,8 @@ def cpp_functions(path: Path) -> list[tuple[int, int, str]]:
 def long_functions(paths: list[str], limit: int) -> list[tuple[int, str, str]]:
     found = []
     for top in paths:
-        for path in sorted((ROOT / top).rglob("*")):
+        top_path = ROOT / top
+        for path in [top_path] if top_path.is_file() else sorted(top_path.rglob("*")):
             if path.suffix == ".py":
                 funcs = python_functions(path)
             elif path.suffix in (".cpp", ".hpp"):
