@@ -201,6 +201,7 @@ def per_frame_comparison(run, by_stamp, truth_mid, ref, ref_trees, cfg, every: i
     lm_target = _core.StemCentreTarget(_core.voxel_downsample(ref, 0.05))
     plane_target = _core.PlaneTarget(_core.voxel_downsample(ref, cfg.map.voxel_m))
     icp_cfg = _core.IcpConfig()
+    ndt = _core.NdtConfig()  # voxel_m 0.3 m
     ndt_ref = _core.voxel_downsample(ref, 0.1)
     names = ("ndt_only", "icp_only", "lm_rigid", "proposed")
     poses = {n: [] for n in names}
@@ -213,7 +214,7 @@ def per_frame_comparison(run, by_stamp, truth_mid, ref, ref_trees, cfg, every: i
         T_true = truth_mid[f.stamp]
         T0 = T_true @ perturbation(rng)
         near = np.sum((ndt_ref[:, :2] - T0[:2, 3]) ** 2, axis=1) < 30.0**2
-        r = _core.register_ndt(ndt_ref[near], pts, np.ascontiguousarray(T0), voxel_m=0.3)
+        r = _core.register_ndt(ndt_ref[near], pts, np.ascontiguousarray(T0), ndt)
         poses["ndt_only"].append(np.asarray(r["T_target_source"]))
         icp = _core.icp_point_to_plane(
             plane_target, _core.voxel_downsample(pts, 0.1), np.ascontiguousarray(T0), icp_cfg
@@ -251,6 +252,7 @@ def sequential_baselines(run, clouds, truth_mid, ref, ref_trees, cfg) -> dict:
     and point-to-plane ICP only (each frame onto the TLS reference from the NDT-chained pose)."""
     plane_target = _core.PlaneTarget(_core.voxel_downsample(ref, cfg.map.voxel_m))
     icp_cfg = _core.IcpConfig()
+    ndt = _core.NdtConfig()  # voxel_m 0.3 m
     ndt_poses, icp_poses = [], []
     T_prev, prev, T_rel = run.frames[0].T_tls_mid, None, np.eye(4)
     for f in run.frames:
@@ -258,7 +260,7 @@ def sequential_baselines(run, clouds, truth_mid, ref, ref_trees, cfg) -> dict:
         if prev is None:
             T = T_prev
         else:
-            r = _core.register_ndt(prev, pts, np.ascontiguousarray(T_rel), voxel_m=0.3)
+            r = _core.register_ndt(prev, pts, np.ascontiguousarray(T_rel), ndt)
             T_rel = r["T_target_source"] if r["converged"] else T_rel
             T = T_prev @ T_rel
         ndt_poses.append(T)

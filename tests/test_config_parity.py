@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 
 from forestslam.errors import InputError
@@ -14,15 +15,35 @@ from forestslam.errors import InputError
 _core = pytest.importorskip("forestslam._core")
 
 # Fields that exist on one side only, on purpose.
-ONLY_PYTHON = {"PerceptionConfig": {"intensity_filter"}}  # decides intensity_threshold
+ONLY_PYTHON = {
+    "PerceptionConfig": {"intensity_filter"},  # decides intensity_threshold
+    # matcher: a name (C++: an enum); distinct_yaw_deg: C++ distinct_yaw_rad; the rest
+    # aggregates frames into a query (Python only)
+    "LocalizationConfig": {
+        "matcher",
+        "distinct_yaw_deg",
+        "merge_radius_m",
+        "keyframe_distance_m",
+        "min_observations",
+        "max_range_m",
+    },
+}
 ONLY_CPP = {
     "FpfhConfig": {"icp"},  # the odometry's registration.icp is used
     # from the sensor profile / from detect's breast_height_z argument
     "PerceptionConfig": {"intensity_threshold", "breast_height_z"},
+    # paper-matcher bins: fixed by the paper, not configurable
+    "GlobalLocalizerConfig": {
+        "matcher",
+        "distinct_yaw_rad",
+        "paper_angle_bin_rad",
+        "paper_translation_bin_m",
+    },
 }
 
 
 def _pairs():
+    from forestslam.localization.config import LocalizationConfig
     from forestslam.odometry import OdometryConfig
     from forestslam.perception.config import PerceptionConfig
     from forestslam.registration import (
@@ -41,6 +62,7 @@ def _pairs():
         (IcpConfig, _core.IcpConfig),
         (FpfhConfig, _core.FpfhConfig),
         (PerceptionConfig, _core.PerceptionConfig),
+        (LocalizationConfig, _core.GlobalLocalizerConfig),
     ]
 
 
@@ -73,8 +95,8 @@ def test_every_default_agrees(py_cls, cpp_cls):
 
 
 def test_bridge_names_unknown_keys_and_wrong_types():
+    from forestslam.core_bridge import fill_core
     from forestslam.odometry import OdometryConfig
-    from forestslam.odometry.bridge import fill_core
     from forestslam.odometry.odometry import core_odometry_config
 
     @dataclasses.dataclass
@@ -118,3 +140,101 @@ def test_perception_options_cross_typed_with_the_key_named():
         core_options(bad, profile)
     with pytest.raises(InputError, match=r"perception\.ground\.cell_size_m"):
         segment_ground([[0.0, 0.0, 0.0]], bad)
+
+
+def test_localization_yaw_in_degrees_matches_the_cpp_radians():
+    from forestslam.localization.config import LocalizationConfig
+
+    rad = _core.GlobalLocalizerConfig().distinct_yaw_rad
+    # the C++ default is the literal 0.0873 (5 deg written to 4 decimals)
+    assert math.isclose(math.radians(LocalizationConfig().distinct_yaw_deg), rad, abs_tol=5e-5)
+
+
+# TLS sections feed several C++ structs through name maps (forestslam.tls.bridge); these TLS
+# defaults differ from the C++ ones on purpose (the TLS LM stops earlier: sub-mm rounds do not
+# change a plot map at 3 cm voxels).
+# max_velocity_age_s: a TLS walk forgets its velocity sooner than the odometry's stamp gap.
+TLS_TUNED = {"lm_converged_translation_m", "lm_converged_rotation_rad", "max_velocity_age_s"}
+
+
+def _tls_maps():
+    from forestslam.tls import bridge
+    from forestslam.tls.config import FeatureConfig, RegistrationConfig
+
+    return [
+        (RegistrationConfig, bridge.LM_FIELDS, _core.StemCentreLmConfig),
+        (RegistrationConfig, bridge.NDT_FIELDS, _core.NdtConfig),
+        (RegistrationConfig, bridge.MOTION_FIELDS, _core.MotionModelConfig),
+        (FeatureConfig, bridge.KEYPOINT_FIELDS, _core.DogKeypointsConfig),
+        (FeatureConfig, bridge.VIRTUAL_FIELDS, _core.VirtualFeaturesConfig),
+    ]
+
+
+def _name(c) -> str:
+    return getattr(c, "__name__", "")
+
+
+@pytest.mark.parametrize("py_cls, names, cpp_cls", _tls_maps(), ids=_name)
+def test_tls_fields_reach_cpp_fields_with_the_cpp_defaults(py_cls, names, cpp_cls):
+    py, cpp = py_cls(), cpp_cls()
+    assert names, "a TLS name map is empty"
+    cpp_names = _cpp_fields(cpp)
+    assert set(names.values()) <= cpp_names
+    for py_name, cpp_name in names.items():
+        if py_name not in TLS_TUNED:
+            assert math.isclose(getattr(py, py_name), getattr(cpp, cpp_name)), py_name
+
+
+# Bound structs filled from something other than a config dataclass of the same shape.
+FILLED_ELSEWHERE = {
+    "SensorGeometry": "perception.pipeline.sensor_geometry (the sensor profile)",
+    "OdometrySensor": "odometry (the sensor profile)",
+    "ScanModel": "sim.sensor_model.scan_model (core_struct)",
+    "TrunkExtractionConfig": "localization.localize.extract_trunks (keyword options)",
+}
+
+
+def test_every_bound_config_struct_has_one_declared_bridge():
+    """A new option struct bound in C++ must be mirrored by a dataclass, reached by a TLS name
+    map or declared above; otherwise nothing checks its defaults."""
+    bound = {n for n in dir(_core) if n.endswith(("Config", "Sensor", "Geometry", "ScanModel"))}
+    mirrored = {c.__name__ for _, c in _pairs()}
+    # nested in PerceptionConfig, compared field by field with it
+    mirrored |= {"GroundConfig", "NormalFilterConfig", "SegmentationConfig", "DiameterConfig"}
+    mapped = {c.__name__ for _, _, c in _tls_maps()}
+    assert bound - mirrored - mapped - set(FILLED_ELSEWHERE) == set()
+    assert set(FILLED_ELSEWHERE) <= bound
+
+
+def test_tls_bridge_builds_typed_structs_and_names_bad_keys():
+    from forestslam.tls.bridge import lm_config, ndt_config, virtual_feature_config
+    from forestslam.tls.config import FeatureConfig, RegistrationConfig
+
+    reg = RegistrationConfig(lm_virtual_gate_m=0.2, ndt_voxel_m=0.4)
+    lm = lm_config(reg, max_rounds=4, sweep_order=2)
+    assert isinstance(lm, _core.StemCentreLmConfig)
+    assert (lm.virtual_gate_m, lm.max_rounds, lm.sweep_order) == (0.2, 4, 2)
+    assert lm.converged_translation_m == reg.lm_converged_translation_m
+    assert ndt_config(reg).voxel_m == 0.4
+    with pytest.raises(InputError, match=r"tls\.registration\.max_round\b"):
+        lm_config(reg, max_round=4)
+    with pytest.raises(InputError, match=r"tls\.features\.min_z_m"):
+        virtual_feature_config(FeatureConfig(), min_z_m="low")
+    with pytest.raises(InputError, match=r"sweep_order"):
+        lm_config(reg, sweep_order=2.5)
+
+
+def test_sim_scan_model_is_typed_and_checked():
+    from forestslam.core_bridge import set_field
+    from forestslam.sensors import load_profile
+    from forestslam.sim.config import IntensityConfig
+    from forestslam.sim.sensor_model import SensorNoise, scan_model
+
+    noise = SensorNoise(0.01, 3.0, 0.0, 0.1, 1.0)
+    model = scan_model(load_profile("vlp16"), noise, IntensityConfig(), 7)
+    assert isinstance(model, _core.ScanModel) and model.object_seed == 7
+    assert model.materials.shape == (7, 4) and model.beam_divergence_rad == pytest.approx(3e-3)
+    with pytest.raises(InputError, match=r"scan model\.materials"):
+        set_field(model, "materials", np.ones((2, 4)), "scan model")
+    with pytest.raises(InputError, match=r"scan model\.object_seed"):
+        set_field(model, "object_seed", 1.5, "scan model")

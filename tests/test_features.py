@@ -47,7 +47,9 @@ def test_virtual_features_by_layer_on_dense_rings():
 
 def test_dog_keypoints_bounded_and_rigid_invariant_response():
     scan = _ring_scan()
-    kp, resp = _core.detect_dog_keypoints(scan.points, max_keypoints=150)
+    config = _core.DogKeypointsConfig()
+    config.max_keypoints = 150
+    kp, resp = _core.detect_dog_keypoints(scan.points, config)
     assert 50 <= len(kp) <= 150
     assert np.all(resp > 0)
     # Keypoints are points of the cloud (after voxel averaging: within a voxel of one).
@@ -59,7 +61,9 @@ def test_bad_inputs():
     empty = np.zeros((0, 3))
     assert len(_core.extract_virtual_features(empty)["centres"]) == 0
     assert len(_core.detect_dog_keypoints(empty)[0]) == 0
-    with pytest.raises(ValueError, match="unknown option"):
+    with pytest.raises(TypeError):  # options are a typed DogKeypointsConfig, no keywords
         _core.detect_dog_keypoints(empty, sigma=1.0)
+    with pytest.raises(AttributeError):
+        _core.DogKeypointsConfig().sigma = 1.0
     with pytest.raises(ValueError, match="rings"):
         _core.extract_virtual_features(np.zeros((3, 3)), np.zeros(2, dtype=np.uint16))

@@ -66,8 +66,10 @@ def test_in_sweep_lm_without_feature_times_is_a_clear_error():
     rng = np.random.default_rng(6)
     target = _core.StemCentreTarget(rng.uniform(-5, 5, (2000, 3)))
     centres, radii, real = rng.normal(0, 3, (4, 3)), np.full(4, 0.15), rng.normal(0, 3, (30, 3))
+    config = _core.StemCentreLmConfig()
+    config.sweep_order = 2
     with pytest.raises(ValueError, match="one time per virtual centre"):
-        _core.register_stem_centre_lm(target, centres, radii, real, np.eye(4), sweep_order=2)
+        _core.register_stem_centre_lm(target, centres, radii, real, np.eye(4), config)
     with pytest.raises(ValueError, match="one time per virtual centre"):
         _core.register_stem_centre_lm(
             target,
@@ -75,7 +77,7 @@ def test_in_sweep_lm_without_feature_times_is_a_clear_error():
             radii,
             real,
             np.eye(4),
-            sweep_order=2,
+            config,
             centre_times=np.zeros(4),
             real_times=np.zeros(29),
         )

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from forestslam.cli.options import MaxScans, NoProgress, Start, Topic
+
 
 def register(app: typer.Typer) -> None:
     @app.command(
@@ -26,11 +28,11 @@ def register(app: typer.Typer) -> None:
         png: Path | None = typer.Option(
             None, "--png", help="PNG of the breast-height slice with detections (last scan)."
         ),
-        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic of a bag."),
+        topic: Topic = None,
         config: Path | None = typer.Option(None, "--config", help="YAML (perception section)."),
-        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
-        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
+        start: Start = 0,
+        max_scans: MaxScans = None,
+        no_progress: NoProgress = False,
         breast_height_z: float | None = typer.Option(
             None,
             "--breast-height-z",

@@ -7,6 +7,8 @@ from typing import Literal
 
 import typer
 
+from forestslam.cli.options import ConfigFile, MaxScans, NoProgress, OutDir, Overwrite, Start, Topic
+
 Gravity = Literal["stems", "reference", "none"]  # how a tree table's frames are levelled
 
 
@@ -33,7 +35,7 @@ def register(app: typer.Typer) -> None:
         sensor: str | None = typer.Option(
             None, "--sensor", help="Sensor profile name or YAML file (not for tree tables)."
         ),
-        out: Path = typer.Option(..., "--out", help="Output directory."),
+        out: OutDir = ...,
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
         keyframe_distance: float | None = typer.Option(
@@ -41,17 +43,15 @@ def register(app: typer.Typer) -> None:
             "--keyframe-distance-m",
             help="Aggregate frames at least this far apart (wider view); default: consecutive.",
         ),
-        config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
-        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
-        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
+        config: ConfigFile = None,
+        topic: Topic = None,
+        start: Start = 0,
+        max_scans: MaxScans = None,
         save_map: Path | None = typer.Option(
             None, "--save-map", help="Also save the map (e.g. built from a CSV) as .npz."
         ),
-        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
-        overwrite: bool = typer.Option(
-            False, "--overwrite", help="Replace the outputs of another command in OUT."
-        ),
+        no_progress: NoProgress = False,
+        overwrite: Overwrite = False,
         gravity: Gravity = typer.Option(
             "stems",
             "--gravity",
@@ -59,34 +59,16 @@ def register(app: typer.Typer) -> None:
             "trajectory (reference) or not at all (none).",
         ),
     ) -> None:
-        import logging
-
-        from forestslam.errors import InputError
         from forestslam.io.tree_tables import is_tree_table
 
         tree_map = _load_map(map_path, config, save_map)
         if is_tree_table(input_path):
-            if sensor is not None:
-                logging.getLogger("forestslam.localize").warning(
-                    "--sensor %s ignored: %s is a tree table (no scans)", sensor, input_path
-                )
+            _ignored_sensor(sensor, input_path)
             _localize_table(
-                input_path,
-                tree_map,
-                out,
-                every,
-                config,
-                gravity,
-                start,
-                max_scans,
-                overwrite,
+                input_path, tree_map, out, every, config, gravity, start, max_scans, overwrite
             )
             return
-        if sensor is None:
-            raise InputError("--sensor is needed for a bag, folder or cloud input")
-        from forestslam.localization.runner import run_localization
-
-        r = run_localization(
+        _localize_scans(
             input_path,
             tree_map,
             sensor,
@@ -101,10 +83,30 @@ def register(app: typer.Typer) -> None:
             keyframe_distance_m=keyframe_distance,
             overwrite=overwrite,
         )
-        print(
-            f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "
-            f"median {r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+
+
+def _ignored_sensor(sensor: str | None, input_path: Path) -> None:
+    if sensor is not None:
+        import logging
+
+        logging.getLogger("forestslam.localize").warning(
+            "--sensor %s ignored: %s is a tree table (no scans)", sensor, input_path
         )
+
+
+def _localize_scans(input_path: Path, tree_map, sensor: str | None, out: Path, **options) -> None:
+    """Queries from the scans of a bag, folder or cloud (run_localization's options)."""
+    from forestslam.errors import InputError
+
+    if sensor is None:
+        raise InputError("--sensor is needed for a bag, folder or cloud input")
+    from forestslam.localization.runner import run_localization
+
+    r = run_localization(input_path, tree_map, sensor, out, **options)
+    print(
+        f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "
+        f"median {r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
+    )
 
 
 def _load_map(map_path: Path, config: Path | None, save_map: Path | None):

@@ -7,6 +7,8 @@ from typing import Literal
 
 import typer
 
+from forestslam.cli.options import ConfigFile, MaxScans, NoProgress, OutDir, Overwrite, Start, Topic
+
 # The modes of forestslam.runner.MODES (kept here so the CLI loads without numpy; a test checks).
 Mode = Literal["slam", "map3d", "odometry"]
 
@@ -27,16 +29,14 @@ def register(app: typer.Typer) -> None:
             "--sensor",
             help="Sensor profile name or YAML file (default: identified from the data).",
         ),
-        out: Path = typer.Option(..., "--out", help="Output directory."),
+        out: OutDir = ...,
         mode: Mode = typer.Option("slam", "--mode", help="What to build (see the README)."),
-        config: Path | None = typer.Option(None, "--config", help="YAML configuration."),
-        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic."),
-        start: int = typer.Option(0, "--start", help="Skip this many scans first."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
-        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
-        overwrite: bool = typer.Option(
-            False, "--overwrite", help="Replace the outputs of another command in OUT."
-        ),
+        config: ConfigFile = None,
+        topic: Topic = None,
+        start: Start = 0,
+        max_scans: MaxScans = None,
+        no_progress: NoProgress = False,
+        overwrite: Overwrite = False,
         prior_map: Path | None = typer.Option(
             None,
             "--prior-map",

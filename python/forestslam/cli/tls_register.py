@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from forestslam.cli.options import MaxScans, NoProgress, OutDir, Overwrite, Start, Topic
+
 
 def register(app: typer.Typer) -> None:
     @app.command(
@@ -28,20 +30,18 @@ def register(app: typer.Typer) -> None:
             "or a bag holding one scan.",
         ),
         sensor: str = typer.Option(..., "--sensor", help="MLS profile name or YAML (vlp16...)."),
-        out: Path = typer.Option(..., "--out", help="Output directory."),
+        out: OutDir = ...,
         initial_pose: str | None = typer.Option(
             None,
             "--initial-pose",
             help="First MLS pose in the TLS frame: x,y,yaw_deg or x,y,z,yaw_deg.",
         ),
-        topic: str | None = typer.Option(None, "--topic", help="PointCloud2 topic of the bag."),
+        topic: Topic = None,
         config: Path | None = typer.Option(None, "--config", help="YAML (tls section)."),
-        start: int = typer.Option(0, "--start", help="Skip this many MLS scans first."),
-        max_scans: int | None = typer.Option(None, "--max-scans", help="Process at most N."),
-        no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar."),
-        overwrite: bool = typer.Option(
-            False, "--overwrite", help="Replace the outputs of another command in DIR."
-        ),
+        start: Start = 0,
+        max_scans: MaxScans = None,
+        no_progress: NoProgress = False,
+        overwrite: Overwrite = False,
     ) -> None:
         from forestslam.config import load_config
         from forestslam.tls.runner import parse_initial_pose, run_tls_register

@@ -31,6 +31,11 @@ struct type_caster<forestslam::Pose3> {
 };
 }  // namespace pybind11::detail
 
+// One field of a config struct as a typed read-write attribute of its bound class (the field's
+// name is the attribute's): the one way config crosses into C++ (issue 18). Python fills these
+// classes through forestslam.core_bridge, which names the key of an unknown field or a wrong type.
+#define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
+
 namespace forestslam::python {
 
 void define_common(pybind11::module_ &m);

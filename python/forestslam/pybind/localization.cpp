@@ -15,6 +15,8 @@ namespace py = pybind11;
 namespace forestslam::python {
 namespace {
 
+namespace lc = forestslam::localization;
+
 using IntRows = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;
 using IntRows6 = Eigen::Matrix<int, Eigen::Dynamic, 6, Eigen::RowMajor>;
 
@@ -39,9 +41,8 @@ py::dict starsToDict(const localization::StarSet &set) {
     return d;
 }
 
-}  // namespace
-
-void define_localization(py::module_ &m) {
+// Delaunay triangulation and triangle stars.
+void defineTriangulation(py::module_ &m) {
     m.def(
         "delaunay",
         [](const Eigen::Ref<const Points2> &xy, double duplicate_tolerance) {
@@ -65,55 +66,47 @@ void define_localization(py::module_ &m) {
         "[area, squared perimeter] per triangle, centre (S,) centre triangle, vertices (S,6) "
         "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
         "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
+}
 
+void defineLocalizerConfig(py::module_ &m) {
     py::enum_<localization::Matcher>(m, "Matcher")
         .value("default", localization::Matcher::Default)
         .value("paper", localization::Matcher::Paper);
 
-    py::class_<localization::GlobalLocalizerConfig>(m, "GlobalLocalizerConfig")
-        .def(py::init<>())
-        .def_readwrite("matcher", &localization::GlobalLocalizerConfig::matcher)
-        .def_readwrite("paper_angle_bin_rad",
-                       &localization::GlobalLocalizerConfig::paper_angle_bin_rad)
-        .def_readwrite("paper_translation_bin_m",
-                       &localization::GlobalLocalizerConfig::paper_translation_bin_m)
-        .def_readwrite("candidates_per_star",
-                       &localization::GlobalLocalizerConfig::candidates_per_star)
-        .def_readwrite("max_feature_distance_m",
-                       &localization::GlobalLocalizerConfig::max_feature_distance_m)
-        .def_readwrite("rotation_ambiguity",
-                       &localization::GlobalLocalizerConfig::rotation_ambiguity)
-        .def_readwrite("edge_tolerance_m", &localization::GlobalLocalizerConfig::edge_tolerance_m)
-        .def_readwrite("inlier_gate_m", &localization::GlobalLocalizerConfig::inlier_gate_m)
-        .def_readwrite("min_inliers", &localization::GlobalLocalizerConfig::min_inliers)
-        .def_readwrite("min_inlier_fraction",
-                       &localization::GlobalLocalizerConfig::min_inlier_fraction)
-        .def_readwrite("ambiguity_ratio", &localization::GlobalLocalizerConfig::ambiguity_ratio)
-        .def_readwrite("min_significance", &localization::GlobalLocalizerConfig::min_significance)
-        .def_readwrite("closeness_evidence",
-                       &localization::GlobalLocalizerConfig::closeness_evidence)
-        .def_readwrite("seed_evidence", &localization::GlobalLocalizerConfig::seed_evidence)
-        .def_readwrite("dbh_evidence", &localization::GlobalLocalizerConfig::dbh_evidence)
-        .def_readwrite("dbh_resolution_m", &localization::GlobalLocalizerConfig::dbh_resolution_m)
-        .def_readwrite("distinct_translation_m",
-                       &localization::GlobalLocalizerConfig::distinct_translation_m)
-        .def_readwrite("distinct_yaw_rad", &localization::GlobalLocalizerConfig::distinct_yaw_rad)
-        .def_readwrite("refine_iterations", &localization::GlobalLocalizerConfig::refine_iterations)
-        .def_readwrite("min_sigma_m", &localization::GlobalLocalizerConfig::min_sigma_m)
-        .def_readwrite("duplicate_tolerance_m",
-                       &localization::GlobalLocalizerConfig::duplicate_tolerance_m)
-        .def_readwrite("skip_hull_stars", &localization::GlobalLocalizerConfig::skip_hull_stars)
-        .def_readwrite("triangle_fallback", &localization::GlobalLocalizerConfig::triangle_fallback)
-        .def_readwrite("candidates_per_triangle",
-                       &localization::GlobalLocalizerConfig::candidates_per_triangle)
-        .def_readwrite("triangle_neighbours",
-                       &localization::GlobalLocalizerConfig::triangle_neighbours)
-        .def_readwrite("max_query_trunks", &localization::GlobalLocalizerConfig::max_query_trunks)
-        .def_readwrite("max_fallback_trunks",
-                       &localization::GlobalLocalizerConfig::max_fallback_trunks)
-        .def_readwrite("max_fallback_matches",
-                       &localization::GlobalLocalizerConfig::max_fallback_matches);
+    py::class_<lc::GlobalLocalizerConfig> c(m, "GlobalLocalizerConfig");
+    c.def(py::init<>());
+    FS_FIELD(c, lc::GlobalLocalizerConfig, matcher);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, paper_angle_bin_rad);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, paper_translation_bin_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, candidates_per_star);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, max_feature_distance_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, rotation_ambiguity);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, edge_tolerance_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, inlier_gate_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, min_inliers);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, min_inlier_fraction);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, ambiguity_ratio);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, min_significance);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, closeness_evidence);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, seed_evidence);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_evidence);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_resolution_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, distinct_translation_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, distinct_yaw_rad);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, refine_iterations);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, min_sigma_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, duplicate_tolerance_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, skip_hull_stars);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, triangle_fallback);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, candidates_per_triangle);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, triangle_neighbours);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, max_query_trunks);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, max_fallback_trunks);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, max_fallback_matches);
+}
 
+// The answer of a global localization and its chance evidence.
+void defineLocalizationResult(py::module_ &m) {
     py::class_<localization::RunnerUp>(m, "RunnerUp")
         .def_readonly("exists", &localization::RunnerUp::exists)
         .def_readonly("x", &localization::RunnerUp::x)
@@ -172,7 +165,10 @@ void define_localization(py::module_ &m) {
             "(K,2) int32 inlier pairs (local row, map row)")
         .def("transform", &localization::GlobalLocalization::transform,
              "(3,3) homogeneous T_map_local");
+}
 
+// The tree map with its star index, and trunks from a map cloud.
+void defineTreeMap(py::module_ &m) {
     py::class_<localization::TreeMap>(m, "TreeMapIndex")
         .def(py::init<const Eigen::Ref<const Points2> &, double, const Eigen::VectorXd &>(),
              py::arg("xy"), py::arg("duplicate_tolerance_m") = 0.01,
@@ -193,26 +189,22 @@ void define_localization(py::module_ &m) {
             [](const localization::TreeMap &t) { return toRows(t.triangulation().neighbours); })
         .def_property_readonly(
             "stars", [](const localization::TreeMap &t) { return starsToDict(t.stars()); });
+}
 
-    py::class_<localization::TrunkExtractionConfig>(m, "TrunkExtractionConfig")
-        .def(py::init<>())
-        .def_readwrite("voxel_m", &localization::TrunkExtractionConfig::voxel_m)
-        .def_readwrite("height_offset_m", &localization::TrunkExtractionConfig::height_offset_m)
-        .def_readwrite("neighbour_radius_m",
-                       &localization::TrunkExtractionConfig::neighbour_radius_m)
-        .def_readwrite("cluster_tolerance_m",
-                       &localization::TrunkExtractionConfig::cluster_tolerance_m)
-        .def_readwrite("min_cluster_points",
-                       &localization::TrunkExtractionConfig::min_cluster_points)
-        .def_readwrite("max_cluster_points",
-                       &localization::TrunkExtractionConfig::max_cluster_points)
-        .def_readwrite("ground_cell_m", &localization::TrunkExtractionConfig::ground_cell_m)
-        .def_readwrite("band_min_m", &localization::TrunkExtractionConfig::band_min_m)
-        .def_readwrite("band_max_m", &localization::TrunkExtractionConfig::band_max_m)
-        .def_readwrite("min_cluster_height_m",
-                       &localization::TrunkExtractionConfig::min_cluster_height_m)
-        .def_readwrite("max_cluster_radius_m",
-                       &localization::TrunkExtractionConfig::max_cluster_radius_m);
+void defineTrunkExtraction(py::module_ &m) {
+    py::class_<lc::TrunkExtractionConfig> t(m, "TrunkExtractionConfig");
+    t.def(py::init<>());
+    FS_FIELD(t, lc::TrunkExtractionConfig, voxel_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, height_offset_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, neighbour_radius_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, cluster_tolerance_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, min_cluster_points);
+    FS_FIELD(t, lc::TrunkExtractionConfig, max_cluster_points);
+    FS_FIELD(t, lc::TrunkExtractionConfig, ground_cell_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, band_min_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, band_max_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, min_cluster_height_m);
+    FS_FIELD(t, lc::TrunkExtractionConfig, max_cluster_radius_m);
 
     m.def(
         "extract_trunks",
@@ -230,6 +222,16 @@ void define_localization(py::module_ &m) {
         py::arg("cloud"), py::arg("config") = localization::TrunkExtractionConfig(),
         "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> (xy (K,2), "
         "points per trunk cluster (K,)).");
+}
+
+}  // namespace
+
+void define_localization(py::module_ &m) {
+    defineTriangulation(m);
+    defineLocalizerConfig(m);
+    defineLocalizationResult(m);
+    defineTreeMap(m);
+    defineTrunkExtraction(m);
 }
 
 }  // namespace forestslam::python

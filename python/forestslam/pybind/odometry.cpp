@@ -19,8 +19,6 @@ namespace {
 namespace pc = forestslam::perception;
 namespace od = forestslam::odometry;
 
-#define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
-
 void defineOdometryConfig(py::module_ &m) {
     py::class_<od::MotionModelConfig> mm(m, "MotionModelConfig");
     mm.def(py::init<>());

@@ -32,8 +32,6 @@ py::dict circleDict(const CircleFit &f) {
 
 namespace pc = forestslam::perception;
 
-#define FS_FIELD(cls, T, name) cls.def_readwrite(#name, &T::name)
-
 // Every perception option struct as a typed class (filled by forestslam.odometry.bridge).
 void defineSensorGeometry(py::module_ &m) {
     py::class_<pc::SensorGeometry> g(m, "SensorGeometry", "What perception needs of a sensor.");

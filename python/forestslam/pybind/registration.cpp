@@ -15,6 +15,8 @@ namespace py = pybind11;
 namespace forestslam::python {
 namespace {
 
+namespace rg = forestslam::registration;
+
 using PairArray = Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor>;
 
 std::vector<std::pair<int, int>> toPairs(const PairArray &a) {
@@ -23,9 +25,7 @@ std::vector<std::pair<int, int>> toPairs(const PairArray &a) {
     return out;
 }
 
-}  // namespace
-
-void define_registration(py::module_ &m) {
+void defineDeskew(py::module_ &m) {
     m.def(
         "deskew_points",
         [](const Eigen::Ref<const Points3> &points, const Eigen::Ref<const Eigen::VectorXd> &times,
@@ -38,6 +38,10 @@ void define_registration(py::module_ &m) {
         "after the reference, moved into the sensor frame at the reference for the body twist\n"
         "(6,) per second (translation, rotation vector): p0 = R(t w) p + t v. Rows with a\n"
         "non-finite time are unchanged. Returns (N,3).");
+}
+
+// The result every registration returns, and the option structs as typed classes.
+void defineRegistrationTypes(py::module_ &m) {
     py::class_<registration::RegistrationResult>(
         m, "RegistrationResult",
         "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
@@ -58,47 +62,45 @@ void define_registration(py::module_ &m) {
                    ")";
         });
 
-    py::class_<registration::ShapeRegistrationConfig>(m, "ShapeRegistrationConfig")
-        .def(py::init<>())
-        .def_readwrite("min_sigma_m", &registration::ShapeRegistrationConfig::min_sigma_m)
-        .def_readwrite("consensus_tolerance_m",
-                       &registration::ShapeRegistrationConfig::consensus_tolerance_m)
-        .def_readwrite("inlier_threshold_m",
-                       &registration::ShapeRegistrationConfig::inlier_threshold_m)
-        .def_readwrite("max_consensus_pairs",
-                       &registration::ShapeRegistrationConfig::max_consensus_pairs)
-        .def_readwrite("max_iterations", &registration::ShapeRegistrationConfig::max_iterations)
-        .def_readwrite("min_inliers_not_degenerate",
-                       &registration::ShapeRegistrationConfig::min_inliers_not_degenerate);
+    py::class_<rg::ShapeRegistrationConfig> s(m, "ShapeRegistrationConfig");
+    s.def(py::init<>());
+    FS_FIELD(s, rg::ShapeRegistrationConfig, min_sigma_m);
+    FS_FIELD(s, rg::ShapeRegistrationConfig, consensus_tolerance_m);
+    FS_FIELD(s, rg::ShapeRegistrationConfig, inlier_threshold_m);
+    FS_FIELD(s, rg::ShapeRegistrationConfig, max_consensus_pairs);
+    FS_FIELD(s, rg::ShapeRegistrationConfig, max_iterations);
+    FS_FIELD(s, rg::ShapeRegistrationConfig, min_inliers_not_degenerate);
 
-    py::class_<registration::IcpConfig>(m, "IcpConfig")
-        .def(py::init<>())
-        .def_readwrite("max_iterations", &registration::IcpConfig::max_iterations)
-        .def_readwrite("max_correspondence_m", &registration::IcpConfig::max_correspondence_m)
-        .def_readwrite("final_correspondence_m", &registration::IcpConfig::final_correspondence_m)
-        .def_readwrite("shrink_iterations", &registration::IcpConfig::shrink_iterations)
-        .def_readwrite("huber_m", &registration::IcpConfig::huber_m)
-        .def_readwrite("translation_tolerance_m", &registration::IcpConfig::translation_tolerance_m)
-        .def_readwrite("rotation_tolerance_rad", &registration::IcpConfig::rotation_tolerance_rad)
-        .def_readwrite("min_correspondences", &registration::IcpConfig::min_correspondences)
-        .def_readwrite("degeneracy_threshold", &registration::IcpConfig::degeneracy_threshold)
-        .def_readwrite("degeneracy_length_m", &registration::IcpConfig::degeneracy_length_m)
-        .def_readwrite("normal_k", &registration::IcpConfig::normal_k);
+    py::class_<rg::IcpConfig> i(m, "IcpConfig");
+    i.def(py::init<>());
+    FS_FIELD(i, rg::IcpConfig, max_iterations);
+    FS_FIELD(i, rg::IcpConfig, max_correspondence_m);
+    FS_FIELD(i, rg::IcpConfig, final_correspondence_m);
+    FS_FIELD(i, rg::IcpConfig, shrink_iterations);
+    FS_FIELD(i, rg::IcpConfig, huber_m);
+    FS_FIELD(i, rg::IcpConfig, translation_tolerance_m);
+    FS_FIELD(i, rg::IcpConfig, rotation_tolerance_rad);
+    FS_FIELD(i, rg::IcpConfig, min_correspondences);
+    FS_FIELD(i, rg::IcpConfig, degeneracy_threshold);
+    FS_FIELD(i, rg::IcpConfig, degeneracy_length_m);
+    FS_FIELD(i, rg::IcpConfig, normal_k);
 
-    py::class_<registration::FpfhConfig>(m, "FpfhConfig")
-        .def(py::init<>())
-        .def_readwrite("voxel_m", &registration::FpfhConfig::voxel_m)
-        .def_readwrite("normal_radius_m", &registration::FpfhConfig::normal_radius_m)
-        .def_readwrite("feature_radius_m", &registration::FpfhConfig::feature_radius_m)
-        .def_readwrite("ransac_iterations", &registration::FpfhConfig::ransac_iterations)
-        .def_readwrite("correspondence_randomness",
-                       &registration::FpfhConfig::correspondence_randomness)
-        .def_readwrite("similarity_threshold", &registration::FpfhConfig::similarity_threshold)
-        .def_readwrite("inlier_distance_m", &registration::FpfhConfig::inlier_distance_m)
-        .def_readwrite("inlier_fraction", &registration::FpfhConfig::inlier_fraction)
-        .def_readwrite("seed", &registration::FpfhConfig::seed)
-        .def_readwrite("icp", &registration::FpfhConfig::icp);
+    py::class_<rg::FpfhConfig> f(m, "FpfhConfig");
+    f.def(py::init<>());
+    FS_FIELD(f, rg::FpfhConfig, voxel_m);
+    FS_FIELD(f, rg::FpfhConfig, normal_radius_m);
+    FS_FIELD(f, rg::FpfhConfig, feature_radius_m);
+    FS_FIELD(f, rg::FpfhConfig, ransac_iterations);
+    FS_FIELD(f, rg::FpfhConfig, correspondence_randomness);
+    FS_FIELD(f, rg::FpfhConfig, similarity_threshold);
+    FS_FIELD(f, rg::FpfhConfig, inlier_distance_m);
+    FS_FIELD(f, rg::FpfhConfig, inlier_fraction);
+    FS_FIELD(f, rg::FpfhConfig, seed);
+    FS_FIELD(f, rg::FpfhConfig, icp);
+}
 
+// Tree correspondences and the shape-to-shape registration over x, y, yaw.
+void defineTreeRegistration(py::module_ &m) {
     m.def(
         "match_trees",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
@@ -142,7 +144,10 @@ void define_registration(py::module_ &m) {
         py::arg("config") = registration::ShapeRegistrationConfig(),
         "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair "
         "indices).");
+}
 
+// Point-to-plane ICP and the FPFH baseline.
+void defineIcp(py::module_ &m) {
     py::class_<registration::PlaneTarget>(
         m, "PlaneTarget",
         "ICP target: points (M,3) with a KD-tree and PCA normals (M,3; NaN rows "
@@ -185,6 +190,15 @@ void define_registration(py::module_ &m) {
 
     m.def("voxel_centroids", &registration::voxelCentroids, py::arg("points"), py::arg("voxel_m"),
           "Voxel-grid centroids of points (N,3) -> (M,3).");
+}
+
+}  // namespace
+
+void define_registration(py::module_ &m) {
+    defineDeskew(m);
+    defineRegistrationTypes(m);
+    defineTreeRegistration(m);
+    defineIcp(m);
 }
 
 }  // namespace forestslam::python

@@ -86,45 +86,51 @@ sim::ForestScene makeScene(double x0, double y0, double cell, const Eigen::Matri
                             grid_cell_m);
 }
 
-sim::ScanModel scanModel(const py::dict &d, const RowMatrix &materials) {
-    sim::ScanModel m;
-    auto get = [&](const char *key, double &value) {
-        if (d.contains(key)) value = d[key].cast<double>();
-    };
-    get("range_min_m", m.range_min_m);
-    get("range_max_m", m.range_max_m);
-    get("range_noise_m", m.range_noise_m);
-    get("beam_divergence_rad", m.beam_divergence_rad);
-    get("dropout_rate", m.dropout_rate);
-    get("grazing_cos", m.grazing_cos);
-    get("far_fraction", m.far_fraction);
-    get("reference_range_m", m.reference_range_m);
-    get("range_exponent", m.range_exponent);
-    get("near_range_m", m.near_range_m);
-    if (d.contains("object_seed")) m.object_seed = d["object_seed"].cast<uint64_t>();
-    for (auto item : d) {
-        static const char *known[] = {"range_min_m",         "range_max_m",       "range_noise_m",
-                                      "beam_divergence_rad", "dropout_rate",      "grazing_cos",
-                                      "far_fraction",        "reference_range_m", "range_exponent",
-                                      "near_range_m",        "object_seed"};
-        const std::string key = item.first.cast<std::string>();
-        if (std::find(std::begin(known), std::end(known), key) == std::end(known))
-            throw std::invalid_argument("unknown scan model key: " + key);
-    }
-    if (materials.rows() != sim::kSurfaceCount || materials.cols() != 4)
-        throw std::invalid_argument("materials must be (7,4): one row per surface class");
-    for (int i = 0; i < sim::kSurfaceCount; ++i)
-        m.materials[i] = {materials(i, 0), materials(i, 1), materials(i, 2), materials(i, 3)};
+// The measurement model as a typed class: scalars as attributes, materials as a (7,4) array
+// (median, sigma_return, sigma_object, incidence_exponent per surface class).
+void defineScanModel(py::module_ &m) {
+    py::class_<sim::ScanModel> c(m, "ScanModel", "The simulated sensor's measurement model.");
+    c.def(py::init<>());
+    FS_FIELD(c, sim::ScanModel, range_min_m);
+    FS_FIELD(c, sim::ScanModel, range_max_m);
+    FS_FIELD(c, sim::ScanModel, range_noise_m);
+    FS_FIELD(c, sim::ScanModel, beam_divergence_rad);
+    FS_FIELD(c, sim::ScanModel, dropout_rate);
+    FS_FIELD(c, sim::ScanModel, grazing_cos);
+    FS_FIELD(c, sim::ScanModel, far_fraction);
+    FS_FIELD(c, sim::ScanModel, reference_range_m);
+    FS_FIELD(c, sim::ScanModel, range_exponent);
+    FS_FIELD(c, sim::ScanModel, near_range_m);
+    FS_FIELD(c, sim::ScanModel, object_seed);
+    c.def_property(
+        "materials",
+        [](const sim::ScanModel &model) {
+            RowMatrix out(sim::kSurfaceCount, 4);
+            for (int i = 0; i < sim::kSurfaceCount; ++i) {
+                const sim::Material &mt = model.materials[i];
+                out.row(i) << mt.median, mt.sigma_return, mt.sigma_object, mt.incidence_exponent;
+            }
+            return out;
+        },
+        [](sim::ScanModel &model, const RowMatrix &materials) {
+            if (materials.rows() != sim::kSurfaceCount || materials.cols() != 4)
+                throw std::invalid_argument("materials must be (7,4): one row per surface class");
+            for (int i = 0; i < sim::kSurfaceCount; ++i)
+                model.materials[i] = {materials(i, 0), materials(i, 1), materials(i, 2),
+                                      materials(i, 3)};
+        },
+        "(7,4): median, sigma_return, sigma_object, incidence_exponent per surface class");
+}
+
+void checkScanModel(const sim::ScanModel &m) {
     if (!(m.range_noise_m >= 0 && m.beam_divergence_rad >= 0 && m.dropout_rate >= 0 &&
           m.dropout_rate < 1 && m.grazing_cos >= 0 && m.grazing_cos < 1 && m.far_fraction > 0 &&
           m.reference_range_m > 0 && m.near_range_m >= 0))
         throw std::invalid_argument("scan model values out of range");
-    return m;
 }
 
-}  // namespace
-
-void define_sim(py::module_ &m) {
+// The scene: ray casting and the synthesis of one scan.
+void defineSimScene(py::module_ &m) {
     py::class_<sim::ForestScene>(m, "SimScene",
                                  "Forest scene for the LiDAR simulator: heightfield terrain plus "
                                  "stems, cylinders and foliage volumes in a uniform XY grid.")
@@ -163,9 +169,10 @@ void define_sim(py::module_ &m) {
                const Eigen::Ref<const sim::PoseRows> &knot_pose,
                const Eigen::Ref<const Eigen::VectorXd> &group_time,
                const Eigen::Ref<const sim::IndexVector> &group,
-               const Eigen::Ref<const Points3> &local_dirs, const py::dict &model_dict,
-               const RowMatrix &materials, uint64_t cast_seed, uint64_t noise_seed) {
-                const sim::ScanModel model = scanModel(model_dict, materials);
+               const Eigen::Ref<const Points3> &local_dirs, const sim::ScanModel &scan_model,
+               uint64_t cast_seed, uint64_t noise_seed) {
+                checkScanModel(scan_model);
+                const sim::ScanModel model = scan_model;  // a copy: used without the GIL
                 sim::SynthesizedScan r;
                 {
                     py::gil_scoped_release release;
@@ -175,14 +182,10 @@ void define_sim(py::module_ &m) {
                 return py::make_tuple(r.ray, r.points, r.intensity, r.surface, r.object);
             },
             py::arg("knot_time"), py::arg("knot_pose"), py::arg("group_time"), py::arg("group"),
-            py::arg("local_dirs"), py::arg("model"), py::arg("materials"), py::arg("cast_seed"),
-            py::arg("noise_seed"),
+            py::arg("local_dirs"), py::arg("model"), py::arg("cast_seed"), py::arg("noise_seed"),
             "One scan: knot_time (M,) increasing with knot_pose (M,16) row-major T_world_sensor, "
             "interpolated to group_time (G,); ray i fires local_dirs[i] (N,3, sensor frame) from "
-            "the pose of group[i] (N,) int64. model: dict of ScanModel scalars (range_min_m "
-            "range_max_m range_noise_m beam_divergence_rad dropout_rate grazing_cos far_fraction "
-            "reference_range_m range_exponent near_range_m object_seed); materials (7,4): median "
-            "sigma_return sigma_object incidence_exponent per surface class. -> (ray (K,) int64 "
+            "the pose of group[i] (N,) int64. model: ScanModel. -> (ray (K,) int64 "
             "rows kept, points (K,3) sensor frame, intensity (K,) float32, surface (K,) uint8, "
             "object (K,) int32). Dropouts, range and intensity noise are drawn from noise_seed, "
             "foliage from cast_seed.")
@@ -195,6 +198,9 @@ void define_sim(py::module_ &m) {
                 return z;
             },
             py::arg("xy"), "Terrain height at xy (N,2) -> (N,), NaN outside the heightfield.");
+}
+
+void defineStemSections(py::module_ &m) {
     m.def(
         "sim_stem_sections",
         [](const RowMatrix &stems, uint64_t seed, const Eigen::VectorXd &h, int n) {
@@ -212,6 +218,14 @@ void define_sim(py::module_ &m) {
         "Horizontal sections of the stem rows (as SimScene takes them, same seed) h (K,) metres "
         "above each row's base: (K*n, 2) world XY, n points per row at equal normalised "
         "azimuths.");
+}
+
+}  // namespace
+
+void define_sim(py::module_ &m) {
+    defineScanModel(m);
+    defineSimScene(m);
+    defineStemSections(m);
     m.attr("SIM_SURFACES") =
         py::make_tuple("none", "ground", "stem", "branch", "foliage", "shrub", "log");
 }

@@ -1,5 +1,5 @@
 """Python facade over forestslam._core registration: validates shapes; configs cross into C++
-through forestslam.odometry.bridge (the typed C++ structs, defaults kept in C++)."""
+through forestslam.core_bridge (the typed C++ structs, defaults kept in C++)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def _pose(T: Any, name: str) -> np.ndarray:
 
 
 def _to_core(config: Any, core_cls: Any, where: str) -> Any:
-    from forestslam.odometry.bridge import fill_core
+    from forestslam.core_bridge import fill_core
 
     return fill_core(config, core_cls(), where)
 

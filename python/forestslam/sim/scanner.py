@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,7 @@ def synthesize_scan(
     scene,
     pattern: ScanPattern,
     poses: np.ndarray,
-    model: tuple[dict, np.ndarray],
+    model: Any,
     stamp: float,
     rng: np.random.Generator,
     cast_seed: int,
@@ -110,15 +111,13 @@ def synthesize_scan(
     intensity noise (drawn in C++, one hash per ray). With labels=True also the per-point surface
     class (N,) uint8 (see forest.SURFACES) and object (N,) int32 (the tree id for stems)."""
     knot_time = pattern.group_time if pose_times is None else np.asarray(pose_times, np.float64)
-    params, materials = model
     idx, points, intensity, surface, obj = scene.synthesize(
         np.ascontiguousarray(knot_time, dtype=np.float64),
         np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 16)),
         pattern.group_time,
         pattern.group,
         pattern.dirs,
-        params,
-        materials,
+        model,
         int(cast_seed),
         int(rng.integers(0, 2**63)),
     )

@@ -12,6 +12,7 @@ and beyond `far_fraction` of the maximum range.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -73,9 +74,12 @@ def sensor_noise(profile: SensorProfile, cfg: SensorConfig) -> SensorNoise:
 
 def scan_model(
     profile: SensorProfile, noise: SensorNoise, intensity: IntensityConfig, object_seed: int
-) -> tuple[dict, np.ndarray]:
-    """The C++ scan model: a dict of scalars and the (7,4) materials table (median, sigma_return,
-    sigma_object, incidence_exponent per surface class)."""
+) -> Any:
+    """The C++ measurement model (``forestslam._core.ScanModel``): ranges, noise, dropouts and the
+    (7,4) materials table (median, sigma_return, sigma_object, incidence_exponent per surface
+    class)."""
+    from forestslam.core_bridge import core_struct
+
     rows = []
     for name in _MATERIAL_ROWS:
         m = getattr(intensity, name)
@@ -84,17 +88,18 @@ def scan_model(
         rows.append([m.median, m.sigma_return, m.sigma_object, m.incidence_exponent])
     if not (intensity.reference_range_m > 0 and intensity.near_range_m >= 0):
         raise InputError("intensity: need reference_range_m > 0 and near_range_m >= 0")
-    model = {
+    values = {
         "range_min_m": float(profile.range_min_m),
         "range_max_m": float(profile.range_max_m),
-        "range_noise_m": noise.range_noise_m,
+        "range_noise_m": float(noise.range_noise_m),
         "beam_divergence_rad": noise.beam_divergence_mrad * 1e-3,
-        "dropout_rate": noise.dropout_rate,
-        "grazing_cos": noise.grazing_cos,
-        "far_fraction": noise.far_fraction,
+        "dropout_rate": float(noise.dropout_rate),
+        "grazing_cos": float(noise.grazing_cos),
+        "far_fraction": float(noise.far_fraction),
         "reference_range_m": float(intensity.reference_range_m),
         "range_exponent": float(intensity.range_exponent),
         "near_range_m": float(intensity.near_range_m),
         "object_seed": int(object_seed) % (2**63),
+        "materials": np.ascontiguousarray(rows, dtype=np.float64),
     }
-    return model, np.ascontiguousarray(rows, dtype=np.float64)
+    return core_struct("ScanModel", values, "scan model")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ class World:
     pattern: ScanPattern
     stamps: np.ndarray  # (S,) scan stamps, seconds
     noise: SensorNoise  # range noise and dropouts of the simulated sensor
-    scan_model: tuple  # (dict, (7,4) materials) for the C++ synthesis (sensor_model.scan_model)
+    scan_model: Any  # forestslam._core.ScanModel for the C++ synthesis (sensor_model.scan_model)
 
     def scan_seed(self, k: int) -> int:
         return (int(self.config.seed) * 1_000_003 + 7919 * k + 1) % (2**63)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from forestslam.tls.bridge import keypoint_config, virtual_feature_config
 from forestslam.tls.config import FeatureConfig, RegistrationConfig
 
 log = logging.getLogger(__name__)
@@ -84,20 +85,8 @@ def frame_features(
     core = _core()
     points = np.ascontiguousarray(points, dtype=np.float64)
     ring_list = None if rings is None else np.asarray(rings, dtype=np.uint16)
-    vf = core.extract_virtual_features(
-        points,
-        ring_list,
-        min_diameter_m=config.min_diameter_m,
-        max_diameter_m=config.max_diameter_m,
-    )
-    kp, _ = core.detect_dog_keypoints(
-        points,
-        voxel_m=config.keypoint_voxel_m,
-        sigma_small_m=config.sigma_small_m,
-        sigma_large_m=config.sigma_large_m,
-        nms_radius_m=config.nms_radius_m,
-        max_keypoints=config.max_keypoints,
-    )
+    vf = core.extract_virtual_features(points, ring_list, virtual_feature_config(config))
+    kp, _ = core.detect_dog_keypoints(points, keypoint_config(config))
     return FrameFeatures(
         centres=np.asarray(vf["centres"]).reshape(-1, 3),
         radii=np.asarray(vf["radii"], dtype=np.float64),
@@ -119,14 +108,9 @@ def reference_stems(
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0)
     ground = float(np.percentile(points[:, 2], 1.0))
+    band = {"min_z_m": ground + 0.5, "max_z_m": ground + 3.5}
     vf = _core().extract_virtual_features(
-        points,
-        None,
-        min_diameter_m=config.min_diameter_m,
-        max_diameter_m=config.max_diameter_m,
-        min_z_m=ground + 0.5,
-        max_z_m=ground + 3.5,
-        **fit_options,
+        points, None, virtual_feature_config(config, **band, **fit_options)
     )
     return np.asarray(vf["stems"]).reshape(-1, 3), np.asarray(vf["stem_radii"])
 

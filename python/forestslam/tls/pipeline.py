@@ -37,6 +37,7 @@ import numpy as np
 from forestslam.errors import InputError, ProcessingError
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
+from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
     FrameFeatures,
@@ -319,24 +320,19 @@ def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
     return not trust_failure(lm, T_pred, config)
 
 
-def _lm(core, target, feats, T_init, config: TlsConfig, **options) -> dict:
-    reg = config.registration
-    options = {
-        "max_rounds": reg.lm_max_rounds,
-        "converged_translation_m": reg.lm_converged_translation_m,
-        "converged_rotation_rad": reg.lm_converged_rotation_rad,
-        **options,
-    }
+def _lm(
+    core, target, feats, T_init, config: TlsConfig, centre_times=None, real_times=None, **options
+) -> dict:
+    """The stem-centre LM with the lm_* options of config, then `options` (C++ field names)."""
     return core.register_stem_centre_lm(
         target,
         feats.centres,
         feats.radii,
         feats.real_points,
         np.ascontiguousarray(T_init),
-        virtual_gate_m=reg.lm_virtual_gate_m,
-        plane_gate_m=reg.lm_plane_gate_m,
-        robust_scale_m=reg.lm_robust_scale_m,
-        **options,
+        lm_config(config.registration, **options),
+        centre_times=centre_times,
+        real_times=real_times,
     )
 
 
@@ -625,9 +621,7 @@ class _Walk:
         self.centres: list[np.ndarray] = []
         # The velocity (deskew, prediction, NDT guess) only while fresh: a longer gap since
         # the last trusted frame restarts the model (RegistrationConfig.max_velocity_age_s).
-        mm = self.core.MotionModelConfig()
-        mm.max_gap_s = config.registration.max_velocity_age_s
-        self.motion = self.core.ConstantVelocityModel(mm)
+        self.motion = self.core.ConstantVelocityModel(motion_model_config(config.registration))
         self.anchored = False  # the walk has a pose in the TLS frame
         self.lost = 0  # consecutive frames that did not join the map
         self.T_prev = None  # previous frame's pose (trusted or not) and points: NDT chain
@@ -716,8 +710,7 @@ class _Walk:
             self.prev_points,
             frame.points,
             np.ascontiguousarray(V),
-            voxel_m=self.config.registration.ndt_voxel_m,
-            resolution_m=self.config.registration.ndt_resolution_m,
+            ndt_config(self.config.registration),
         )
         frame.ms["ndt"] += (time.process_time() - t0) * 1e3
         return np.asarray(ndt["T_target_source"]) if ndt["converged"] else None
