@@ -167,6 +167,25 @@ double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
 
 namespace {
 
+// Distance from the sensor to the centre of a stem of radius r seen at azimuth az. A point at
+// range rho, azimuth offset a from az, lies r from the centre (D, 0) of the bearing frame, so
+// D = rho cos a + sqrt(r^2 - (rho sin a)^2). The median over the points facing the sensor
+// (lateral offset <= r/2, where the root is well conditioned) is unbiased under range noise;
+// the nearest range of the section, used before, is the minimum of noisy ranges and put stem
+// centres 3-4 cm (median) toward a VLP-16. `fallback` when no point qualifies.
+double centreDistance(const Eigen::Ref<const Points3> &p, double az, double r, double fallback) {
+    std::vector<double> d;
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double rho = std::hypot(p(i, 0), p(i, 1));
+        double a = std::atan2(p(i, 1), p(i, 0)) - az;
+        a = std::atan2(std::sin(a), std::cos(a));
+        const double lateral = rho * std::sin(a);
+        if (std::abs(lateral) <= 0.5 * r)
+            d.push_back(rho * std::cos(a) + std::sqrt(r * r - lateral * lateral));
+    }
+    return d.size() >= 3 ? median(std::move(d)) : fallback;
+}
+
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
 DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
@@ -206,7 +225,7 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
     for (double x : radii) dev.push_back(std::abs(x - r));
     const double spread = 1.4826 * median(dev);
     const double az = bearing + median(mids);
-    const double d = median(dists) + r;
+    const double d = centreDistance(p, az, r, median(dists) + r);
     f.radius = r;
     f.centre = Eigen::Vector3d(d * std::cos(az), d * std::sin(az), mid_z);
     f.inliers = static_cast<int>(radii.size());
