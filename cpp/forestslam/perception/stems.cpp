@@ -43,6 +43,17 @@ void evaluate(const Eigen::Ref<const Points3> &band, const DiameterConfig &opt, 
     }
     f.inliers = static_cast<int>(in.size());
     f.rms_m = in.empty() ? kNaN : std::sqrt(ss / static_cast<double>(in.size()));
+    // Covariance of (centre, radius) of a circle fit to the inliers: rms^2 (J^T J)^-1 with
+    // J_i = [-(unit radial of i), -1]; large on short arcs, where centre and radius trade off.
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    for (int i : in) {
+        const Eigen::Vector2d q = plane.row(i).transpose();
+        if (!(q.norm() > 0)) continue;
+        const Eigen::Vector3d J(-q.x() / q.norm(), -q.y() / q.norm(), -1.0);
+        JtJ += J * J.transpose();
+    }
+    if (in.size() >= 3 && std::abs(JtJ.determinant()) > 1e-12)
+        f.radius_std = f.rms_m * std::sqrt(std::max(0.0, JtJ.inverse()(2, 2)));
     f.arc_coverage = arcCoverage(plane, in, Eigen::Vector2d::Zero(), 36);
     const double ratio = band.rows() > 0 ? static_cast<double>(in.size()) / band.rows() : 0.0;
     f.score = in.empty() ? 0.0 : ratio * f.arc_coverage / std::max(f.rms_m, 0.005);
@@ -232,6 +243,11 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
     f.rms_m = spread;
     f.arc_coverage = 0.0;
     f.score = static_cast<double>(radii.size()) / std::max(spread, 0.005);
+    // Expected DBH error: angular sampling (range * step / sqrt(6), shared by all lines) and
+    // the standard error of the median of the lines' radii (1.25 spread / sqrt(n), x2).
+    const double sampling = d * sensor.azimuth_step_rad / std::sqrt(6.0);
+    const double median_se = 2.0 * 1.2533 * spread / std::sqrt(static_cast<double>(radii.size()));
+    f.radius_std = 0.5 * std::hypot(sampling, median_se);
     f.valid = spread <= std::max(0.02, 0.25 * r) && r >= opt.min_radius_m && r <= opt.max_radius_m;
     return f;
 }
@@ -356,6 +372,7 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {
         out.dbh = 2.0 * best->radius;
+        out.dbh_std = 2.0 * best->radius_std;
         out.centre = best->centre;
     }
     return out;
