@@ -12,7 +12,8 @@ bench/dbh_bench.py); the range model does not. Moving past a stem shows it from 
 sides, so a window covers much more arc than one scan. A window circle must be physically
 possible: an opaque stem hides whatever lies behind its near half, so a circle that points were
 seen through (beyond the middle of their beam's chord) is not one stem but a circle through a
-clump of stems or a stem and a branch behind it (+68 cm on a tree of a three-stem clump).
+clump of stems or a stem and a branch behind it (+68 cm on a tree of a three-stem clump); nor
+can it be much wider than the stem's width seen scan by scan (perception's silhouettes).
 Measurements that pass the gates are fused by a weighted mean (weight: inliers x arc
 coverage^2) after dropping outliers beyond 3 MADs of the median. dbh_std_m adds up what the
 data says: the standard error of the window mean (Bessel-corrected weighted spread), the
