@@ -149,3 +149,31 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
         dbh = np.array([0.3 if i < 3 else np.nan])
         tm.add(i, np.eye(4), np.array([9]), [np.zeros((0, 3))], np.zeros(1), np.ones(1), dbh)
     assert np.isnan(tm.dbh(9)[0])
+
+
+def test_tree_map_drops_windows_that_disagree_with_the_scans_width():
+    """A window circle 3x the stem's per-scan (silhouette) DBH is a circle through a clump: it
+    is not fused; without any agreeing window the per-scan fallback decides."""
+    tm = TreeMap(MappingConfig())
+    for i in range(10):
+        tm.add(
+            i,
+            np.eye(4),
+            np.array([1]),
+            [np.zeros((0, 3))],
+            np.zeros(1),
+            np.ones(1),
+            np.array([0.18 + 0.002 * (i % 3)]),
+        )
+    # Two clump windows outvote the stem's one in the median: the scans' width decides.
+    tm.trees[1].measurements = [(0.55, 80.0), (0.56, 80.0), (0.19, 40.0)]
+    dbh, _, n = tm.dbh(1)
+    assert n == 1 and dbh == pytest.approx(0.19)
+    tm.trees[1].measurements = [(0.55, 80.0)]
+    dbh, _, n = tm.dbh(1)
+    assert n == 0 and dbh == pytest.approx(0.182)
+    # Windows narrower than the scans' width are kept: scans that merged the stem with a
+    # neighbour widen it, the windows' circle does not follow them.
+    tm.trees[1].measurements = [(0.09, 40.0), (0.095, 40.0)]
+    dbh, _, n = tm.dbh(1)
+    assert n == 2 and dbh == pytest.approx(0.0925)

@@ -43,6 +43,17 @@ void evaluate(const Eigen::Ref<const Points3> &band, const DiameterConfig &opt, 
     }
     f.inliers = static_cast<int>(in.size());
     f.rms_m = in.empty() ? kNaN : std::sqrt(ss / static_cast<double>(in.size()));
+    // Covariance of (centre, radius) of a circle fit to the inliers: rms^2 (J^T J)^-1 with
+    // J_i = [-(unit radial of i), -1]; large on short arcs, where centre and radius trade off.
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    for (int i : in) {
+        const Eigen::Vector2d q = plane.row(i).transpose();
+        if (!(q.norm() > 0)) continue;
+        const Eigen::Vector3d J(-q.x() / q.norm(), -q.y() / q.norm(), -1.0);
+        JtJ += J * J.transpose();
+    }
+    if (in.size() >= 3 && std::abs(JtJ.determinant()) > 1e-12)
+        f.radius_std = f.rms_m * std::sqrt(std::max(0.0, JtJ.inverse()(2, 2)));
     f.arc_coverage = arcCoverage(plane, in, Eigen::Vector2d::Zero(), 36);
     const double ratio = band.rows() > 0 ? static_cast<double>(in.size()) / band.rows() : 0.0;
     f.score = in.empty() ? 0.0 : ratio * f.arc_coverage / std::max(f.rms_m, 0.005);
@@ -167,6 +178,25 @@ double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
 
 namespace {
 
+// Distance from the sensor to the centre of a stem of radius r seen at azimuth az. A point at
+// range rho, azimuth offset a from az, lies r from the centre (D, 0) of the bearing frame, so
+// D = rho cos a + sqrt(r^2 - (rho sin a)^2). The median over the points facing the sensor
+// (lateral offset <= r/2, where the root is well conditioned) is unbiased under range noise;
+// the nearest range of the section, used before, is the minimum of noisy ranges and put stem
+// centres 3-4 cm (median) toward a VLP-16. `fallback` when no point qualifies.
+double centreDistance(const Eigen::Ref<const Points3> &p, double az, double r, double fallback) {
+    std::vector<double> d;
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double rho = std::hypot(p(i, 0), p(i, 1));
+        double a = std::atan2(p(i, 1), p(i, 0)) - az;
+        a = std::atan2(std::sin(a), std::cos(a));
+        const double lateral = rho * std::sin(a);
+        if (std::abs(lateral) <= 0.5 * r)
+            d.push_back(rho * std::cos(a) + std::sqrt(r * r - lateral * lateral));
+    }
+    return d.size() >= 3 ? median(std::move(d)) : fallback;
+}
+
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
 DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
@@ -206,13 +236,18 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
     for (double x : radii) dev.push_back(std::abs(x - r));
     const double spread = 1.4826 * median(dev);
     const double az = bearing + median(mids);
-    const double d = median(dists) + r;
+    const double d = centreDistance(p, az, r, median(dists) + r);
     f.radius = r;
     f.centre = Eigen::Vector3d(d * std::cos(az), d * std::sin(az), mid_z);
     f.inliers = static_cast<int>(radii.size());
     f.rms_m = spread;
     f.arc_coverage = 0.0;
     f.score = static_cast<double>(radii.size()) / std::max(spread, 0.005);
+    // Expected DBH error: angular sampling (range * step / sqrt(6), shared by all lines) and
+    // the standard error of the median of the lines' radii (1.25 spread / sqrt(n), x2).
+    const double sampling = d * sensor.azimuth_step_rad / std::sqrt(6.0);
+    const double median_se = 2.0 * 1.2533 * spread / std::sqrt(static_cast<double>(radii.size()));
+    f.radius_std = 0.5 * std::hypot(sampling, median_se);
     f.valid = spread <= std::max(0.02, 0.25 * r) && r >= opt.min_radius_m && r <= opt.max_radius_m;
     return f;
 }
@@ -337,6 +372,7 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {
         out.dbh = 2.0 * best->radius;
+        out.dbh_std = 2.0 * best->radius_std;
         out.centre = best->centre;
     }
     return out;

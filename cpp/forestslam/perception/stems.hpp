@@ -44,7 +44,8 @@ struct DiameterFit {
     int inliers = 0;
     double rms_m = kNaN;
     double arc_coverage = 0;
-    double score = 0;  // inlier ratio * arc coverage / max(rms, 5 mm): larger is better
+    double score = 0;          // inlier ratio * arc coverage / max(rms, 5 mm): larger is better
+    double radius_std = kNaN;  // expected error of the radius (see StemDiameter::dbh_std)
 };
 
 // What the silhouette estimate needs: the points are seen from the origin (a single scan) by
@@ -61,6 +62,11 @@ struct StemDiameter {
     DiameterFit circle, cylinder, silhouette;
     int method = 0;  // 0 none accepted, 1 circle, 2 cylinder, 3 silhouette
     double dbh = kNaN;
+    // Expected error (1 sigma) of dbh. Silhouette: the angular sampling (each edge of the
+    // width falls anywhere within one azimuth step, and every scan line shares the same
+    // azimuths: range * step / sqrt(6)) and the standard error of the lines' median;
+    // circle / cylinder: the fit's covariance, RMS residual^2 (J^T J)^-1, on the band.
+    double dbh_std = kNaN;
     Eigen::Vector3d centre = Eigen::Vector3d::Constant(kNaN);
     int band_points = 0;
 };

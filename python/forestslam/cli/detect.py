@@ -14,7 +14,8 @@ def register(app: typer.Typer) -> None:
         "detect",
         help="Detect tree stems and their DBH in one scan, every scan, or one map / TLS cloud "
         "(sensor frame). Writes trees.csv (id,x,y,z,dbh_m; with a leading `scan` column when "
-        "several scans are processed; empty dbh_m = no accepted fit).",
+        "several scans are processed; empty dbh_m = no accepted fit, or one whose expected "
+        "error is above 2 cm).",
     )
     def _command(
         input: Path = typer.Argument(..., help="Bag (.bag/.mcap), folder or cloud file."),
@@ -113,7 +114,7 @@ class _Tally:
         rows["x"] += stems.xy[:, 0].tolist()
         rows["y"] += stems.xy[:, 1].tolist()
         rows["z"] += stems.z.tolist()
-        rows["dbh_m"] += stems.dbh.tolist()
+        rows["dbh_m"] += stems.reported_dbh().tolist()
 
     def columns(self) -> dict:
         """The trees.csv columns (no `scan` column for a single scan)."""

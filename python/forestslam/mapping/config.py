@@ -36,6 +36,9 @@ class MappingConfig:
     # scans agree within this share of it (robust spread); else no DBH.
     dbh_fallback_min_scans: PositiveInt = 3
     dbh_fallback_max_spread: Fraction = 0.15
+    # A window DBH above this factor times the median per-scan DBH of its tree (angular
+    # widths, independent of the window circle's curvature) is not that stem's circle.
+    dbh_max_scan_ratio: Annotated[float, Range(ge=1)] = 1.5
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the

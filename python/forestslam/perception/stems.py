@@ -15,6 +15,12 @@ BREAST_HEIGHT_SOURCES = (
 )
 
 
+# A single scan's DBH is reported (Stems.reported_dbh, `forestslam detect`) only when its
+# expected error (Stems.dbh_std) is within one 2 cm diameter class; the others stay NaN there.
+# Stems.dbh keeps every estimate (the tree map fuses them with its own rules).
+REPORT_MAX_DBH_STD_M = 0.02
+
+
 @dataclass
 class Stems:
     """K stems of one scan.
@@ -53,6 +59,18 @@ class Stems:
     @property
     def ids(self) -> np.ndarray:
         return np.arange(len(self), dtype=np.int64)
+
+    @property
+    def dbh_std(self) -> np.ndarray:
+        """(K,) expected error (1 sigma) of dbh: angular sampling and scan-line spread for the
+        silhouette, the fit covariance for the circle / cylinder; NaN without a DBH."""
+        if not self.diameters:
+            return np.full(len(self), np.nan)
+        return np.array([float(d.get("dbh_std", np.nan)) for d in self.diameters])
+
+    def reported_dbh(self, max_std_m: float = REPORT_MAX_DBH_STD_M) -> np.ndarray:
+        """(K,) dbh where its expected error is at most max_std_m, else NaN."""
+        return np.where(self.dbh_std <= max_std_m, self.dbh, np.nan)
 
     @classmethod
     def empty(cls, ground: np.ndarray | None = None, timing: dict | None = None) -> Stems:

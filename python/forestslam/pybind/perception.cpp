@@ -148,6 +148,7 @@ py::dict fitDict(const pc::DiameterFit &f) {
     d["rms_m"] = f.rms_m;
     d["arc_coverage"] = f.arc_coverage;
     d["score"] = f.score;
+    d["radius_std"] = f.radius_std;
     return d;
 }
 
@@ -161,6 +162,7 @@ py::dict diameterDict(const pc::StemDiameter &s) {
                   : s.method == 3 ? "silhouette"
                                   : "none";
     d["dbh"] = s.dbh;
+    d["dbh_std"] = s.dbh_std;
     d["centre"] = s.centre;
     d["band_points"] = s.band_points;
     return d;
