@@ -97,6 +97,23 @@ def test_tree_odometry_follows_truth(sample_world):
         assert np.all(np.linalg.eigvalsh(s.covariance) > 0)
 
 
+def test_stems_without_fit_dicts_keep_poses_dbh_and_centres(sample_world):
+    from forestslam.odometry import Odometry
+    from forestslam.sim.simulate import scan_at
+
+    full = Odometry(sample_world.profile)
+    lean = Odometry(sample_world.profile, stem_fits=False)  # what `forestslam run` uses
+    for k in range(4):
+        a, b = full.step(scan_at(sample_world, k)), lean.step(scan_at(sample_world, k))
+        np.testing.assert_array_equal(a.T_world_sensor, b.T_world_sensor)
+        assert len(a.stems) > 0 and len(a.stems.diameters) == len(a.stems)
+        assert b.stems.diameters == []
+        np.testing.assert_array_equal(a.stems.xy, b.stems.xy)
+        np.testing.assert_array_equal(a.stems.dbh, b.stems.dbh)
+        for p, q in zip(a.stems.points, b.stems.points, strict=True):
+            np.testing.assert_array_equal(p, q)
+
+
 def test_scans_without_stems_fall_back_to_degraded_icp():
     from forestslam.odometry import Odometry
 

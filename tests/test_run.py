@@ -48,7 +48,7 @@ class FakeOdometry:
 
     delay_s = 0.0
 
-    def __init__(self, sensor, config=None, perception_config=None):
+    def __init__(self, sensor, config=None, perception_config=None, stem_fits=True):
         self.trees_xy, self.trees_dbh = make_trees()
         self.rng = np.random.default_rng(0)
         self.prev = None

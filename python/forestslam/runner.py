@@ -153,8 +153,11 @@ class Pipeline:
         self.cfg = config
         self.mode = mode
         self.out_dir = out_dir
-        self.odometry = Odometry(
-            sensor, getattr(config, "odometry", None), getattr(config, "perception", None)
+        self.odometry = Odometry(  # the run does not use the per-stem fit quality dicts
+            sensor,
+            getattr(config, "odometry", None),
+            getattr(config, "perception", None),
+            stem_fits=False,
         )
         self.slam = LandmarkSlam(config.slam) if mode != "odometry" else None
         self.trees = TreeMap(config.mapping) if mode != "odometry" else None

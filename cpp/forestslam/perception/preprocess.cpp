@@ -281,7 +281,7 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
     const double max_nz = std::sin(opt.max_normal_angle_rad);
     const int max_nn = std::max(opt.max_neighbours, 3);
     std::vector<std::pair<double, int>> nn;
-    nn.reserve(static_cast<size_t>(max_nn) + 1);
+    nn.reserve(2 * static_cast<size_t>(max_nn));
     std::vector<Eigen::Vector3d> normals;
     for (const int i : rows) {
         double radius = out.radius_per_ring.front();

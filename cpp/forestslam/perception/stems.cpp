@@ -301,9 +301,10 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
             rowsBetween(points, mid - opt.band_max_half_m, mid + opt.band_max_half_m);
         out.silhouette = silhouetteFit(sec, mid, *sensor, opt);
     }
-    // SAC cylinder (with normals) on the lower stem section: the costliest estimate, so skipped
-    // when an accepted silhouette decides anyway (unless every estimate is asked for).
-    const bool cylinder_needed = opt.fit_all || !out.silhouette.valid;
+    // SAC cylinder (with normals) on the lower stem section: the costliest estimate and only
+    // the fallback, so skipped when an accepted silhouette or band circle decides anyway
+    // (unless every estimate is asked for).
+    const bool cylinder_needed = opt.fit_all || !(out.silhouette.valid || out.circle.valid);
     if (cylinder_needed && normals.rows() == points.rows() && points.rows() >= 8) {
         std::vector<int> rows;
         Points3 sec = rowsBetween(points, base_z + opt.cylinder_section_low_m,

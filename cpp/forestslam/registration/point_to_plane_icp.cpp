@@ -30,7 +30,7 @@ PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_
     if (m < 3) return;
     const int k = std::max(3, std::min<int>(normal_k, static_cast<int>(m)));
     std::vector<std::pair<double, int>> nn;
-    nn.reserve(static_cast<size_t>(k) + 1);
+    nn.reserve(2 * static_cast<size_t>(k));
     const double inf = std::numeric_limits<double>::infinity();
     for (Eigen::Index i = 0; i < m; ++i) {
         const int found = impl_->all.knn(impl_->points.row(i).transpose(), k, inf, nn);

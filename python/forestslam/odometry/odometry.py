@@ -100,19 +100,23 @@ def _column(values: np.ndarray | None, dtype) -> np.ndarray | None:
 class Odometry:
     """`Odometry(sensor, config=None).step(scan) -> OdometryStep`, one scan at a time in time
     order. sensor: profile name, YAML path or SensorProfile. perception_config: the
-    PerceptionConfig of the stem detection (default: its defaults)."""
+    PerceptionConfig of the stem detection (default: its defaults). stem_fits False: the steps'
+    stems come without their per-stem fit quality dicts (`Stems.diameters` empty; DBH and
+    centres are there), which saves most of the conversion of the stems into Python."""
 
     def __init__(
         self,
         sensor: str | SensorProfile,
         config: OdometryConfig | None = None,
         perception_config: Any | None = None,
+        stem_fits: bool = True,
     ) -> None:
         from forestslam import _core
 
         self.sensor = load_profile(sensor)
         self.cfg = config or OdometryConfig()
         self.perception_config = perception_config
+        self.stem_fits = stem_fits
         self._odometry = _core.TreeOdometry(
             core_sensor(self.sensor),
             core_odometry_config(self.cfg),
@@ -145,7 +149,7 @@ class Odometry:
             T_world_sensor=np.array(res.T_world_sensor),
             covariance=np.array(res.covariance),
             degraded=bool(res.degraded),
-            stems=stems_from_core(res.stems),
+            stems=stems_from_core(res.stems_dict(self.stem_fits)),
             timing=dict(res.timing),
             covariance6=None if res.covariance6 is None else np.array(res.covariance6),
             method=res.method,

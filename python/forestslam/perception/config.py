@@ -112,8 +112,8 @@ class DiameterConfig:
     silhouette: bool = (
         True  # single scans: stem width seen from the sensor, preferred if consistent
     )
-    # The SAC cylinder is skipped when an accepted silhouette decides the DBH anyway (the
-    # costliest estimate); True fits (and reports) every estimate for every stem.
+    # The SAC cylinder is skipped when an accepted silhouette or band circle decides the DBH
+    # anyway (the costliest estimate); True fits (and reports) every estimate for every stem.
     fit_all: bool = False
 
 

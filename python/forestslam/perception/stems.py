@@ -31,8 +31,8 @@ class Stems:
     (unit, pointing up); base_z (K,) local ground height; points list of (Mi,3);
     ground (G,3) ground points thinned to one per voxel; diameters list of per-stem fit
     quality dicts (circle / cylinder / silhouette: radius, inliers, rms_m, arc_coverage, score;
-    method; the cylinder is not fitted, valid False, when an accepted silhouette decides unless
-    DiameterConfig.fit_all);
+    method; the cylinder is not fitted, valid False, when an accepted silhouette or band
+    circle decides unless DiameterConfig.fit_all);
     timing dict of per-stage wall-clock milliseconds; cpu_ms the same stages in CPU time of
     the calling thread (the one-core cost); counts dict of per-stage point / cluster counts;
     breast_source (K,) index into BREAST_HEIGHT_SOURCES.

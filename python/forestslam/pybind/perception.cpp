@@ -182,7 +182,7 @@ std::vector<int> toRows(const py::array_t<int, py::array::c_style | py::array::f
 }  // namespace
 
 // The stems of a detection in the layout of forestslam.perception.Stems (also the odometry's).
-py::dict detectionDict(const perception::Detection &det) {
+py::dict detectionDict(const perception::Detection &det, bool fits) {
     namespace pc = forestslam::perception;
     const auto k = static_cast<Eigen::Index>(det.stems.size());
     Points2 xy(k, 2);
@@ -204,7 +204,7 @@ py::dict detectionDict(const perception::Detection &det) {
         ground_found(i) = s.ground_found ? 1 : 0;
         breast_source(i) = static_cast<int>(s.breast_source);
         pts.append(py::cast(s.points));
-        diam.append(diameterDict(s.diameter));
+        if (fits) diam.append(diameterDict(s.diameter));  // most of the conversion's cost
     }
     py::dict d;
     d["xy"] = xy;
