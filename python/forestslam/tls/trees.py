@@ -117,6 +117,78 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
     )
 
 
+def radius_sigma(xy: np.ndarray, centre: np.ndarray, radius: float) -> float:
+    """Standard deviation (m) of the radius of a geometric circle fit to xy (M,2): the radius
+    entry of sigma^2 (J^T J)^-1, J rows [-(p - c)/|p - c|, -1] and sigma^2 the residual
+    variance (M - 3 degrees of freedom). On a short arc the centre and the radius trade off
+    along the view, so it grows without bound as the arc shrinks; inf for fewer than 4
+    points."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < 4:
+        return float("inf")
+    v = xy - np.asarray(centre, dtype=np.float64)
+    d = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+    J = np.column_stack([-v / d[:, None], -np.ones(len(xy))])
+    var = float(np.sum((d - radius) ** 2)) / (len(xy) - 3)
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(max(var, 1e-12) * max(cov[2, 2], 0.0)))
+
+
+def _circle(core, band_xy: np.ndarray, features: FeatureConfig) -> tuple[float, float]:
+    """(radius, radius sigma) of the robust circle fit of band points (M,2); (nan, inf) when
+    there is no valid fit."""
+    if len(band_xy) < 5:
+        return float("nan"), float("inf")
+    fit = core.fit_circle(
+        np.ascontiguousarray(band_xy),
+        inlier_threshold_m=0.02,
+        min_radius_m=0.5 * features.min_diameter_m,
+        max_radius_m=0.5 * features.max_diameter_m,
+    )
+    if not fit["valid"]:
+        return float("nan"), float("inf")
+    inl = band_xy[np.asarray(fit["inlier_indices"], dtype=np.int64)]
+    return float(fit["radius"]), radius_sigma(inl, np.asarray(fit["centre"]), fit["radius"])
+
+
+def fuse_with_reference(
+    trees: PlotTrees, reference: np.ndarray, config: TreeConfig, features: FeatureConfig
+) -> PlotTrees:
+    """The merged map's stems with each DBH fused with the TLS reference's own circle at the
+    same stem: inverse-variance weights from each fit's radius uncertainty (radius_sigma:
+    residual spread and arc geometry). A stem the TLS saw along a wide arc keeps its TLS
+    diameter (the mobile frames' points are noisier and carry the registration spread); a
+    stem the TLS saw on a short arc takes the merged map's wider one. Without a TLS fit the
+    merged DBH stands; without a merged fit the TLS one."""
+    if len(trees) == 0:
+        return trees
+    core = _core()
+    lo, hi = config.band_m
+    ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    tree2d = cKDTree(ref[:, :2]) if len(ref) else None
+    dbh = trees.dbh_m.copy()
+    for k in range(len(trees)):
+        band = trees.band_points[k]
+        r_m, s_m = _circle(core, band[:, :2], features)
+        if tree2d is None:
+            continue
+        idx = tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.dbh_m[k] + 0.15)
+        near = ref[idx]
+        z = near[:, 2] - trees.base_z[k]
+        r_t, s_t = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
+        if not np.isfinite(r_t):
+            continue
+        if not np.isfinite(r_m) or not np.isfinite(s_m):
+            dbh[k] = 2 * r_t
+            continue
+        w_t, w_m = 1.0 / max(s_t, 1e-6) ** 2, 1.0 / max(s_m, 1e-6) ** 2
+        dbh[k] = 2 * (w_t * r_t + w_m * r_m) / (w_t + w_m)
+    return PlotTrees(trees.xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points)
+
+
 def _band_slab(points: np.ndarray, base_z: np.ndarray, band_m) -> np.ndarray:
     """The points (M,3) at heights any stem's breast-height band can reach (between the
     lowest base plus band_m[0] and the highest base plus band_m[1]): the spatial index is
