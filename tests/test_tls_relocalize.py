@@ -59,8 +59,6 @@ def test_stems_on_reference_tolerates_one_sided_fits_and_rejects_a_wrong_place()
         stem_radii=np.concatenate([radii, np.full(3, 0.1)]),
     )
     assert _stems_on_reference(feats, T, ref_stems, cfg)
-    spacing = np.median(
-        [np.sort(np.linalg.norm(trees[:, :2] - p[:2], axis=1))[1] for p in trees]
-    )
+    spacing = np.median([np.sort(np.linalg.norm(trees[:, :2] - p[:2], axis=1))[1] for p in trees])
     wrong = pose(0.5 + 0.5 * spacing, -0.3, 0.4)
     assert not _stems_on_reference(feats, wrong, ref_stems, cfg)
