@@ -92,3 +92,11 @@ def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_
         assert abs(fused.dbh_m[k] - dbh) < 0.006
     k_a = int(np.argmin(np.abs(fused.xyz[:, 0] - a[0])))
     assert abs(fused.dbh_m[k_a] - a[2]) < abs(trees.dbh_m[k_a] - a[2])
+    # Centres: B's 40 deg TLS fit is 8 mm off along the view; fused with the map's all-around
+    # circle it is not.
+    for x, y, _ in (a, b):
+        k = int(np.argmin(np.abs(fused.xyz[:, 0] - x)))
+        assert np.linalg.norm(fused.xyz[k, :2] - [x, y]) < 0.005
+    alone = plot_trees(reference, cfg.trees, cfg.features)
+    k_b = int(np.argmin(np.abs(alone.xyz[:, 0] - b[0])))
+    assert np.linalg.norm(alone.xyz[k_b, :2] - b[:2]) > 0.005
