@@ -54,7 +54,7 @@ from forestslam.tls.features import frame_features
 from forestslam.tls.pipeline import _frame_points_times, _lm, _sweep_lm, registered_points
 from forestslam.tls.runner import load_reference, with_rings, write_products
 from forestslam.tls.sweep import apply_sweep
-from forestslam.tls.trees import circumference_coverage, plot_trees
+from forestslam.tls.trees import circumference_coverage, fuse_with_reference, plot_trees
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "data" / "cache" / "sim"
@@ -110,10 +110,17 @@ def truth_world(mls_dir: Path, gt_stamps: np.ndarray, gt_poses: np.ndarray):
     """The simulator world of the cached sequence (its truth scenario): the continuous true
     trajectory (pose at any time, e.g. mid-sweep) and the terrain; checked against the cached
     truth poses at the scan stamps."""
-    from forestslam.sim.scenarios import load_scenario
+    from forestslam.sim.scenarios import load_scenario, scenario_dict
     from forestslam.sim.world import build_world
 
-    world = build_world(load_scenario(mls_dir / "truth" / "scenario.yaml"))
+    truth = mls_dir / "truth" / "scenario.yaml"
+    # The scenario names the other scenario of its plot (kept clear of clutter) by the absolute
+    # path it had when simulated, maybe in another checkout: the sibling file of that name.
+    other = scenario_dict(truth).get("clutter", {}).get("keep_clear_scenario")
+    moved = None
+    if other and not Path(other).is_file() and (mls_dir.parent / Path(other).name).is_file():
+        moved = str(mls_dir.parent / Path(other).name)
+    world = build_world(load_scenario(truth, clutter__keep_clear_scenario=moved))
     t0 = world.config.motion.start_time_s
     k = slice(None, None, max(1, len(gt_stamps) // 50))
     dev = np.abs(world.trajectory.poses(gt_stamps[k] - t0) - gt_poses[k]).max()
@@ -376,6 +383,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         report["sequential_whole_walk"] = seq
 
     merged = plot_trees(run.map_points, cfg.trees, cfg.features)
+    merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
     ia, ib = match(merged.xyz[:, :2], truth_xy_tls, 0.5)
     pos_err = np.linalg.norm(merged.xyz[ia, :2] - truth_xy_tls[ib], axis=1)

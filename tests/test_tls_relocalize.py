@@ -32,3 +32,33 @@ def test_tracking_loss_is_recovered_on_the_reference_stems():
     # ... and tracking is back at the latest once the loss is declared.
     assert all(e < 0.01 for e in errors[3 + lost :]), errors
     assert all(r.accepted for r in run.frames[3 + lost + 1 :])
+
+
+def test_stems_on_reference_tolerates_one_sided_fits_and_rejects_a_wrong_place():
+    """The gross-error test of a frame's stems: one-sided ring fits put a correctly placed
+    frame's stems 5-20 cm off the TLS stems (and some trees the TLS never resolved add stems of
+    their own); it passes. The same frame one stem spacing off fails."""
+    from types import SimpleNamespace
+
+    from forestslam.tls.pipeline import _stems_on_reference
+
+    rng = np.random.default_rng(9)
+    trees = stand(seed=3, n=14)
+    cfg = TlsConfig()
+    ref_stems = (np.column_stack([trees[:, :2], np.zeros(len(trees))]), trees[:, 2] / 2)
+    T = pose(0.5, -0.3, 0.4)
+    a = rng.uniform(-np.pi, np.pi, len(trees))
+    off = rng.uniform(0.06, 0.20, len(trees))[:, None] * np.column_stack([np.cos(a), np.sin(a)])
+    seen_tls = trees[:, :2] + off
+    unseen = rng.uniform(-9, 9, (3, 2))  # trees the TLS did not resolve
+    xy_tls = np.concatenate([seen_tls, unseen])
+    xy_frame = (xy_tls - T[:2, 3]) @ T[:2, :2]  # the frame's own coordinates
+    radii = trees[:, 2] / 2 + rng.normal(0, 0.05, len(trees))  # short-arc radii, off by cm
+    feats = SimpleNamespace(
+        stems=np.column_stack([xy_frame, np.zeros(len(xy_frame))]),
+        stem_radii=np.concatenate([radii, np.full(3, 0.1)]),
+    )
+    assert _stems_on_reference(feats, T, ref_stems, cfg)
+    spacing = np.median([np.sort(np.linalg.norm(trees[:, :2] - p[:2], axis=1))[1] for p in trees])
+    wrong = pose(0.5 + 0.5 * spacing, -0.3, 0.4)
+    assert not _stems_on_reference(feats, wrong, ref_stems, cfg)

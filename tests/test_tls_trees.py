@@ -7,7 +7,7 @@ import numpy as np
 from tls_world import stand
 
 from forestslam.tls import TlsConfig
-from forestslam.tls.trees import plot_trees
+from forestslam.tls.trees import fuse_with_reference, plot_trees, radius_sigma
 
 
 def noisy_map(trees: np.ndarray, noise_m: float, seed: int = 2) -> np.ndarray:
@@ -36,3 +36,67 @@ def test_stems_of_a_noisy_merged_map_are_found_and_measured():
         j = int(np.argmin(d))
         assert d[j] < 0.01
         assert abs(found.dbh_m[j] - trees[k, 2]) < 0.015
+
+
+def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
+    """n points (n,3) of a stem's surface between angles a0 and a1 (radians) in the height band
+    z, with radial noise noise_m."""
+    a = rng.uniform(a0, a1, n)
+    r = radius + rng.normal(0, noise_m, n)
+    return np.column_stack(
+        [centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), rng.uniform(*z, n)]
+    )
+
+
+def test_radius_sigma_grows_as_the_arc_shrinks_and_matches_the_scatter_of_fits():
+    from forestslam import _core
+
+    rng = np.random.default_rng(4)
+    sigmas, spreads = [], []
+    for half_angle in (np.pi, np.pi / 4):
+        radii, predicted = [], []
+        for _ in range(60):
+            pts = arc((0.0, 0.0), 0.15, -half_angle, half_angle, 80, 0.005, rng)[:, :2]
+            fit = _core.fit_circle(np.ascontiguousarray(pts), inlier_threshold_m=0.02)
+            radii.append(fit["radius"])
+            predicted.append(radius_sigma(pts, np.asarray(fit["centre"]), fit["radius"]))
+        sigmas.append(np.median(predicted))
+        spreads.append(np.std(radii))
+    assert sigmas[1] > 5 * sigmas[0]  # a quarter circle vs the full one
+    for s, spread in zip(sigmas, spreads, strict=True):
+        assert 0.6 * spread < s < 1.6 * spread  # the predicted spread is the fits' spread
+    assert radius_sigma(np.zeros((3, 2)), np.zeros(2), 0.1) == np.inf
+
+
+def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_one():
+    """Stem A: the TLS saw half of it (sharp), the merged map adds the other half with more
+    noise and a radius 1 cm too small: the fused DBH is closer to the truth than the map's
+    (the TLS arc weighs more). Stem B: the TLS saw 40 deg of it (its fit is 8 mm off), the
+    map all around: the fused DBH is within 6 mm, as the map's."""
+    rng = np.random.default_rng(5)
+    cfg = TlsConfig()
+    g = np.arange(-4.0, 4.0, 0.05)
+    gx, gy = np.meshgrid(g, g)
+    ground = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
+    tls_a = arc(a[:2], a[2] / 2, -np.pi / 2, np.pi / 2, 400, 0.003, rng, (0.3, 3.0))
+    tls_b = arc(b[:2], b[2] / 2, -0.35, 0.35, 400, 0.003, rng, (0.3, 3.0))
+    mls_a = arc(a[:2], a[2] / 2 - 0.01, np.pi / 2, 1.5 * np.pi, 400, 0.012, rng, (0.3, 3.0))
+    mls_b = arc(b[:2], b[2] / 2, -np.pi, np.pi, 2000, 0.008, rng, (0.3, 3.0))
+    reference = np.concatenate([ground, tls_a, tls_b])
+    merged = np.concatenate([reference, mls_a, mls_b])
+    trees = plot_trees(merged, cfg.trees, cfg.features)
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    for x, _, dbh in (a, b):
+        k = int(np.argmin(np.abs(fused.xyz[:, 0] - x)))
+        assert abs(fused.dbh_m[k] - dbh) < 0.006
+    k_a = int(np.argmin(np.abs(fused.xyz[:, 0] - a[0])))
+    assert abs(fused.dbh_m[k_a] - a[2]) < abs(trees.dbh_m[k_a] - a[2])
+    # Centres: B's 40 deg TLS fit is 8 mm off along the view; fused with the map's all-around
+    # circle it is not.
+    for x, y, _ in (a, b):
+        k = int(np.argmin(np.abs(fused.xyz[:, 0] - x)))
+        assert np.linalg.norm(fused.xyz[k, :2] - [x, y]) < 0.005
+    alone = plot_trees(reference, cfg.trees, cfg.features)
+    k_b = int(np.argmin(np.abs(alone.xyz[:, 0] - b[0])))
+    assert np.linalg.norm(alone.xyz[k_b, :2] - b[:2]) > 0.005

@@ -88,8 +88,11 @@ class RegistrationConfig:
     # ... and, once registered rigidly, registered again with the motion during the sweep
     # estimated as a polynomial of this order in time (0: rigid frames; see tls.sweep), with
     # sweep_lm_rounds correspondence rounds; kept when that LM is trusted. Needs per-point time.
+    # Its 6 (order + 1) unknowns take more rounds to converge than the rigid LM: at 10 rounds
+    # 36 of 150 frames of the 1.5 deg vibrating walk (bench/tls_bench.py --plots, spruce-line-
+    # far) did not converge (kept rigid, never merged), at 25 rounds 8 (+8 % CPU).
     sweep_order: NonNegativeInt = 2
-    sweep_lm_rounds: PositiveInt = 10
+    sweep_lm_rounds: PositiveInt = 25
     lm_converged_translation_m: NonNegative = 1e-3  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: NonNegative = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
@@ -145,10 +148,9 @@ class InitConfig:
     min_consensus_fraction: Fraction = 0.4
     ambiguity_ratio: Fraction = 0.7
     # The frames before the placed one are chained back through the odometry; the LM refines
-    # a frame only when it moves the chained pose by at most this much (one frame of
-    # odometry is better than that; a larger move is a wrong minimum, e.g. few stems in view).
-    backfill_max_correction_m: NonNegative = 0.25
-    backfill_max_correction_deg: NonNegative = 5.0
+    # a frame when trusted from the chained pose (the tracking's gates, max_correction_*) and
+    # its stems then sit on the reference's stems (the merge's gross-error test); else the
+    # chained pose stands. Such frames are never merged.
 
 
 @dataclass

@@ -15,7 +15,12 @@ from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.pipeline import TlsRun, register_mls_to_tls, unmerged_csv, unmerged_summary
-from forestslam.tls.trees import circumference_coverage, observations, plot_trees
+from forestslam.tls.trees import (
+    circumference_coverage,
+    fuse_with_reference,
+    observations,
+    plot_trees,
+)
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +83,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
     write_tum(out_dir / "trajectory.tum", run.stamps, run.poses)
     write_cloud(out_dir / "plot.laz", run.map_points)
     trees = plot_trees(run.map_points, config.trees, config.features)
+    trees = fuse_with_reference(trees, run.reference, config.trees, config.features)
     cov_tls = circumference_coverage(run.reference, trees, config.trees)
     cov_merged = circumference_coverage(run.map_points, trees, config.trees)
     obs = observations(trees, run.frame_centres, cov_tls > 0)
