@@ -133,12 +133,30 @@ def test_bad_inputs_raise_input_error_and_empty_inputs_do_not_crash():
 
 def test_poses_cross_the_binding_as_rigid_4x4_arrays():
     core = pytest.importorskip("forestslam._core")
-    r = core.RegistrationResult()
-    r.T_target_source = planar(1.0, 2.0, 0.3)
-    np.testing.assert_allclose(r.T_target_source, planar(1.0, 2.0, 0.3), atol=1e-15)
+    m, c = gaussians(stems(3, 1))
+    T = planar(1.0, 2.0, 0.3)
+    # Without pairs the result keeps the (planar) initial pose: a pose into C++ and back.
+    r = reg.register_shapes(m, c, m, c, np.zeros((0, 2)), T)
+    assert r.T_target_source.shape == (4, 4) and r.T_target_source.dtype == np.float64
+    np.testing.assert_allclose(r.T_target_source, T, atol=1e-15)
     sheared = np.eye(4)
     sheared[3, 0] = 0.5  # a projective matrix, not a pose
     with pytest.raises(ValueError, match="last row"):
         core.transform_points(sheared, np.zeros((2, 3)))
     with pytest.raises(ValueError, match="gate_m"):
         core.match_trees(np.zeros((2, 3)), np.zeros((2, 3)), np.eye(4), 0.0)
+
+
+def test_registration_results_are_read_only():
+    core = pytest.importorskip("forestslam._core")
+    m, c = gaussians(stems(6, 2))
+    r = reg.register_shapes(m, c, m, c, np.array([[k, k] for k in range(6)]), np.eye(4))
+    assert r.converged and r.inliers == 6
+    fields = ("T_target_source", "covariance", "converged", "degenerate", "inliers", "iterations")
+    for name in (*fields, "rmse"):
+        with pytest.raises(AttributeError):
+            setattr(r, name, getattr(r, name))
+    with pytest.raises(ValueError, match="read-only"):
+        r.covariance[0, 0] = 0.0
+    with pytest.raises(TypeError):
+        core.RegistrationResult()  # made by the registrations only

@@ -133,16 +133,18 @@ TEST(ForestScene, GridMatchesBruteForce) {
     EXPECT_GT(kinds[kFoliage], 50);
 }
 
-TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
-    // castBatch walks the grid once per bundle of rays sharing an origin; it must return
-    // exactly cast()'s hit for every ray: tilted spinning columns, raster rows (horizontal
-    // fans), steep rays, sensors outside the grid, axis-parallel rays.
-    std::mt19937 rng(23);
+namespace {
+// 120 leaning stems with rough bark, each with a branch and a crown; lying logs and shrubs.
+struct MixedStand {
+    std::vector<Stem> stems;
+    std::vector<Cylinder> cylinders;
+    std::vector<FoliageEllipsoid> foliage;
+};
+
+MixedStand mixedStand(std::mt19937 &rng) {
     std::uniform_real_distribution<double> u(-25, 25), r(0.05, 0.4), h(4, 25), s(-0.08, 0.08);
     std::uniform_real_distribution<double> unit(0, 1);
-    std::vector<Stem> stems;
-    std::vector<Cylinder> cyl;
-    std::vector<FoliageEllipsoid> fol;
+    MixedStand stand;
     for (int i = 0; i < 120; ++i) {
         Stem st;
         st.base = {u(rng), u(rng), 0.0};
@@ -154,86 +156,111 @@ TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
         st.height = h(rng);
         st.bark_amp = 0.004;
         for (double &ph : st.phase) ph = 6.28 * unit(rng);
-        stems.push_back(st);
-        cyl.push_back({st.base + Eigen::Vector3d(0, 0, 2 + 3 * unit(rng)),
-                       st.base + Eigen::Vector3d(u(rng) / 10, u(rng) / 10, 4), 0.03, kBranch});
+        stand.stems.push_back(st);
+        stand.cylinders.push_back({st.base + Eigen::Vector3d(0, 0, 2 + 3 * unit(rng)),
+                                   st.base + Eigen::Vector3d(u(rng) / 10, u(rng) / 10, 4), 0.03,
+                                   kBranch});
         if (i % 4 == 0)  // lying logs
-            cyl.push_back({Eigen::Vector3d(u(rng), u(rng), 0.1),
-                           Eigen::Vector3d(u(rng), u(rng), 0.15), 0.15, kLog});
-        fol.push_back({st.base + Eigen::Vector3d(0, 0, st.height),
-                       {1 + 2 * unit(rng), 1 + 2 * unit(rng), 2 + 2 * unit(rng)},
-                       0.5 + unit(rng),
-                       kFoliage});
+            stand.cylinders.push_back({Eigen::Vector3d(u(rng), u(rng), 0.1),
+                                       Eigen::Vector3d(u(rng), u(rng), 0.15), 0.15, kLog});
+        stand.foliage.push_back({st.base + Eigen::Vector3d(0, 0, st.height),
+                                 {1 + 2 * unit(rng), 1 + 2 * unit(rng), 2 + 2 * unit(rng)},
+                                 0.5 + unit(rng),
+                                 kFoliage});
         if (i % 3 == 0)
-            fol.push_back({Eigen::Vector3d(u(rng), u(rng), 0.4), {0.8, 0.6, 0.5}, 2.0, kShrub});
+            stand.foliage.push_back(
+                {Eigen::Vector3d(u(rng), u(rng), 0.4), {0.8, 0.6, 0.5}, 2.0, kShrub});
     }
+    return stand;
+}
+
+// A gentle slope, every vertex jittered by up to 5 cm.
+Heightfield roughTerrain(std::mt19937 &rng) {
+    std::uniform_real_distribution<double> unit(0, 1);
     Eigen::MatrixXd z = planeGrid(140, 0.5, -35, -35, 0.03, -0.02, 0.0);
     for (Eigen::Index i = 0; i < z.size(); ++i) z.data()[i] += 0.05 * unit(rng);
-    const Heightfield hf(-35, -35, 0.5, z);
-    int checked = 0, kinds[7] = {0};
-    for (double cell_m : {3.0, 1.3}) {
-        const ForestScene scene(hf, stems, cyl, fol, cell_m);
-        auto compare = [&](const std::vector<Ray> &rays) {
-            std::vector<Hit> hits(rays.size());
-            scene.castBatch(rays.data(), rays.size(), hits.data());
-            for (size_t i = 0; i < rays.size(); ++i) {
-                const Hit one = scene.cast(rays[i]);
-                ASSERT_EQ(hits[i].t, one.t) << i;
-                ASSERT_EQ(hits[i].surface, one.surface) << i;
-                ASSERT_EQ(hits[i].object, one.object) << i;
-                ASSERT_EQ(hits[i].cos_incidence, one.cos_incidence) << i;
-                ++kinds[one.surface];
-                ++checked;
-            }
-        };
-        const Eigen::Vector3d origins[4] = {
-            {0.3, -0.7, 1.2}, {14.0, 9.0, 2.5}, {-60.0, 3.0, 1.0}, {40.0, 45.0, 12.0}};
-        for (int o = 0; o < 4; ++o) {
-            const double roll = 0.2 * (unit(rng) - 0.5), pitch = 0.2 * (unit(rng) - 0.5);
-            const Eigen::Matrix3d rot = (Eigen::AngleAxisd(u(rng), Eigen::Vector3d::UnitZ()) *
-                                         Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
-                                         Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
-                                            .toRotationMatrix();
-            std::vector<Ray> rays;
-            // A moving sensor: each firing column a little further, jittered (bundles take
-            // origins up to 1 cm apart; real columns are well under a millimetre apart).
-            Eigen::Vector3d origin = origins[o];
-            const Eigen::Vector3d drift(2e-3, -1e-3, 5e-4);
-            auto add = [&](const Eigen::Vector3d &local, uint64_t key) {
-                Ray ray = makeRay(origin, rot * local);
-                ray.t_max = 100.0;
-                ray.key = key;
-                rays.push_back(ray);
-            };
-            // Spinning columns: 16 beams from -15 to +15 degrees, 0.4 degree steps.
-            for (int c = 0; c < 900; ++c) {
-                origin += drift + 2e-3 * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, 0.0);
-                const double az = c * 2 * M_PI / 900;
-                for (int b = 0; b < 16; ++b) {
-                    const double e = (-15.0 + 2.0 * ((b * 9) % 16)) * M_PI / 180;
-                    add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)},
-                        rays.size());
-                }
-            }
-            // Raster rows: 31 rays across 6 degrees of azimuth at one elevation.
-            origin = origins[o];
-            for (int g = 0; g < 60; ++g) {
-                const double az0 = 2 * M_PI * unit(rng), e = 0.4 * (unit(rng) - 0.6);
-                for (int k = 0; k < 31; ++k) {
-                    const double az = az0 + k * 0.0035;
-                    add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)},
-                        rays.size());
-                }
-            }
-            // Steep rays and axis-parallel ones, mixed into the same origin's run.
-            for (double e : {1.55, -1.55, 1.2, -1.2}) add({std::cos(e), 0, std::sin(e)}, 7);
-            for (const Eigen::Vector3d &d :
-                 {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(0, 1, 0),
-                  Eigen::Vector3d(-1, 0, -0.05), Eigen::Vector3d(0, 0, -1)})
-                add(rot.transpose() * d, 11);
-            compare(rays);
+    return Heightfield(-35, -35, 0.5, z);
+}
+
+// The rays of a tilted sensor at `origin`: spinning columns from a moving sensor, raster rows
+// (horizontal fans), then steep and axis-parallel rays mixed into the same origin's run.
+std::vector<Ray> sensorRays(const Eigen::Vector3d &origin, std::mt19937 &rng) {
+    std::uniform_real_distribution<double> u(-25, 25), unit(0, 1);
+    const double roll = 0.2 * (unit(rng) - 0.5), pitch = 0.2 * (unit(rng) - 0.5);
+    const Eigen::Matrix3d rot = (Eigen::AngleAxisd(u(rng), Eigen::Vector3d::UnitZ()) *
+                                 Eigen::AngleAxisd(pitch, Eigen::Vector3d::UnitY()) *
+                                 Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitX()))
+                                    .toRotationMatrix();
+    std::vector<Ray> rays;
+    Eigen::Vector3d o = origin;
+    auto add = [&](const Eigen::Vector3d &local, uint64_t key) {
+        Ray ray = makeRay(o, rot * local);
+        ray.t_max = 100.0;
+        ray.key = key;
+        rays.push_back(ray);
+    };
+    // Spinning columns: 16 beams from -15 to +15 degrees, 0.4 degree steps. Each firing column
+    // a little further, jittered (bundles take origins up to 1 cm apart; real columns are well
+    // under a millimetre apart).
+    const Eigen::Vector3d drift(2e-3, -1e-3, 5e-4);
+    for (int c = 0; c < 900; ++c) {
+        o += drift + 2e-3 * Eigen::Vector3d(unit(rng) - 0.5, unit(rng) - 0.5, 0.0);
+        const double az = c * 2 * M_PI / 900;
+        for (int b = 0; b < 16; ++b) {
+            const double e = (-15.0 + 2.0 * ((b * 9) % 16)) * M_PI / 180;
+            add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)}, rays.size());
         }
     }
+    // Raster rows: 31 rays across 6 degrees of azimuth at one elevation.
+    o = origin;
+    for (int g = 0; g < 60; ++g) {
+        const double az0 = 2 * M_PI * unit(rng), e = 0.4 * (unit(rng) - 0.6);
+        for (int k = 0; k < 31; ++k) {
+            const double az = az0 + k * 0.0035;
+            add({std::cos(e) * std::cos(az), std::cos(e) * std::sin(az), std::sin(e)}, rays.size());
+        }
+    }
+    for (double e : {1.55, -1.55, 1.2, -1.2}) add({std::cos(e), 0, std::sin(e)}, 7);
+    for (const Eigen::Vector3d &d :
+         {Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(0, 1, 0),
+          Eigen::Vector3d(-1, 0, -0.05), Eigen::Vector3d(0, 0, -1)})
+        add(rot.transpose() * d, 11);
+    return rays;
+}
+
+// castBatch must give exactly cast()'s hit for every ray; counts the rays per surface.
+void expectBatchEqualsCast(const ForestScene &scene, const std::vector<Ray> &rays,
+                           int (&kinds)[7]) {
+    std::vector<Hit> hits(rays.size());
+    scene.castBatch(rays.data(), rays.size(), hits.data());
+    for (size_t i = 0; i < rays.size(); ++i) {
+        const Hit one = scene.cast(rays[i]);
+        ASSERT_EQ(hits[i].t, one.t) << i;
+        ASSERT_EQ(hits[i].surface, one.surface) << i;
+        ASSERT_EQ(hits[i].object, one.object) << i;
+        ASSERT_EQ(hits[i].cos_incidence, one.cos_incidence) << i;
+        ++kinds[one.surface];
+    }
+}
+}  // namespace
+
+TEST(ForestScene, BundledCastsMatchRayByRayCasts) {
+    // castBatch walks the grid once per bundle of rays sharing an origin; it must return
+    // exactly cast()'s hit for every ray: tilted spinning columns, raster rows (horizontal
+    // fans), steep rays, sensors outside the grid, axis-parallel rays.
+    std::mt19937 rng(23);
+    const MixedStand stand = mixedStand(rng);
+    const Heightfield hf = roughTerrain(rng);
+    int kinds[7] = {0};
+    for (double cell_m : {3.0, 1.3}) {
+        const ForestScene scene(hf, stand.stems, stand.cylinders, stand.foliage, cell_m);
+        for (const Eigen::Vector3d origin :
+             {Eigen::Vector3d(0.3, -0.7, 1.2), Eigen::Vector3d(14.0, 9.0, 2.5),
+              Eigen::Vector3d(-60.0, 3.0, 1.0), Eigen::Vector3d(40.0, 45.0, 12.0)})
+            expectBatchEqualsCast(scene, sensorRays(origin, rng), kinds);
+    }
+    int checked = 0;
+    for (int k : kinds) checked += k;
     EXPECT_GT(checked, 100000);
     EXPECT_GT(kinds[kGround], 5000);
     EXPECT_GT(kinds[kStem], 2000);

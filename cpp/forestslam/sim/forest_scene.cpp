@@ -151,6 +151,44 @@ bool Heightfield::intersect(const Ray &ray, const GridRay &grid_ray, double t_ma
     return true;
 }
 
+// The axis-aligned bounding box of one primitive, world frame, and its code in prims_.
+struct ForestScene::Box {
+    uint32_t code;
+    double xmin, ymin, xmax, ymax, zmax, zmin;
+};
+
+// The grid cells [ix0, ix1] x [iy0, iy1] and layers [l0, l1] a box overlaps.
+struct ForestScene::CellRange {
+    int ix0, iy0, ix1, iy1, l0, l1;
+};
+
+namespace {
+
+void checkStem(const Stem &s) {
+    if (!(s.semi_a > 0 && s.semi_b > 0)) throw std::invalid_argument("stem semi-axes must be > 0");
+    if (s.sides != 0 && s.sides < 3)
+        throw std::invalid_argument("a polygonal stem needs at least 3 sides (0: smooth)");
+    if (!(s.irregularity >= 0.0 && s.irregularity < 0.5 && s.flare_amp >= 0.0 &&
+          s.flare_height > 0.0 && s.bark_amp >= 0.0))
+        throw std::invalid_argument(
+            "stem irregularity must be in [0, 0.5), flare and bark >= 0, flare height > 0");
+}
+
+// Largest horizontal distance of the stem's (segment's) surface from its axis: shape factor,
+// taper and flare at their most, plus the bark in normalised units.
+double stemReach(const Stem &s, const StemCoeffs &coeffs) {
+    const double scale = std::max(s.radiusScale(s.h_bottom), s.radiusScale(s.height));
+    const double eps = s.bark_amp / (0.5 * (s.semi_a + s.semi_b));
+    return std::max(s.semi_a, s.semi_b) * (coeffs.q_max * (scale + s.flare(s.h_bottom)) + eps);
+}
+
+bool finiteBox(double xmin, double ymin, double xmax, double ymax, double zmax, double zmin) {
+    return std::isfinite(xmin) && std::isfinite(xmax) && std::isfinite(ymin) &&
+           std::isfinite(ymax) && std::isfinite(zmax) && std::isfinite(zmin);
+}
+
+}  // namespace
+
 ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
                          std::vector<Cylinder> cylinders, std::vector<FoliageEllipsoid> foliage,
                          double cell_m)
@@ -164,29 +202,21 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     if (stems_.size() > kIndexMask || cylinders_.size() > kIndexMask ||
         foliage_.size() > kIndexMask)
         throw std::invalid_argument("too many primitives");
-    struct Box {
-        uint32_t code;
-        double xmin, ymin, xmax, ymax, zmax, zmin;
-    };
+    const std::vector<Box> boxes = boundPrimitives();
+    if (boxes.empty()) return;
+    frameGrid(boxes);
+    binPrimitives(boxes);
+}
+
+std::vector<ForestScene::Box> ForestScene::boundPrimitives() {
     std::vector<Box> boxes;
     stem_coeffs_.reserve(stems_.size());
     for (size_t i = 0; i < stems_.size(); ++i) {
         const Stem &s = stems_[i];
         stem_coeffs_.emplace_back(s);
-        if (!(s.semi_a > 0 && s.semi_b > 0))
-            throw std::invalid_argument("stem semi-axes must be > 0");
-        if (s.sides != 0 && s.sides < 3)
-            throw std::invalid_argument("a polygonal stem needs at least 3 sides (0: smooth)");
-        if (!(s.irregularity >= 0.0 && s.irregularity < 0.5 && s.flare_amp >= 0.0 &&
-              s.flare_height > 0.0 && s.bark_amp >= 0.0))
-            throw std::invalid_argument(
-                "stem irregularity must be in [0, 0.5), flare and bark >= 0, flare height > 0");
-        // Largest radius over the stem (segment): shape factor, taper and flare at their most,
-        // plus the bark in normalised units.
-        const double scale = std::max(s.radiusScale(s.h_bottom), s.radiusScale(s.height));
-        const double eps = s.bark_amp / (0.5 * (s.semi_a + s.semi_b));
-        const double r = std::max(s.semi_a, s.semi_b) *
-                         (stem_coeffs_.back().q_max * (scale + s.flare(s.h_bottom)) + eps);
+        checkStem(s);
+        const double r = stemReach(s, stem_coeffs_.back());
+        // The axis leans: its ends bound the box in XY.
         const double xa = s.base.x() + s.shear.x() * s.h_bottom,
                      xb = s.base.x() + s.shear.x() * s.height;
         const double ya = s.base.y() + s.shear.y() * s.h_bottom,
@@ -212,11 +242,13 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
         boxes.push_back({kFoliageCode | static_cast<uint32_t>(i), lo.x(), lo.y(), hi.x(), hi.y(),
                          hi.z(), lo.z()});
     }
-    if (boxes.empty()) return;
+    return boxes;
+}
+
+void ForestScene::frameGrid(const std::vector<Box> &boxes) {
     double xmin = kInf, ymin = kInf, xmax = -kInf, ymax = -kInf, zmin = kInf;
     for (const Box &b : boxes) {
-        if (!(std::isfinite(b.xmin) && std::isfinite(b.xmax) && std::isfinite(b.ymin) &&
-              std::isfinite(b.ymax) && std::isfinite(b.zmax) && std::isfinite(b.zmin)))
+        if (!finiteBox(b.xmin, b.ymin, b.xmax, b.ymax, b.zmax, b.zmin))
             throw std::invalid_argument("primitive with non-finite coordinates");
         xmin = std::min(xmin, b.xmin);
         ymin = std::min(ymin, b.ymin);
@@ -235,31 +267,42 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     inv_layer_m_ = 1.0 / layer_m_;
     if (static_cast<double>(nx_) * ny_ * nl_ > 1e8)
         throw std::invalid_argument("scene grid too large");
+}
+
+ForestScene::CellRange ForestScene::cellRange(const Box &b) const {
+    CellRange r;
+    r.ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
+    r.ix1 = std::clamp(static_cast<int>(std::floor((b.xmax - x0_) / cell_)), 0, nx_ - 1);
+    r.iy0 = std::clamp(static_cast<int>(std::floor((b.ymin - y0_) / cell_)), 0, ny_ - 1);
+    r.iy1 = std::clamp(static_cast<int>(std::floor((b.ymax - y0_) / cell_)), 0, ny_ - 1);
+    r.l0 = layerOf(b.zmin);
+    r.l1 = layerOf(b.zmax);
+    return r;
+}
+
+template <class Visit>
+void ForestScene::forEachCell(const Box &b, Visit &&visit) const {
+    const CellRange r = cellRange(b);
+    for (int iy = r.iy0; iy <= r.iy1; ++iy)
+        for (int ix = r.ix0; ix <= r.ix1; ++ix)
+            visit(static_cast<size_t>(iy) * nx_ + ix, r.l0, r.l1);
+}
+
+void ForestScene::binPrimitives(const std::vector<Box> &boxes) {
+    // Two passes (CSR lists): count the items of every bin and cell, then fill them in the order
+    // of the primitives' rows.
     const size_t ncell = static_cast<size_t>(nx_) * ny_;
     const size_t nbin = ncell * nl_;
     std::vector<uint32_t> count(nbin + 1, 0), cell_count(ncell + 1, 0);
     cell_layers_.assign(ncell, 0);
-    auto cell_range = [&](const Box &b, int &ix0, int &iy0, int &ix1, int &iy1, int &l0, int &l1) {
-        ix0 = std::clamp(static_cast<int>(std::floor((b.xmin - x0_) / cell_)), 0, nx_ - 1);
-        ix1 = std::clamp(static_cast<int>(std::floor((b.xmax - x0_) / cell_)), 0, nx_ - 1);
-        iy0 = std::clamp(static_cast<int>(std::floor((b.ymin - y0_) / cell_)), 0, ny_ - 1);
-        iy1 = std::clamp(static_cast<int>(std::floor((b.ymax - y0_) / cell_)), 0, ny_ - 1);
-        l0 = layerOf(b.zmin);
-        l1 = layerOf(b.zmax);
-    };
-    for (const Box &b : boxes) {
-        int ix0, iy0, ix1, iy1, l0, l1;
-        cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
-        for (int iy = iy0; iy <= iy1; ++iy)
-            for (int ix = ix0; ix <= ix1; ++ix) {
-                const size_t c = static_cast<size_t>(iy) * nx_ + ix;
-                ++cell_count[c + 1];
-                for (int l = l0; l <= l1; ++l) {
-                    ++count[c * nl_ + l + 1];
-                    cell_layers_[c] |= uint64_t{1} << l;
-                }
+    for (const Box &b : boxes)
+        forEachCell(b, [&](size_t c, int l0, int l1) {
+            ++cell_count[c + 1];
+            for (int l = l0; l <= l1; ++l) {
+                ++count[c * nl_ + l + 1];
+                cell_layers_[c] |= uint64_t{1} << l;
             }
-    }
+        });
     for (size_t c = 0; c < nbin; ++c) count[c + 1] += count[c];
     for (size_t c = 0; c < ncell; ++c) cell_count[c + 1] += cell_count[c];
     bin_start_ = count;
@@ -270,23 +313,22 @@ ForestScene::ForestScene(Heightfield terrain, std::vector<Stem> stems,
     std::vector<uint32_t> cell_fill(cell_start_.begin(), cell_start_.end() - 1);
     prims_.resize(boxes.size());
     for (size_t row = 0; row < boxes.size(); ++row) {
-        const Box &b = boxes[row];
-        int ix0, iy0, ix1, iy1, l0, l1;
-        cell_range(b, ix0, iy0, ix1, iy1, l0, l1);
-        const double m = 1e-6;  // keep the rejection conservative under round-off
-        prims_[row] = Prim{
-            {floatDown(b.xmin - m - x0_), floatDown(b.ymin - m - y0_), floatDown(b.zmin - m - z0_)},
-            {floatUp(b.xmax + m - x0_), floatUp(b.ymax + m - y0_), floatUp(b.zmax + m - z0_)},
-            b.code,
-            0};
-        for (int iy = iy0; iy <= iy1; ++iy)
-            for (int ix = ix0; ix <= ix1; ++ix) {
-                const size_t c = static_cast<size_t>(iy) * nx_ + ix;
-                cell_items_[cell_fill[c]++] = static_cast<uint32_t>(row);
-                for (int l = l0; l <= l1; ++l)
-                    bin_items_[fill[c * nl_ + l]++] = static_cast<uint32_t>(row);
-            }
+        prims_[row] = compactPrim(boxes[row]);
+        const uint32_t item = static_cast<uint32_t>(row);
+        forEachCell(boxes[row], [&](size_t c, int l0, int l1) {
+            cell_items_[cell_fill[c]++] = item;
+            for (int l = l0; l <= l1; ++l) bin_items_[fill[c * nl_ + l]++] = item;
+        });
     }
+}
+
+ForestScene::Prim ForestScene::compactPrim(const Box &b) const {
+    const double m = 1e-6;  // keep the rejection conservative under round-off
+    return Prim{
+        {floatDown(b.xmin - m - x0_), floatDown(b.ymin - m - y0_), floatDown(b.zmin - m - z0_)},
+        {floatUp(b.xmax + m - x0_), floatUp(b.ymax + m - y0_), floatUp(b.zmax + m - z0_)},
+        b.code,
+        0};
 }
 
 bool ForestScene::testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const {
@@ -345,91 +387,126 @@ bool ForestScene::startCast(const Ray &ray, const GridRay &grid_ray, Hit &best, 
     return t <= t1;
 }
 
+namespace {
+
+// The 2D DDA over the primitive grid's cells, written out here (not traverseGrid) so that an
+// empty cell costs a few operations in cast(): the current cell, the ray parameters of the next
+// x and y cell boundaries, and their spacing.
+struct CellWalk {
+    int ix, iy, sx, sy;
+    double tnx = kInf, tny = kInf, tdx = kInf, tdy = kInf;
+
+    CellWalk(const Ray &ray, const GridRay &g, double t, double x0, double y0, double cell,
+             double inv_cell, int nx, int ny) {
+        const double ox = ray.origin.x(), oy = ray.origin.y();
+        const double dx = ray.dir.x(), dy = ray.dir.y();
+        ix = std::clamp(static_cast<int>(std::floor((ox + t * dx - x0) * inv_cell)), 0, nx - 1);
+        iy = std::clamp(static_cast<int>(std::floor((oy + t * dy - y0) * inv_cell)), 0, ny - 1);
+        sx = dx > 0 ? 1 : -1;
+        sy = dy > 0 ? 1 : -1;
+        if (g.inv_dx != 0.0) {
+            tnx = ((dx > 0 ? x0 + (ix + 1) * cell : x0 + ix * cell) - ox) * g.inv_dx;
+            tdx = cell * std::abs(g.inv_dx);
+        }
+        if (g.inv_dy != 0.0) {
+            tny = ((dy > 0 ? y0 + (iy + 1) * cell : y0 + iy * cell) - oy) * g.inv_dy;
+            tdy = cell * std::abs(g.inv_dy);
+        }
+    }
+    double exitT() const { return std::min(tnx, tny); }
+    // Into the next cell (t: where the ray enters it); false when that leaves the grid.
+    bool step(double &t, int nx, int ny) {
+        if (tnx < tny) {
+            ix += sx;
+            t = tnx;
+            tnx += tdx;
+            return ix >= 0 && ix < nx;
+        }
+        iy += sy;
+        t = tny;
+        tny += tdy;
+        return iy >= 0 && iy < ny;
+    }
+};
+
+}  // namespace
+
+// Rows of prims_ a ray has already tested exactly (the last 8): a primitive lies in several
+// bins, and testing it again cannot change the result (the exact tests cover the whole ray,
+// t_max only shrinks).
+struct ForestScene::RecentRows {
+    uint32_t rows[8];
+    unsigned n = 0;
+    // True the first time a row comes (within the last 8).
+    bool firstTime(uint32_t row) {
+        bool seen = false;
+        for (unsigned j = 0; j < std::min(n, 8u); ++j) seen |= rows[j] == row;
+        if (seen) return false;
+        rows[n++ & 7u] = row;
+        return true;
+    }
+};
+
 Hit ForestScene::cast(const Ray &ray) const {
     Hit best;
     const GridRay grid_ray(ray);
     double t, t1;
     if (!startCast(ray, grid_ray, best, t, t1)) return best;
-    // Walk the grid cells in ray order (2D DDA, written out here so that an empty cell costs a
-    // few operations: its layer mask against the ray's layers).
-    const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
-    const double dx = ray.dir.x(), dy = ray.dir.y(), dz = ray.dir.z();
-    int ix = std::clamp(static_cast<int>(std::floor((ox + t * dx - x0_) * inv_cell_)), 0, nx_ - 1);
-    int iy = std::clamp(static_cast<int>(std::floor((oy + t * dy - y0_) * inv_cell_)), 0, ny_ - 1);
-    const int sx = dx > 0 ? 1 : -1, sy = dy > 0 ? 1 : -1;
-    double tnx = kInf, tny = kInf, tdx = kInf, tdy = kInf;
-    if (grid_ray.inv_dx != 0.0) {
-        tnx = ((dx > 0 ? x0_ + (ix + 1) * cell_ : x0_ + ix * cell_) - ox) * grid_ray.inv_dx;
-        tdx = cell_ * std::abs(grid_ray.inv_dx);
-    }
-    if (grid_ray.inv_dy != 0.0) {
-        tny = ((dy > 0 ? y0_ + (iy + 1) * cell_ : y0_ + iy * cell_) - oy) * grid_ray.inv_dy;
-        tdy = cell_ * std::abs(grid_ray.inv_dy);
-    }
+    CellWalk walk(ray, grid_ray, t, x0_, y0_, cell_, inv_cell_, nx_, ny_);
     // Layer coordinate along the ray, widened by a hair so round-off never drops a layer.
-    const double lz0 = (oz - z0_) * inv_layer_m_, ldz = dz * inv_layer_m_, lmax = nl_ - 1.0;
+    const double lz0 = (ray.origin.z() - z0_) * inv_layer_m_, ldz = ray.dir.z() * inv_layer_m_;
+    const double lmax = nl_ - 1.0;
     const uint64_t *layers = cell_layers_.data();
-    const Prim *prims = prims_.data();
-    const uint32_t *items = bin_items_.data();
-    // Rows already tested exactly: a primitive lies in several bins, and testing it again
-    // cannot change the result (the exact tests cover the whole ray, t_max only shrinks).
-    uint32_t tested[8];
-    unsigned n_tested = 0;
+    RecentRows tested;
     double t_stop = std::min(t1, best.t);  // the walk ends at the grid exit or the best hit
     while (true) {
-        const double tn = std::min(tnx, tny);
+        const double tn = walk.exitT();
         const double t_hi = std::max(t, std::min(tn, t_stop));
         double la = lz0 + t * ldz, lb = lz0 + t_hi * ldz;
         if (la > lb) std::swap(la, lb);
         const int l0 = static_cast<int>(std::clamp(la - 1e-9, 0.0, lmax));
         const int l1 = static_cast<int>(std::clamp(lb + 1e-9, 0.0, lmax));
-        const size_t c = static_cast<size_t>(iy) * nx_ + ix;
+        const size_t c = static_cast<size_t>(walk.iy) * nx_ + walk.ix;
         const uint64_t span = l1 - l0 >= 63 ? ~uint64_t{0} : (uint64_t{2} << (l1 - l0)) - 1;
         if ((layers[c] >> l0) & span) {
-            // The bins of a cell are consecutive layers, so the layers the ray crosses here
-            // are one contiguous run of items.
-            const size_t first = c * nl_;
-            const uint32_t k0 = bin_start_[first + l0];
-            const uint32_t k1 = bin_start_[first + l1 + 1];
-            // Segment box relative to the grid origin, compared in double with the (exactly
-            // widened) float boxes.
-            const double xa = ox + t * dx, xb = ox + t_hi * dx;
-            const double ya = oy + t * dy, yb = oy + t_hi * dy;
-            const double za = oz + t * dz, zb = oz + t_hi * dz;
-            const double rx_lo = std::min(xa, xb) - x0_, rx_hi = std::max(xa, xb) - x0_;
-            const double ry_lo = std::min(ya, yb) - y0_, ry_hi = std::max(ya, yb) - y0_;
-            const double rz_lo = std::min(za, zb) - z0_, rz_hi = std::max(za, zb) - z0_;
-            for (uint32_t k = k0; k < k1; ++k) {
-                const uint32_t row = items[k];
-                const Prim &p = prims[row];
-                if (p.lo[0] > rx_hi || p.hi[0] < rx_lo || p.lo[1] > ry_hi || p.hi[1] < ry_lo ||
-                    p.lo[2] > rz_hi || p.hi[2] < rz_lo)
-                    continue;
-                bool seen = false;
-                for (unsigned j = 0; j < std::min(n_tested, 8u); ++j) seen |= tested[j] == row;
-                if (seen) continue;
-                tested[n_tested++ & 7u] = row;
-                Hit h;
-                if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t)
-                    best = h;
-            }
+            testCell(ray, c, l0, l1, t, t_hi, best, tested);
             t_stop = std::min(t1, best.t);
         }
         if (t_stop <= tn) break;  // the best hit lies in this cell, or the walk is done
-        const bool step_x = tnx < tny;
-        if (step_x) {
-            ix += sx;
-            t = tnx;
-            tnx += tdx;
-            if (ix < 0 || ix >= nx_) break;
-        } else {
-            iy += sy;
-            t = tny;
-            tny += tdy;
-            if (iy < 0 || iy >= ny_) break;
-        }
+        if (!walk.step(t, nx_, ny_)) break;
     }
     return best;
+}
+
+void ForestScene::testCell(const Ray &ray, size_t c, int l0, int l1, double t, double t_hi,
+                           Hit &best, RecentRows &tested) const {
+    // The bins of a cell are consecutive layers, so the layers the ray crosses here are one
+    // contiguous run of items.
+    const size_t first = c * nl_;
+    const uint32_t k0 = bin_start_[first + l0];
+    const uint32_t k1 = bin_start_[first + l1 + 1];
+    // The ray's segment [t, t_hi] in a box relative to the grid origin, compared in double with
+    // the (exactly widened) float boxes.
+    const double ox = ray.origin.x(), oy = ray.origin.y(), oz = ray.origin.z();
+    const double dx = ray.dir.x(), dy = ray.dir.y(), dz = ray.dir.z();
+    const double xa = ox + t * dx, xb = ox + t_hi * dx;
+    const double ya = oy + t * dy, yb = oy + t_hi * dy;
+    const double za = oz + t * dz, zb = oz + t_hi * dz;
+    const double rx_lo = std::min(xa, xb) - x0_, rx_hi = std::max(xa, xb) - x0_;
+    const double ry_lo = std::min(ya, yb) - y0_, ry_hi = std::max(ya, yb) - y0_;
+    const double rz_lo = std::min(za, zb) - z0_, rz_hi = std::max(za, zb) - z0_;
+    const Prim *prims = prims_.data();
+    const uint32_t *items = bin_items_.data();
+    for (uint32_t k = k0; k < k1; ++k) {
+        const uint32_t row = items[k];
+        const Prim &p = prims[row];
+        if (p.lo[0] > rx_hi || p.hi[0] < rx_lo || p.lo[1] > ry_hi || p.hi[1] < ry_lo ||
+            p.lo[2] > rz_hi || p.hi[2] < rz_lo)
+            continue;
+        if (!tested.firstTime(row)) continue;
+        Hit h;
+        if (testPrimitive(p.code, ray, std::min(best.t, ray.t_max), h) && h.t < best.t) best = h;
+    }
 }
 
 namespace {

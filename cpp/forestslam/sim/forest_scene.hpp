@@ -92,8 +92,25 @@ class ForestScene {
     const std::vector<Stem> &stems() const { return stems_; }
 
   private:
-    void insert(uint32_t code, double xmin, double ymin, double xmax, double ymax, double zmax);
+    // Construction stages (forest_scene.cpp): each primitive's bounding box (and the constants
+    // of its exact test), the grid framing all the boxes, and the bins listing them.
+    struct Box;
+    struct CellRange;
+    struct Prim;
+    std::vector<Box> boundPrimitives();
+    void frameGrid(const std::vector<Box> &boxes);
+    CellRange cellRange(const Box &b) const;
+    template <class Visit>
+    void forEachCell(const Box &b, Visit &&visit) const;
+    void binPrimitives(const std::vector<Box> &boxes);
+    Prim compactPrim(const Box &b) const;
+
     bool testPrimitive(uint32_t code, const Ray &ray, double t_max, Hit &hit) const;
+    // cast()'s test of one grid cell: the primitives of its layers l0..l1 whose boxes the ray's
+    // segment [t, t_hi] meets, each once per ray, into best.
+    struct RecentRows;
+    void testCell(const Ray &ray, size_t c, int l0, int l1, double t, double t_hi, Hit &best,
+                  RecentRows &tested) const;
     // The terrain hit (into best), then the part [t, t1] of the ray left to walk through the
     // primitive grid: before that hit, below the highest primitive, inside the grid's XY slab.
     // False when nothing is left. Shared by cast() and castBundle() so both see the same rays.
@@ -107,7 +124,6 @@ class ForestScene {
     // The stages of castBundle, on the walk's state (defined in forest_scene.cpp): the lanes of
     // the rays that reach the grid, one grid column of the walk, one primitive against the lanes.
     struct BundleWalk;
-    struct Prim;
     void startBundle(BundleWalk &w, int n, bool along_x) const;
     void walkColumn(BundleWalk &w, bool along_x, int iu, double a0, double a1e, uint32_t *stamp,
                     uint32_t id) const;

@@ -212,130 +212,164 @@ bool intersectStem(const Stem &stem, const Ray &ray, double t_max, Hit &hit) {
     return intersectStem(stem, StemCoeffs(stem), ray, t_max, hit);
 }
 
-bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, double t_max,
-                   Hit &hit) {
-    // Stem-local coordinates, linear in t: u, v normalised section coordinates, h height.
-    const Eigen::Vector3d q = ray.origin - stem.base;
-    const Eigen::Vector3d &d = ray.dir;
-    const double qx = q.x() - stem.shear.x() * q.z(), qy = q.y() - stem.shear.y() * q.z();
-    const double dx = d.x() - stem.shear.x() * d.z(), dy = d.y() - stem.shear.y() * d.z();
-    const double ca = coeffs.cos_angle, sa = coeffs.sin_angle;
-    const double ia = coeffs.inv_semi_a, ib = coeffs.inv_semi_b;
-    const double u0 = (ca * qx + sa * qy) * ia, du = (ca * dx + sa * dy) * ia;
-    const double v0 = (-sa * qx + ca * qy) * ib, dv = (-sa * dx + ca * dy) * ib;
-    const double h0 = q.z(), dh = d.z();
-    const double k = stem.taper;
-    const double t_lo = ray.t_min;
-    if (t_lo > t_max) return false;
+namespace {
 
-    const double duv = du * du + dv * dv;
-    const double bq_uv = 2.0 * (u0 * du + v0 * dv);
-    const double cq_uv = u0 * u0 + v0 * v0;
+// A ray in a stem's local coordinates, all linear in t: (u, v) the section coordinates normalised
+// by the semi-axes and centred on the leaning axis, h the height above the base. The surface
+// tests below are on this ray.
+struct StemRay {
+    const Stem &stem;
+    const StemCoeffs &coeffs;
+    double u0, du, v0, dv, h0, dh;
+    double t_lo;               // the ray's t_min
+    double duv, bq_uv, cq_uv;  // rho^2 = duv t^2 + bq_uv t + cq_uv
     // Where the ray enters the slab h_bottom <= h <= height (-inf: starts in it or runs along
     // it; +inf: never in it).
     double t_slab = -kInf;
-    if (dh > 0.0)
-        t_slab = (stem.h_bottom - h0) / dh;
-    else if (dh < 0.0)
-        t_slab = (stem.height - h0) / dh;
-    else if (h0 < stem.h_bottom || h0 > stem.height)
-        t_slab = kInf;
+
+    StemRay(const Stem &s, const StemCoeffs &c, const Ray &ray) : stem(s), coeffs(c) {
+        const Eigen::Vector3d q = ray.origin - s.base;
+        const Eigen::Vector3d &d = ray.dir;
+        const double qx = q.x() - s.shear.x() * q.z(), qy = q.y() - s.shear.y() * q.z();
+        const double dx = d.x() - s.shear.x() * d.z(), dy = d.y() - s.shear.y() * d.z();
+        const double ca = c.cos_angle, sa = c.sin_angle;
+        u0 = (ca * qx + sa * qy) * c.inv_semi_a;
+        du = (ca * dx + sa * dy) * c.inv_semi_a;
+        v0 = (-sa * qx + ca * qy) * c.inv_semi_b;
+        dv = (-sa * dx + ca * dy) * c.inv_semi_b;
+        h0 = q.z();
+        dh = d.z();
+        t_lo = ray.t_min;
+        duv = du * du + dv * dv;
+        bq_uv = 2.0 * (u0 * du + v0 * dv);
+        cq_uv = u0 * u0 + v0 * v0;
+        if (dh > 0.0)
+            t_slab = (s.h_bottom - h0) / dh;
+        else if (dh < 0.0)
+            t_slab = (s.height - h0) / dh;
+        else if (h0 < s.h_bottom || h0 > s.height)
+            t_slab = kInf;
+    }
+
+    bool inSlab(double h) const { return h >= stem.h_bottom && h <= stem.height; }
+    bool outsideSlab(double h) const { return h < stem.h_bottom || h > stem.height; }
+
     // First t in [t_lo, t_hi] where the ray is inside the cone rho <= c - kk (h - 1.3): through
     // its side, or (caps = true: the cone closed by the slab's planes, for brackets) where the
-    // ray enters the slab already inside it.
-    auto entry = [&](double c, double kk, double t_hi, bool caps) {
+    // ray enters the slab already inside it. kInf if none.
+    double coneEntry(double c, double kk, double t_hi, bool caps) const {
         const double C0 = c + kk * kBreastHeight - kk * h0, K = kk * dh;
         const double aq = duv - K * K, bq = bq_uv + 2.0 * C0 * K, cq = cq_uv - C0 * C0;
-        auto ok = [&](double t) {
-            const double h = h0 + t * dh;
-            return h >= stem.h_bottom && h <= stem.height && C0 - K * t > 0.0;
-        };
+        auto ok = [&](double t) { return inSlab(h0 + t * dh) && C0 - K * t > 0.0; };
         const double t_side = enteringRoot(aq, bq, cq, t_lo, t_hi, ok);
         if (caps && t_slab > t_lo && t_slab < std::min(t_side, t_hi) &&
             (aq * t_slab + bq) * t_slab + cq <= 0.0 && C0 - K * t_slab > 0.0)
             return t_slab;
         return t_side;
-    };
-    double t_hit;
-    if (!stem.shaped()) {
-        t_hit = entry(1.0, k, t_max, false);
-        if (t_hit == kInf) return false;
-    } else {
-        // Envelopes of the surface over this stem (segment): the flare is largest at its bottom.
-        const double eps = stem.bark_amp / (0.5 * (stem.semi_a + stem.semi_b));
-        const double f_max = stem.flare(stem.h_bottom);
-        const double c_out = coeffs.q_max * (1.0 + f_max) + eps, k_out = coeffs.q_max * k;
-        const double c_in = coeffs.q_min - eps, k_in = coeffs.q_min * k;
-        const double t_out = entry(c_out, k_out, t_max, true);
-        if (t_out == kInf) return false;
-        // Past the outer envelope's entry the root is solved over the ray's whole range, not up
-        // to t_max: the hit is then the same whatever the caller's current best (casts do not
-        // depend on the order in which primitives are tested), and compared with t_max at the
-        // end.
-        const double t_far = std::max(ray.t_max, t_max);
-        // g(t) = rho - r(phi, h): > 0 outside the surface, < 0 inside; dg = dg/dt.
-        auto g = [&](double t, double &dg) {
-            const double u = u0 + t * du, v = v0 + t * dv, h = h0 + t * dh;
-            const double rho = std::sqrt(u * u + v * v);
-            if (!(rho > 0.0)) {
-                dg = 0.0;
-                return -1.0;
-            }
-            const double inv = 1.0 / rho;
-            const SectionRadius s = sectionRadius(stem, coeffs, u * inv, v * inv, h);
-            const double dphi_dt = (u * dv - v * du) * inv * inv;
-            dg = (u * du + v * dv) * inv - s.dr_dphi * dphi_dt - s.dr_dh * dh;
-            return rho - s.r;
-        };
-        double t_in = c_in > 0.0 ? entry(c_in, k_in, t_far, true) : kInf;
-        if (t_in == kInf) {
-            // Grazing ray: bracket at its closest approach to the axis inside the slab, if that
-            // is inside the surface.
-            if (duv < 1e-18) return false;
-            t_in = std::min(std::max(-(u0 * du + v0 * dv) / duv, t_out), t_far);
-            const double h = h0 + t_in * dh;
-            double dg;
-            if (h < stem.h_bottom || h > stem.height || g(t_in, dg) > 0.0) return false;
-        }
-        // Newton on the bracket g(lo) >= 0 >= g(hi) (the envelopes' entries), bisecting when a
-        // step leaves it; starts at the entry of the middle envelope.
-        double lo = t_out, hi = t_in;
-        double t = entry(0.5 * (c_out + c_in), 0.5 * (k_out + k_in), t_far, true);
-        if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
-        t_hit = hi;
-        for (int it = 0; it < 60; ++it) {
-            double dg;
-            const double gt = g(t, dg);
-            if (std::abs(gt) < 1e-9) {  // 1e-9 of the radius: sub-nanometre
-                t_hit = t;
-                break;
-            }
-            (gt > 0.0 ? lo : hi) = t;
-            t_hit = hi;
-            if (hi - lo < 1e-10) break;
-            double next = dg != 0.0 ? t - gt / dg : lo;
-            if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
-            t = next;
-        }
-        const double h = h0 + t_hit * dh;
-        if (h < stem.h_bottom || h > stem.height || t_hit > t_max || t_hit < t_lo) return false;
     }
-    // Normal of the section (horizontal) at the hit, for the incidence angle: in (u, v) it is
-    // e_rho - (dr/dphi / rho) e_phi, mapped to the world by the section's axes.
-    const double u = u0 + t_hit * du, v = v0 + t_hit * dv;
+
+    // g(t) = rho - r(phi, h): > 0 outside the surface, < 0 inside; dg = dg/dt.
+    double gap(double t, double &dg) const {
+        const double u = u0 + t * du, v = v0 + t * dv, h = h0 + t * dh;
+        const double rho = std::sqrt(u * u + v * v);
+        if (!(rho > 0.0)) {
+            dg = 0.0;
+            return -1.0;
+        }
+        const double inv = 1.0 / rho;
+        const SectionRadius s = sectionRadius(stem, coeffs, u * inv, v * inv, h);
+        const double dphi_dt = (u * dv - v * du) * inv * inv;
+        dg = (u * du + v * dv) * inv - s.dr_dphi * dphi_dt - s.dr_dh * dh;
+        return rho - s.r;
+    }
+};
+
+// The far end of the bracket of a shaped stem's surface: where the ray enters the inner
+// envelope (cone parameters c_in, k_in), else for a grazing ray its closest approach to the axis
+// when that lies inside the surface. False when the ray stays outside.
+bool innerBracket(const StemRay &r, double c_in, double k_in, double t_out, double t_far,
+                  double &t_in) {
+    t_in = c_in > 0.0 ? r.coneEntry(c_in, k_in, t_far, true) : kInf;
+    if (t_in != kInf) return true;
+    if (r.duv < 1e-18) return false;
+    t_in = std::min(std::max(-(r.u0 * r.du + r.v0 * r.dv) / r.duv, t_out), t_far);
+    double dg;
+    return !(r.outsideSlab(r.h0 + t_in * r.dh) || r.gap(t_in, dg) > 0.0);
+}
+
+// Newton on the bracket gap(lo) >= 0 >= gap(hi), bisecting when a step leaves it, from t.
+double bracketedRoot(const StemRay &r, double lo, double hi, double t) {
+    if (!(t > lo && t < hi)) t = 0.5 * (lo + hi);
+    double t_hit = hi;
+    for (int it = 0; it < 60; ++it) {
+        double dg;
+        const double gt = r.gap(t, dg);
+        if (std::abs(gt) < 1e-9) return t;  // 1e-9 of the radius: sub-nanometre
+        (gt > 0.0 ? lo : hi) = t;
+        t_hit = hi;
+        if (hi - lo < 1e-10) break;
+        double next = dg != 0.0 ? t - gt / dg : lo;
+        if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);
+        t = next;
+    }
+    return t_hit;
+}
+
+// The hit on a shaped stem (bark, flare, polygon, lobes): bracketed between the entries of an
+// outer and an inner envelope cone, then solved. kInf if none within [t_lo, t_max].
+double shapedStemHit(const StemRay &r, double ray_t_max, double t_max) {
+    const Stem &stem = r.stem;
+    // Envelopes of the surface over this stem (segment): the flare is largest at its bottom.
+    const double eps = stem.bark_amp / (0.5 * (stem.semi_a + stem.semi_b));
+    const double f_max = stem.flare(stem.h_bottom);
+    const double c_out = r.coeffs.q_max * (1.0 + f_max) + eps, k_out = r.coeffs.q_max * stem.taper;
+    const double c_in = r.coeffs.q_min - eps, k_in = r.coeffs.q_min * stem.taper;
+    const double t_out = r.coneEntry(c_out, k_out, t_max, true);
+    if (t_out == kInf) return kInf;
+    // Past the outer envelope's entry the root is solved over the ray's whole range, not up to
+    // t_max: the hit is then the same whatever the caller's current best (casts do not depend on
+    // the order in which primitives are tested), and compared with t_max at the end.
+    const double t_far = std::max(ray_t_max, t_max);
+    double t_in;
+    if (!innerBracket(r, c_in, k_in, t_out, t_far, t_in)) return kInf;
+    // Newton starts at the entry of the middle envelope.
+    const double t_mid = r.coneEntry(0.5 * (c_out + c_in), 0.5 * (k_out + k_in), t_far, true);
+    const double t_hit = bracketedRoot(r, t_out, t_in, t_mid);
+    if (r.outsideSlab(r.h0 + t_hit * r.dh) || t_hit > t_max || t_hit < r.t_lo) return kInf;
+    return t_hit;
+}
+
+// |cos| of the incidence at the hit t on the stem: the section's normal is horizontal; in (u, v)
+// it is e_rho - (dr/dphi / rho) e_phi, mapped to the world by the section's axes.
+double stemCosIncidence(const StemRay &r, const Eigen::Vector3d &d, double t) {
+    const StemCoeffs &c = r.coeffs;
+    const double u = r.u0 + t * r.du, v = r.v0 + t * r.dv;
     const double rho = std::sqrt(u * u + v * v);
     double nu = u, nv = v;
-    if (stem.shaped() && rho > 0.0) {
+    if (r.stem.shaped() && rho > 0.0) {
         const double cp = u / rho, sp = v / rho;
-        const double slope = sectionRadius(stem, coeffs, cp, sp, h0 + t_hit * dh).dr_dphi / rho;
+        const double slope = sectionRadius(r.stem, c, cp, sp, r.h0 + t * r.dh).dr_dphi / rho;
         nu = cp + slope * sp;
         nv = sp - slope * cp;
     }
-    const double gx = nu * ia, gy = nv * ib;
-    const double nx = ca * gx - sa * gy, ny = sa * gx + ca * gy;
+    const double gx = nu * c.inv_semi_a, gy = nv * c.inv_semi_b;
+    const double nx = c.cos_angle * gx - c.sin_angle * gy, ny = c.sin_angle * gx + c.cos_angle * gy;
     const double nn = std::sqrt(nx * nx + ny * ny);
+    return nn > 0 ? std::abs(d.x() * nx + d.y() * ny) / nn : 1.0;
+}
+
+}  // namespace
+
+bool intersectStem(const Stem &stem, const StemCoeffs &coeffs, const Ray &ray, double t_max,
+                   Hit &hit) {
+    if (ray.t_min > t_max) return false;
+    const StemRay r(stem, coeffs, ray);
+    // A smooth stem is its cone; a shaped one lies between two cones.
+    const double t_hit = stem.shaped() ? shapedStemHit(r, ray.t_max, t_max)
+                                       : r.coneEntry(1.0, stem.taper, t_max, false);
+    if (t_hit == kInf) return false;
     hit.t = t_hit;
-    hit.cos_incidence = nn > 0 ? std::abs(d.x() * nx + d.y() * ny) / nn : 1.0;
+    hit.cos_incidence = stemCosIncidence(r, ray.dir, t_hit);
     return true;
 }
 

@@ -42,20 +42,25 @@ void defineDeskew(py::module_ &m) {
 
 // The result every registration returns, and the option structs as typed classes.
 void defineRegistrationTypes(py::module_ &m) {
-    py::class_<registration::RegistrationResult>(
-        m, "RegistrationResult",
-        "T_target_source (4,4); covariance (6,6) over (tx,ty,tz,rx,ry,rz) "
-        "left perturbation (planar methods fill x,y,yaw = 0,1,5); "
-        "converged, degenerate, inliers, iterations, rmse (m).")
-        .def(py::init<>())
-        .def_readwrite("T_target_source", &registration::RegistrationResult::T_target_source)
-        .def_readwrite("covariance", &registration::RegistrationResult::covariance)
-        .def_readwrite("converged", &registration::RegistrationResult::converged)
-        .def_readwrite("degenerate", &registration::RegistrationResult::degenerate)
-        .def_readwrite("inliers", &registration::RegistrationResult::inliers)
-        .def_readwrite("iterations", &registration::RegistrationResult::iterations)
-        .def_readwrite("rmse", &registration::RegistrationResult::rmse)
-        .def("__repr__", [](const registration::RegistrationResult &r) {
+    // Read-only, like small_gicp's: a result is made by a registration, never filled in Python.
+    using Result = registration::RegistrationResult;
+    py::class_<Result>(m, "RegistrationResult",
+                       "What every registration returns (read-only; made by the registration "
+                       "functions).")
+        .def_readonly("T_target_source", &Result::T_target_source,
+                      "(4,4) float64: maps source-frame points into the target frame.")
+        .def_readonly("covariance", &Result::covariance,
+                      "(6,6) over the left perturbation (tx,ty,tz,rx,ry,rz); planar methods fill "
+                      "x, y, yaw (0, 1, 5) and leave the others at a large variance.")
+        .def_readonly("converged", &Result::converged)
+        .def_readonly("degenerate", &Result::degenerate,
+                      "True when the pose is not well constrained (too few inliers, a weak "
+                      "direction, a failed RANSAC).")
+        .def_readonly("inliers", &Result::inliers,
+                      "Matched pairs / ICP correspondences used at the end.")
+        .def_readonly("iterations", &Result::iterations)
+        .def_readonly("rmse", &Result::rmse, "Residual RMS of the inliers at the end, m.")
+        .def("__repr__", [](const Result &r) {
             return "RegistrationResult(converged=" + std::to_string(r.converged) +
                    ", degenerate=" + std::to_string(r.degenerate) +
                    ", inliers=" + std::to_string(r.inliers) + ", rmse=" + std::to_string(r.rmse) +
