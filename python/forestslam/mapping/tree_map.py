@@ -14,6 +14,9 @@ possible: an opaque stem hides whatever lies behind its near half, so a circle t
 seen through (beyond the middle of their beam's chord) is not one stem but a circle through a
 clump of stems or a stem and a branch behind it (+68 cm on a tree of a three-stem clump); nor
 can it be much wider than the stem's width seen scan by scan (perception's silhouettes).
+Pose error between the scans of a window moves their arcs apart and smears the circle: each
+block of a few scans is shifted across its beams onto the window circle and the circle refitted
+(`align_scans_across`; bench/dbh_pose_replay.py replays a run with SLAM and true poses).
 Measurements that pass the gates are fused by a weighted mean (weight: inliers x arc
 coverage^2) after dropping outliers beyond 3 MADs of the median. dbh_std_m adds up what the
 data says: the standard error of the window mean (Bessel-corrected weighted spread), the
@@ -40,6 +43,7 @@ log = logging.getLogger(__name__)
 class _Tree:
     band: list = field(default_factory=list)  # (M,3) arrays, map frame
     origins: list = field(default_factory=list)  # (M,2) sensor xy each band point was seen from
+    scan_of: list = field(default_factory=list)  # (M,) alignment block of each band point
     first_scan: int = -1
     last_scan: int = -1
     n_band_scans: int = 0
@@ -107,6 +111,34 @@ def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit: dict, tol_m: fl
     return float(np.count_nonzero(behind)) / len(xy)
 
 
+def align_scans_across(
+    xy: np.ndarray, origins: np.ndarray, scan_of: np.ndarray, fit: dict, cfg: MappingConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shift each block's band points (M,2) and view origins (M,2) (scan_of (M,): block index)
+    across its line of sight onto the window's circle: the pose error between the scans of a
+    window moves their arcs sideways and smears the circle. Only the across-beam shift: along
+    the beam a shift of every block is a change of radius (no information on it). Per block,
+    regularised least squares of the inliers' circle residuals, prior sigma dbh_align_sigma_m
+    against the points' dbh_lateral_sigma_m (a block seen head-on, whose points' normals are
+    along the beam, is hardly moved)."""
+    centre, radius = np.asarray(fit["centre"], dtype=np.float64)[:2], float(fit["radius"])
+    d = xy - centre
+    dist = np.linalg.norm(d, axis=1)
+    e = dist - radius
+    w = (np.abs(e) <= cfg.circle_inlier_m) & (dist > 0)
+    normal = d / np.maximum(dist, 1e-12)[:, None]
+    view = centre - origins
+    view /= np.maximum(np.linalg.norm(view, axis=1), 1e-12)[:, None]
+    across = np.column_stack([-view[:, 1], view[:, 0]])
+    a = np.einsum("ij,ij->i", normal, across)
+    lam = (cfg.dbh_lateral_sigma_m / cfg.dbh_align_sigma_m) ** 2
+    n = int(scan_of.max()) + 1
+    num = np.bincount(scan_of, weights=w * e * a, minlength=n)
+    den = np.bincount(scan_of, weights=w * a * a, minlength=n) + lam
+    shift = (-num / den)[scan_of][:, None] * across
+    return xy + shift, origins + shift
+
+
 def _spread(d: np.ndarray) -> float:
     """Robust spread (1.4826 MAD) of values d."""
     return float(1.4826 * np.median(np.abs(d - np.median(d))))
@@ -162,6 +194,8 @@ class TreeMap:
                 tree.first_scan = scan_index
             tree.band.append(transform_points(T_odom, band))
             tree.origins.append(np.broadcast_to(T_odom[:2, 3], (len(band), 2)))
+            block = tree.n_band_scans // self.cfg.dbh_align_block_scans
+            tree.scan_of.append(np.full(len(band), block))
             tree.n_band_scans += 1
             tree.last_scan = scan_index
             if tree.n_band_scans >= self.cfg.dbh_window_scans:
@@ -177,16 +211,23 @@ class TreeMap:
                 if tree.n_band_scans >= self.cfg.dbh_min_window_scans:
                     self._fit(tree)
                 else:
-                    tree.band, tree.origins, tree.n_band_scans = [], [], 0
+                    tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
 
     def _fit(self, tree: _Tree) -> None:
         pts, origins = np.concatenate(tree.band), np.concatenate(tree.origins)
-        tree.band, tree.origins, tree.n_band_scans = [], [], 0
+        scan_of = np.concatenate(tree.scan_of)
+        tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
         if len(pts) > self.cfg.dbh_max_points_per_window:
             pick = self._rng.choice(len(pts), self.cfg.dbh_max_points_per_window, False)
-            pts, origins = pts[pick], origins[pick]
+            pts, origins, scan_of = pts[pick], origins[pick], scan_of[pick]
         self.n_fits += 1
-        fit = fit_band_circle(pts[:, :2], self.cfg, origins)
+        xy = pts[:, :2]
+        fit = fit_band_circle(xy, self.cfg, origins)
+        for _ in range(self.cfg.dbh_align_iterations):
+            if fit is None:
+                break
+            xy, origins = align_scans_across(xy, origins, scan_of, fit, self.cfg)
+            fit = fit_band_circle(xy, self.cfg, origins) or fit
         if fit is None:
             return
         self.n_fits_accepted += 1
