@@ -110,10 +110,17 @@ def truth_world(mls_dir: Path, gt_stamps: np.ndarray, gt_poses: np.ndarray):
     """The simulator world of the cached sequence (its truth scenario): the continuous true
     trajectory (pose at any time, e.g. mid-sweep) and the terrain; checked against the cached
     truth poses at the scan stamps."""
-    from forestslam.sim.scenarios import load_scenario
+    from forestslam.sim.scenarios import load_scenario, scenario_dict
     from forestslam.sim.world import build_world
 
-    world = build_world(load_scenario(mls_dir / "truth" / "scenario.yaml"))
+    truth = mls_dir / "truth" / "scenario.yaml"
+    # The scenario names the other scenario of its plot (kept clear of clutter) by the absolute
+    # path it had when simulated, maybe in another checkout: the sibling file of that name.
+    other = scenario_dict(truth).get("clutter", {}).get("keep_clear_scenario")
+    moved = None
+    if other and not Path(other).is_file() and (mls_dir.parent / Path(other).name).is_file():
+        moved = str(mls_dir.parent / Path(other).name)
+    world = build_world(load_scenario(truth, clutter__keep_clear_scenario=moved))
     t0 = world.config.motion.start_time_s
     k = slice(None, None, max(1, len(gt_stamps) // 50))
     dev = np.abs(world.trajectory.poses(gt_stamps[k] - t0) - gt_poses[k]).max()
