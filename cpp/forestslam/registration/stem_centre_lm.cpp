@@ -1,19 +1,19 @@
 #include "forestslam/registration/stem_centre_lm.hpp"
 
 #include <ceres/ceres.h>
+#include <pcl/kdtree/kdtree_flann.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <numeric>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
-#include "forestslam/common/kdtree.hpp"
+#include "forestslam/common/pcl_adapter.hpp"
 
 namespace forestslam::registration {
 
@@ -32,17 +32,17 @@ struct Column {
 
 struct StemCentreTarget::Impl {
     Points3 points;
-    KdTree3 tree;  // the project's k-d tree: no per-query overhead (PCL's FLANN had plenty)
+    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
     std::unordered_map<std::int64_t, Column> columns;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
     impl_->points = finiteRows(points);
+    impl_->cloud = detail::toPcl(impl_->points);
+    if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
     const Points3 &pts = impl_->points;
-    std::vector<int> rows(static_cast<std::size_t>(pts.rows()));
-    std::iota(rows.begin(), rows.end(), 0);
-    impl_->tree.build(pts, std::move(rows));
     for (Eigen::Index i = 0; i < pts.rows(); ++i)
         impl_->columns[cellKey(cellIndex(pts(i, 0)), cellIndex(pts(i, 1)))].index.push_back(
             static_cast<int>(i));
@@ -347,70 +347,15 @@ struct VirtualCandidates {
     }
 };
 
-// The nearest target points of each real feature: the kGather nearest are gathered where the
-// feature was (at), and reused while that set provably holds the k nearest of the moved feature:
-// every point outside it lies at least `reach` from `at`, hence at least reach - |q - at| from q,
-// beyond the k-th nearest found inside (exact; the k-d tree is searched about once per
-// registration instead of once per round).
-struct RealCandidates {
-    static constexpr int kGather = 40;
-    std::vector<Eigen::Vector3d> at;
-    std::vector<double> reach;  // distance of the farthest gathered point
-    std::vector<std::vector<std::pair<double, int>>> members;  // (squared distance, row)
-    std::vector<char> valid;
-
-    // The (up to) k nearest target points of q as (squared distance, row), nearest first.
-    void nearest(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
-                 int k, std::vector<std::pair<double, int>> &out) {
-        if (at.size() <= i) {
-            at.resize(i + 1);
-            reach.resize(i + 1);
-            members.resize(i + 1);
-            valid.resize(i + 1, 0);
-        }
-        if (valid[i] && fromMembers(target, i, q, k, out)) return;
-        auto &m = members[i];
-        target.tree.knn(q, kGather, std::numeric_limits<double>::infinity(), m);
-        std::sort(m.begin(), m.end());
-        at[i] = q;
-        // All of a small target gathered: nothing lies outside the set.
-        reach[i] = static_cast<int>(m.size()) < kGather ? std::numeric_limits<double>::infinity()
-                                                        : std::sqrt(m.back().first);
-        valid[i] = 1;
-        out.assign(m.begin(), m.begin() + std::min<std::ptrdiff_t>(k, m.size()));
-    }
-
-  private:
-    bool fromMembers(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
-                     int k, std::vector<std::pair<double, int>> &out) {
-        const double moved = (q - at[i]).norm();
-        if (!(moved < reach[i])) return false;
-        out.clear();
-        for (const auto &[unused, j] : members[i]) {
-            const double dx = target.points(j, 0) - q.x(), dy = target.points(j, 1) - q.y(),
-                         dz = target.points(j, 2) - q.z();
-            out.emplace_back(dx * dx + dy * dy + dz * dz, j);
-        }
-        const auto n = std::min<std::ptrdiff_t>(k, static_cast<std::ptrdiff_t>(out.size()));
-        std::partial_sort(out.begin(), out.begin() + n, out.end());
-        out.resize(static_cast<std::size_t>(n));
-        return n == 0 || std::sqrt(out.back().first) + moved < reach[i];
-    }
-};
-
-struct Candidates {
-    VirtualCandidates virt;
-    RealCandidates real;
-};
-
 // Features in the source frame with their current positions qc / qr in the target frame.
 void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
                const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
-               const Points3 &qr, const StemCentreLmConfig &cfg, Candidates &candidates,
+               const Points3 &qr, const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
                std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
     vpairs.clear();
     ppairs.clear();
     std::vector<int> idx;
+    std::vector<float> d2;
     const int sectors = std::max(1, cfg.virtual_sectors);
     const double gate = std::min(cfg.virtual_gate_m, cfg.virtual_max_gate_m);
     std::vector<int> best(static_cast<std::size_t>(sectors));
@@ -425,7 +370,7 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         // the exact test follows), so most candidates cost no square root.
         const double inner = std::max(0.0, r - gate), outer = r + gate;
         const double in2 = inner * inner * (1.0 - 1e-9), out2 = outer * outer * (1.0 + 1e-9);
-        for (const auto &m : candidates.virt.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
+        for (const auto &m : candidates.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
             if (std::abs(m.z - q.z()) > cfg.virtual_window_m) continue;
             const double dx = m.x - q.x(), dy = m.y - q.y();
             const double d2 = dx * dx + dy * dy;
@@ -450,16 +395,13 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         }
     }
     constexpr int kPlaneCandidates = 10;
-    std::vector<std::pair<double, int>> knn;
-    const double real_gate2 = cfg.real_gate_m * cfg.real_gate_m;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
         const Eigen::Vector3d q = qr.row(i).transpose();
-        candidates.real.nearest(target, static_cast<std::size_t>(i), q, kPlaneCandidates, knn);
-        if (knn.size() < 3) continue;
-        if (knn[0].first > real_gate2) continue;
-        idx.clear();
-        for (const auto &item : knn) idx.push_back(item.second);
+        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                            static_cast<float>(q.z()));
+        if (target.tree.nearestKSearch(query, kPlaneCandidates, idx, d2) < 3) continue;
+        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
         const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
         const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
         // Third point: the nearest that makes a non-degenerate triangle with the first two.
@@ -636,7 +578,7 @@ bool applyStep(const std::vector<double> &delta, const StemCentreLmConfig &confi
 // Correspondence rounds (pairs renewed, then one LM solve) until converged at the fine
 // gates, too few pairs, or max_rounds.
 void iterateRounds(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                   const StemCentreLmConfig &config, Candidates &candidates, LmState &s,
+                   const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
                    StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -748,7 +690,7 @@ void covarianceAndDegeneracy(const std::vector<PairAtSolution> &pairs,
 
 // Statistics and covariance at the solution, with pairs renewed at the fine gates.
 void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                    const StemCentreLmConfig &config, Candidates &candidates, LmState &s,
+                    const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
                     StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -788,7 +730,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     const LmFeatures features =
         usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
     LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
-    Candidates candidates;  // target points near each feature, shared by all rounds
+    VirtualCandidates candidates;  // target points near each centre, shared by all rounds
     iterateRounds(target.impl(), features, config, candidates, state, result);
     state.T = orthonormalised(state.T);  // the left updates accumulate rounding
     result.T_target_source = Pose3(state.T);
