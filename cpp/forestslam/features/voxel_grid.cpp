@@ -1,8 +1,9 @@
 #include "forestslam/features/voxel_grid.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
-#include <unordered_map>
+#include <vector>
 
 namespace forestslam::features {
 
@@ -16,6 +17,56 @@ std::uint64_t voxelKey(const Eigen::Vector3d &p, double inv) {
     };
     return (axis(p.x()) << 42) | (axis(p.y()) << 21) | axis(p.z());
 }
+
+// Voxel key -> slot (index of the voxel, -1: new) by open addressing with linear probing.
+class VoxelTable {
+  public:
+    explicit VoxelTable(std::size_t expected) { resize(expected); }
+
+    // The slot of key, inserted as -1 when absent (valid until the next grow_if_needed).
+    int &find(std::uint64_t key) {
+        std::size_t h = hash(key);
+        while (keys_[h] != kEmpty && keys_[h] != key) h = (h + 1) & mask_;
+        if (keys_[h] == kEmpty) {
+            keys_[h] = key;
+            slots_[h] = -1;
+        }
+        return slots_[h];
+    }
+
+    // Doubles the table when `used` entries would fill more than half of it.
+    void grow_if_needed(std::size_t used) {
+        if (2 * used <= keys_.size()) return;
+        std::vector<std::uint64_t> keys;
+        std::vector<int> slots;
+        keys.swap(keys_);
+        slots.swap(slots_);
+        resize(keys.size());
+        for (std::size_t j = 0; j < keys.size(); ++j) {
+            if (keys[j] != kEmpty) find(keys[j]) = slots[j];
+        }
+    }
+
+  private:
+    static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};  // voxelKey never sets bit 63
+
+    void resize(std::size_t expected) {
+        bits_ = 4;
+        while ((std::size_t{1} << bits_) < 2 * expected) ++bits_;
+        mask_ = (std::size_t{1} << bits_) - 1;
+        keys_.assign(mask_ + 1, kEmpty);
+        slots_.assign(mask_ + 1, -1);
+    }
+
+    std::size_t hash(std::uint64_t key) const {
+        return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - bits_));
+    }
+
+    int bits_ = 4;
+    std::size_t mask_ = 15;
+    std::vector<std::uint64_t> keys_;
+    std::vector<int> slots_;
+};
 
 }  // namespace
 
@@ -35,21 +86,25 @@ Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m,
         return out;
     }
     const double inv = 1.0 / voxel_m;
-    std::unordered_map<std::uint64_t, int> slot;
-    slot.reserve(static_cast<std::size_t>(points.rows()));
+    // Open addressing (linear probing) over a power-of-two table kept at most half full: flat
+    // arrays instead of a node per voxel (std::unordered_map's allocations dominated). Voxels
+    // keep the order in which they were first seen, and sums accumulate in input order.
+    VoxelTable table(static_cast<std::size_t>(std::min<Eigen::Index>(points.rows(), 1 << 16)));
     std::vector<Eigen::Vector3d> sum;
     std::vector<int> count;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         const Eigen::Vector3d p = points.row(i).transpose();
         if (!p.allFinite()) continue;
-        auto [it, inserted] = slot.emplace(voxelKey(p, inv), static_cast<int>(sum.size()));
-        if (inserted) {
+        int &k = table.find(voxelKey(p, inv));
+        if (k < 0) {
+            k = static_cast<int>(sum.size());
             sum.push_back(p);
             count.push_back(1);
             representative.push_back(static_cast<int>(i));
+            table.grow_if_needed(sum.size());
         } else {
-            sum[it->second] += p;
-            ++count[it->second];
+            sum[static_cast<std::size_t>(k)] += p;
+            ++count[static_cast<std::size_t>(k)];
         }
     }
     Points3 out(static_cast<Eigen::Index>(sum.size()), 3);

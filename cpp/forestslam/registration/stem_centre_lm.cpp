@@ -292,8 +292,12 @@ class SweepPriorCost : public ceres::CostFunction {
 // scanned about once per registration instead of once per round.
 struct VirtualCandidates {
     static constexpr double kSlack = 0.3;
-    std::vector<Eigen::Vector3d> at;        // transformed centre when gathered
-    std::vector<std::vector<int>> members;  // target point indices
+    struct Member {
+        double x, y, z;  // a copy of the target point: the per-round scan reads memory in order
+        int index;
+    };
+    std::vector<Eigen::Vector3d> at;           // transformed centre when gathered
+    std::vector<std::vector<Member>> members;  // target points
     std::vector<char> valid;
 
     void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
@@ -322,7 +326,9 @@ struct VirtualCandidates {
                 for (auto k = lo - z.begin(); k < hi - z.begin(); ++k) {
                     const int j = it->second.index[static_cast<std::size_t>(k)];
                     const double dx = target.points(j, 0) - q.x(), dy = target.points(j, 1) - q.y();
-                    if (dx * dx + dy * dy <= reach2) out.push_back(j);
+                    if (dx * dx + dy * dy <= reach2)
+                        out.push_back(
+                            {target.points(j, 0), target.points(j, 1), target.points(j, 2), j});
                 }
             }
         }
@@ -330,9 +336,9 @@ struct VirtualCandidates {
         valid[i] = 1;
     }
 
-    const std::vector<int> &near(const StemCentreTarget::Impl &target, std::size_t i,
-                                 const Eigen::Vector3d &q, double radius,
-                                 const StemCentreLmConfig &cfg) {
+    const std::vector<Member> &near(const StemCentreTarget::Impl &target, std::size_t i,
+                                    const Eigen::Vector3d &q, double radius,
+                                    const StemCentreLmConfig &cfg) {
         if (i >= valid.size() || !valid[i] || std::abs(q.z() - at[i].z()) > kSlack ||
             std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack) {
             gather(target, i, q, radius, cfg);
@@ -360,12 +366,18 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
         const double r = radii[i];
         std::fill(best.begin(), best.end(), -1);
         std::fill(best_err.begin(), best_err.end(), std::numeric_limits<double>::infinity());
-        for (int j : candidates.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
-            const auto &p = target.points.row(j);
-            if (std::abs(p(2) - q.z()) > cfg.virtual_window_m) continue;
-            const double dx = p(0) - q.x(), dy = p(1) - q.y();
-            const double err = std::abs(std::sqrt(dx * dx + dy * dy) - r);
+        // |d - r| < gate only within this annulus of squared distances (a conservative bound:
+        // the exact test follows), so most candidates cost no square root.
+        const double inner = std::max(0.0, r - gate), outer = r + gate;
+        const double in2 = inner * inner * (1.0 - 1e-9), out2 = outer * outer * (1.0 + 1e-9);
+        for (const auto &m : candidates.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
+            if (std::abs(m.z - q.z()) > cfg.virtual_window_m) continue;
+            const double dx = m.x - q.x(), dy = m.y - q.y();
+            const double d2 = dx * dx + dy * dy;
+            if (d2 >= out2 || d2 < in2) continue;
+            const double err = std::abs(std::sqrt(d2) - r);
             if (err >= gate) continue;
+            const int j = m.index;
             auto sector = static_cast<int>((std::atan2(dy, dx) + M_PI) / (2 * M_PI) * sectors);
             sector = std::min(std::max(sector, 0), sectors - 1);
             if (err < best_err[sector]) {

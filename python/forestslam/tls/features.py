@@ -228,8 +228,11 @@ def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:
 
 def ground_height_near(points: np.ndarray, xy: np.ndarray, radius_m: float = 4.0) -> float | None:
     """Low (5th percentile) height of points within radius_m of xy: the local ground."""
-    d = np.linalg.norm(points[:, :2] - np.asarray(xy)[None, :], axis=1)
-    near = points[d < radius_m, 2]
+    x, y = np.asarray(xy, dtype=np.float64)
+    # The square around xy first (two cheap comparisons per point), the disc within it.
+    box = points[(np.abs(points[:, 0] - x) < radius_m) & (np.abs(points[:, 1] - y) < radius_m)]
+    d = np.linalg.norm(box[:, :2] - np.array([x, y])[None, :], axis=1)
+    near = box[d < radius_m, 2]
     if len(near) < 20:
         return None
     return float(np.percentile(near, 5.0))

@@ -201,7 +201,11 @@ class _VoxelCloud:
             self.points = np.concatenate([self.points, new])
             return
         keys = _voxel_keys(new, self.voxel_m)
-        pos = np.clip(np.searchsorted(self.keys, keys), 0, max(len(self.keys) - 1, 0))
+        # Sorted queries: the binary searches walk the map's keys in order (cache-friendly).
+        by_key = np.argsort(keys, kind="stable")
+        pos = np.empty(len(keys), dtype=np.int64)
+        pos[by_key] = np.searchsorted(self.keys, keys[by_key])
+        pos = np.clip(pos, 0, max(len(self.keys) - 1, 0))
         known = self.keys[pos] == keys if len(self.keys) else np.zeros(len(keys), bool)
         # Occupied voxels: running mean (one new point per voxel per merge).
         j = pos[known]

@@ -6,6 +6,31 @@ from pathlib import Path
 
 import numpy as np
 
+SLICE_PIXEL_M = 0.04  # raster cell of the breast-height slice (a stem wall is a few pixels)
+
+
+def _figure(figsize, **subplot_kw):
+    """A headless figure (Agg canvas, no pyplot: its import and state are not needed)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(**subplot_kw)
+
+
+def slice_raster(points: np.ndarray, pixel_m: float = SLICE_PIXEL_M):
+    """Occupancy raster of points (N,3) seen from above -> (image (H,W) bool, extent
+    [xmin, xmax, ymin, ymax]) with image[0] at ymin: one vectorized pass instead of drawing
+    every point (a scatter of 10^5 points cost seconds)."""
+    lo = np.floor(points[:, :2].min(axis=0) / pixel_m) * pixel_m
+    ij = np.floor((points[:, :2] - lo) / pixel_m).astype(np.int64)
+    w, h = ij.max(axis=0) + 1
+    image = np.zeros((h, w), dtype=bool)
+    image[ij[:, 1], ij[:, 0]] = True
+    extent = [lo[0], lo[0] + w * pixel_m, lo[1], lo[1] + h * pixel_m]
+    return image, extent
+
 
 def plot_tls_run(
     path: str | Path,
@@ -18,14 +43,14 @@ def plot_tls_run(
     base_z: np.ndarray | None = None,
     title: str = "MLS + TLS plot",
 ) -> None:
-    """Top view: breast-height slice of the merged cloud, stems with DBH circles coloured by
-    merged coverage, MLS trajectory; right: coverage TLS alone vs merged per stem."""
-    import matplotlib
+    """Top view: breast-height slice of the merged cloud (an occupancy raster), stems with DBH
+    circles coloured by merged coverage, MLS trajectory; right: coverage TLS alone vs merged
+    per stem."""
+    from matplotlib import colormaps
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Circle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 6), gridspec_kw={"width_ratios": [3, 2]})
+    fig, (ax, bx) = _figure((13, 6), ncols=2, gridspec_kw={"width_ratios": [3, 2]})
     pts = np.asarray(map_points).reshape(-1, 3)
     if len(pts):
         if base_z is not None and len(base_z):
@@ -33,25 +58,23 @@ def plot_tls_run(
             band = pts[(pts[:, 2] > ref + 1.0) & (pts[:, 2] < ref + 1.6)]
         else:
             band = pts[np.abs(pts[:, 2] - np.median(pts[:, 2])) < 0.3]
-        if len(band) > 200_000:
-            band = band[np.random.default_rng(0).choice(len(band), 200_000, replace=False)]
-        ax.scatter(band[:, 0], band[:, 1], s=0.2, c="0.55", linewidths=0, label="slice")
+        if len(band):
+            image, extent = slice_raster(band)
+            grey = ListedColormap([(1, 1, 1, 0), (0.55, 0.55, 0.55, 1)])
+            ax.imshow(image, extent=extent, origin="lower", cmap=grey, interpolation="nearest")
+            ax.plot([], [], "s", color="0.55", ms=3, label="slice")
+    viridis = colormaps["viridis"]
     for k in range(len(trees_xyz)):
         r = 0.5 * dbh_m[k]
         if np.isfinite(r):
             ax.add_patch(
-                plt.Circle(
-                    trees_xyz[k, :2],
-                    r,
-                    fill=False,
-                    color=plt.cm.viridis(coverage_merged[k]),
-                    lw=1.5,
-                )
+                Circle(trees_xyz[k, :2], r, fill=False, color=viridis(coverage_merged[k]), lw=1.5)
             )
     if len(poses):
         ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=0.8, label="MLS trajectory")
     ax.plot([0], [0], "k^", label="TLS station")
     ax.set_aspect("equal")
+    ax.autoscale_view()
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(title)
@@ -75,7 +98,6 @@ def plot_tls_run(
     bx.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def plot_breast_height_slice(
