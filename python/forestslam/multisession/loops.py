@@ -63,6 +63,7 @@ class PlaceRecognition:
             "index_builds": 0,
         }
         self._index = None  # (TreeMap, landmark ids, their positions when built)
+        self.reasons: dict[str, int] = {}  # why loop queries were rejected: count per reason
 
     def step(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
         """At a keyframe: relocalize a lost segment, or query for a loop and, when one is
@@ -83,7 +84,10 @@ class PlaceRecognition:
         near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
         lately = keyframe - c.window_keyframes
         recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
-        old = alive & (first < lately)  # mapped earlier (prior-map trees never seen: -1)
+        # mapped earlier (prior-map trees never seen: -1), where a correction we would accept
+        # can reach: a smaller map means fewer chance hypotheses for the acceptance test
+        reach = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m + c.max_correction_m
+        old = alive & (first < lately) & reach
         lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
         if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
             return False
@@ -92,6 +96,8 @@ class PlaceRecognition:
         loc, m_ids = self._query(xy, old, xy[q_ids])
         if loc.rejected:
             self.stats["rejected"] += 1
+            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
+            log.debug("place recognition: query at keyframe %d rejected: %s", keyframe, loc.reason)
             return False
         shift = math.hypot(loc.x, loc.y)  # the query is in the graph's frame: identity = agree
         if shift < c.min_correction_m and abs(loc.yaw) < math.radians(2.0):
