@@ -84,20 +84,29 @@ class PlaceRecognition:
         near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
         lately = keyframe - c.window_keyframes
         recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
-        # mapped earlier (prior-map trees never seen: -1), where a correction we would accept
-        # can reach: a smaller map means fewer chance hypotheses for the acceptance test
+        # The map: trees not seen lately (prior-map trees never seen: -1), where a correction
+        # we would accept can reach (a smaller map: fewer chance hypotheses for the acceptance
+        # test). The query: the whole recent local map here (every tree seen lately, re-found
+        # or new), not only the new trees: on a partial re-association (dense stands, metres of
+        # drift) the new ones alone are too few to be significant (Wild-Places V03: 6-106).
         reach = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m + c.max_correction_m
-        old = alive & (first < lately) & reach
-        lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
+        old = alive & (last < lately) & reach
+        lost = old & near  # mapped earlier, here, and not re-found lately
         if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
             return False
         self.stats["queries"] += 1
-        q_ids = np.flatnonzero(recent)
+        q_ids = np.flatnonzero(alive & near & (last >= lately))
         loc, m_ids = self._query(xy, old, xy[q_ids])
         if loc.rejected:
             self.stats["rejected"] += 1
             self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
-            log.debug("place recognition: query at keyframe %d rejected: %s", keyframe, loc.reason)
+            log.debug(
+                "place recognition: query at keyframe %d (%d trees among %d) rejected: %s",
+                keyframe,
+                len(q_ids),
+                int(old.sum()),
+                loc.reason,
+            )
             return False
         shift = math.hypot(loc.x, loc.y)  # the query is in the graph's frame: identity = agree
         if shift < c.min_correction_m and abs(loc.yaw) < math.radians(2.0):
