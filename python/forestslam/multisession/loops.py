@@ -84,18 +84,12 @@ class PlaceRecognition:
         near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
         lately = keyframe - c.window_keyframes
         recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
-        # The map: trees not seen lately (prior-map trees never seen: -1), where a correction
-        # we would accept can reach (a smaller map: fewer chance hypotheses for the acceptance
-        # test). The query: the whole recent local map here (every tree seen lately, re-found
-        # or new), not only the new trees: on a partial re-association (dense stands, metres of
-        # drift) the new ones alone are too few to be significant (Wild-Places V03: 6-106).
-        reach = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m + c.max_correction_m
-        old = alive & (last < lately) & reach
-        lost = old & near  # mapped earlier, here, and not re-found lately
+        old = alive & (first < lately)  # mapped earlier (prior-map trees never seen: -1)
+        lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
         if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
             return False
         self.stats["queries"] += 1
-        q_ids = np.flatnonzero(alive & near & (last >= lately))
+        q_ids = np.flatnonzero(recent)
         loc, m_ids = self._query(xy, old, xy[q_ids])
         if loc.rejected:
             self.stats["rejected"] += 1
