@@ -149,6 +149,7 @@ def main() -> int:
             f"{res.cpu_ms_per_frame:6.1f}"
         )
         print(f"  place recognition {pr.stats}; tied pairs > {MAX_FALSE_M} m apart: {n_far}")
+        print(f"  rejected queries by reason: {pr.reasons}")
         worst = ate if n_false == 0 else math.inf
     met = worst <= 0.3
     print(f"target <= 0.3 m with place recognition, no false closure: {'met' if met else 'MISSED'}")

@@ -63,6 +63,7 @@ class PlaceRecognition:
             "index_builds": 0,
         }
         self._index = None  # (TreeMap, landmark ids, their positions when built)
+        self.reasons: dict[str, int] = {}  # why loop queries were rejected: count per reason
 
     def step(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
         """At a keyframe: relocalize a lost segment, or query for a loop and, when one is
@@ -92,6 +93,14 @@ class PlaceRecognition:
         loc, m_ids = self._query(xy, old, xy[q_ids])
         if loc.rejected:
             self.stats["rejected"] += 1
+            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
+            log.debug(
+                "place recognition: query at keyframe %d (%d trees among %d) rejected: %s",
+                keyframe,
+                len(q_ids),
+                int(old.sum()),
+                loc.reason,
+            )
             return False
         shift = math.hypot(loc.x, loc.y)  # the query is in the graph's frame: identity = agree
         if shift < c.min_correction_m and abs(loc.yaw) < math.radians(2.0):

@@ -210,7 +210,8 @@ def run_table_slam(
     ms = 1e3 * (time.process_time() - t0) / max(len(frames), 1)
     _, est = slam.trajectory()
     stats = dict(place_recognition.stats) if place_recognition is not None else {}
-    stats["loop_closures"] = slam.loop_closures
+    stats["loop_closures"] = slam.loop_closures  # verified place recognition only
+    stats["reassociation_corrections"] = slam.reassociation_corrections
     stats["landmarks"] = slam.n_landmarks
     return TableSlamResult(
         np.array(given),

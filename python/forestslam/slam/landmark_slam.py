@@ -136,7 +136,11 @@ class LandmarkSlam:
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
         self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
+        # Loops closed by verified place recognition (`tie_trees`) only. Re-association that
+        # re-found old trees with a large correction is counted apart: on tree tables (whole
+        # local maps per frame) it fires at most keyframes and is no evidence of a loop.
         self.loop_closures = 0
+        self.reassociation_corrections = 0
         self.n_landmark_factors = 0
         # Tracking loss (see SlamConfig.loss_*): the first keyframe of the current lost segment,
         # None while tracking holds or once place recognition relocalized the segment.
@@ -221,8 +225,12 @@ class LandmarkSlam:
 
     def tie_trees(self, pairs: np.ndarray, sigma_m: float) -> None:
         """Place recognition found trees mapped twice: each pair (older, newer) of landmark
-        indices is tied by a robust zero-difference factor, which closes the loop; the newer
-        copy becomes an alias of the older in the tree table."""
+        indices is tied by a robust zero-difference factor, which closes the loop (counted in
+        `loop_closures`); the newer copy becomes an alias of the older in the tree table."""
+        self._tie(pairs, sigma_m)
+        self.loop_closures += 1
+
+    def _tie(self, pairs: np.ndarray, sigma_m: float) -> None:
         before = self._snapshot()
         graph = gtsam.NonlinearFactorGraph()
         noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma_m))
@@ -237,13 +245,11 @@ class LandmarkSlam:
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
-        self.loop_closures += 1
 
     def relocalized(self, pairs: np.ndarray, sigma_m: float) -> None:
         """Place recognition placed the lost segment in the map: its trees (newer) are tied to
         the map's (older) as in `tie_trees`, and association uses every tree again."""
-        self.tie_trees(pairs, sigma_m)
-        self.loop_closures -= 1  # a relocalization, counted apart
+        self._tie(pairs, sigma_m)  # a relocalization, counted apart from loop closures
         self.relocalizations += 1
         self.lost_since = None
 
@@ -598,7 +604,7 @@ class LandmarkSlam:
             for i in np.nonzero(matched)[0]:
                 self.height.add_observation(kf, int(res.matches[i]), obs_z[i])
         if res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m:
-            self.loop_closures += 1
+            self.reassociation_corrections += 1
         new_ids = self._update_tentatives(
             kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, ~matched, graph, values
         )
@@ -650,7 +656,7 @@ class LandmarkSlam:
         return {
             "lm": {k: v.copy() for k, v in vars(self).items() if k.startswith("_lm_")},
             "tentative": copy.deepcopy(self._tentative),
-            "counts": (self.loop_closures, self.n_landmark_factors),
+            "counts": (self.loop_closures, self.reassociation_corrections, self.n_landmark_factors),
             "loss": (self.lost_since, self.losses, self.relocalizations),
             "keyframes": self.n_keyframes,
             "height_obs": None if self.height is None else self.height.n_observations,
@@ -660,7 +666,9 @@ class LandmarkSlam:
         for name, value in before["lm"].items():
             setattr(self, name, value)
         self._tentative = before["tentative"]
-        self.loop_closures, self.n_landmark_factors = before["counts"]
+        self.loop_closures, self.reassociation_corrections, self.n_landmark_factors = before[
+            "counts"
+        ]
         self.lost_since, self.losses, self.relocalizations = before["loss"]
         self._loss_kfs = [k for k in self._loss_kfs if k < before["keyframes"]]
         n = before["keyframes"]
