@@ -161,6 +161,9 @@ def test_run_slam_outputs_and_accuracy(tmp_path, monkeypatch):
         assert (out / name).is_file(), name
     meta = yaml.safe_load((out / "run.yaml").read_text())
     assert meta["summary"]["status"] == "complete" and meta["config"]["slam"]
+    # No place recognition here: no loop closure; re-association corrections are counted apart.
+    assert meta["summary"]["loop_closures"] == 0
+    assert isinstance(meta["summary"]["reassociation_corrections"], int)
     stamps, poses = read_tum(out / "trajectory.tum")
     np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-6)  # first scan's sensor frame
     m = evaluate_run(out, truth, plot=False)

@@ -42,7 +42,8 @@ class RunSummary:
     degraded_scans: int = 0
     keyframes: int = 0
     trees: int = 0
-    loop_closures: int = 0
+    loop_closures: int = 0  # verified by place recognition only
+    reassociation_corrections: int = 0  # drift corrections found by re-association (not closures)
     failed_updates: int = 0  # back-end updates that failed and were rolled back
     icp_accepted: int = 0
     icp_rejected: int = 0
@@ -63,6 +64,7 @@ class RunSummary:
             "keyframes": self.keyframes,
             "trees": self.trees,
             "loop_closures": self.loop_closures,
+            "reassociation_corrections": self.reassociation_corrections,
             "failed_updates": self.failed_updates,
             "icp_accepted": self.icp_accepted,
             "icp_rejected": self.icp_rejected,
@@ -639,6 +641,7 @@ def _finish(pipe: Pipeline, summary: RunSummary) -> None:
     if pipe.slam is not None:
         summary.keyframes = pipe.slam.n_keyframes
         summary.loop_closures = pipe.slam.loop_closures
+        summary.reassociation_corrections = pipe.slam.reassociation_corrections
         summary.failed_updates = pipe.slam.failed_updates
     if pipe.refiner is not None:
         summary.icp_accepted = pipe.refiner.accepted
