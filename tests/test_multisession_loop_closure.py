@@ -10,17 +10,10 @@ import math
 import numpy as np
 
 from forestslam.evaluation import trajectory_errors
+from forestslam.geometry import planar_pose
 from forestslam.multisession.drift import DriftInjector
 from forestslam.multisession.loops import PlaceRecognition, PlaceRecognitionConfig
 from forestslam.slam import LandmarkSlam, SlamConfig
-
-
-def _pose(x, y, yaw):
-    t = np.eye(4)
-    c, s = math.cos(yaw), math.sin(yaw)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:2, 3] = x, y
-    return t
 
 
 def _stand(seed: int) -> np.ndarray:
@@ -44,7 +37,9 @@ def _loop(step: float = 0.2) -> list[np.ndarray]:
     for (x0, y0), (x1, y1) in zip(corners[:-1], corners[1:], strict=True):
         n = int(math.hypot(x1 - x0, y1 - y0) / step)
         yaw = math.atan2(y1 - y0, x1 - x0)
-        poses += [_pose(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, yaw) for i in range(n)]
+        poses += [
+            planar_pose(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, yaw) for i in range(n)
+        ]
     return poses
 
 

@@ -9,16 +9,9 @@ import math
 import numpy as np
 
 from forestslam.evaluation import trajectory_errors
+from forestslam.geometry import planar_pose
 from forestslam.multisession.loops import PlaceRecognition, PlaceRecognitionConfig
 from forestslam.slam import LandmarkSlam, SlamConfig
-
-
-def _pose(x, y, yaw):
-    t = np.eye(4)
-    c, s = math.cos(yaw), math.sin(yaw)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:2, 3] = x, y
-    return t
 
 
 def _forest(rng, lo, hi, n):
@@ -37,8 +30,8 @@ def _walk(trees_before, trees_after, jump_at, place_recognition, n=400, step=0.1
     `trees_after` (the same stand, or a place the map does not hold)."""
     slam = LandmarkSlam(SlamConfig())
     loops = PlaceRecognition(PlaceRecognitionConfig()) if place_recognition else None
-    truth = [_pose(i * step, 0.0, 0.0) for i in range(n)]
-    jump = _pose(0.0, 4.0, math.radians(20.0))
+    truth = [planar_pose(i * step, 0.0, 0.0) for i in range(n)]
+    jump = planar_pose(0.0, 4.0, math.radians(20.0))
     cov = np.diag([0.01**2, 0.01**2, math.radians(0.2) ** 2])
     for i, T in enumerate(truth):
         odom = jump @ T if i >= jump_at else T
