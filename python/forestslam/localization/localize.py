@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from forestslam.core_bridge import fill_core
 from forestslam.errors import InputError
 from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.tree_map import TreeMap
@@ -94,45 +95,24 @@ class Localization:
         }
 
 
+# Options of the trunk aggregation (not of the C++ matcher), and two that need converting.
+_NOT_IN_CORE = (
+    "merge_radius_m",
+    "keyframe_distance_m",
+    "min_observations",
+    "max_range_m",
+    "distinct_yaw_deg",
+    "matcher",
+)
+
+
 def _core_config(config: LocalizationConfig):
+    """The C++ localizer's config, through the one bridge (a missing option is an error)."""
     from forestslam import _core
 
-    c = _core.GlobalLocalizerConfig()
-    for name in (
-        "candidates_per_star",
-        "max_feature_distance_m",
-        "rotation_ambiguity",
-        "edge_tolerance_m",
-        "inlier_gate_m",
-        "min_inliers",
-        "min_inlier_fraction",
-        "ambiguity_ratio",
-        "min_significance",
-        "closeness_evidence",
-        "seed_evidence",
-        "dbh_evidence",
-        "dbh_resolution_m",
-        "distinct_translation_m",
-        "refine_iterations",
-        "min_sigma_m",
-        "duplicate_tolerance_m",
-        "skip_hull_stars",
-        "triangle_fallback",
-        "candidates_per_triangle",
-        "triangle_neighbours",
-        "max_query_trunks",
-        "max_fallback_trunks",
-        "max_fallback_matches",
-    ):
-        if hasattr(c, name):  # an older compiled core lacks the newest options
-            setattr(c, name, getattr(config, name))
-        else:
-            log.debug("compiled core has no localization option %s; default kept", name)
+    c = fill_core(config, _core.GlobalLocalizerConfig(), "localization", skip=_NOT_IN_CORE)
     c.distinct_yaw_rad = math.radians(config.distinct_yaw_deg)
-    if hasattr(_core, "Matcher"):
-        c.matcher = getattr(_core.Matcher, config.matcher)
-    elif config.matcher != "default":
-        raise InputError("the compiled core has no paper matcher; rebuild forestslam")
+    c.matcher = getattr(_core.Matcher, config.matcher)
     return c
 
 
