@@ -140,46 +140,38 @@ def test_unknown_matcher_is_an_input_error():
         from_dict(LocalizationConfig, {"matcher": "icp"})
 
 
-def test_closeness_of_the_fit_is_evidence_in_a_sparse_view():
-    """Few trunks in a sparse stand (0.01 /m^2): counted in the 0.5 m gate they prove little, but
-    a true pose puts them within centimetres. With the closeness evidence more views are found,
-    none wrong, and views of another stand stay rejected (fixed seeds)."""
+def _views_found_with_and_without(option, queries, step, view):
+    """Views of a sparse stand (0.01 /m^2) localized with `option` on and off: how many are
+    accepted (each within 0.3 m of the truth); views of another stand must stay rejected."""
     xy = stand(400, 200.0, seed=3, spacing=4.0)
     other = stand(400, 200.0, seed=33, spacing=4.0)
     tree_map = build_map(xy)
     found = {True: 0, False: 0}
-    for closeness in (True, False):
-        config = LocalizationConfig(closeness_evidence=closeness)
-        for q in range(12):
-            truth = (40.0 + 10 * q, 60.0 + 5 * q, 0.5 * q)
-            loc = localize(tree_map, observe(xy, truth, 13.0, 0.03, 0.1, 1, seed=q), config)
+    for on in (True, False):
+        config = LocalizationConfig(**{option: on})
+        for q in range(queries):
+            truth = (40.0 + step[0] * q, 60.0 + step[1] * q, 0.5 * q)
+            loc = localize(tree_map, observe(xy, truth, *view, seed=q), config)
             if loc.accepted:
                 assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.3
-                found[closeness] += 1
-            absent = localize(tree_map, observe(other, truth, 13.0, 0.03, 0.1, 1, seed=q), config)
-            assert absent.rejected
+                found[on] += 1
+            assert localize(tree_map, observe(other, truth, *view, seed=q), config).rejected
+    return found
+
+
+def test_closeness_of_the_fit_is_evidence_in_a_sparse_view():
+    """Few trunks in a sparse stand: counted in the 0.5 m gate they prove little, but a true
+    pose puts them within centimetres. With the closeness evidence more views are found, none
+    wrong, and views of another stand stay rejected (fixed seeds)."""
+    found = _views_found_with_and_without("closeness_evidence", 12, (10, 5), (13.0, 0.03, 0.1, 1))
     assert found[True] > found[False]
 
 
 def test_seed_match_closeness_is_evidence_in_a_sparse_view():
-    """A few trunks of a sparse stand (0.01 /m^2, 30 % missed): the seed triangle or star of a
-    true pose matches its map shape within the noise, a chance one anywhere in the tolerance.
-    With the seed evidence more views are found, none wrong, and views of another stand stay
-    rejected (fixed seeds)."""
-    xy = stand(400, 200.0, seed=3, spacing=4.0)
-    other = stand(400, 200.0, seed=33, spacing=4.0)
-    tree_map = build_map(xy)
-    found = {True: 0, False: 0}
-    for seed_evidence in (True, False):
-        config = LocalizationConfig(seed_evidence=seed_evidence)
-        for q in range(20):
-            truth = (40.0 + 6 * q, 60.0 + 4 * q, 0.5 * q)
-            loc = localize(tree_map, observe(xy, truth, 12.0, 0.05, 0.3, 1, seed=q), config)
-            if loc.accepted:
-                assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.3
-                found[seed_evidence] += 1
-            absent = localize(tree_map, observe(other, truth, 12.0, 0.05, 0.3, 1, seed=q), config)
-            assert absent.rejected
+    """A few trunks of a sparse stand (30 % missed): the seed triangle or star of a true pose
+    matches its map shape within the noise, a chance one anywhere in the tolerance. With the
+    seed evidence more views are found, none wrong, and views of another stand stay rejected."""
+    found = _views_found_with_and_without("seed_evidence", 20, (6, 4), (12.0, 0.05, 0.3, 1))
     assert found[True] >= found[False] + 4
 
 
