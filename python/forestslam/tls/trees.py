@@ -183,16 +183,14 @@ def fuse_with_reference(
     carry the registration spread); a stem the TLS saw on a short arc takes the merged
     map's wider one.
     Without a TLS fit the merged circle stands; without a merged fit the TLS one."""
-    if len(trees) == 0:
+    ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    if len(trees) == 0 or len(ref) == 0:
         return trees
     core = _core()
     lo, hi = config.band_m
-    ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
-    tree2d = cKDTree(ref[:, :2]) if len(ref) else None
+    tree2d = cKDTree(ref[:, :2])
     xyz, dbh = trees.xyz.copy(), trees.dbh_m.copy()
     for k in range(len(trees)):
-        if tree2d is None:
-            break
         near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.dbh_m[k] + 0.15)]
         z = near[:, 2] - trees.base_z[k]
         tls = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
