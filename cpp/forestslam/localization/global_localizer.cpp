@@ -137,29 +137,6 @@ bool starsAgree(const Eigen::Ref<const Points2> &local, const Star &ls,
     return true;
 }
 
-// Verified hypotheses; poses that fall in the same small cell are verified once.
-struct Hypotheses {
-    std::vector<Hypothesis> list;
-    std::unordered_set<uint64_t> seen;
-
-    int best = 0;      // highest consensus so far
-    int verified = 0;  // every verified correspondence, duplicates included (time budget)
-    std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
-
-    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
-             LocalizationStage stage, double seed_evidence) {
-        ++verified;
-        matches.push_back(pose);
-        const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
-        const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
-        const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
-        const uint64_t h = cellKey3(qx, qy, qa);
-        if (!seen.insert(h).second) return;
-        list.push_back({pose, consensus(local, pose, grid, gate), stage, seed_evidence});
-        best = std::max(best, list.back().score);
-    }
-};
-
 // Rigid fit of corresponding points; false when any residual exceeds tol.
 bool fitConsistent(const std::vector<Eigen::Vector2d> &a, const std::vector<Eigen::Vector2d> &b,
                    double tol, Eigen::Vector3d &pose) {
@@ -183,6 +160,166 @@ std::vector<int> rotationsToTry(const Triangulation &tri, const Eigen::Ref<const
             out.push_back(r);
     }
     return out;
+}
+
+// Rows of xy on the hull of tri (a vertex of an edge with no triangle across it).
+std::vector<bool> hullFlags(const Triangulation &tri, Eigen::Index rows) {
+    std::vector<bool> on_hull(rows, false);
+    for (size_t t = 0; t < tri.size(); ++t)
+        for (int k = 0; k < 3; ++k)
+            if (tri.neighbours[t][k] < 0) {
+                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
+                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
+            }
+    return on_hull;
+}
+
+Points2 rowsOf(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows) {
+    Points2 out(rows.size(), 2);
+    for (size_t k = 0; k < rows.size(); ++k) out.row(k) = xy.row(rows[k]);
+    return out;
+}
+
+// Stage 1's stars in the order they are tried: only stars among the scoring trunks (`near`),
+// nearest first. The key does not depend on the input row order: farthest vertex, then the
+// vertices' spread.
+std::vector<int> starOrder(const Eigen::Ref<const Points2> &local,
+                           const std::vector<int> &near_rows, const StarSet &lstars,
+                           const std::vector<bool> &on_hull, bool skip_hull_stars) {
+    std::vector<bool> near(local.rows(), false);
+    for (int r : near_rows) near[r] = true;
+    auto reach2 = [&](const Star &s) {
+        double m = 0, sum = 0, sx = 0;
+        for (int v : s.vertices) {
+            m = std::max(m, local.row(v).squaredNorm());
+            sum += local.row(v).squaredNorm();
+            sx += local(v, 0);
+        }
+        return std::make_tuple(m, sum, sx);
+    };
+    std::vector<std::pair<std::tuple<double, double, double>, int>> order;
+    for (size_t i = 0; i < lstars.stars.size(); ++i) {
+        const Star &s = lstars.stars[i];
+        bool inside = true, hull = false;
+        for (int v : s.vertices) {
+            inside = inside && near[v];
+            hull = hull || on_hull[v];
+        }
+        if (!inside || (skip_hull_stars && hull)) continue;
+        order.emplace_back(reach2(s), static_cast<int>(i));
+    }
+    std::sort(order.begin(), order.end());
+    std::vector<int> out;
+    out.reserve(order.size());
+    for (const auto &o : order) out.push_back(o.second);
+    return out;
+}
+
+// Stage 2's local triangles nearest first (most completely observed); the key does not depend
+// on the input row order (ties broken by the vertices' spread).
+void sortByReach(std::vector<std::array<int, 3>> &tris, const Eigen::Ref<const Points2> &local) {
+    auto reach = [&](const std::array<int, 3> &t) {
+        const double a = local.row(t[0]).squaredNorm(), b = local.row(t[1]).squaredNorm(),
+                     c = local.row(t[2]).squaredNorm();
+        return std::make_tuple(std::max({a, b, c}), a + b + c,
+                               local(t[0], 0) + local(t[1], 0) + local(t[2], 0));
+    };
+    std::sort(tris.begin(), tris.end(),
+              [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
+}
+
+// Eq. 3: the candidate angles between corresponding centre edges of two stars (vertices in
+// canonical order, Eq. 2); the one with the smallest squared vertex residual wins, the
+// translation D is the centroid difference.
+Eigen::Vector3d paperPose(const Eigen::Matrix<double, 6, 2> &L,
+                          const Eigen::Matrix<double, 6, 2> &M) {
+    const Eigen::Vector2d lc = L.colwise().mean(), mc = M.colwise().mean();
+    double best_cost = std::numeric_limits<double>::infinity();
+    Eigen::Vector3d pose;
+    for (int e = 0; e < 3; ++e) {
+        const Eigen::Vector2d dl = L.row((e + 1) % 3) - L.row(e);
+        const Eigen::Vector2d dm = M.row((e + 1) % 3) - M.row(e);
+        const double beta = wrapAngle(std::atan2(dm.y(), dm.x()) - std::atan2(dl.y(), dl.x()));
+        const Eigen::Vector3d cand(0, 0, beta);
+        const Eigen::Vector2d d = mc - apply(cand, lc);  // D = centroid difference
+        double cost = 0;
+        for (int k = 0; k < 6; ++k)
+            cost += (apply(cand, L.row(k).transpose()) + d - M.row(k).transpose()).squaredNorm();
+        if (cost < best_cost) {
+            best_cost = cost;
+            pose = {d.x(), d.y(), beta};
+        }
+    }
+    return pose;
+}
+
+// Least-squares refinement of pose over all inliers, re-associating each round; *pairs: the
+// inliers of the refined pose.
+Eigen::Vector3d refinePose(const Points2 &local, const Points2 &map, const PointGrid &grid,
+                           Eigen::Vector3d pose, const GlobalLocalizerConfig &cfg,
+                           std::vector<std::pair<int, int>> *pairs) {
+    for (int it = 0; it < std::max(1, cfg.refine_iterations); ++it) {
+        *pairs = associate(local, pose, grid, cfg.inlier_gate_m);
+        if (pairs->size() < 3) break;
+        std::vector<Eigen::Vector2d> a, b;
+        for (const auto &[i, j] : *pairs) {
+            a.push_back(local.row(i).transpose());
+            b.push_back(map.row(j).transpose());
+        }
+        const Eigen::Vector3d next = fitRigid2D(a, b);
+        const bool converged =
+            (next - pose).head<2>().norm() < 1e-9 && std::abs(wrapAngle(next[2] - pose[2])) < 1e-11;
+        pose = next;
+        if (converged) break;
+    }
+    *pairs = associate(local, pose, grid, cfg.inlier_gate_m);
+    pose[2] = wrapAngle(pose[2]);
+    return pose;
+}
+
+// res.rms_m and res.covariance = sigma^2 (J^T J)^-1 with r_i = R p_i + t - q_i over the pairs
+// at res's pose.
+void setCovariance(const Points2 &local, const Points2 &map,
+                   const std::vector<std::pair<int, int>> &pairs, double min_sigma_m,
+                   GlobalLocalization &res) {
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    double sse = 0;
+    const Eigen::Vector3d pose(res.x, res.y, res.yaw);
+    const double c = std::cos(pose[2]), s = std::sin(pose[2]);
+    for (const auto &[i, j] : pairs) {
+        const Eigen::Vector2d p = local.row(i).transpose();
+        const Eigen::Vector2d r = apply(pose, p) - map.row(j).transpose();
+        sse += r.squaredNorm();
+        Eigen::Matrix<double, 2, 3> J;
+        J << 1, 0, -s * p.x() - c * p.y(), 0, 1, c * p.x() - s * p.y();
+        JtJ += J.transpose() * J;
+    }
+    const int n = static_cast<int>(pairs.size());
+    res.rms_m = n > 0 ? std::sqrt(sse / n) : 0.0;
+    const double dof = std::max(1, 2 * n - 3);
+    const double sigma2 = std::max(sse / dof, min_sigma_m * min_sigma_m);
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
+    if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
+}
+
+// The verdict of the acceptance test on res (its inliers and trunks set), the answer's
+// evidence and the runner-up's fraction of it.
+void applyVerdict(const ChanceEvidence &best, double runner_fraction,
+                  const GlobalLocalizerConfig &cfg, GlobalLocalization &res) {
+    res.significance = best.significance;
+    res.expected_chance_inliers = best.expected;
+    res.dbh_pairs = best.dbh_pairs;
+    AcceptanceConfig acfg;
+    acfg.min_significance = cfg.min_significance;
+    acfg.ambiguity_ratio = cfg.ambiguity_ratio;
+    acfg.min_inliers = cfg.min_inliers;
+    const AcceptanceVerdict verdict = judge(best, runner_fraction, acfg);
+    res.rejected = !verdict.accepted;
+    res.reason = verdict.reason;
+    if (verdict.accepted && res.inliers < cfg.min_inlier_fraction * res.local_trunks) {
+        res.rejected = true;
+        res.reason = "inlier fraction too low";
+    }
 }
 
 }  // namespace
@@ -294,6 +431,58 @@ double TreeMap::dbhAgreement(int j, double local_dbh, double resolution) const {
     return std::max(0.0, -std::log(std::min(1.0, p)));
 }
 
+// Verified hypotheses; poses that fall in the same small cell are verified once.
+struct TreeMap::Hypotheses {
+    std::vector<Hypothesis> list;
+    std::unordered_set<uint64_t> seen;
+
+    int best = 0;      // highest consensus so far
+    int verified = 0;  // every verified correspondence, duplicates included (time budget)
+    std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
+
+    void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
+             LocalizationStage stage, double seed_evidence) {
+        ++verified;
+        matches.push_back(pose);
+        const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
+        const auto qy = static_cast<int64_t>(std::floor(pose[1] / 0.25));
+        const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
+        const uint64_t h = cellKey3(qx, qy, qa);
+        if (!seen.insert(h).second) return;
+        list.push_back({pose, consensus(local, pose, grid, gate), stage, seed_evidence});
+        best = std::max(best, list.back().score);
+    }
+};
+
+// The local trunks as the matchers use them.
+struct TreeMap::Query {
+    // with_dbh: both sides have DBH and the test uses it (scoring_dbh filled).
+    Query(const Eigen::Ref<const Points2> &local_in, const GlobalLocalizerConfig &cfg,
+          const Eigen::VectorXd &local_dbh, bool with_dbh)
+        : input(local_in), tri(delaunayTriangulation(local_in, cfg.duplicate_tolerance_m)) {
+        usable = rowsOf(input, tri.used_points);
+        // Bounded work on huge local sets: hypotheses are scored on (and the fallback triangles
+        // built from) the trunks nearest the local origin, where the view is most complete.
+        near_rows = tri.used_points;
+        std::sort(near_rows.begin(), near_rows.end(), [&](int a, int b) {
+            return input.row(a).squaredNorm() < input.row(b).squaredNorm();
+        });
+        if (cfg.max_query_trunks > 0 && int(near_rows.size()) > cfg.max_query_trunks)
+            near_rows.resize(cfg.max_query_trunks);
+        scoring = rowsOf(input, near_rows);
+        if (!with_dbh) return;
+        scoring_dbh.resize(near_rows.size());
+        for (size_t k = 0; k < near_rows.size(); ++k) scoring_dbh[k] = local_dbh[near_rows[k]];
+    }
+
+    Eigen::Ref<const Points2> input;  // as given (may hold non-finite rows and duplicates)
+    Triangulation tri;                // of the usable trunks (rows of input)
+    Points2 usable;                   // finite, de-duplicated trunks (the rows tri kept)
+    std::vector<int> near_rows;       // rows of input nearest the origin (max_query_trunks)
+    Points2 scoring;                  // those rows: the hypotheses are scored on them
+    Eigen::VectorXd scoring_dbh;      // their diameters; empty unless with_dbh
+};
+
 GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                                      const GlobalLocalizerConfig &cfg,
                                      const Eigen::VectorXd &local_dbh) const {
@@ -301,29 +490,10 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         throw std::invalid_argument("localize: " + std::to_string(local_dbh.size()) +
                                     " DBH values for " + std::to_string(local_in.rows()) +
                                     " local trunks");
+    const Query q(local_in, cfg, local_dbh, cfg.dbh_evidence && hasDbh() && local_dbh.size() != 0);
     GlobalLocalization res;
-    const Triangulation tri = delaunayTriangulation(local_in, cfg.duplicate_tolerance_m);
-    // Usable local trunks: finite and de-duplicated (the rows the triangulation kept).
-    Points2 local(tri.used_points.size(), 2);
-    for (size_t k = 0; k < tri.used_points.size(); ++k)
-        local.row(k) = local_in.row(tri.used_points[k]);
-    res.local_trunks = static_cast<int>(local.rows());
-    // Bounded work on huge local sets: hypotheses are scored on (and the fallback triangles built
-    // from) the trunks nearest the local origin, where the view is most complete.
-    std::vector<int> near_rows = tri.used_points;  // rows of local_in
-    std::sort(near_rows.begin(), near_rows.end(), [&](int a, int b) {
-        return local_in.row(a).squaredNorm() < local_in.row(b).squaredNorm();
-    });
-    if (cfg.max_query_trunks > 0 && int(near_rows.size()) > cfg.max_query_trunks)
-        near_rows.resize(cfg.max_query_trunks);
-    Points2 scoring(near_rows.size(), 2);
-    for (size_t k = 0; k < near_rows.size(); ++k) scoring.row(k) = local_in.row(near_rows[k]);
-    Eigen::VectorXd scoring_dbh;  // empty unless both sides have DBH and the test uses it
-    if (cfg.dbh_evidence && hasDbh() && local_dbh.size() != 0) {
-        scoring_dbh.resize(near_rows.size());
-        for (size_t k = 0; k < near_rows.size(); ++k) scoring_dbh[k] = local_dbh[near_rows[k]];
-    }
-    if (tri.size() == 0) {
+    res.local_trunks = static_cast<int>(q.usable.rows());
+    if (q.tri.size() == 0) {
         res.reason = local_in.rows() < 3 ? "fewer than 3 trunks"
                                          : "fewer than 3 distinct, non-collinear trunks";
         return res;
@@ -332,89 +502,19 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
         res.reason = "map has no triangles";
         return res;
     }
+    if (cfg.matcher == Matcher::Paper) return localizePaper(res, q, cfg);
+    return localizeDefault(res, q, cfg);
+}
 
-    if (cfg.matcher == Matcher::Paper)
-        return localizePaper(res, local_in, tri, local, scoring, scoring_dbh, cfg);
-
-    std::vector<bool> on_hull(local_in.rows(), false);
-    for (size_t t = 0; t < tri.size(); ++t)
-        for (int k = 0; k < 3; ++k)
-            if (tri.neighbours[t][k] < 0) {
-                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
-                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
-            }
-
-    // Stage 1 (the paper's method): triangle stars matched by feature distance, vertex
-    // correspondence by edge lengths and the side test, rigid fit, consensus.
+GlobalLocalization TreeMap::localizeDefault(const GlobalLocalization &base, const Query &q,
+                                            const GlobalLocalizerConfig &cfg) const {
+    GlobalLocalization res = base;
     Hypotheses hyps;
-    std::vector<int> idx;
-    std::vector<double> dist;
-    std::vector<Eigen::Vector2d> lp(6), mp(6);
-    Eigen::Vector3d pose;
-    const StarSet lstars = buildStars(tri, local_in);
-    // Bounded work on large local sets: only stars among the scoring trunks, nearest first;
-    // stop once a pose explains most trunks (after min_stars_before_exit stars, so that a
-    // close runner-up still has its chance to be found).
-    std::vector<bool> near(local_in.rows(), false);
-    for (int r : near_rows) near[r] = true;
-    // Order key independent of the input row order: farthest vertex, then the vertices' spread.
-    auto reach2 = [&](const Star &s) {
-        double m = 0, sum = 0, sx = 0;
-        for (int v : s.vertices) {
-            m = std::max(m, local_in.row(v).squaredNorm());
-            sum += local_in.row(v).squaredNorm();
-            sx += local_in(v, 0);
-        }
-        return std::make_tuple(m, sum, sx);
-    };
-    std::vector<std::pair<std::tuple<double, double, double>, int>> order;
-    for (size_t i = 0; i < lstars.stars.size(); ++i) {
-        const Star &s = lstars.stars[i];
-        bool inside = true, hull = false;
-        for (int v : s.vertices) {
-            inside = inside && near[v];
-            hull = hull || on_hull[v];
-        }
-        if (!inside || (cfg.skip_hull_stars && hull)) continue;
-        order.emplace_back(reach2(s), static_cast<int>(i));
-    }
-    std::sort(order.begin(), order.end());
-    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * scoring.rows())));
-    Star star;
-    for (const auto &[reach, si] : order) {
-        const Star &canon = lstars.stars[si];
-        if (res.query_stars >= kMinStarsBeforeExit && hyps.best >= decisive) break;
-        ++res.query_stars;
-        for (int r : rotationsToTry(tri, local_in, canon.centre, cfg)) {
-            makeStar(tri, local_in, lstars.descriptors, canon.centre, r, star);
-            if (stars_.stars.empty()) break;
-            index_.knn(embedFeature(star.feature), cfg.candidates_per_star,
-                       cfg.max_feature_distance_m, idx, dist);
-            // All k returned: the nearest stars in feature space were kept, chance matches are
-            // no longer spread over the whole tolerance; their edges are not tested for it.
-            const bool saturated = int(idx.size()) >= cfg.candidates_per_star;
-            for (int m : idx) {
-                const Star &ms = stars_.stars[m];
-                double deviation = 0;
-                if (!starsAgree(local_in, star, xy_, ms, cfg.edge_tolerance_m, &deviation))
-                    continue;
-                for (int k = 0; k < 6; ++k) {
-                    lp[k] = local_in.row(star.vertices[k]).transpose();
-                    mp[k] = xy_.row(ms.vertices[k]).transpose();
-                }
-                const double seed =
-                    cfg.seed_evidence && !saturated
-                        ? seedEvidence(deviation, cfg.edge_tolerance_m, 9, 2 * cfg.min_sigma_m)
-                        : 0.0;
-                if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star,
-                             seed);
-            }
-        }
-    }
+    // Early exit once a pose explains most trunks (bounded time on large local sets).
+    const int decisive = std::max(2 * cfg.min_inliers, int(std::ceil(0.6 * q.scoring.rows())));
+    res.query_stars = starHypotheses(q, cfg, decisive, hyps);
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage1 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
-                                       scoring, scoring_dbh, tri.used_points, cfg);
+    GlobalLocalization stage1 = decide(res, hyps.list, res.hypotheses, q, cfg);
     stage1.matched_triangles = agreeing(hyps.matches, stage1, cfg);
     if (!stage1.rejected || !cfg.triangle_fallback) {
         if (stage1.rejected && hyps.list.empty())
@@ -422,82 +522,130 @@ GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                                                  : "no matching triangle star in the map";
         return stage1;
     }
-
-    // Stage 2 (fallback when missed or false trunks broke every star): triangles of each trunk
-    // with two of its nearest neighbours, matched by their side lengths against the map's such
-    // triangles, verified by the same consensus and ratio test.
-    if (triplets_.empty() || tri.used_points.size() < 3) return stage1;
-    lp.resize(3);
-    mp.resize(3);
-    const double tol = cfg.edge_tolerance_m;
-    std::vector<int> fallback_rows = near_rows;
-    if (cfg.max_fallback_trunks > 0 && int(fallback_rows.size()) > cfg.max_fallback_trunks)
-        fallback_rows.resize(cfg.max_fallback_trunks);
-    std::vector<std::array<int, 3>> ltris =
-        neighbourTriangles(local_in, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
-    // Nearest triangles first (most completely observed); stop once a pose explains most trunks
-    // (RANSAC-style early exit: bounded time on large local sets).
-    // Key independent of the input row order (ties broken by the vertices' spread).
-    auto reach = [&](const std::array<int, 3> &t) {
-        const double a = local_in.row(t[0]).squaredNorm(), b = local_in.row(t[1]).squaredNorm(),
-                     c = local_in.row(t[2]).squaredNorm();
-        return std::make_tuple(std::max({a, b, c}), a + b + c,
-                               local_in(t[0], 0) + local_in(t[1], 0) + local_in(t[2], 0));
-    };
-    std::sort(ltris.begin(), ltris.end(),
-              [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
-    // Bounded time where nothing matches (an absent place in a dense map verifies thousands of
-    // chance triangle matches): at most max_fallback_matches, nearest triangles first.
-    const int budget = hyps.verified + std::max(0, cfg.max_fallback_matches);
-    for (const auto &t : ltris) {
-        if (hyps.best >= decisive || hyps.verified >= budget) break;
-        const Eigen::Vector3d s0 = triangleSides(local_in, t);
-        for (int r = 0; r < 3; ++r) {
-            const Eigen::Vector3d e = triangleSides(local_in, t, r);
-            if (r > 0 && e[0] > s0[0] * (1 + cfg.rotation_ambiguity) + tol) continue;
-            triangle_index_.knn(e, cfg.candidates_per_triangle, std::sqrt(3.0) * tol, idx, dist);
-            // The side differences searched: within tol each, or within the k-th neighbour's
-            // distance when all k were returned (a dense map: only the nearest were kept).
-            const double radius =
-                int(idx.size()) >= cfg.candidates_per_triangle ? std::min(tol, dist.back()) : tol;
-            for (int m : idx) {
-                const auto &mt = triplets_[m];
-                const Eigen::Vector3d diff = triangleSides(xy_, mt) - e;
-                if (diff.cwiseAbs().maxCoeff() > tol) continue;
-                for (int k = 0; k < 3; ++k) {
-                    lp[k] = local_in.row(t[(r + k) % 3]).transpose();
-                    mp[k] = xy_.row(mt[k]).transpose();
-                }
-                const double seed = cfg.seed_evidence
-                                        ? seedEvidence(diff.norm(), radius, 3, 2 * cfg.min_sigma_m)
-                                        : 0.0;
-                if (fitConsistent(lp, mp, tol, pose))
-                    hyps.add(pose, scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle,
-                             seed);
-            }
-        }
-    }
+    // Stage 2 (fallback when missed or false trunks broke every star), held to the same test.
+    if (triplets_.empty() || q.tri.used_points.size() < 3) return stage1;
+    triangleHypotheses(q, cfg, decisive, hyps);
     res.hypotheses = static_cast<int>(hyps.list.size());
-    GlobalLocalization stage2 = decide(res, hyps.list, static_cast<int>(hyps.list.size()), local,
-                                       scoring, scoring_dbh, tri.used_points, cfg);
+    GlobalLocalization stage2 = decide(res, hyps.list, res.hypotheses, q, cfg);
     if (stage2.rejected && hyps.list.empty()) stage2.reason = "no matching triangle in the map";
     stage2.matched_triangles = agreeing(hyps.matches, stage2, cfg);
     return stage2;
 }
 
-GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
-                                          const Eigen::Ref<const Points2> &local,
-                                          const Triangulation &tri, const Points2 &usable,
-                                          const Points2 &scoring,
-                                          const Eigen::VectorXd &scoring_dbh,
-                                          const GlobalLocalizerConfig &cfg) const {
-    std::vector<bool> on_hull(local.rows(), false);
-    for (size_t t = 0; t < tri.size(); ++t)
-        for (int k = 0; k < 3; ++k)
-            if (tri.neighbours[t][k] < 0) {
-                on_hull[tri.triangles[t][(k + 1) % 3]] = true;
-                on_hull[tri.triangles[t][(k + 2) % 3]] = true;
+int TreeMap::starHypotheses(const Query &q, const GlobalLocalizerConfig &cfg, int decisive,
+                            Hypotheses &hyps) const {
+    const StarSet lstars = buildStars(q.tri, q.input);
+    const std::vector<bool> on_hull = hullFlags(q.tri, q.input.rows());
+    // Stop once a pose explains most trunks, after kMinStarsBeforeExit stars (so that a close
+    // runner-up still has its chance to be found).
+    int query_stars = 0;
+    Star star;
+    for (int si : starOrder(q.input, q.near_rows, lstars, on_hull, cfg.skip_hull_stars)) {
+        if (query_stars >= kMinStarsBeforeExit && hyps.best >= decisive) break;
+        ++query_stars;
+        const int centre = lstars.stars[si].centre;
+        for (int r : rotationsToTry(q.tri, q.input, centre, cfg)) {
+            makeStar(q.tri, q.input, lstars.descriptors, centre, r, star);
+            if (stars_.stars.empty()) break;
+            matchStar(q, star, cfg, hyps);
+        }
+    }
+    return query_stars;
+}
+
+void TreeMap::matchStar(const Query &q, const Star &star, const GlobalLocalizerConfig &cfg,
+                        Hypotheses &hyps) const {
+    std::vector<int> idx;
+    std::vector<double> dist;
+    index_.knn(embedFeature(star.feature), cfg.candidates_per_star, cfg.max_feature_distance_m, idx,
+               dist);
+    // All k returned: the nearest stars in feature space were kept, chance matches are no
+    // longer spread over the whole tolerance; their edges are not tested for it.
+    const bool saturated = int(idx.size()) >= cfg.candidates_per_star;
+    std::vector<Eigen::Vector2d> lp(6), mp(6);
+    Eigen::Vector3d pose;
+    for (int m : idx) {
+        const Star &ms = stars_.stars[m];
+        double deviation = 0;
+        if (!starsAgree(q.input, star, xy_, ms, cfg.edge_tolerance_m, &deviation)) continue;
+        for (int k = 0; k < 6; ++k) {
+            lp[k] = q.input.row(star.vertices[k]).transpose();
+            mp[k] = xy_.row(ms.vertices[k]).transpose();
+        }
+        const double seed =
+            cfg.seed_evidence && !saturated
+                ? seedEvidence(deviation, cfg.edge_tolerance_m, 9, 2 * cfg.min_sigma_m)
+                : 0.0;
+        if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
+            hyps.add(pose, q.scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star, seed);
+    }
+}
+
+void TreeMap::triangleHypotheses(const Query &q, const GlobalLocalizerConfig &cfg, int decisive,
+                                 Hypotheses &hyps) const {
+    std::vector<int> fallback_rows = q.near_rows;
+    if (cfg.max_fallback_trunks > 0 && int(fallback_rows.size()) > cfg.max_fallback_trunks)
+        fallback_rows.resize(cfg.max_fallback_trunks);
+    std::vector<std::array<int, 3>> ltris =
+        neighbourTriangles(q.input, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
+    sortByReach(ltris, q.input);
+    // Bounded time where nothing matches (an absent place in a dense map verifies thousands of
+    // chance triangle matches): at most max_fallback_matches, nearest triangles first.
+    const int budget = hyps.verified + std::max(0, cfg.max_fallback_matches);
+    for (const auto &t : ltris) {
+        if (hyps.best >= decisive || hyps.verified >= budget) break;
+        matchTriangle(q, t, cfg, hyps);
+    }
+}
+
+void TreeMap::matchTriangle(const Query &q, const std::array<int, 3> &t,
+                            const GlobalLocalizerConfig &cfg, Hypotheses &hyps) const {
+    const double tol = cfg.edge_tolerance_m;
+    std::vector<int> idx;
+    std::vector<double> dist;
+    std::vector<Eigen::Vector2d> lp(3), mp(3);
+    Eigen::Vector3d pose;
+    const Eigen::Vector3d s0 = triangleSides(q.input, t);
+    for (int r = 0; r < 3; ++r) {
+        const Eigen::Vector3d e = triangleSides(q.input, t, r);
+        if (r > 0 && e[0] > s0[0] * (1 + cfg.rotation_ambiguity) + tol) continue;
+        triangle_index_.knn(e, cfg.candidates_per_triangle, std::sqrt(3.0) * tol, idx, dist);
+        // The side differences searched: within tol each, or within the k-th neighbour's
+        // distance when all k were returned (a dense map: only the nearest were kept).
+        const double radius =
+            int(idx.size()) >= cfg.candidates_per_triangle ? std::min(tol, dist.back()) : tol;
+        for (int m : idx) {
+            const auto &mt = triplets_[m];
+            const Eigen::Vector3d diff = triangleSides(xy_, mt) - e;
+            if (diff.cwiseAbs().maxCoeff() > tol) continue;
+            for (int k = 0; k < 3; ++k) {
+                lp[k] = q.input.row(t[(r + k) % 3]).transpose();
+                mp[k] = xy_.row(mt[k]).transpose();
             }
+            const double seed =
+                cfg.seed_evidence ? seedEvidence(diff.norm(), radius, 3, 2 * cfg.min_sigma_m) : 0.0;
+            if (fitConsistent(lp, mp, tol, pose))
+                hyps.add(pose, q.scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle,
+                         seed);
+        }
+    }
+}
+
+GlobalLocalization TreeMap::localizePaper(GlobalLocalization res, const Query &q,
+                                          const GlobalLocalizerConfig &cfg) const {
+    std::vector<Hypothesis> hyps = paperHypotheses(q, cfg, res.query_stars);
+    res.hypotheses = static_cast<int>(hyps.size());
+    const int searched = static_cast<int>(hyps.size());  // the bins tested
+    GlobalLocalization out = decide(res, hyps, searched, q, cfg);
+    out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
+    if (out.rejected && hyps.empty())
+        out.reason = res.query_stars == 0 ? "no interior non-peripheral triangle star"
+                                          : "no matching triangle star in the map";
+    return out;
+}
+
+std::vector<Hypothesis> TreeMap::paperHypotheses(const Query &q, const GlobalLocalizerConfig &cfg,
+                                                 int &query_stars) const {
     // Eq. 4's accumulator: (beta, Dx, Dy) bin -> votes and the sum of the voting poses.
     struct Bin {
         int votes = 0;
@@ -505,8 +653,8 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
         double c = 0, s = 0;  // summed rotation (angles average on the circle)
     };
     std::unordered_map<uint64_t, Bin> bins;
-    std::vector<Eigen::Vector3d> matches;
-    const StarSet lstars = buildStars(tri, local);
+    const std::vector<bool> on_hull = hullFlags(q.tri, q.input.rows());
+    const StarSet lstars = buildStars(q.tri, q.input);
     std::vector<int> idx;
     std::vector<double> dist;
     Eigen::Matrix<double, 6, 2> L, M;
@@ -514,37 +662,16 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
         bool peripheral = false;
         for (int v : star.vertices) peripheral = peripheral || on_hull[v];
         if (peripheral || stars_.stars.empty()) continue;
-        ++res.query_stars;
+        ++query_stars;
         index_.knn(embedFeature(star.feature), cfg.candidates_per_star, cfg.max_feature_distance_m,
                    idx, dist);
         for (int m : idx) {
             const Star &ms = stars_.stars[m];
             for (int k = 0; k < 6; ++k) {  // Eq. 2: vertices correspond in canonical order
-                L.row(k) = local.row(star.vertices[k]);
+                L.row(k) = q.input.row(star.vertices[k]);
                 M.row(k) = xy_.row(ms.vertices[k]);
             }
-            const Eigen::Vector2d lc = L.colwise().mean(), mc = M.colwise().mean();
-            // Eq. 3: candidate angles between corresponding centre edges; the one with the
-            // smallest squared vertex residual wins.
-            double best_cost = std::numeric_limits<double>::infinity();
-            Eigen::Vector3d pose;
-            for (int e = 0; e < 3; ++e) {
-                const Eigen::Vector2d dl = L.row((e + 1) % 3) - L.row(e);
-                const Eigen::Vector2d dm = M.row((e + 1) % 3) - M.row(e);
-                const double beta =
-                    wrapAngle(std::atan2(dm.y(), dm.x()) - std::atan2(dl.y(), dl.x()));
-                const Eigen::Vector3d cand(0, 0, beta);
-                const Eigen::Vector2d d = mc - apply(cand, lc);  // D = centroid difference
-                double cost = 0;
-                for (int k = 0; k < 6; ++k)
-                    cost += (apply(cand, L.row(k).transpose()) + d - M.row(k).transpose())
-                                .squaredNorm();
-                if (cost < best_cost) {
-                    best_cost = cost;
-                    pose = {d.x(), d.y(), beta};
-                }
-            }
-            matches.push_back(pose);
+            const Eigen::Vector3d pose = paperPose(L, M);
             const uint64_t key =
                 cellKey3(static_cast<int64_t>(std::floor(pose[2] / cfg.paper_angle_bin_rad)),
                          static_cast<int64_t>(std::floor(pose[0] / cfg.paper_translation_bin_m)),
@@ -569,15 +696,7 @@ GlobalLocalization TreeMap::localizePaper(GlobalLocalization res,
         return std::make_tuple(a.pose[0], a.pose[1], a.pose[2]) <
                std::make_tuple(b.pose[0], b.pose[1], b.pose[2]);
     });
-    res.hypotheses = static_cast<int>(hyps.size());
-    const int searched = static_cast<int>(hyps.size());  // the bins tested
-    GlobalLocalization out =
-        decide(res, hyps, searched, usable, scoring, scoring_dbh, tri.used_points, cfg);
-    out.matched_triangles = hyps.empty() ? 0 : hyps.front().score;
-    if (out.rejected && hyps.empty())
-        out.reason = res.query_stars == 0 ? "no interior non-peripheral triangle star"
-                                          : "no matching triangle star in the map";
-    return out;
+    return hyps;
 }
 
 int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
@@ -644,132 +763,96 @@ double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose
     return sum;
 }
 
+// The answer and the runner-up among the hypotheses, with their evidence.
+struct TreeMap::Selection {
+    size_t best = 0;
+    ChanceEvidence best_evidence;
+    int runner = -1;  // -1: none distinct
+    ChanceEvidence runner_evidence;
+};
+
+TreeMap::Selection TreeMap::select(std::vector<Hypothesis> &hyps, int searched, const Query &q,
+                                   const GlobalLocalizerConfig &cfg) const {
+    // Stable: among equal scores the star hypotheses (found first) win.
+    std::stable_sort(hyps.begin(), hyps.end(),
+                     [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
+    // The test is made at a hypothesis' own pose, fixed by its seed points (the refinement
+    // moves the pose to gather inliers, which chance alignments in a dense map also gain).
+    // The most significant of the best-scoring few wins (in a sparse view several score alike
+    // and only the closeness of the fit tells them apart; paper: the fullest bin); the runner-up is
+    // the most significant distinct one of them, else the best-scoring distinct hypothesis.
+    auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
+    auto evidenceOf = [&](const Hypothesis &h) {
+        return evidence(q.scoring, q.scoring_dbh, h.pose, seeds(h.stage), searched, h.seed_evidence,
+                        cfg);
+    };
+    std::vector<ChanceEvidence> top;
+    for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)
+        top.push_back(evidenceOf(hyps[i]));
+    Selection sel;
+    for (size_t i = 1; cfg.matcher != Matcher::Paper && i < top.size(); ++i)
+        if (top[i].significance > top[sel.best].significance) sel.best = i;
+    sel.best_evidence = top[sel.best];
+    const Eigen::Vector3d best = hyps[sel.best].pose;
+    auto distinct = [&](const Hypothesis &h) {
+        return (h.pose.head<2>() - best.head<2>()).norm() > cfg.distinct_translation_m ||
+               std::abs(wrapAngle(h.pose[2] - best[2])) > cfg.distinct_yaw_rad;
+    };
+    for (size_t i = 0; i < top.size(); ++i)
+        if (distinct(hyps[i]) &&
+            (sel.runner < 0 || top[i].significance > sel.runner_evidence.significance)) {
+            sel.runner = static_cast<int>(i);
+            sel.runner_evidence = top[i];
+        }
+    for (size_t i = top.size(); sel.runner < 0 && i < hyps.size(); ++i)
+        if (distinct(hyps[i])) {
+            sel.runner = static_cast<int>(i);
+            sel.runner_evidence = evidenceOf(hyps[i]);
+        }
+    return sel;
+}
+
 GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                                   int searched, const Points2 &local, const Points2 &scoring,
-                                   const Eigen::VectorXd &scoring_dbh,
-                                   const std::vector<int> &local_rows,
+                                   int searched, const Query &q,
                                    const GlobalLocalizerConfig &cfg) const {
     GlobalLocalization res = base;
     if (hyps.empty()) {
         res.reason = "no hypothesis";
         return res;
     }
-    // Stable: among equal scores the star hypotheses (found first) win.
-    std::stable_sort(hyps.begin(), hyps.end(),
-                     [](const Hypothesis &a, const Hypothesis &b) { return a.score > b.score; });
-    // The test is made at a hypothesis' own pose, fixed by its seed points (the refinement
-    // below moves the pose to gather inliers, which chance alignments in a dense map also gain).
-    // The most significant of the best-scoring few wins (in a sparse view several score alike
-    // and only the closeness of the fit tells them apart; paper: the fullest bin); the runner-up is
-    // the most significant distinct one of them, else the best-scoring distinct hypothesis.
-    auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
-    auto evidenceOf = [&](const Hypothesis &h) {
-        return evidence(scoring, scoring_dbh, h.pose, seeds(h.stage), searched, h.seed_evidence,
-                        cfg);
-    };
-    std::vector<ChanceEvidence> top;
-    for (size_t i = 0; i < std::min<size_t>(kEvaluatedHypotheses, hyps.size()); ++i)
-        top.push_back(evidenceOf(hyps[i]));
-    size_t bi = 0;  // paper: the fullest bin wins (Eq. 4), as written
-    for (size_t i = 1; cfg.matcher != Matcher::Paper && i < top.size(); ++i)
-        if (top[i].significance > top[bi].significance) bi = i;
-    const Hypothesis best = hyps[bi];
-    const ChanceEvidence best_evidence = top[bi];
-    auto distinct = [&](const Hypothesis &h) {
-        return (h.pose.head<2>() - best.pose.head<2>()).norm() > cfg.distinct_translation_m ||
-               std::abs(wrapAngle(h.pose[2] - best.pose[2])) > cfg.distinct_yaw_rad;
-    };
-    int ri = -1;
-    ChanceEvidence runner;
-    for (size_t i = 0; i < top.size(); ++i)
-        if (distinct(hyps[i]) && (ri < 0 || top[i].significance > runner.significance)) {
-            ri = static_cast<int>(i);
-            runner = top[i];
-        }
-    for (size_t i = top.size(); ri < 0 && i < hyps.size(); ++i)
-        if (distinct(hyps[i])) {
-            ri = static_cast<int>(i);
-            runner = evidenceOf(hyps[i]);
-        }
+    const Selection sel = select(hyps, searched, q, cfg);
+    const Hypothesis best = hyps[sel.best];
     res.stage = best.stage;
     res.runner_up = RunnerUp{};
     res.second_inliers = 0;
-    if (ri >= 0) {
+    if (sel.runner >= 0) {
         RunnerUp &r = res.runner_up;
         r.exists = true;
-        r.x = hyps[ri].pose[0];
-        r.y = hyps[ri].pose[1];
-        r.yaw = wrapAngle(hyps[ri].pose[2]);
-        r.inliers = runner.inliers;
-        r.significance = runner.significance;
+        r.x = hyps[sel.runner].pose[0];
+        r.y = hyps[sel.runner].pose[1];
+        r.yaw = wrapAngle(hyps[sel.runner].pose[2]);
+        r.inliers = sel.runner_evidence.inliers;
+        r.significance = sel.runner_evidence.significance;
         res.second_inliers = r.inliers;
     }
 
-    // Least-squares refinement over all inliers, re-associating each round.
-    Eigen::Vector3d pose = best.pose;
     std::vector<std::pair<int, int>> pairs;
-    for (int it = 0; it < std::max(1, cfg.refine_iterations); ++it) {
-        pairs = associate(local, pose, grid_, cfg.inlier_gate_m);
-        if (pairs.size() < 3) break;
-        std::vector<Eigen::Vector2d> a, b;
-        for (const auto &[i, j] : pairs) {
-            a.push_back(local.row(i).transpose());
-            b.push_back(xy_.row(j).transpose());
-        }
-        const Eigen::Vector3d next = fitRigid2D(a, b);
-        const bool converged =
-            (next - pose).head<2>().norm() < 1e-9 && std::abs(wrapAngle(next[2] - pose[2])) < 1e-11;
-        pose = next;
-        if (converged) break;
-    }
-    pairs = associate(local, pose, grid_, cfg.inlier_gate_m);
-    pose[2] = wrapAngle(pose[2]);
+    const Eigen::Vector3d pose = refinePose(q.usable, xy_, grid_, best.pose, cfg, &pairs);
     res.x = pose[0];
     res.y = pose[1];
     res.yaw = pose[2];
     res.inliers = static_cast<int>(pairs.size());
     res.matches.clear();
-    for (const auto &[i, j] : pairs) res.matches.emplace_back(local_rows[i], j);
+    for (const auto &[i, j] : pairs) res.matches.emplace_back(q.tri.used_points[i], j);
+    setCovariance(q.usable, xy_, pairs, cfg.min_sigma_m, res);
 
-    // Covariance sigma^2 (J^T J)^-1 with r_i = R p_i + t - q_i.
-    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-    double sse = 0;
-    const double c = std::cos(pose[2]), s = std::sin(pose[2]);
-    for (const auto &[i, j] : pairs) {
-        const Eigen::Vector2d p = local.row(i).transpose();
-        const Eigen::Vector2d r = apply(pose, p) - xy_.row(j).transpose();
-        sse += r.squaredNorm();
-        Eigen::Matrix<double, 2, 3> J;
-        J << 1, 0, -s * p.x() - c * p.y(), 0, 1, c * p.x() - s * p.y();
-        JtJ += J.transpose() * J;
-    }
-    const int n = res.inliers;
-    res.rms_m = n > 0 ? std::sqrt(sse / n) : 0.0;
-    const double dof = std::max(1, 2 * n - 3);
-    const double sigma2 = std::max(sse / dof, cfg.min_sigma_m * cfg.min_sigma_m);
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(JtJ);
-    if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
-
-    res.significance = best_evidence.significance;
-    res.expected_chance_inliers = best_evidence.expected;
-    res.dbh_pairs = best_evidence.dbh_pairs;
-    AcceptanceConfig acfg;
-    acfg.min_significance = cfg.min_significance;
-    acfg.ambiguity_ratio = cfg.ambiguity_ratio;
-    acfg.min_inliers = cfg.min_inliers;
     // Paper: the runner-up bin's votes over the fullest's (the matcher's own score); its bins
     // are coarse (0.5 m, 2 deg), so a place split over two bins stays ambiguous.
     const double runner_fraction =
         cfg.matcher == Matcher::Paper
-            ? (ri >= 0 ? double(hyps[ri].score) / std::max(best.score, 1) : 0.0)
-            : runnerUpFraction(best_evidence.significance, res.runner_up);
-    const AcceptanceVerdict verdict = judge(best_evidence, runner_fraction, acfg);
-    res.rejected = !verdict.accepted;
-    res.reason = verdict.reason;
-    if (verdict.accepted && n < cfg.min_inlier_fraction * res.local_trunks) {
-        res.rejected = true;
-        res.reason = "inlier fraction too low";
-    }
+            ? (sel.runner >= 0 ? double(hyps[sel.runner].score) / std::max(best.score, 1) : 0.0)
+            : runnerUpFraction(sel.best_evidence.significance, res.runner_up);
+    applyVerdict(sel.best_evidence, runner_fraction, cfg, res);
     return res;
 }
 

@@ -3,6 +3,7 @@
 // Autonomous Robots in Forests with Delaunay Triangulation").
 #pragma once
 
+#include <array>
 #include <string>
 #include <utility>
 #include <vector>
@@ -134,22 +135,46 @@ class TreeMap {
     const StarSet &stars() const { return stars_; }
 
   private:
+    struct Query;       // the local trunks as the matchers use them (global_localizer.cpp)
+    struct Hypotheses;  // the verified hypotheses of one query (global_localizer.cpp)
+    struct Selection;   // the tested answer and runner-up among the hypotheses
+
+    // Stage 1, stars (the paper's method, verified by edge lengths and the side test), then
+    // when rejected stage 2, single triangles; each stage ends in decide().
+    GlobalLocalization localizeDefault(const GlobalLocalization &base, const Query &q,
+                                       const GlobalLocalizerConfig &cfg) const;
+    // Stage 1's hypotheses into hyps, nearest stars first, until one explains `decisive`
+    // trunks; returns the query stars tried.
+    int starHypotheses(const Query &q, const GlobalLocalizerConfig &cfg, int decisive,
+                       Hypotheses &hyps) const;
+    // One local star (in one vertex rotation) against its nearest map stars.
+    void matchStar(const Query &q, const Star &star, const GlobalLocalizerConfig &cfg,
+                   Hypotheses &hyps) const;
+    // Stage 2's hypotheses into hyps: triangles of each trunk with two of its nearest
+    // neighbours, nearest first, bounded by decisive and max_fallback_matches.
+    void triangleHypotheses(const Query &q, const GlobalLocalizerConfig &cfg, int decisive,
+                            Hypotheses &hyps) const;
+    void matchTriangle(const Query &q, const std::array<int, 3> &t,
+                       const GlobalLocalizerConfig &cfg, Hypotheses &hyps) const;
     // Li et al. as written: interior local stars with no vertex on the local hull, matched to
     // map stars by feature distance; vertices in canonical order (Eq. 2); the rotation is the
     // candidate angle between corresponding centre edges minimizing the squared vertex
     // residuals (Eq. 3); every match votes in (beta, Dx, Dy) and the fullest bin wins (Eq. 4).
     // Then the same refinement and acceptance test as the default matcher.
-    GlobalLocalization localizePaper(GlobalLocalization res, const Eigen::Ref<const Points2> &local,
-                                     const Triangulation &tri, const Points2 &usable,
-                                     const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
+    GlobalLocalization localizePaper(GlobalLocalization res, const Query &q,
                                      const GlobalLocalizerConfig &cfg) const;
+    // Eq. 2-4: one hypothesis per (beta, Dx, Dy) bin, scored by its votes, in a deterministic
+    // order; query_stars counts the stars that voted.
+    std::vector<Hypothesis> paperHypotheses(const Query &q, const GlobalLocalizerConfig &cfg,
+                                            int &query_stars) const;
     // searched: the hypotheses tested (the multiple-testing count of the acceptance test):
     // verified matches whose poses are distinct by hash (a repeat is not tested again).
     GlobalLocalization decide(const GlobalLocalization &base, std::vector<Hypothesis> &hyps,
-                              int searched, const Points2 &local, const Points2 &scoring,
-                              const Eigen::VectorXd &scoring_dbh,
-                              const std::vector<int> &local_rows,
-                              const GlobalLocalizerConfig &cfg) const;
+                              int searched, const Query &q, const GlobalLocalizerConfig &cfg) const;
+    // Sorts hyps by score and tests the best few: the most significant wins (paper: the
+    // fullest), the runner-up is the most significant distinct one.
+    Selection select(std::vector<Hypothesis> &hyps, int searched, const Query &q,
+                     const GlobalLocalizerConfig &cfg) const;
     // Verified matches whose pose agrees with the answer (within the distinct thresholds).
     int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
                  const GlobalLocalizerConfig &cfg) const;
