@@ -171,3 +171,61 @@ TEST(Acceptance, DbhEvidenceIsTheGammaTail) {
     EXPECT_NEAR(dbhEvidence(4, 10.0), 10.0 - std::log(1 + 10.0 + 50.0 + 1000.0 / 6), 1e-9);
     EXPECT_EQ(dbhEvidence(0, 10.0), 0.0);
 }
+
+namespace {
+// Rows (0,0), (1,0), (0,1) and `p` on the local side; the map side the same, p's moved by e.
+double farTrunkRadius(const Eigen::Vector2d &p, const Eigen::Vector2d &e) {
+    forestslam::Points2 local(4, 2), map(4, 2);
+    local << 0, 0, 1, 0, 0, 1, p.x(), p.y();
+    map = local;
+    map.row(3) += e.transpose();
+    const std::vector<std::pair<int, int>> pairs = {{0, 0}, {1, 1}, {2, 2}, {3, 3}};
+    return forestslam::localization::leaveOneOutRadii(local, map, pairs)[3];
+}
+}  // namespace
+
+TEST(Acceptance, LeaveOneOutRadiusIsTheResidualAtTheCentroid) {
+    // Four exact trunks around a fifth off by (0.1, 0.05): the fit to the four is exact and the
+    // fifth, at their centroid, has no lever arm: its radius is its plain residual.
+    forestslam::Points2 local(5, 2), map(5, 2);
+    local << 5, 5, -5, 5, -5, -5, 5, -5, 0, 0;
+    map = local;
+    map.row(4) << 0.1, 0.05;
+    std::vector<std::pair<int, int>> pairs;
+    for (int i = 0; i < 5; ++i) pairs.emplace_back(i, i);
+    const auto radii = forestslam::localization::leaveOneOutRadii(local, map, pairs);
+    ASSERT_EQ(radii.size(), 5u);
+    EXPECT_NEAR(radii[4], std::hypot(0.1, 0.05), 1e-9);
+    EXPECT_TRUE(forestslam::localization::leaveOneOutRadii(local.topRows(3), map.topRows(3),
+                                                           {{0, 0}, {1, 1}, {2, 2}})
+                    .empty());
+}
+
+TEST(Acceptance, LeaveOneOutRadiusDiscountsTheLeverArm) {
+    // A trunk 20 m from a 1 m seed triangle: the triangle's rotation error moves it along its
+    // arc, so an error along the arc is less surprising than the same error towards the seeds.
+    const Eigen::Vector2d far(20, 0);
+    const double along = farTrunkRadius(far, {0, 0.2}), towards = farTrunkRadius(far, {0.2, 0});
+    EXPECT_LT(along, 0.2 / 3);
+    EXPECT_GT(towards, 0.2);
+}
+
+TEST(Acceptance, LeaveOneOutRadiiOfChanceLandingsAreConservative) {
+    // Under a chance pose the map trunk lies anywhere in the gate around a far trunk's predicted
+    // position: the closeness of its radius is at most Exp(1) (mean <= 1, P(> 3) <= e^-3).
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> u(0, 1);
+    const double density = 0.02, gate = 0.5;
+    double sum = 0;
+    int above3 = 0;
+    const int n = 20000;
+    for (int i = 0; i < n; ++i) {
+        const double r = gate * std::sqrt(u(rng)), a = 2 * 3.14159265358979 * u(rng);
+        const double radius = farTrunkRadius({15, 3}, {r * std::cos(a), r * std::sin(a)});
+        const double v = forestslam::localization::closeness(density, radius, gate, 0.0);
+        sum += v;
+        above3 += v > 3;
+    }
+    EXPECT_LT(sum / n, 1.0 + 0.03);
+    EXPECT_LT(double(above3) / n, std::exp(-3.0) + 0.005);
+}

@@ -10,6 +10,11 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kLn10 = 2.302585092994046;
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
+
+Eigen::Vector2d rotate(double yaw, const Eigen::Vector2d &p) {
+    const double c = std::cos(yaw), s = std::sin(yaw);
+    return {c * p.x() - s * p.y(), s * p.x() + c * p.y()};
+}
 }  // namespace
 
 DensityGrid::DensityGrid(const Eigen::Ref<const Points2> &xy, double cell_m, int half_window)
@@ -149,6 +154,49 @@ ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed
     }
     e.significance = tail - std::log10(std::max(1, hypotheses));
     return e;
+}
+
+std::vector<double> leaveOneOutRadii(const Points2 &local, const Points2 &map,
+                                     const std::vector<std::pair<int, int>> &pairs) {
+    const size_t n = pairs.size();
+    if (n < 4) return {};
+    Eigen::Vector2d sp = Eigen::Vector2d::Zero(), sq = Eigen::Vector2d::Zero();
+    double sdot = 0, scross = 0, spp = 0;
+    auto P = [&](size_t k) { return Eigen::Vector2d(local.row(pairs[k].first).transpose()); };
+    auto Q = [&](size_t k) { return Eigen::Vector2d(map.row(pairs[k].second).transpose()); };
+    for (size_t k = 0; k < n; ++k) {
+        const Eigen::Vector2d p = P(k), q = Q(k);
+        sp += p;
+        sq += q;
+        sdot += p.dot(q);
+        scross += p.x() * q.y() - p.y() * q.x();
+        spp += p.squaredNorm();
+    }
+    std::vector<double> out(n);
+    const double m = double(n - 1);
+    const double a = 1.0 + 1.0 / m;  // own noise + the fit's translation at the centroid
+    for (size_t k = 0; k < n; ++k) {
+        const Eigen::Vector2d p = P(k), q = Q(k);
+        const Eigen::Vector2d lc = (sp - p) / m, mc = (sq - q) / m;
+        const double sxx = (sdot - p.dot(q)) - m * lc.dot(mc);
+        const double sxy =
+            (scross - (p.x() * q.y() - p.y() * q.x())) - m * (lc.x() * mc.y() - lc.y() * mc.x());
+        const double yaw = std::atan2(sxy, sxx);
+        const Eigen::Vector2d t = mc - rotate(yaw, lc);
+        const Eigen::Vector2d e = rotate(yaw, p) + t - q;
+        const double spread = (spp - p.squaredNorm()) - m * lc.squaredNorm();
+        if (!(spread > 0)) {
+            out[k] = e.norm();
+            continue;
+        }
+        // The lever arm's perpendicular in the map frame, scaled by 1 / sqrt(S).
+        const Eigen::Vector2d r = p - lc;
+        const Eigen::Vector2d v = rotate(yaw, Eigen::Vector2d(-r.y(), r.x())) / std::sqrt(spread);
+        const double vv = v.squaredNorm(), ve = v.dot(e);
+        const double mahalanobis2 = (e.squaredNorm() - ve * ve / (a + vv)) / a;
+        out[k] = std::sqrt(std::max(0.0, mahalanobis2) * std::sqrt(a * (a + vv)));
+    }
+    return out;
 }
 
 AcceptanceVerdict judge(const ChanceEvidence &best, double runner_up_fraction,

@@ -37,6 +37,7 @@
 #include <cstdint>
 #include <string>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "forestslam/common/types.hpp"
@@ -82,6 +83,23 @@ double closeness(double density, double d_m, double gate_m, double floor_m);
 // -ln P(norm of m chance edge differences <= deviation_m) = m ln(R / d), d at least
 // floor_m * sqrt(m) (the positioning noise), 0 when d >= R (see above).
 double seedEvidence(double deviation_m, double radius_m, int m, double floor_m);
+
+// Each pair's residual under the rigid fit to all the other pairs (leave-one-out, closed form;
+// local and map rows paired by `pairs`), as the radius of the circle with the area of the
+// error ellipse through it; empty when fewer than 4 pairs.
+//
+// With isotropic position noise, the fit to m points predicts a trunk at lever arm r from
+// their centroid with a covariance proportional to (1 + 1/m) I + r_perp r_perp^T / S (S: the m
+// points' spread about their centroid): a far trunk of a small seed triangle is uncertain along
+// its arc, not towards the centroid. The ellipse {x : x^T Sigma^-1 x <= e^T Sigma^-1 e} has area
+// pi e^T Sigma^-1 e sqrt(det Sigma) for any scale of Sigma (no noise level is needed). Under a
+// chance pose a map trunk falls in it as likely as in a circle of the same area (the density
+// does not care about the shape, and Sigma depends only on the local trunks), so the radius
+// takes the plain residual's place in closeness(): a conservative p-value still (the ellipse
+// may reach outside the gate), a sharper one for a true pose. Sigma isotropic (a trunk at the
+// others' centroid): the plain residual.
+std::vector<double> leaveOneOutRadii(const Points2 &local, const Points2 &map,
+                                     const std::vector<std::pair<int, int>> &pairs);
 
 // Chance probability that one trunk lands within gate_m of a map trunk at density lambda.
 double chanceRate(double density, double gate_m);
