@@ -71,9 +71,6 @@ struct Hypothesis {
     int score = 0;         // consensus: local trunks within the gate of a map trunk
     LocalizationStage stage = LocalizationStage::Star;
     double seed_evidence = 0.0;  // of the seed match's shape agreement, nats (acceptance.hpp)
-    // The scoring trunks (rows of the trunks nearest the origin) the pose was fitted to; -1:
-    // unknown (paper bins) or unused (a triangle's last three).
-    std::array<int, 6> seed_rows{-1, -1, -1, -1, -1, -1};
 };
 
 // The best hypothesis distinct from the answer (further than distinct_translation_m or
@@ -181,14 +178,12 @@ class TreeMap {
     // Verified matches whose pose agrees with the answer (within the distinct thresholds).
     int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
                  const GlobalLocalizerConfig &cfg) const;
-    // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points
-    // (seed_rows: which scoring rows, -1 where unknown), the best of `searched`, its seed
-    // match's own evidence seed_evidence (nats). scoring_dbh: the scoring trunks' diameters
-    // (empty: none).
+    // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points,
+    // the best of `searched`, its seed match's own evidence seed_evidence (nats).
+    // scoring_dbh: the scoring trunks' diameters (empty: none).
     ChanceEvidence evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
-                            const Eigen::Vector3d &pose, int seeds,
-                            const std::array<int, 6> &seed_rows, int searched, double seed_evidence,
-                            const GlobalLocalizerConfig &cfg) const;
+                            const Eigen::Vector3d &pose, int seeds, int searched,
+                            double seed_evidence, const GlobalLocalizerConfig &cfg) const;
     // -ln p of one pair's DBH agreement against map trunk j's neighbourhood (acceptance.hpp).
     // -1 when either side has no DBH.
     double dbhAgreement(int j, double local_dbh, double resolution) const;
