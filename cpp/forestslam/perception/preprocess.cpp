@@ -186,26 +186,44 @@ void dropSmallIslands(Eigen::MatrixXd &z, int min_cells) {
 }
 
 // Holes (cells under stems, shadows) filled from known neighbours, one cell deeper per pass: an
-// unknown cell with >= 2 known of its 8 neighbours takes their mean.
+// unknown cell with >= 2 known of its 8 neighbours takes their mean (from the previous pass's
+// grid). After the first pass only the unknown neighbours of cells just filled can change, so
+// later passes test those alone (most of a scan's grid is unknown: beyond range, shadows).
 void fillHoles(Eigen::MatrixXd &z, int passes) {
     const Eigen::Index rows = z.rows(), cols = z.cols();
-    for (int pass = 0; pass < passes; ++pass) {
-        Eigen::MatrixXd next = z;
-        for (Eigen::Index r = 0; r < rows; ++r) {
-            for (Eigen::Index c = 0; c < cols; ++c) {
-                if (std::isfinite(z(r, c))) continue;
-                double s = 0;
-                int cnt = 0;
-                for (Eigen::Index dr = -1; dr <= 1; ++dr)
-                    for (Eigen::Index dc = -1; dc <= 1; ++dc) {
-                        const Eigen::Index rr = r + dr, cc = c + dc;
-                        if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
-                        if (std::isfinite(z(rr, cc))) s += z(rr, cc), ++cnt;
-                    }
-                if (cnt >= 2) next(r, c) = s / cnt;
-            }
+    std::vector<std::pair<Eigen::Index, Eigen::Index>> todo, next;
+    std::vector<std::pair<std::pair<Eigen::Index, Eigen::Index>, double>> fills;
+    for (Eigen::Index r = 0; r < rows; ++r)
+        for (Eigen::Index c = 0; c < cols; ++c)
+            if (!std::isfinite(z(r, c))) todo.push_back({r, c});
+    Eigen::Matrix<char, Eigen::Dynamic, Eigen::Dynamic> queued;
+    queued.setZero(rows, cols);
+    for (int pass = 0; pass < passes && !todo.empty(); ++pass) {
+        fills.clear();
+        for (const auto &[r, c] : todo) {
+            double s = 0;
+            int cnt = 0;
+            for (Eigen::Index dr = -1; dr <= 1; ++dr)
+                for (Eigen::Index dc = -1; dc <= 1; ++dc) {
+                    const Eigen::Index rr = r + dr, cc = c + dc;
+                    if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
+                    if (std::isfinite(z(rr, cc))) s += z(rr, cc), ++cnt;
+                }
+            if (cnt >= 2) fills.push_back({{r, c}, s / cnt});
         }
-        z.swap(next);
+        for (const auto &[rc, v] : fills) z(rc.first, rc.second) = v;
+        next.clear();
+        for (const auto &[rc, v] : fills) {
+            (void)v;
+            for (Eigen::Index rr = std::max<Eigen::Index>(rc.first - 1, 0);
+                 rr <= std::min(rc.first + 1, rows - 1); ++rr)
+                for (Eigen::Index cc = std::max<Eigen::Index>(rc.second - 1, 0);
+                     cc <= std::min(rc.second + 1, cols - 1); ++cc)
+                    if (!std::isfinite(z(rr, cc)) && !queued(rr, cc))
+                        queued(rr, cc) = 1, next.push_back({rr, cc});
+        }
+        for (const auto &[r, c] : next) queued(r, c) = 0;
+        todo.swap(next);
     }
 }
 
