@@ -237,7 +237,7 @@ def main() -> int:
     results, ok = {}, True
     for spec in (s.strip() for s in args.scenarios.split(",") if s.strip()):
         seq = resolve(spec)
-        out = CACHE / "bench-speed" / seq.name
+        out = CACHE / "bench-speed" / REPO.name / seq.name  # per worktree: the cache is shared
         after = run_tree(REPO, seq, out / "after")
         before = run_tree(base, seq, out / "before") if base else None
         print_side_by_side(f"{spec} ({seq.name})", after, before)
