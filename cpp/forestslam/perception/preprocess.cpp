@@ -187,44 +187,47 @@ void dropSmallIslands(Eigen::MatrixXd &z, int min_cells) {
 
 // Holes (cells under stems, shadows) filled from known neighbours, one cell deeper per pass: an
 // unknown cell with >= 2 known of its 8 neighbours takes their mean (from the previous pass's
-// grid). After the first pass only the unknown neighbours of cells just filled can change, so
-// later passes test those alone (most of a scan's grid is unknown: beyond range, shadows).
+// grid). On a row-major copy with a border of unknown cells (no bounds checks). After the first
+// pass only the unknown neighbours of the cells just filled can change: later passes test those.
 void fillHoles(Eigen::MatrixXd &z, int passes) {
-    const Eigen::Index rows = z.rows(), cols = z.cols();
-    std::vector<std::pair<Eigen::Index, Eigen::Index>> todo, next;
-    std::vector<std::pair<std::pair<Eigen::Index, Eigen::Index>, double>> fills;
-    for (Eigen::Index r = 0; r < rows; ++r)
-        for (Eigen::Index c = 0; c < cols; ++c)
-            if (!std::isfinite(z(r, c))) todo.push_back({r, c});
-    Eigen::Matrix<char, Eigen::Dynamic, Eigen::Dynamic> queued;
-    queued.setZero(rows, cols);
+    const Eigen::Index rows = z.rows() + 2, cols = z.cols() + 2;
+    std::vector<double> cur(static_cast<size_t>(rows * cols), kNaN);
+    std::vector<char> skip(cur.size(), 1);  // border, known or queued cells
+    std::vector<Eigen::Index> todo;
+    for (Eigen::Index r = 0; r < z.rows(); ++r)
+        for (Eigen::Index c = 0; c < z.cols(); ++c) {
+            const Eigen::Index at = (r + 1) * cols + c + 1;
+            cur[at] = z(r, c);
+            skip[at] = 0;
+        }
+    for (Eigen::Index at = 0; at < rows * cols; ++at)
+        if (!skip[at] && !std::isfinite(cur[at])) todo.push_back(at);
+    const Eigen::Index around[8] = {-cols - 1, -cols, -cols + 1, -1, 1, cols - 1, cols, cols + 1};
+    std::vector<std::pair<Eigen::Index, double>> fills;
     for (int pass = 0; pass < passes && !todo.empty(); ++pass) {
         fills.clear();
-        for (const auto &[r, c] : todo) {
+        for (const Eigen::Index at : todo) {
             double s = 0;
             int cnt = 0;
-            for (Eigen::Index dr = -1; dr <= 1; ++dr)
+            for (Eigen::Index dr = -1; dr <= 1; ++dr)  // the order of the sum as before
                 for (Eigen::Index dc = -1; dc <= 1; ++dc) {
-                    const Eigen::Index rr = r + dr, cc = c + dc;
-                    if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
-                    if (std::isfinite(z(rr, cc))) s += z(rr, cc), ++cnt;
+                    const double v = cur[at + dr * cols + dc];
+                    if (std::isfinite(v)) s += v, ++cnt;
                 }
-            if (cnt >= 2) fills.push_back({{r, c}, s / cnt});
+            if (cnt >= 2) fills.push_back({at, s / cnt});
         }
-        for (const auto &[rc, v] : fills) z(rc.first, rc.second) = v;
-        next.clear();
-        for (const auto &[rc, v] : fills) {
+        for (const auto &[at, v] : fills) cur[at] = v, skip[at] = 1;
+        todo.clear();
+        for (const auto &[at, v] : fills) {
             (void)v;
-            for (Eigen::Index rr = std::max<Eigen::Index>(rc.first - 1, 0);
-                 rr <= std::min(rc.first + 1, rows - 1); ++rr)
-                for (Eigen::Index cc = std::max<Eigen::Index>(rc.second - 1, 0);
-                     cc <= std::min(rc.second + 1, cols - 1); ++cc)
-                    if (!std::isfinite(z(rr, cc)) && !queued(rr, cc))
-                        queued(rr, cc) = 1, next.push_back({rr, cc});
+            for (const Eigen::Index d : around)
+                if (!skip[at + d] && !std::isfinite(cur[at + d]))
+                    skip[at + d] = 1, todo.push_back(at + d);
         }
-        for (const auto &[r, c] : next) queued(r, c) = 0;
-        todo.swap(next);
+        for (const Eigen::Index at : todo) skip[at] = 0;
     }
+    for (Eigen::Index r = 0; r < z.rows(); ++r)
+        for (Eigen::Index c = 0; c < z.cols(); ++c) z(r, c) = cur[(r + 1) * cols + c + 1];
 }
 
 // Ground: the usable points at most `max_height` above the grid's ground.
