@@ -11,7 +11,7 @@ job and splits it into stages: the C++ odometry's own per-stage CPU clocks (desk
 perception and its sub-stages, match, shape, icp, local map), and CPU clocks around the Python
 stages (SLAM back end, tree map, cloud map, checkpoint and final outputs; the rest is reading,
 decoding, imports and the job). Accuracy of the same run is printed beside the speed: ATE of
-the SLAM trajectory and of the odometry alone, tree recall / precision, DBH MAE. Target:
+the SLAM trajectory and of the odometry alone, tree recall / precision, DBH MAE and bias. Target:
 >= 60 VLP-16 scans per CPU second with accuracy unchanged or better.
 
     python bench/slam_speed_bench.py [--scenarios sample,vlp16-loop:600,...]
@@ -155,6 +155,7 @@ def child(seq: Path, out: Path) -> dict:
         "recall": tr.get("recall"),
         "precision": tr.get("precision"),
         "dbh_mae_m": tr.get("dbh_mae_m"),
+        "dbh_bias_m": tr.get("dbh_bias_m"),
     }
 
 
@@ -219,8 +220,9 @@ def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
         ("tree recall", "recall"),
         ("tree precision", "precision"),
         ("DBH MAE [m]", "dbh_mae_m"),
+        ("DBH bias [m]", "dbh_bias_m"),
     ):
-        row(label, after[key], before and before[key], 4, ratio=False)
+        row(label, after.get(key), before and before.get(key), 4, ratio=False)
     sys.stdout.flush()
 
 
@@ -237,7 +239,7 @@ def main() -> int:
     results, ok = {}, True
     for spec in (s.strip() for s in args.scenarios.split(",") if s.strip()):
         seq = resolve(spec)
-        out = CACHE / "bench-speed" / seq.name
+        out = CACHE / "bench-speed" / REPO.name / seq.name  # per worktree: the cache is shared
         after = run_tree(REPO, seq, out / "after")
         before = run_tree(base, seq, out / "before") if base else None
         print_side_by_side(f"{spec} ({seq.name})", after, before)

@@ -75,18 +75,17 @@ double GroundGrid::heightAt(double x, double y) const {
     return z(r, c);
 }
 
-GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points, const GroundConfig &opt) {
-    GroundSegmentation out;
-    const Eigen::Index n = points.rows();
-    out.is_ground.assign(static_cast<size_t>(n), 0);
-    const double cell = opt.cell_size_m > 0 ? opt.cell_size_m : 0.5;
-    const double range2 = opt.max_range_m > 0 ? opt.max_range_m * opt.max_range_m : kNaN;
+namespace {
 
-    // Lowest point per cell: the min-grid the morphological filter works on. A dense grid over
-    // the points' bounding box (a hash map when that box is huge, e.g. a wide map cloud).
+// Rows of the lowest point per XY cell, the min-grid the morphological filter works on, and the
+// usable rows (finite, within max range). A dense grid over the points' bounding box; a hash map
+// when that box is huge (e.g. a wide map cloud).
+std::vector<int> lowestPerCell(const Eigen::Ref<const Points3> &points, double cell, double range2,
+                               std::vector<int> &usable) {
+    const Eigen::Index n = points.rows();
     double bx0 = std::numeric_limits<double>::max(), by0 = bx0;
     double bx1 = std::numeric_limits<double>::lowest(), by1 = bx1;
-    std::vector<int> usable;
+    usable.clear();
     usable.reserve(static_cast<size_t>(n));
     for (Eigen::Index i = 0; i < n; ++i) {
         if (!finiteRow(points, i)) continue;
@@ -97,122 +96,172 @@ GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points, const 
         by0 = std::min(by0, y), by1 = std::max(by1, y);
     }
     std::vector<int> cell_rows;
-    if (!usable.empty()) {
-        const double gx0 = std::floor(bx0 / cell), gy0 = std::floor(by0 / cell);
-        const double gcols = std::floor(bx1 / cell) - gx0 + 1;
-        const double grows = std::floor(by1 / cell) - gy0 + 1;
-        if (gcols * grows <= 4e6) {
-            const auto nc = static_cast<std::int64_t>(gcols);
-            std::vector<int> low(static_cast<size_t>(nc * static_cast<std::int64_t>(grows)), -1);
-            for (int i : usable) {
-                const auto c = static_cast<std::int64_t>(std::floor(points(i, 0) / cell) - gx0);
-                const auto r = static_cast<std::int64_t>(std::floor(points(i, 1) / cell) - gy0);
-                int &slot = low[static_cast<size_t>(r * nc + c)];
-                if (slot < 0 || points(i, 2) < points(slot, 2)) slot = i;
-            }
-            for (int row : low)
-                if (row >= 0) cell_rows.push_back(row);
-        } else {
-            std::unordered_map<std::uint64_t, int> lowest;
-            lowest.reserve(usable.size() / 4 + 16);
-            for (int i : usable) {
-                const auto cx = static_cast<std::int64_t>(std::floor(points(i, 0) / cell));
-                const auto cy = static_cast<std::int64_t>(std::floor(points(i, 1) / cell));
-                const auto key = cellKey2(cx, cy);
-                auto [it, inserted] = lowest.emplace(key, i);
-                if (!inserted && points(i, 2) < points(it->second, 2)) it->second = i;
-            }
-            for (const auto &[key, row] : lowest) {
-                (void)key;
-                cell_rows.push_back(row);
-            }
+    if (usable.empty()) return cell_rows;
+    const double gx0 = std::floor(bx0 / cell), gy0 = std::floor(by0 / cell);
+    const double gcols = std::floor(bx1 / cell) - gx0 + 1;
+    const double grows = std::floor(by1 / cell) - gy0 + 1;
+    if (gcols * grows <= 4e6) {
+        const auto nc = static_cast<std::int64_t>(gcols);
+        std::vector<int> low(static_cast<size_t>(nc * static_cast<std::int64_t>(grows)), -1);
+        for (int i : usable) {
+            const auto c = static_cast<std::int64_t>(std::floor(points(i, 0) / cell) - gx0);
+            const auto r = static_cast<std::int64_t>(std::floor(points(i, 1) / cell) - gy0);
+            int &slot = low[static_cast<size_t>(r * nc + c)];
+            if (slot < 0 || points(i, 2) < points(slot, 2)) slot = i;
         }
+        for (int row : low)
+            if (row >= 0) cell_rows.push_back(row);
+        return cell_rows;
     }
-    if (cell_rows.size() < 3) return out;
+    std::unordered_map<std::uint64_t, int> lowest;
+    lowest.reserve(usable.size() / 4 + 16);
+    for (int i : usable) {
+        const auto cx = static_cast<std::int64_t>(std::floor(points(i, 0) / cell));
+        const auto cy = static_cast<std::int64_t>(std::floor(points(i, 1) / cell));
+        auto [it, inserted] = lowest.emplace(cellKey2(cx, cy), i);
+        if (!inserted && points(i, 2) < points(it->second, 2)) it->second = i;
+    }
+    for (const auto &[key, row] : lowest) {
+        (void)key;
+        cell_rows.push_back(row);
+    }
+    return cell_rows;
+}
 
-    std::vector<Eigen::Vector3f> cells;
-    cells.reserve(cell_rows.size());
-    for (int row : cell_rows) cells.push_back(points.row(row).transpose().cast<float>());
-    const std::vector<int> ground_cells = morphologicalGround(cells, static_cast<float>(cell), opt);
-    if (ground_cells.empty()) return out;
-
-    // Dense grid of ground-cell heights over their bounding box.
+// Dense grid of the ground cells' heights over their bounding box (NaN elsewhere); false when
+// that box is absurdly large (> 3.5 km wide at 0.5 m cells).
+bool groundHeightGrid(const Eigen::Ref<const Points3> &points, const std::vector<int> &rows_of,
+                      double cell, GroundGrid &g) {
     double xmin = std::numeric_limits<double>::max(), ymin = xmin;
     double xmax = std::numeric_limits<double>::lowest(), ymax = xmax;
-    for (int k : ground_cells) {
-        const int row = cell_rows[static_cast<size_t>(k)];
+    for (int row : rows_of) {
         xmin = std::min(xmin, points(row, 0)), xmax = std::max(xmax, points(row, 0));
         ymin = std::min(ymin, points(row, 1)), ymax = std::max(ymax, points(row, 1));
     }
-    GroundGrid &g = out.grid;
     g.cell = cell;
     g.origin = Eigen::Vector2d(std::floor(xmin / cell) * cell, std::floor(ymin / cell) * cell);
     const auto cols = static_cast<Eigen::Index>(std::floor((xmax - g.origin.x()) / cell)) + 1;
     const auto rows = static_cast<Eigen::Index>(std::floor((ymax - g.origin.y()) / cell)) + 1;
-    if (static_cast<double>(rows) * static_cast<double>(cols) > 5e7) return out;  // > 3.5 km wide
+    if (static_cast<double>(rows) * static_cast<double>(cols) > 5e7) return false;
     g.z.setConstant(rows, cols, kNaN);
-    for (int k : ground_cells) {
-        const int row = cell_rows[static_cast<size_t>(k)];
+    for (int row : rows_of) {
         const auto c =
             static_cast<Eigen::Index>(std::floor((points(row, 0) - g.origin.x()) / cell));
         const auto r =
             static_cast<Eigen::Index>(std::floor((points(row, 1) - g.origin.y()) / cell));
         if (r >= 0 && c >= 0 && r < rows && c < cols) g.z(r, c) = points(row, 2);
     }
-    // Small islands of "ground" cells are the lowest returns of stems in the blind circle
-    // around the sensor, where the filter has no true ground to compare with: drop them.
-    if (opt.min_component_cells > 1) {
-        Eigen::MatrixXi comp = Eigen::MatrixXi::Constant(rows, cols, -1);
-        std::vector<std::pair<Eigen::Index, Eigen::Index>> stack, members;
-        for (Eigen::Index r0 = 0; r0 < rows; ++r0)
-            for (Eigen::Index c0 = 0; c0 < cols; ++c0) {
-                if (!std::isfinite(g.z(r0, c0)) || comp(r0, c0) >= 0) continue;
-                comp(r0, c0) = 1;
-                stack.assign(1, {r0, c0});
-                members.assign(1, {r0, c0});
-                while (!stack.empty()) {
-                    const auto [r, c] = stack.back();
-                    stack.pop_back();
-                    for (Eigen::Index dr = -2; dr <= 2; ++dr)
-                        for (Eigen::Index dc = -2; dc <= 2; ++dc) {
-                            const Eigen::Index rr = r + dr, cc = c + dc;
-                            if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
-                            if (!std::isfinite(g.z(rr, cc)) || comp(rr, cc) >= 0) continue;
-                            comp(rr, cc) = 1;
-                            stack.push_back({rr, cc});
-                            members.push_back({rr, cc});
-                        }
-                }
-                if (static_cast<int>(members.size()) < opt.min_component_cells)
-                    for (const auto &[r, c] : members) g.z(r, c) = kNaN;
-            }
-    }
-    // Fill holes (cells under stems, shadows) from known neighbours, a few cells deep.
-    for (int pass = 0; pass < 4; ++pass) {
-        Eigen::MatrixXd next = g.z;
-        for (Eigen::Index r = 0; r < rows; ++r) {
-            for (Eigen::Index c = 0; c < cols; ++c) {
-                if (std::isfinite(g.z(r, c))) continue;
-                double s = 0;
-                int cnt = 0;
-                for (Eigen::Index dr = -1; dr <= 1; ++dr)
-                    for (Eigen::Index dc = -1; dc <= 1; ++dc) {
+    return true;
+}
+
+// Small islands of "ground" cells are the lowest returns of stems in the blind circle around the
+// sensor, where the filter has no true ground to compare with: components (cells within two
+// cells of each other) smaller than `min_cells` become unknown.
+void dropSmallIslands(Eigen::MatrixXd &z, int min_cells) {
+    const Eigen::Index rows = z.rows(), cols = z.cols();
+    Eigen::MatrixXi comp = Eigen::MatrixXi::Constant(rows, cols, -1);
+    std::vector<std::pair<Eigen::Index, Eigen::Index>> stack, members;
+    for (Eigen::Index r0 = 0; r0 < rows; ++r0)
+        for (Eigen::Index c0 = 0; c0 < cols; ++c0) {
+            if (!std::isfinite(z(r0, c0)) || comp(r0, c0) >= 0) continue;
+            comp(r0, c0) = 1;
+            stack.assign(1, {r0, c0});
+            members.assign(1, {r0, c0});
+            while (!stack.empty()) {
+                const auto [r, c] = stack.back();
+                stack.pop_back();
+                for (Eigen::Index dr = -2; dr <= 2; ++dr)
+                    for (Eigen::Index dc = -2; dc <= 2; ++dc) {
                         const Eigen::Index rr = r + dr, cc = c + dc;
                         if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
-                        if (std::isfinite(g.z(rr, cc))) s += g.z(rr, cc), ++cnt;
+                        if (!std::isfinite(z(rr, cc)) || comp(rr, cc) >= 0) continue;
+                        comp(rr, cc) = 1;
+                        stack.push_back({rr, cc});
+                        members.push_back({rr, cc});
                     }
-                if (cnt >= 2) next(r, c) = s / cnt;
             }
+            if (static_cast<int>(members.size()) < min_cells)
+                for (const auto &[r, c] : members) z(r, c) = kNaN;
         }
-        g.z.swap(next);
+}
+
+// Holes (cells under stems, shadows) filled from known neighbours, one cell deeper per pass: an
+// unknown cell with >= 2 known of its 8 neighbours takes their mean (from the previous pass's
+// grid). On a row-major copy with a border of unknown cells (no bounds checks). After the first
+// pass only the unknown neighbours of the cells just filled can change: later passes test those.
+void fillHoles(Eigen::MatrixXd &z, int passes) {
+    const Eigen::Index rows = z.rows() + 2, cols = z.cols() + 2;
+    std::vector<double> cur(static_cast<size_t>(rows * cols), kNaN);
+    std::vector<char> skip(cur.size(), 1);  // border, known or queued cells
+    std::vector<Eigen::Index> todo;
+    for (Eigen::Index r = 0; r < z.rows(); ++r)
+        for (Eigen::Index c = 0; c < z.cols(); ++c) {
+            const Eigen::Index at = (r + 1) * cols + c + 1;
+            cur[at] = z(r, c);
+            skip[at] = 0;
+        }
+    for (Eigen::Index at = 0; at < rows * cols; ++at)
+        if (!skip[at] && !std::isfinite(cur[at])) todo.push_back(at);
+    const Eigen::Index around[8] = {-cols - 1, -cols, -cols + 1, -1, 1, cols - 1, cols, cols + 1};
+    std::vector<std::pair<Eigen::Index, double>> fills;
+    for (int pass = 0; pass < passes && !todo.empty(); ++pass) {
+        fills.clear();
+        for (const Eigen::Index at : todo) {
+            double s = 0;
+            int cnt = 0;
+            for (Eigen::Index dr = -1; dr <= 1; ++dr)  // the order of the sum as before
+                for (Eigen::Index dc = -1; dc <= 1; ++dc) {
+                    const double v = cur[at + dr * cols + dc];
+                    if (std::isfinite(v)) s += v, ++cnt;
+                }
+            if (cnt >= 2) fills.push_back({at, s / cnt});
+        }
+        for (const auto &[at, v] : fills) cur[at] = v, skip[at] = 1;
+        todo.clear();
+        for (const auto &[at, v] : fills) {
+            (void)v;
+            for (const Eigen::Index d : around)
+                if (!skip[at + d] && !std::isfinite(cur[at + d]))
+                    skip[at + d] = 1, todo.push_back(at + d);
+        }
+        for (const Eigen::Index at : todo) skip[at] = 0;
     }
+    for (Eigen::Index r = 0; r < z.rows(); ++r)
+        for (Eigen::Index c = 0; c < z.cols(); ++c) z(r, c) = cur[(r + 1) * cols + c + 1];
+}
+
+// Ground: the usable points at most `max_height` above the grid's ground.
+void labelGroundPoints(const Eigen::Ref<const Points3> &points, const std::vector<int> &usable,
+                       double max_height, GroundSegmentation &out) {
     for (int i : usable) {
-        const double h = points(i, 2) - g.heightAt(points(i, 0), points(i, 1));
-        if (std::isfinite(h) && h <= opt.cell_height_m) {
+        const double h = points(i, 2) - out.grid.heightAt(points(i, 0), points(i, 1));
+        if (std::isfinite(h) && h <= max_height) {
             out.is_ground[static_cast<size_t>(i)] = 1;
             ++out.ground_count;
         }
     }
+}
+
+}  // namespace
+
+GroundSegmentation segmentGround(const Eigen::Ref<const Points3> &points, const GroundConfig &opt) {
+    GroundSegmentation out;
+    out.is_ground.assign(static_cast<size_t>(points.rows()), 0);
+    const double cell = opt.cell_size_m > 0 ? opt.cell_size_m : 0.5;
+    const double range2 = opt.max_range_m > 0 ? opt.max_range_m * opt.max_range_m : kNaN;
+    std::vector<int> usable;
+    const std::vector<int> cell_rows = lowestPerCell(points, cell, range2, usable);
+    if (cell_rows.size() < 3) return out;
+    std::vector<Eigen::Vector3f> cells;
+    cells.reserve(cell_rows.size());
+    for (int row : cell_rows) cells.push_back(points.row(row).transpose().cast<float>());
+    std::vector<int> ground_rows;
+    for (int k : morphologicalGround(cells, static_cast<float>(cell), opt))
+        ground_rows.push_back(cell_rows[static_cast<size_t>(k)]);
+    if (ground_rows.empty() || !groundHeightGrid(points, ground_rows, cell, out.grid)) return out;
+    if (opt.min_component_cells > 1) dropSmallIslands(out.grid.z, opt.min_component_cells);
+    fillHoles(out.grid.z, 4);
+    labelGroundPoints(points, usable, opt.cell_height_m, out);
     return out;
 }
 

@@ -88,25 +88,21 @@ RangeImageProjection projectToRangeImage(const Eigen::Ref<const Points3> &points
     return p;
 }
 
-Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
-                            const RangeImageProjection &proj, const SensorGeometry &s,
-                            const SegmentationConfig &opt, int min_size) {
-    Clusters out;
-    const int R = s.image_rows, C = s.image_cols;
-    const Eigen::Index n = points.rows();
-    if (R <= 0 || C <= 0 || n == 0) return out;
-    const bool wrap = s.horizontal_fov_rad >= 2 * kPi - 1e-6;
-    std::vector<double> range(static_cast<size_t>(n));
-    for (Eigen::Index i = 0; i < n; ++i) range[i] = points.row(i).norm();
-    // Nearest point per pixel represents it.
-    std::vector<int> pix(static_cast<size_t>(R) * C, -1);
-    for (Eigen::Index i = 0; i < n; ++i) {
-        const int r = proj.row[i], c = proj.col[i];
-        if (r < 0 || c < 0) continue;
-        int &slot = pix[static_cast<size_t>(r) * C + c];
-        if (slot < 0 || range[i] < range[slot]) slot = static_cast<int>(i);
-    }
-    auto connected = [&](int a, int b) {
+namespace {
+
+// The range image as a graph: pixels (each represented by its nearest point) and the
+// angle-based connectivity test between two points (Bogoslavskyi & Stachniss).
+struct PixelGraph {
+    const Eigen::Ref<const Points3> &points;
+    const SegmentationConfig &opt;
+    int R, C, gap, B;
+    double col_rad;
+    std::vector<double> range;  // per point
+    std::vector<int> pix;       // per pixel: its nearest point, -1: empty
+
+    // Two points are one surface when the angle beta between the farther beam and the line
+    // joining them is wide enough and they are not too far apart.
+    bool connected(int a, int b) const {
         const double da = range[a], db = range[b];
         if (da <= 0 || db <= 0) return false;
         const double d1 = std::max(da, db), d2 = std::min(da, db);
@@ -116,30 +112,46 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
         const double beta = std::atan2(d2 * std::sin(alpha), d1 - d2 * cos_alpha);
         const double dist = (points.row(a) - points.row(b)).norm();
         return beta > opt.beta_min_rad && dist < opt.max_neighbour_gap_m + 1.5 * alpha * d2;
-    };
-    const int gap = std::max(0, opt.max_pixel_gap);
+    }
     // Near the sensor the voxel thinning before this step leaves several empty columns between
     // the points of one surface: bridge up to max_gap_m of arc horizontally there (a stem at 2 m
     // otherwise falls apart into vertical strips, and strips of neighbouring stems then merge).
-    const double col_rad = s.horizontal_fov_rad / C;
-    const int B = std::max(1, opt.block_cols);
-    auto colGap = [&](int pixel) {
+    int colGap(int pixel) const {
         const double d = range[static_cast<size_t>(pix[static_cast<size_t>(pixel)])];
         if (!(opt.max_gap_m > 0) || !(d > 0) || !(col_rad > 0)) return gap;
         const double cols = opt.max_gap_m / (d * col_rad);
         return std::max(gap, static_cast<int>(std::min<double>(cols, B)));
-    };
+    }
+};
+
+// Nearest point per pixel represents it.
+void nearestPerPixel(PixelGraph &g, const RangeImageProjection &proj) {
+    const Eigen::Index n = g.points.rows();
+    g.range.resize(static_cast<size_t>(n));
+    for (Eigen::Index i = 0; i < n; ++i) g.range[i] = g.points.row(i).norm();
+    g.pix.assign(static_cast<size_t>(g.R) * g.C, -1);
+    for (Eigen::Index i = 0; i < n; ++i) {
+        const int r = proj.row[i], c = proj.col[i];
+        if (r < 0 || c < 0) continue;
+        int &slot = g.pix[static_cast<size_t>(r) * g.C + c];
+        if (slot < 0 || g.range[i] < g.range[slot]) slot = static_cast<int>(i);
+    }
+}
+
+// Divide: breadth-first growth inside each block of B columns, bridging empty pixels (gap
+// rows, colGap columns). Labels per pixel (-1: empty); returns the number of labels.
+int growInBlocks(const PixelGraph &g, std::vector<int> &label) {
+    const int R = g.R, C = g.C, B = g.B;
     const int blocks = (C + B - 1) / B;
-    std::vector<int> label(pix.size(), -1);
+    label.assign(g.pix.size(), -1);
     int next_label = 0;
     std::deque<int> queue;
-    // Divide: BFS inside each column block.
     for (int b = 0; b < blocks; ++b) {
         const int c0 = b * B, c1 = std::min(C, c0 + B);
         for (int r = 0; r < R; ++r) {
             for (int c = c0; c < c1; ++c) {
                 const size_t seed = static_cast<size_t>(r) * C + c;
-                if (pix[seed] < 0 || label[seed] >= 0) continue;
+                if (g.pix[seed] < 0 || label[seed] >= 0) continue;
                 label[seed] = next_label;
                 queue.assign(1, static_cast<int>(seed));
                 while (!queue.empty()) {
@@ -147,15 +159,15 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
                     queue.pop_front();
                     const int cr = cur / C, cc = cur % C;
                     const int dirs[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
-                    const int hgap = colGap(cur);
+                    const int hgap = g.colGap(cur);
                     for (const auto &d : dirs) {
-                        const int max_step = (d[1] != 0 ? hgap : gap) + 1;
+                        const int max_step = (d[1] != 0 ? hgap : g.gap) + 1;
                         for (int step = 1; step <= max_step; ++step) {
                             const int nr = cr + d[0] * step, nc = cc + d[1] * step;
                             if (nr < 0 || nr >= R || nc < c0 || nc >= c1) break;
                             const size_t q = static_cast<size_t>(nr) * C + nc;
-                            if (pix[q] < 0) continue;  // bridge empty pixels
-                            if (label[q] < 0 && connected(pix[cur], pix[q])) {
+                            if (g.pix[q] < 0) continue;  // bridge empty pixels
+                            if (label[q] < 0 && g.connected(g.pix[cur], g.pix[q])) {
                                 label[q] = next_label;
                                 queue.push_back(static_cast<int>(q));
                             }
@@ -167,8 +179,28 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
             }
         }
     }
-    // Merge: votes of pixel pairs across each block edge.
-    UnionFind uf(next_label);
+    return next_label;
+}
+
+// The first occupied pixel of row r from column `from` stepping by `dir`, at most gap steps and
+// not past `limit`: its pixel index and steps taken, or -1.
+int firstOccupied(const PixelGraph &g, int r, int from, int dir, int limit, int &steps) {
+    for (int k = 0; k <= g.gap && (dir < 0 ? from - k >= limit : from + k <= limit); ++k) {
+        const size_t q = static_cast<size_t>(r) * g.C + (from + dir * k);
+        if (g.pix[q] >= 0) {
+            steps = k;
+            return static_cast<int>(q);
+        }
+    }
+    return -1;
+}
+
+// Merge: the labels on either side of each block edge are united when enough row pairs across
+// the edge connect (min_votes, fewer for labels with fewer pixels at the edge).
+void mergeAcrossBlocks(const PixelGraph &g, const std::vector<int> &label, bool wrap,
+                       UnionFind &uf) {
+    const int C = g.C, B = g.B;
+    const int blocks = (C + B - 1) / B;
     const int edges = wrap ? blocks : blocks - 1;
     for (int b = 0; b < edges && blocks > 1; ++b) {
         const int left_end = std::min(C, (b + 1) * B) - 1;
@@ -177,50 +209,68 @@ Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
         const int left_start = b * B;
         std::map<int, int> edge_count;
         std::map<std::pair<int, int>, int> votes;
-        for (int r = 0; r < R; ++r) {
-            int a = -1, bb = -1, da = 0, db = 0;
-            for (int k = 0; k <= gap && left_end - k >= left_start; ++k) {
-                const size_t q = static_cast<size_t>(r) * C + (left_end - k);
-                if (pix[q] >= 0) {
-                    a = static_cast<int>(q), da = k;
-                    break;
-                }
-            }
-            for (int k = 0; k <= gap && right_start + k <= right_end; ++k) {
-                const size_t q = static_cast<size_t>(r) * C + (right_start + k);
-                if (pix[q] >= 0) {
-                    bb = static_cast<int>(q), db = k;
-                    break;
-                }
-            }
+        for (int r = 0; r < g.R; ++r) {
+            int da = 0, db = 0;
+            const int a = firstOccupied(g, r, left_end, -1, left_start, da);
+            const int bb = firstOccupied(g, r, right_start, +1, right_end, db);
             if (a >= 0) edge_count[label[a]]++;
             if (bb >= 0) edge_count[label[bb]]++;
-            if (a < 0 || bb < 0 || da + db > gap) continue;
-            if (connected(pix[a], pix[bb])) votes[{label[a], label[bb]}]++;
+            if (a < 0 || bb < 0 || da + db > g.gap) continue;
+            if (g.connected(g.pix[a], g.pix[bb])) votes[{label[a], label[bb]}]++;
         }
         for (const auto &[pair, v] : votes) {
             const int need =
-                std::min({opt.min_votes, edge_count[pair.first], edge_count[pair.second]});
+                std::min({g.opt.min_votes, edge_count[pair.first], edge_count[pair.second]});
             if (v >= std::max(1, need)) uf.unite(pair.first, pair.second);
         }
     }
-    // Gather points: pixel representatives and the other points of their pixel nearby.
+}
+
+// Gather points: pixel representatives and the other points of their pixel nearby, by merged
+// label; clusters of at least min_size points.
+Clusters gatherClusters(const PixelGraph &g, const RangeImageProjection &proj,
+                        const std::vector<int> &label, UnionFind &uf, int min_size) {
     std::map<int, std::vector<int>> groups;
-    for (Eigen::Index i = 0; i < n; ++i) {
+    for (Eigen::Index i = 0; i < g.points.rows(); ++i) {
         const int r = proj.row[i], c = proj.col[i];
         if (r < 0 || c < 0) continue;
-        const size_t q = static_cast<size_t>(r) * C + c;
-        const int rep = pix[q];
+        const size_t q = static_cast<size_t>(r) * g.C + c;
+        const int rep = g.pix[q];
         if (rep < 0 || label[q] < 0) continue;
-        if (rep != i && (points.row(i) - points.row(rep)).norm() > opt.max_neighbour_gap_m)
+        if (rep != i && (g.points.row(i) - g.points.row(rep)).norm() > g.opt.max_neighbour_gap_m)
             continue;
         groups[uf.find(label[q])].push_back(static_cast<int>(i));
     }
+    Clusters out;
     for (auto &[root, rows] : groups) {
         (void)root;
         if (static_cast<int>(rows.size()) >= min_size) out.push_back(std::move(rows));
     }
     return out;
+}
+
+}  // namespace
+
+Clusters rangeImageClusters(const Eigen::Ref<const Points3> &points,
+                            const RangeImageProjection &proj, const SensorGeometry &s,
+                            const SegmentationConfig &opt, int min_size) {
+    const int R = s.image_rows, C = s.image_cols;
+    if (R <= 0 || C <= 0 || points.rows() == 0) return {};
+    const bool wrap = s.horizontal_fov_rad >= 2 * kPi - 1e-6;
+    PixelGraph g{points,
+                 opt,
+                 R,
+                 C,
+                 std::max(0, opt.max_pixel_gap),
+                 std::max(1, opt.block_cols),
+                 s.horizontal_fov_rad / C,
+                 {},
+                 {}};
+    nearestPerPixel(g, proj);
+    std::vector<int> label;
+    UnionFind uf(growInBlocks(g, label));
+    mergeAcrossBlocks(g, label, wrap, uf);
+    return gatherClusters(g, proj, label, uf, min_size);
 }
 
 Clusters euclideanClusters(const Eigen::Ref<const Points3> &points, double tolerance_m,

@@ -8,6 +8,7 @@ unexpected exception ends the program with one line on stderr and a non-zero exi
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 import threading
@@ -90,10 +91,27 @@ def _stop(signum, frame) -> None:
     raise Terminated(f"stopped by {name}") if signum != signal.SIGINT else KeyboardInterrupt(name)
 
 
+# The thread pools of the numerical libraries (OpenBLAS under numpy/SciPy, OpenMP, MKL). A job
+# is one sequential per-scan loop, and BLAS only multiplies (N,3) clouds by 3x3 rotations (the
+# map outputs): extra threads win little and spin while they wait, taking CPU from the sensor
+# driver on a 2-core field computer (`make run`: 8 % more CPU and 4x the wall time on a loaded
+# machine with OpenBLAS's default pool). A batch runs one process per core (Dask's nanny sets the
+# same variables in its workers).
+LIBRARY_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_library_threads() -> None:
+    """One thread per numerical library unless the user set the variable; effective only
+    before numpy loads, so main() calls it first (the CLI modules import numpy lazily)."""
+    for var in LIBRARY_THREAD_VARS:
+        os.environ.setdefault(var, "1")
+
+
 def main() -> None:
     """Run the CLI; every error becomes one line on stderr and a non-zero exit. SIGTERM stops a
     job like Ctrl-C (exit 128 + signal number)."""
     global _stop_signal
+    limit_library_threads()
     _stop_signal = None
     previous = {}
     if threading.current_thread() is threading.main_thread():

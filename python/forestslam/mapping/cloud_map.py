@@ -71,9 +71,11 @@ class CloudMap:
         stamp = np.concatenate([np.full(len(kf.points), kf.stamp) for kf in parts])
         origin = pts.min(axis=0)  # voxel keys near the origin, whatever the frame's offsets
         # Points grouped by voxel in one sort (as np.unique does), so the per-voxel maxima are
-        # reductions over contiguous runs (np.maximum.at per point cost 0.3 s on 600 scans).
+        # reductions over contiguous runs (np.maximum.at per point cost 0.3 s on 600 scans). The
+        # order inside a run does not matter (maxima; the sums below go in point order): numpy's
+        # default (SIMD) sort, several times faster than a stable one.
         keys = voxel_keys(pts - origin, self.voxel_m)
-        order = np.argsort(keys, kind="stable")
+        order = np.argsort(keys)
         keys = keys[order]
         new_voxel = np.r_[True, keys[1:] != keys[:-1]]
         start = np.flatnonzero(new_voxel)

@@ -1,0 +1,61 @@
+"""Fingerprint of the perception stages this round sped up or split (ground segmentation, range
+image clusters, normal filter) on recorded scans, to show a refactoring leaves them bit-identical:
+run it with two builds and compare the digests.
+
+    PYTHONPATH=python:BUILD_A dev.sh py bench/perception_fingerprint.py BAG [BAG ...]
+    PYTHONPATH=python:BUILD_B dev.sh py bench/perception_fingerprint.py BAG [BAG ...]
+
+Every third scan of each bag (VLP-16 geometry) goes through perception_segment_ground,
+perception_range_image_clusters (with its rings) and perception_normal_filter (on the non-ground
+rows); one wide cloud of several scans side by side goes through the ground filter as a map cloud
+would. Prints the SHA-256 of all outputs and the map cloud's ground count.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+
+import numpy as np
+
+from forestslam import _core
+from forestslam.io.readers import read_scans
+from forestslam.perception.pipeline import sensor_geometry
+
+
+def main(bags: list[str]) -> str:
+    digest = hashlib.sha256()
+
+    def add(*arrays) -> None:
+        for a in arrays:
+            digest.update(np.ascontiguousarray(a).tobytes())
+
+    geometry = sensor_geometry("vlp16")
+    ground_cfg = _core.GroundConfig()
+    seg_cfg, normal_cfg = _core.SegmentationConfig(), _core.NormalFilterConfig()
+    wide = []
+    for bag in bags:
+        for k, scan in enumerate(read_scans(bag)):
+            if k % 3:
+                continue
+            g = _core.perception_segment_ground(scan.points, ground_cfg)
+            add(g["is_ground"], g["grid_z"], g["grid_origin"])
+            ring = None if scan.ring is None else scan.ring.astype(np.int32)
+            clusters = _core.perception_range_image_clusters(scan.points, ring, geometry, seg_cfg)
+            add(*(np.asarray(c) for c in clusters))
+            rows = np.flatnonzero(~g["is_ground"]).astype(np.int64)
+            n = _core.perception_normal_filter(scan.points, rows, geometry.theta_v_rad, normal_cfg)
+            add(np.asarray(n["kept"]), n["normals"])
+            if k % 30 == 0:
+                wide.append(scan.points + np.array([k * 0.7, k * 0.3, 0.0]))
+    if wide:
+        g = _core.perception_segment_ground(np.vstack(wide), ground_cfg)
+        add(g["is_ground"], g["grid_z"])
+        return f"{digest.hexdigest()} (map cloud: {int(g['is_ground'].sum())} ground points)"
+    return digest.hexdigest()
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        sys.exit(__doc__)
+    print(main(sys.argv[1:]))
