@@ -160,9 +160,50 @@ def test_per_scan_dbh_std_predicts_the_error(style):
             std.append(stems.dbh_std[k])
     err, std = np.asarray(err), np.asarray(std)
     reported = std <= REPORT_MAX_DBH_STD_M
-    # Measured (round / rough): 65 / 45 % within 1 sigma, 91 / 83 % reported, MAE of the
-    # reported 1.9 / 2.8 cm, of the others 2.4 / 6.0 cm.
+    # Measured (round / rough): 65 / 44 % within 1 sigma, 92 / 83 % reported, MAE of the
+    # reported 1.9 / 2.9 cm, of the others 1.9 / 5.5 cm. On round stems the few unreported
+    # (17 of 206) are no worse than the rest since silhouettes keep every return of a stem
+    # (they were 2.4 cm when the edges were thinned away); on rough stems they are.
     assert len(err) >= 100
     assert 0.4 <= np.mean(err <= std) <= 0.85
     assert reported.mean() >= 0.6
-    assert err[~reported].mean() > 1.2 * err[reported].mean()
+    if style is ROUGH:
+        assert err[~reported].mean() > 1.2 * err[reported].mean()
+    else:
+        assert reported.mean() >= 0.85
+
+
+def test_near_silhouettes_keep_their_edges():
+    """Stems 2.5-6 m from a VLP-16 (3 cm range noise), round sections, one scan per place: the
+    silhouette must not come out small. It did by 0.6 cm (1.0-1.6 cm on the simulator's loops,
+    bench/dbh_near_range.py) when it was measured on the normal filter's one return per 5 cm
+    voxel (the outermost returns of each scan line thinned away) and stood on each line's
+    nearest range (the minimum of noisy ranges). Measured now: +0.02 cm over 89 stems."""
+    errors = []
+    for seed in range(6):
+        world = make_world(ROUND, seed=seed, n=30, length_m=20.0, lane_m=2.5, depth_m=6.0)
+        txy = np.array([[s.x, s.y] for s in world])
+        for x in (5.0, 15.0):
+            sxy = np.array([x, 0.0])
+            stems = detect(scan_stems(world, sxy, ROUND, noise_m=0.03, seed=seed), "vlp16")
+            for k in range(len(stems)):
+                sil = stems.diameters[k]["silhouette"]
+                d = np.linalg.norm(txy - sxy - stems.xy[k], axis=1)
+                j = int(np.argmin(d))
+                if sil["valid"] and d[j] <= 0.3 and np.linalg.norm(txy[j] - sxy) <= 6.0:
+                    errors.append(2 * sil["radius"] - world[j].dbh)
+    errors = np.asarray(errors)
+    assert len(errors) >= 40
+    assert abs(np.mean(errors[np.abs(errors) < 0.1])) < 0.003
+
+
+def test_explicit_breast_height_without_stem_points_gives_no_stem():
+    """--breast-height-z where no stem has points (above every stem here) is no measurement:
+    no stem, not a DBH from the SAC cylinder of points metres away. At the true breast
+    height the same scan gives its stems with DBH."""
+    world = make_world(ROUND, seed=1, n=20, length_m=10.0, depth_m=8.0)
+    scan = scan_stems(world, np.array([5.0, 0.0]), ROUND, noise_m=0.03, seed=1)
+    top = scan.points[:, 2].max()
+    assert len(detect(scan, "vlp16", breast_height_z=top + 2.0)) == 0
+    at_bh = detect(scan, "vlp16", breast_height_z=-1.8 + 1.3)  # ground 1.8 m below the sensor
+    assert len(at_bh) >= 5 and np.isfinite(at_bh.dbh).mean() >= 0.8
