@@ -160,17 +160,12 @@ def test_per_scan_dbh_std_predicts_the_error(style):
             std.append(stems.dbh_std[k])
     err, std = np.asarray(err), np.asarray(std)
     reported = std <= REPORT_MAX_DBH_STD_M
-    # Measured (round / rough): 65 / 44 % within 1 sigma, 92 / 83 % reported, MAE of the
-    # reported 1.9 / 2.9 cm, of the others 1.9 / 5.5 cm. On round stems the few unreported
-    # (17 of 206) are no worse than the rest since silhouettes keep every return of a stem
-    # (they were 2.4 cm when the edges were thinned away); on rough stems they are.
+    # Measured (round / rough): 67 / 45 % within 1 sigma, 88 / 82 % reported, MAE of the
+    # reported 1.4 / 2.7 cm, of the others 3.3 / 5.4 cm.
     assert len(err) >= 100
     assert 0.4 <= np.mean(err <= std) <= 0.85
     assert reported.mean() >= 0.6
-    if style is ROUGH:
-        assert err[~reported].mean() > 1.2 * err[reported].mean()
-    else:
-        assert reported.mean() >= 0.85
+    assert err[~reported].mean() > 1.2 * err[reported].mean()
 
 
 def test_near_silhouettes_keep_their_edges():
@@ -207,3 +202,21 @@ def test_explicit_breast_height_without_stem_points_gives_no_stem():
     assert len(detect(scan, "vlp16", breast_height_z=top + 2.0)) == 0
     at_bh = detect(scan, "vlp16", breast_height_z=-1.8 + 1.3)  # ground 1.8 m below the sensor
     assert len(at_bh) >= 5 and np.isfinite(at_bh.dbh).mean() >= 0.8
+
+
+def test_silhouette_cut_by_a_nearer_stem_is_not_taken():
+    """A 40 cm stem 10 m away, partly hidden by a 12 cm stem at 4 m: the scan lines' widths end
+    at the near stem's edge, not at its own. Before the occlusion check the silhouette gave
+    -19 to -5 cm with a 1.4 cm sigma; now those lines are left out and the DBH (band circle)
+    is within 4 cm and within 2 of its sigmas."""
+    from forestslam.perception.synthetic_stems import make_stem
+
+    rng = np.random.default_rng(0)
+    for k, y in enumerate((0.15, 0.2, 0.25, 0.3)):
+        far = make_stem(10.0, y, 0.40, ROUND, rng)
+        world = [make_stem(4.0, 0.0, 0.12, ROUND, rng), far]
+        stems = detect(scan_stems(world, np.zeros(2), ROUND, noise_m=0.03, seed=k), "vlp16")
+        j = int(np.argmin(np.linalg.norm(stems.xy - [10.0, y], axis=1)))
+        assert np.linalg.norm(stems.xy[j] - [10.0, y]) < 0.4
+        err = abs(stems.dbh[j] - far.dbh)
+        assert err < 0.045 and err < 2 * stems.dbh_std[j]

@@ -284,6 +284,52 @@ std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegment
     return out;
 }
 
+// Non-ground returns of a scan by azimuth column (one sensor step wide): where the occluders
+// of a stem's silhouette are looked up.
+struct AzimuthColumns {
+    double step = 0;
+    std::vector<std::vector<int>> rows;
+    int of(double az) const {
+        const int n = static_cast<int>(rows.size());
+        return ((static_cast<int>(std::floor((az + M_PI) / step)) % n) + n) % n;
+    }
+};
+
+AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, double step) {
+    AzimuthColumns c;
+    if (!(step > 0)) return c;
+    c.step = step;
+    c.rows.resize(static_cast<size_t>(std::ceil(2 * M_PI / step)));
+    for (Eigen::Index i = 0; i < pts.rows(); ++i)
+        if (!gs.is_ground[static_cast<size_t>(i)])
+            c.rows[static_cast<size_t>(c.of(std::atan2(pts(i, 1), pts(i, 0))))].push_back(
+                static_cast<int>(i));
+    return c;
+}
+
+// The returns within two azimuth steps of the bearings the stem `seen` covers (its own and
+// whatever stands beside, in front or behind it).
+Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols) {
+    if (seen.rows() == 0 || cols.rows.empty()) return Points3(0, 3);
+    const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    double lo = 0, hi = 0;
+    for (Eigen::Index i = 0; i < seen.rows(); ++i) {
+        const double a = std::atan2(seen(i, 1), seen(i, 0)) - bearing;
+        const double w = std::atan2(std::sin(a), std::cos(a));
+        lo = std::min(lo, w), hi = std::max(hi, w);
+    }
+    std::vector<int> rows;
+    const int n = static_cast<int>(cols.rows.size());
+    const int first = cols.of(bearing + lo) - 2,
+              count = static_cast<int>((hi - lo) / cols.step) + 5;
+    for (int k = 0; k < std::min(count, n); ++k) {
+        const auto &col = cols.rows[static_cast<size_t>(((first + k) % n + n) % n)];
+        rows.insert(rows.end(), col.begin(), col.end());
+    }
+    return selectRows(pts, rows);
+}
+
 // 6. Per stem: shape, local ground, breast-height centre and diameter.
 void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilterResult &nf,
                   const Clusters &stems, const GroundSegmentation &gs, const SensorGeometry &sensor,
@@ -299,6 +345,9 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
     const std::vector<Points3> seen =
         use_silhouette ? fullResolutionStems(pts, gs, nf, stems, opt.filter.voxel_m)
                        : std::vector<Points3>(stems.size());
+    const AzimuthColumns columns = use_silhouette
+                                       ? azimuthColumns(pts, gs, silhouette.sensor.azimuth_step_rad)
+                                       : AzimuthColumns{};
     const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
     for (size_t k = 0; k < stems.size(); ++k) {
         const std::vector<int> &rows = stems[k];
@@ -322,6 +371,8 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
         }
         st.base_z = base;
         silhouette.points = seen[k];
+        silhouette.occluders =
+            returnsAround(seen[k].rows() > 0 ? seen[k] : st.points, pts, columns);
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
                                        use_silhouette ? &silhouette : nullptr,
                                        scan_centred ? &sensor_origin : nullptr);

@@ -235,8 +235,38 @@ SilhouetteLine lineExtent(const Eigen::Ref<const Points3> &p, const std::vector<
     return sl;
 }
 
-// Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
-DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
+// Scan line of each row of `p`: the sensor's vertical angle nearest its elevation.
+std::vector<int> scanLines(const Eigen::Ref<const Points3> &p, const std::vector<double> &va) {
+    std::vector<int> line(static_cast<size_t>(p.rows()));
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
+        const auto it = std::lower_bound(va.begin(), va.end(), el);
+        size_t k = static_cast<size_t>(it - va.begin());
+        if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
+        line[static_cast<size_t>(i)] = static_cast<int>(k);
+    }
+    return line;
+}
+
+// True when a return of `occluders` on scan line `line` lies within 1.5 azimuth steps beyond
+// either edge of `sl` and more than 0.15 m (several range sigmas) nearer than its front.
+bool edgeOccluded(const SilhouetteLine &sl, int line, const Eigen::Ref<const Points3> &occluders,
+                  const std::vector<int> &occluder_line, double bearing, double step) {
+    const double lo = sl.mid - 0.5 * (sl.width - step), hi = sl.mid + 0.5 * (sl.width - step);
+    for (Eigen::Index i = 0; i < occluders.rows(); ++i) {
+        if (occluder_line[static_cast<size_t>(i)] != line) continue;
+        double a = std::atan2(occluders(i, 1), occluders(i, 0)) - bearing;
+        a = std::atan2(std::sin(a), std::cos(a));
+        const bool beside = (a < lo && a >= lo - 1.5 * step) || (a > hi && a <= hi + 1.5 * step);
+        if (beside && std::hypot(occluders(i, 0), occluders(i, 1)) < sl.front - 0.15) return true;
+    }
+    return false;
+}
+
+// Silhouette radius from the scan lines of the stem section `p` (see StemDiameter); lines cut
+// by something in front of the stem (`occluders`) are left out.
+DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
+                          const Eigen::Ref<const Points3> &occluders, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
     DiameterFit f;
     const auto &va = sensor.vertical_angles_rad;
@@ -244,20 +274,18 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
     Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     std::map<int, std::vector<int>> lines;
-    for (Eigen::Index i = 0; i < p.rows(); ++i) {
-        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
-        const auto it = std::lower_bound(va.begin(), va.end(), el);
-        size_t k = static_cast<size_t>(it - va.begin());
-        if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
-        lines[static_cast<int>(k)].push_back(static_cast<int>(i));
-    }
+    const std::vector<int> line_of = scanLines(p, va);
+    for (Eigen::Index i = 0; i < p.rows(); ++i)
+        lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
+    const std::vector<int> occluder_line = scanLines(occluders, va);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
-        (void)line;
         if (rows.size() < 2) continue;
         const SilhouetteLine sl = lineExtent(p, rows, bearing, sensor.azimuth_step_rad);
         const double s = std::sin(0.5 * sl.width);
         if (!(s > 0 && s < 0.9)) continue;
+        if (edgeOccluded(sl, line, occluders, occluder_line, bearing, sensor.azimuth_step_rad))
+            continue;
         radii.push_back(sl.front * s / (1.0 - s));
         mids.push_back(sl.mid);
         dists.push_back(sl.front);
@@ -434,7 +462,8 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         const double lo = mid - opt.band_max_half_m, hi = mid + opt.band_max_half_m;
         const Points3 sec = silhouette->points.rows() > 0 ? rowsBetween(silhouette->points, lo, hi)
                                                           : rowsBetween(points, lo, hi);
-        out.silhouette = silhouetteFit(sec, mid, silhouette->sensor, opt);
+        const Points3 occluders = rowsBetween(silhouette->occluders, lo, hi);
+        out.silhouette = silhouetteFit(sec, occluders, mid, silhouette->sensor, opt);
     }
     // The cylinder is the costliest estimate and only the fallback: skipped when an accepted
     // silhouette or band circle decides anyway (unless every estimate is asked for).

@@ -58,10 +58,14 @@ struct SilhouetteSensor {
 // One scan's view of a stem for the silhouette: the sensor's sampling and every return of the
 // stem in that scan. The stem's other points may be thinned (the normal filter keeps one point
 // per voxel, which drops the outermost returns of a silhouette where returns are closer than a
-// voxel); an empty `points` means the stem's own points.
+// voxel); an empty `points` means the stem's own points. `occluders`: other returns of the
+// scan around the stem's bearing (any range); a scan line whose edge return has one of them
+// in the next beam and nearer than the stem is cut by what stands in front, not by the stem's
+// edge, and is left out of the silhouette.
 struct SilhouetteView {
     SilhouetteSensor sensor;
     Points3 points = Points3(0, 3);
+    Points3 occluders = Points3(0, 3);
 };
 
 struct StemDiameter {
