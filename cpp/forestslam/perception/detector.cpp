@@ -307,10 +307,11 @@ AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, 
     return c;
 }
 
-// The returns within two azimuth steps of the bearings the stem `seen` covers (its own and
-// whatever stands beside, in front or behind it).
+// The returns within two azimuth steps of the bearings the stem `seen` covers and nearer than
+// its farthest return (what may stand in front of it; the rest cannot occlude it).
 Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols) {
     if (seen.rows() == 0 || cols.rows.empty()) return Points3(0, 3);
+    const double far2 = seen.leftCols<2>().rowwise().squaredNorm().maxCoeff();
     const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     double lo = 0, hi = 0;
@@ -324,8 +325,8 @@ Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColu
     const int first = cols.of(bearing + lo) - 2,
               count = static_cast<int>((hi - lo) / cols.step) + 5;
     for (int k = 0; k < std::min(count, n); ++k) {
-        const auto &col = cols.rows[static_cast<size_t>(((first + k) % n + n) % n)];
-        rows.insert(rows.end(), col.begin(), col.end());
+        for (int i : cols.rows[static_cast<size_t>(((first + k) % n + n) % n)])
+            if (pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) < far2) rows.push_back(i);
     }
     return selectRows(pts, rows);
 }

@@ -248,17 +248,35 @@ std::vector<int> scanLines(const Eigen::Ref<const Points3> &p, const std::vector
     return line;
 }
 
-// True when a return of `occluders` on scan line `line` lies within 1.5 azimuth steps beyond
-// either edge of `sl` and more than 0.15 m (several range sigmas) nearer than its front.
-bool edgeOccluded(const SilhouetteLine &sl, int line, const Eigen::Ref<const Points3> &occluders,
-                  const std::vector<int> &occluder_line, double bearing, double step) {
+// A return near a stem: its scan line, bearing relative to the stem's and horizontal range.
+struct NearbyReturn {
+    int line = 0;
+    double a = 0, rho = 0;
+};
+
+std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
+                                        const std::vector<double> &va, double bearing) {
+    const std::vector<int> line = scanLines(p, va);
+    std::vector<NearbyReturn> out(line.size());
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        NearbyReturn &o = out[static_cast<size_t>(i)];
+        const double a = std::atan2(p(i, 1), p(i, 0)) - bearing;
+        o.line = line[static_cast<size_t>(i)];
+        o.a = std::atan2(std::sin(a), std::cos(a));
+        o.rho = std::hypot(p(i, 0), p(i, 1));
+    }
+    return out;
+}
+
+// True when one of `occluders` on scan line `line` lies within 1.5 azimuth steps beyond either
+// edge of `sl` and more than 0.15 m (several range sigmas) nearer than its front.
+bool edgeOccluded(const SilhouetteLine &sl, int line, const std::vector<NearbyReturn> &occluders,
+                  double step) {
     const double lo = sl.mid - 0.5 * (sl.width - step), hi = sl.mid + 0.5 * (sl.width - step);
-    for (Eigen::Index i = 0; i < occluders.rows(); ++i) {
-        if (occluder_line[static_cast<size_t>(i)] != line) continue;
-        double a = std::atan2(occluders(i, 1), occluders(i, 0)) - bearing;
-        a = std::atan2(std::sin(a), std::cos(a));
-        const bool beside = (a < lo && a >= lo - 1.5 * step) || (a > hi && a <= hi + 1.5 * step);
-        if (beside && std::hypot(occluders(i, 0), occluders(i, 1)) < sl.front - 0.15) return true;
+    for (const NearbyReturn &o : occluders) {
+        if (o.line != line || !(o.rho < sl.front - 0.15)) continue;
+        if ((o.a < lo && o.a >= lo - 1.5 * step) || (o.a > hi && o.a <= hi + 1.5 * step))
+            return true;
     }
     return false;
 }
@@ -277,15 +295,14 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     const std::vector<int> line_of = scanLines(p, va);
     for (Eigen::Index i = 0; i < p.rows(); ++i)
         lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
-    const std::vector<int> occluder_line = scanLines(occluders, va);
+    const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, va, bearing);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
         if (rows.size() < 2) continue;
         const SilhouetteLine sl = lineExtent(p, rows, bearing, sensor.azimuth_step_rad);
         const double s = std::sin(0.5 * sl.width);
         if (!(s > 0 && s < 0.9)) continue;
-        if (edgeOccluded(sl, line, occluders, occluder_line, bearing, sensor.azimuth_step_rad))
-            continue;
+        if (edgeOccluded(sl, line, nearby, sensor.azimuth_step_rad)) continue;
         radii.push_back(sl.front * s / (1.0 - s));
         mids.push_back(sl.mid);
         dists.push_back(sl.front);
