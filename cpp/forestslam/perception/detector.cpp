@@ -251,19 +251,107 @@ SilhouetteSensor silhouetteSensor(const SensorGeometry &sensor) {
     return silhouette;
 }
 
+// True when some of `p` lie within `half` of height z.
+bool reachesHeight(const Points3 &p, double z, double half) {
+    return ((p.col(2).array() - z).abs() <= half).any();
+}
+
+// Every non-ground input return in the thinning voxel of one of a stem's points: each stem at
+// the scan's full resolution, for its silhouette. The normal filter keeps the first return per
+// voxel; where returns lie closer than a voxel (within about 14 m on a VLP-16 at 5 cm) that
+// drops the outermost returns of a silhouette, which came out 1-1.6 cm small within 8 m
+// (bench/dbh_near_range.py).
+std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegmentation &gs,
+                                         const NormalFilterResult &nf, const Clusters &stems,
+                                         double voxel_m) {
+    std::vector<Points3> out(stems.size());
+    if (!(voxel_m > 0)) return out;  // nothing thinned: the stems' own points
+    std::unordered_map<std::uint64_t, int> stem_of;
+    for (size_t k = 0; k < stems.size(); ++k)
+        for (int r : stems[k]) {
+            const int i = nf.kept[static_cast<size_t>(r)];
+            stem_of.emplace(voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), voxel_m),
+                            static_cast<int>(k));
+        }
+    std::vector<std::vector<int>> rows(stems.size());
+    for (Eigen::Index i = 0; i < pts.rows(); ++i) {
+        if (gs.is_ground[static_cast<size_t>(i)]) continue;
+        const auto it = stem_of.find(voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), voxel_m));
+        if (it != stem_of.end())
+            rows[static_cast<size_t>(it->second)].push_back(static_cast<int>(i));
+    }
+    for (size_t k = 0; k < stems.size(); ++k) out[k] = selectRows(pts, rows[k]);
+    return out;
+}
+
+// Non-ground returns of a scan by azimuth column (one sensor step wide): where the occluders
+// of a stem's silhouette are looked up.
+struct AzimuthColumns {
+    double step = 0;
+    std::vector<std::vector<int>> rows;
+    int of(double az) const {
+        const int n = static_cast<int>(rows.size());
+        return ((static_cast<int>(std::floor((az + M_PI) / step)) % n) + n) % n;
+    }
+};
+
+AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, double step) {
+    AzimuthColumns c;
+    if (!(step > 0)) return c;
+    c.step = step;
+    c.rows.resize(static_cast<size_t>(std::ceil(2 * M_PI / step)));
+    for (Eigen::Index i = 0; i < pts.rows(); ++i)
+        if (!gs.is_ground[static_cast<size_t>(i)])
+            c.rows[static_cast<size_t>(c.of(std::atan2(pts(i, 1), pts(i, 0))))].push_back(
+                static_cast<int>(i));
+    return c;
+}
+
+// The returns within two azimuth steps of the bearings the stem `seen` covers and nearer than
+// its farthest return (what may stand in front of it; the rest cannot occlude it).
+Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols) {
+    if (seen.rows() == 0 || cols.rows.empty()) return Points3(0, 3);
+    const double far2 = seen.leftCols<2>().rowwise().squaredNorm().maxCoeff();
+    const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    double lo = 0, hi = 0;
+    for (Eigen::Index i = 0; i < seen.rows(); ++i) {
+        const double a = std::atan2(seen(i, 1), seen(i, 0)) - bearing;
+        const double w = std::atan2(std::sin(a), std::cos(a));
+        lo = std::min(lo, w), hi = std::max(hi, w);
+    }
+    std::vector<int> rows;
+    const int n = static_cast<int>(cols.rows.size());
+    const int first = cols.of(bearing + lo) - 2,
+              count = static_cast<int>((hi - lo) / cols.step) + 5;
+    for (int k = 0; k < std::min(count, n); ++k) {
+        for (int i : cols.rows[static_cast<size_t>(((first + k) % n + n) % n)])
+            if (pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) < far2) rows.push_back(i);
+    }
+    return selectRows(pts, rows);
+}
+
 // 6. Per stem: shape, local ground, breast-height centre and diameter.
-void measureStems(const Points3 &filtered, const NormalFilterResult &nf, const Clusters &stems,
-                  const GroundSegmentation &gs, const SensorGeometry &sensor, bool scan_centred,
-                  const PerceptionConfig &opt, Detection &det) {
+void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilterResult &nf,
+                  const Clusters &stems, const GroundSegmentation &gs, const SensorGeometry &sensor,
+                  bool scan_centred, const PerceptionConfig &opt, Detection &det) {
     const SegmentationConfig &so = opt.segmentation;
-    const SilhouetteSensor silhouette = silhouetteSensor(sensor);
+    SilhouetteView silhouette;
+    silhouette.sensor = silhouetteSensor(sensor);
     DiameterConfig dopt = opt.diameter;
     if (!scan_centred)
         dopt.min_arc_coverage = std::max(dopt.min_arc_coverage, dopt.map_min_arc_coverage);
     const bool use_silhouette = opt.diameter.silhouette && scan_centred && sensor.has_range_image &&
-                                !silhouette.vertical_angles_rad.empty();
+                                !silhouette.sensor.vertical_angles_rad.empty();
+    const std::vector<Points3> seen =
+        use_silhouette ? fullResolutionStems(pts, gs, nf, stems, opt.filter.voxel_m)
+                       : std::vector<Points3>(stems.size());
+    const AzimuthColumns columns = use_silhouette
+                                       ? azimuthColumns(pts, gs, silhouette.sensor.azimuth_step_rad)
+                                       : AzimuthColumns{};
     const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
-    for (const auto &rows : stems) {
+    for (size_t k = 0; k < stems.size(); ++k) {
+        const std::vector<int> &rows = stems[k];
         Stem st;
         st.points = selectRows(filtered, rows);
         st.normals = selectRows(nf.normals, rows);
@@ -272,6 +360,10 @@ void measureStems(const Points3 &filtered, const NormalFilterResult &nf, const C
         double base = stemGroundHeight(det, gs, st.shape.mean.head<2>(), so);
         st.ground_found = std::isfinite(base);
         if (std::isfinite(opt.breast_height_z)) {
+            // A stem without points near the given height has no DBH there (the cylinder
+            // fallback would give one from points metres away): no stem.
+            if (!reachesHeight(st.points, opt.breast_height_z, opt.diameter.band_max_half_m))
+                continue;
             base = opt.breast_height_z - bandMiddle(opt.diameter);
             st.breast_source = BreastHeightSource::Explicit;
         } else if (!st.ground_found) {
@@ -279,6 +371,9 @@ void measureStems(const Points3 &filtered, const NormalFilterResult &nf, const C
             st.breast_source = BreastHeightSource::LowestPoint;
         }
         st.base_z = base;
+        silhouette.points = seen[k];
+        silhouette.occluders =
+            returnsAround(seen[k].rows() > 0 ? seen[k] : st.points, pts, columns);
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
                                        use_silhouette ? &silhouette : nullptr,
                                        scan_centred ? &sensor_origin : nullptr);
@@ -342,7 +437,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     const Clusters stems =
         classifyStems(filtered, coarse, sensor, scan_centred, opt.segmentation, det);
     clock.lap(det, "classification");
-    measureStems(filtered, nf, stems, gs, sensor, scan_centred, opt, det);
+    measureStems(in.pts, filtered, nf, stems, gs, sensor, scan_centred, opt, det);
     if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(in.pts, opt);
     toInputFrame(in.origin, det);
     clock.lap(det, "diameter");

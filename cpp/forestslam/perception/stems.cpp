@@ -197,8 +197,94 @@ double centreDistance(const Eigen::Ref<const Points3> &p, double az, double r, d
     return d.size() >= 3 ? median(std::move(d)) : fallback;
 }
 
-// Silhouette radius from the scan lines of the stem section `p` (see StemDiameter).
-DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
+// One scan line across a stem: its angular width (outermost returns plus one azimuth step: the
+// true edge lies on average half a step beyond each), the bearing of its middle (relative to
+// `bearing`) and the range of its front.
+struct SilhouetteLine {
+    double width = 0, mid = 0, front = kNaN;
+};
+
+// The front is the median range (along the middle bearing) of the returns facing the sensor
+// (the middle half of the line, at least the return nearest the middle): the nearest range,
+// used before, is the minimum of noisy ranges and lies short by about 1.5-2 range sigmas; with
+// r = front sin(w/2) / (1 - sin(w/2)) that shrank near stems (-0.5 cm DBH within 6 m at 3 cm
+// noise, bench/dbh_near_range.py). The facing returns lie up to 0.13 r behind the front,
+// which moves r by 0.13 r^2 / front at most.
+SilhouetteLine lineExtent(const Eigen::Ref<const Points3> &p, const std::vector<int> &rows,
+                          double bearing, double step) {
+    SilhouetteLine sl;
+    std::vector<double> a(rows.size()), rho(rows.size());
+    double lo = 1e9, hi = -1e9;
+    for (size_t k = 0; k < rows.size(); ++k) {
+        const int i = rows[k];
+        const double az = std::atan2(p(i, 1), p(i, 0)) - bearing;
+        a[k] = std::atan2(std::sin(az), std::cos(az));
+        rho[k] = std::hypot(p(i, 0), p(i, 1));
+        lo = std::min(lo, a[k]), hi = std::max(hi, a[k]);
+    }
+    sl.width = hi - lo + step;
+    sl.mid = 0.5 * (lo + hi);
+    std::vector<double> front;
+    size_t nearest = 0;
+    for (size_t k = 0; k < rows.size(); ++k) {
+        const double off = std::abs(a[k] - sl.mid);
+        if (off <= 0.25 * (hi - lo) + 0.5 * step) front.push_back(rho[k] * std::cos(off));
+        if (off < std::abs(a[nearest] - sl.mid)) nearest = k;
+    }
+    sl.front = front.empty() ? rho[nearest] * std::cos(a[nearest] - sl.mid) : median(front);
+    return sl;
+}
+
+// Scan line of each row of `p`: the sensor's vertical angle nearest its elevation.
+std::vector<int> scanLines(const Eigen::Ref<const Points3> &p, const std::vector<double> &va) {
+    std::vector<int> line(static_cast<size_t>(p.rows()));
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
+        const auto it = std::lower_bound(va.begin(), va.end(), el);
+        size_t k = static_cast<size_t>(it - va.begin());
+        if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
+        line[static_cast<size_t>(i)] = static_cast<int>(k);
+    }
+    return line;
+}
+
+// A return near a stem: its scan line, bearing relative to the stem's and horizontal range.
+struct NearbyReturn {
+    int line = 0;
+    double a = 0, rho = 0;
+};
+
+std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
+                                        const std::vector<double> &va, double bearing) {
+    const std::vector<int> line = scanLines(p, va);
+    std::vector<NearbyReturn> out(line.size());
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        NearbyReturn &o = out[static_cast<size_t>(i)];
+        const double a = std::atan2(p(i, 1), p(i, 0)) - bearing;
+        o.line = line[static_cast<size_t>(i)];
+        o.a = std::atan2(std::sin(a), std::cos(a));
+        o.rho = std::hypot(p(i, 0), p(i, 1));
+    }
+    return out;
+}
+
+// True when one of `occluders` on scan line `line` lies within 1.5 azimuth steps beyond either
+// edge of `sl` and more than 0.15 m (several range sigmas) nearer than its front.
+bool edgeOccluded(const SilhouetteLine &sl, int line, const std::vector<NearbyReturn> &occluders,
+                  double step) {
+    const double lo = sl.mid - 0.5 * (sl.width - step), hi = sl.mid + 0.5 * (sl.width - step);
+    for (const NearbyReturn &o : occluders) {
+        if (o.line != line || !(o.rho < sl.front - 0.15)) continue;
+        if ((o.a < lo && o.a >= lo - 1.5 * step) || (o.a > hi && o.a <= hi + 1.5 * step))
+            return true;
+    }
+    return false;
+}
+
+// Silhouette radius from the scan lines of the stem section `p` (see StemDiameter); lines cut
+// by something in front of the stem (`occluders`) are left out.
+DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
+                          const Eigen::Ref<const Points3> &occluders, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
     DiameterFit f;
     const auto &va = sensor.vertical_angles_rad;
@@ -206,29 +292,20 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
     Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     std::map<int, std::vector<int>> lines;
-    for (Eigen::Index i = 0; i < p.rows(); ++i) {
-        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
-        const auto it = std::lower_bound(va.begin(), va.end(), el);
-        size_t k = static_cast<size_t>(it - va.begin());
-        if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
-        lines[static_cast<int>(k)].push_back(static_cast<int>(i));
-    }
+    const std::vector<int> line_of = scanLines(p, va);
+    for (Eigen::Index i = 0; i < p.rows(); ++i)
+        lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
+    const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, va, bearing);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
-        (void)line;
         if (rows.size() < 2) continue;
-        double lo = 1e9, hi = -1e9, dn = 1e9;
-        for (int i : rows) {
-            double a = std::atan2(p(i, 1), p(i, 0)) - bearing;
-            a = std::atan2(std::sin(a), std::cos(a));
-            lo = std::min(lo, a), hi = std::max(hi, a);
-            dn = std::min(dn, std::hypot(p(i, 0), p(i, 1)));
-        }
-        const double s = std::sin(0.5 * (hi - lo + sensor.azimuth_step_rad));
+        const SilhouetteLine sl = lineExtent(p, rows, bearing, sensor.azimuth_step_rad);
+        const double s = std::sin(0.5 * sl.width);
         if (!(s > 0 && s < 0.9)) continue;
-        radii.push_back(dn * s / (1.0 - s));
-        mids.push_back(0.5 * (lo + hi));
-        dists.push_back(dn);
+        if (edgeOccluded(sl, line, nearby, sensor.azimuth_step_rad)) continue;
+        radii.push_back(sl.front * s / (1.0 - s));
+        mids.push_back(sl.mid);
+        dists.push_back(sl.front);
     }
     if (radii.size() < 2) return f;
     const double r = median(radii);
@@ -254,118 +331,124 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, double mid_z,
 
 }  // namespace
 
-StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
-                              const Eigen::Ref<const Points3> &normals, double base_z,
-                              const Eigen::Vector3d &up, const DiameterConfig &opt,
-                              const SilhouetteSensor *sensor, const Eigen::Vector3d *view_origin) {
-    requirePerPoint("estimateDiameter", "normals", normals.rows(), points.rows(), true);
-    StemDiameter out;
-    if (points.rows() < 3 || !std::isfinite(base_z)) return out;
-    // Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a
-    // VLP-16 at 10 m has one ring per 0.35 m).
-    const double mid = base_z + 0.5 * (opt.band_low_m + opt.band_high_m);
+namespace {
+
+// Breast-height band, widened symmetrically around 1.3 m while it holds too few points (a
+// VLP-16 at 10 m has one ring per 0.35 m).
+Points3 breastHeightBand(const Eigen::Ref<const Points3> &points, double mid,
+                         const DiameterConfig &opt) {
     double half = 0.5 * (opt.band_high_m - opt.band_low_m);
     Points3 band = rowsBetween(points, mid - half, mid + half);
     while (band.rows() < opt.min_band_points && half < opt.band_max_half_m) {
         half = std::min(opt.band_max_half_m, half + 0.1);
         band = rowsBetween(points, mid - half, mid + half);
     }
-    out.band_points = static_cast<int>(band.rows());
-    const Eigen::Vector3d axis_up = up.normalized();
+    return band;
+}
 
-    // Robust circle fit of the band in the horizontal plane.
-    if (band.rows() >= 3) {
-        CircleFitConfig co;
-        co.inlier_threshold_m = opt.inlier_threshold_m;
-        co.min_radius_m = opt.min_radius_m;
-        co.max_radius_m = opt.max_radius_m;
-        const Points2 xy = band.leftCols<2>();
-        CircleFit cf;
-        if (view_origin != nullptr) {
-            const Points2 origins = view_origin->head<2>().transpose().replicate(xy.rows(), 1);
-            cf = fitCircleRays(xy, origins, co);
-        } else {
-            cf = fitCircle(xy, co);
-        }
-        if (cf.valid) {
-            out.circle.valid = true;
-            out.circle.radius = cf.radius;
-            out.circle.centre << cf.centre.x(), cf.centre.y(), mid;
-            out.circle.axis = Eigen::Vector3d::UnitZ();
-            evaluate(band, opt, out.circle);
-        }
+// Robust circle fit of the band in the horizontal plane (under range noise along the beams
+// when every point was seen from `view_origin`).
+DiameterFit bandCircle(const Points3 &band, double mid, const DiameterConfig &opt,
+                       const Eigen::Vector3d *view_origin) {
+    DiameterFit f;
+    if (band.rows() < 3) return f;
+    CircleFitConfig co;
+    co.inlier_threshold_m = opt.inlier_threshold_m;
+    co.min_radius_m = opt.min_radius_m;
+    co.max_radius_m = opt.max_radius_m;
+    const Points2 xy = band.leftCols<2>();
+    CircleFit cf;
+    if (view_origin != nullptr) {
+        const Points2 origins = view_origin->head<2>().transpose().replicate(xy.rows(), 1);
+        cf = fitCircleRays(xy, origins, co);
+    } else {
+        cf = fitCircle(xy, co);
     }
-    // Single scans: the silhouette, preferred whenever its scan lines agree.
-    if (sensor != nullptr) {
-        const Points3 sec =
-            rowsBetween(points, mid - opt.band_max_half_m, mid + opt.band_max_half_m);
-        out.silhouette = silhouetteFit(sec, mid, *sensor, opt);
+    if (!cf.valid) return f;
+    f.valid = true;
+    f.radius = cf.radius;
+    f.centre << cf.centre.x(), cf.centre.y(), mid;
+    f.axis = Eigen::Vector3d::UnitZ();
+    evaluate(band, opt, f);
+    return f;
+}
+
+// Rows of the lower stem section for the SAC cylinder (all rows when it holds fewer than 8).
+std::vector<int> cylinderSection(const Eigen::Ref<const Points3> &points, double base_z,
+                                 const DiameterConfig &opt) {
+    std::vector<int> rows;
+    rowsBetween(points, base_z + opt.cylinder_section_low_m, base_z + opt.cylinder_section_high_m,
+                &rows);
+    if (rows.size() < 8) {
+        rows.resize(static_cast<size_t>(points.rows()));
+        std::iota(rows.begin(), rows.end(), 0);
     }
-    // SAC cylinder (with normals) on the lower stem section: the costliest estimate and only
-    // the fallback, so skipped when an accepted silhouette or band circle decides anyway
-    // (unless every estimate is asked for).
-    const bool cylinder_needed = opt.fit_all || !(out.silhouette.valid || out.circle.valid);
-    if (cylinder_needed && normals.rows() == points.rows() && points.rows() >= 8) {
-        std::vector<int> rows;
-        Points3 sec = rowsBetween(points, base_z + opt.cylinder_section_low_m,
-                                  base_z + opt.cylinder_section_high_m, &rows);
-        if (sec.rows() < 8) {
-            rows.resize(static_cast<size_t>(points.rows()));
-            std::iota(rows.begin(), rows.end(), 0);
-            sec = points;
-        }
-        const int cap = opt.cylinder_max_points;
-        if (cap > 0 && static_cast<int>(rows.size()) > cap) {
-            std::vector<int> thin;
-            const double step = static_cast<double>(rows.size()) / opt.cylinder_max_points;
-            for (int k = 0; k < opt.cylinder_max_points; ++k)
-                thin.push_back(rows[static_cast<size_t>(k * step)]);
-            rows.swap(thin);
-        }
-        pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
-        pcl::PointCloud<pcl::Normal>::Ptr cn(new pcl::PointCloud<pcl::Normal>);
-        for (int i : rows) {
-            cloud->push_back(pcl::PointXYZ(static_cast<float>(points(i, 0)),
-                                           static_cast<float>(points(i, 1)),
-                                           static_cast<float>(points(i, 2))));
-            cn->push_back(pcl::Normal(static_cast<float>(normals(i, 0)),
-                                      static_cast<float>(normals(i, 1)),
-                                      static_cast<float>(normals(i, 2))));
-        }
-        pcl::SACSegmentationFromNormals<pcl::PointXYZ, pcl::Normal> seg;
-        seg.setOptimizeCoefficients(true);
-        seg.setModelType(pcl::SACMODEL_CYLINDER);
-        seg.setMethodType(pcl::SAC_RANSAC);
-        seg.setNormalDistanceWeight(opt.cylinder_normal_weight);
-        seg.setMaxIterations(opt.cylinder_iterations);
-        seg.setDistanceThreshold(opt.inlier_threshold_m);
-        seg.setRadiusLimits(opt.min_radius_m, opt.max_radius_m);
-        seg.setAxis(axis_up.cast<float>());
-        seg.setEpsAngle(opt.max_lean_rad);
-        seg.setInputCloud(cloud);
-        seg.setInputNormals(cn);
-        pcl::PointIndices inl;
-        pcl::ModelCoefficients coef;
-        seg.segment(inl, coef);
-        if (coef.values.size() == 7 && inl.indices.size() >= 3) {
-            Eigen::Vector3d p0(coef.values[0], coef.values[1], coef.values[2]);
-            Eigen::Vector3d a(coef.values[3], coef.values[4], coef.values[5]);
-            if (a.norm() > 0 && std::abs(a.normalized().dot(axis_up)) > 1e-3) {
-                a.normalize();
-                if (a.dot(axis_up) < 0) a = -a;
-                DiameterFit &f = out.cylinder;
-                f.valid = true;
-                f.axis = a;
-                f.radius = coef.values[6];
-                f.centre = p0 + a * ((mid - p0.z()) / a.z());  // axis at breast height
-                evaluate(band.rows() >= 3 ? Points3(band) : sec, opt, f);
-            }
-        }
+    return rows;
+}
+
+// `rows` evenly thinned to at most `cap` (0: no cap).
+std::vector<int> evenlyThinned(const std::vector<int> &rows, int cap) {
+    if (cap <= 0 || static_cast<int>(rows.size()) <= cap) return rows;
+    std::vector<int> thin;
+    const double step = static_cast<double>(rows.size()) / cap;
+    for (int k = 0; k < cap; ++k) thin.push_back(rows[static_cast<size_t>(k * step)]);
+    return thin;
+}
+
+// PCL SAC cylinder (with normals) on the lower stem section, its axis within max_lean_rad of
+// `up`; evaluated on the band (or the section when the band holds fewer than 3 points).
+DiameterFit sacCylinder(const Eigen::Ref<const Points3> &points,
+                        const Eigen::Ref<const Points3> &normals, double base_z, double mid,
+                        const Eigen::Vector3d &axis_up, const Points3 &band,
+                        const DiameterConfig &opt) {
+    DiameterFit f;
+    const std::vector<int> section = cylinderSection(points, base_z, opt);
+    const std::vector<int> rows = evenlyThinned(section, opt.cylinder_max_points);
+    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud(new pcl::PointCloud<pcl::PointXYZ>);
+    pcl::PointCloud<pcl::Normal>::Ptr cn(new pcl::PointCloud<pcl::Normal>);
+    for (int i : rows) {
+        cloud->push_back(pcl::PointXYZ(static_cast<float>(points(i, 0)),
+                                       static_cast<float>(points(i, 1)),
+                                       static_cast<float>(points(i, 2))));
+        cn->push_back(pcl::Normal(static_cast<float>(normals(i, 0)),
+                                  static_cast<float>(normals(i, 1)),
+                                  static_cast<float>(normals(i, 2))));
     }
+    pcl::SACSegmentationFromNormals<pcl::PointXYZ, pcl::Normal> seg;
+    seg.setOptimizeCoefficients(true);
+    seg.setModelType(pcl::SACMODEL_CYLINDER);
+    seg.setMethodType(pcl::SAC_RANSAC);
+    seg.setNormalDistanceWeight(opt.cylinder_normal_weight);
+    seg.setMaxIterations(opt.cylinder_iterations);
+    seg.setDistanceThreshold(opt.inlier_threshold_m);
+    seg.setRadiusLimits(opt.min_radius_m, opt.max_radius_m);
+    seg.setAxis(axis_up.cast<float>());
+    seg.setEpsAngle(opt.max_lean_rad);
+    seg.setInputCloud(cloud);
+    seg.setInputNormals(cn);
+    pcl::PointIndices inl;
+    pcl::ModelCoefficients coef;
+    seg.segment(inl, coef);
+    if (coef.values.size() != 7 || inl.indices.size() < 3) return f;
+    const Eigen::Vector3d p0(coef.values[0], coef.values[1], coef.values[2]);
+    Eigen::Vector3d a(coef.values[3], coef.values[4], coef.values[5]);
+    if (!(a.norm() > 0 && std::abs(a.normalized().dot(axis_up)) > 1e-3)) return f;
+    a.normalize();
+    if (a.dot(axis_up) < 0) a = -a;
+    f.valid = true;
+    f.axis = a;
+    f.radius = coef.values[6];
+    f.centre = p0 + a * ((mid - p0.z()) / a.z());  // axis at breast height
+    evaluate(band.rows() >= 3 ? band : selectRows(points, section), opt, f);
+    return f;
+}
+
+// The band circle is the DBH definition itself; the SAC cylinder is only the fallback: on
+// one-sided views its radius is off by several cm either way, far more on polygonal or rough
+// stems (bench/dbh_bench.py: bias -3 cm on round, +12 to +28 cm on rough stems). An accepted
+// silhouette (single scans) decides over both.
+void chooseDiameter(StemDiameter &out) {
     const DiameterFit *best = nullptr;
-    // The band circle is the DBH definition itself; the SAC cylinder is only the fallback: on
-    // one-sided views its radius is off by several cm either way, far more on polygonal or
-    // rough stems (bench/dbh_bench.py: bias -3 cm on round, +12 to +28 cm on rough stems).
     if (out.circle.valid)
         best = &out.circle, out.method = 1;
     else if (out.cylinder.valid)
@@ -376,6 +459,35 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         out.dbh_std = 2.0 * best->radius_std;
         out.centre = best->centre;
     }
+}
+
+}  // namespace
+
+StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
+                              const Eigen::Ref<const Points3> &normals, double base_z,
+                              const Eigen::Vector3d &up, const DiameterConfig &opt,
+                              const SilhouetteView *silhouette,
+                              const Eigen::Vector3d *view_origin) {
+    requirePerPoint("estimateDiameter", "normals", normals.rows(), points.rows(), true);
+    StemDiameter out;
+    if (points.rows() < 3 || !std::isfinite(base_z)) return out;
+    const double mid = base_z + 0.5 * (opt.band_low_m + opt.band_high_m);
+    const Points3 band = breastHeightBand(points, mid, opt);
+    out.band_points = static_cast<int>(band.rows());
+    out.circle = bandCircle(band, mid, opt, view_origin);
+    if (silhouette != nullptr) {
+        const double lo = mid - opt.band_max_half_m, hi = mid + opt.band_max_half_m;
+        const Points3 sec = silhouette->points.rows() > 0 ? rowsBetween(silhouette->points, lo, hi)
+                                                          : rowsBetween(points, lo, hi);
+        const Points3 occluders = rowsBetween(silhouette->occluders, lo, hi);
+        out.silhouette = silhouetteFit(sec, occluders, mid, silhouette->sensor, opt);
+    }
+    // The cylinder is the costliest estimate and only the fallback: skipped when an accepted
+    // silhouette or band circle decides anyway (unless every estimate is asked for).
+    const bool cylinder_needed = opt.fit_all || !(out.silhouette.valid || out.circle.valid);
+    if (cylinder_needed && normals.rows() == points.rows() && points.rows() >= 8)
+        out.cylinder = sacCylinder(points, normals, base_z, mid, up.normalized(), band, opt);
+    chooseDiameter(out);
     return out;
 }
 

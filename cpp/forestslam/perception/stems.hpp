@@ -55,6 +55,19 @@ struct SilhouetteSensor {
     std::vector<double> vertical_angles_rad;
 };
 
+// One scan's view of a stem for the silhouette: the sensor's sampling and every return of the
+// stem in that scan. The stem's other points may be thinned (the normal filter keeps one point
+// per voxel, which drops the outermost returns of a silhouette where returns are closer than a
+// voxel); an empty `points` means the stem's own points. `occluders`: other returns of the
+// scan around the stem's bearing (any range); a scan line whose edge return has one of them
+// in the next beam and nearer than the stem is cut by what stands in front, not by the stem's
+// edge, and is left out of the silhouette.
+struct SilhouetteView {
+    SilhouetteSensor sensor;
+    Points3 points = Points3(0, 3);
+    Points3 occluders = Points3(0, 3);
+};
+
 struct StemDiameter {
     // circle: robust fit of the breast-height band; cylinder: PCL SAC cylinder; silhouette: the
     // stem's angular width per scan line seen from the sensor, r = d sin(w/2) / (1 - sin(w/2))
@@ -73,14 +86,14 @@ struct StemDiameter {
 
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder; other
 // lengths are std::invalid_argument).
-// With `sensor` (single scans) the silhouette estimate is made too and preferred when its scan
+// With `silhouette` (single scans) the silhouette estimate is made too and preferred when its scan
 // lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
 // circle and cylinder by quality. With `view_origin` (where every point was seen from: the
 // sensor of a single scan) the band circle is fitted under range noise (fitCircleRays).
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterConfig &options,
-                              const SilhouetteSensor *sensor = nullptr,
+                              const SilhouetteView *silhouette = nullptr,
                               const Eigen::Vector3d *view_origin = nullptr);
 
 // Where a stem's breast height (1.3 m above its base) came from.

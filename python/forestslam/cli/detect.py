@@ -69,6 +69,11 @@ def register(app: typer.Typer) -> None:
         columns = tally.columns()
         write_trees_csv(out, columns)
         _report(tally, columns, out)
+        if breast_height_z is not None and len(columns["id"]) == 0:
+            print(
+                f"no stem has points within {cfg.diameter.band_max_half_m:g} m of "
+                f"--breast-height-z {breast_height_z:g}: no DBH there"
+            )
         if png is not None and tally.last is not None:
             from forestslam.perception.plotting import plot_detections
 
