@@ -130,7 +130,7 @@ def scan_stage_errors(runs) -> dict[str, list]:
                 band = pts[(h >= 1.15) & (h <= 1.45)]
                 fit = fit_band_circle(band[:, :2], ORTHO_BAND) if len(band) >= 5 else None
                 if fit is not None:
-                    out["circle_ortho"].append(100 * (2 * fit["radius"] - tdbh[j]))
+                    out["circle_ortho"].append(100 * (2 * fit.radius - tdbh[j]))
     return out
 
 
@@ -152,9 +152,7 @@ def map_dbh(run: Run, cfg: MappingConfig, rays: bool = True, lateral_m: float | 
             tm.n_fits += 1
             fit = fit_band_circle(pts[:, :2], cfg)
             if fit is not None:
-                tree.measurements.append(
-                    (2 * fit["radius"], fit["inliers"] * fit["arc_coverage"] ** 2)
-                )
+                tree.measurements.append((2 * fit.radius, fit.inliers * fit.arc_coverage**2))
 
         tm._fit = ortho_fit
     for i, (sxy, stems, idx) in enumerate(

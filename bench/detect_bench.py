@@ -323,23 +323,23 @@ def real_slice() -> None:
         return
     pts = read_cloud(path).points
     xy = np.ascontiguousarray(pts[:, :2])
-    fit = _core.fit_circle(xy, inlier_threshold_m=0.02)
+    options = _core.CircleFitConfig()
+    options.inlier_threshold_m = 0.02
+    fit = _core.fit_circle(xy, options)
     alg = _core.fit_circle_algebraic(xy)
     rng = np.random.default_rng(0)
     half = [
         2
         * _core.fit_circle(
-            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 2, replace=False)]),
-            inlier_threshold_m=0.02,
-        )["radius"]
+            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 2, replace=False)]), options
+        ).radius
         for _ in range(50)
     ]
     fifth = [
         2
         * _core.fit_circle(
-            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 5, replace=False)]),
-            inlier_threshold_m=0.02,
-        )["radius"]
+            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 5, replace=False)]), options
+        ).radius
         for _ in range(50)
     ]
     print(
@@ -347,10 +347,10 @@ def real_slice() -> None:
         f"z {pts[:, 2].min():.2f}-{pts[:, 2].max():.2f}"
     )
     print(
-        f"  robust circle: DBH {2 * fit['radius']:.3f} m, inliers {fit['inliers']}/{len(pts)}, "
-        f"rms {1e3 * fit['rms_m']:.1f} mm, arc coverage {fit['arc_coverage']:.2f}"
+        f"  robust circle: DBH {2 * fit.radius:.3f} m, inliers {fit.inliers}/{len(pts)}, "
+        f"rms {1e3 * fit.rms_m:.1f} mm, arc coverage {fit.arc_coverage:.2f}"
     )
-    print(f"  plain algebraic (no robustness): DBH {2 * alg['radius']:.3f} m")
+    print(f"  plain algebraic (no robustness): DBH {2 * alg.radius:.3f} m")
     print(
         f"  resampled 50 % x50: DBH {np.mean(half):.3f} +- {np.std(half) * 1000:.1f} mm; "
         f"20 % x50: {np.mean(fifth):.3f} +- {np.std(fifth) * 1000:.1f} mm"

@@ -33,8 +33,8 @@ def test_range_model_circle_fit_is_unbiased_where_the_orthogonal_fit_shrinks():
         r = 0.06 + 0.006 * k
         p = one_sided_view((7.0, 2.0), r, np.zeros(2), 0.03, rng, n=200)
         o = np.zeros_like(p)
-        ortho.append(2 * _core.fit_circle(p)["radius"] - 2 * r)
-        rays.append(2 * _core.fit_circle_rays(p, o)["radius"] - 2 * r)
+        ortho.append(2 * _core.fit_circle(p).radius - 2 * r)
+        rays.append(2 * _core.fit_circle_rays(p, o).radius - 2 * r)
     assert np.mean(ortho) < -0.01  # the bias this issue is about: > 1 cm DBH at 3 cm noise
     assert abs(np.mean(rays)) < 0.004
 
@@ -112,7 +112,7 @@ def _orthogonal_fit(tm):
         tree.band, tree.origins, tree.n_band_scans = [], [], 0
         f = fit_band_circle(pts[:, :2], tm.cfg)
         if f is not None:
-            tree.measurements.append((2 * f["radius"], f["inliers"] * f["arc_coverage"] ** 2))
+            tree.measurements.append((2 * f.radius, f.inliers * f.arc_coverage**2))
 
     return fit
 

@@ -50,15 +50,15 @@ def test_real_stem_slice_stable_under_resampling():
     from forestslam.io import read_cloud
 
     pts = read_cloud(path).points
-    fit = _core.fit_circle(np.ascontiguousarray(pts[:, :2]), inlier_threshold_m=0.02)
-    assert fit["valid"]
-    assert 0.1 < 2 * fit["radius"] < 1.0
+    config = _core.CircleFitConfig()
+    config.inlier_threshold_m = 0.02
+    fit = _core.fit_circle(np.ascontiguousarray(pts[:, :2]), config)
+    assert fit.valid
+    assert 0.1 < 2 * fit.radius < 1.0
     rng = np.random.default_rng(0)
     dbh = []
     for _ in range(10):
         sub = pts[rng.choice(len(pts), len(pts) // 2, replace=False), :2]
-        dbh.append(
-            2 * _core.fit_circle(np.ascontiguousarray(sub), inlier_threshold_m=0.02)["radius"]
-        )
+        dbh.append(2 * _core.fit_circle(np.ascontiguousarray(sub), config).radius)
     assert np.std(dbh) < 0.01  # half the points: DBH stable within 1 cm
-    assert abs(np.median(dbh) - 2 * fit["radius"]) < 0.01
+    assert abs(np.median(dbh) - 2 * fit.radius) < 0.01

@@ -5,6 +5,7 @@
 
 #include <optional>
 #include <stdexcept>
+#include <string>
 
 #include "bindings.hpp"
 #include "forestslam/common/circle_fit.hpp"
@@ -17,18 +18,6 @@ namespace py = pybind11;
 
 namespace forestslam::python {
 namespace {
-
-py::dict circleDict(const CircleFit &f) {
-    py::dict d;
-    d["valid"] = f.valid;
-    d["centre"] = f.centre;
-    d["radius"] = f.radius;
-    d["inliers"] = f.inliers;
-    d["rms_m"] = f.rms_m;
-    d["arc_coverage"] = f.arc_coverage;
-    d["inlier_indices"] = f.inlier_indices;
-    return d;
-}
 
 namespace pc = forestslam::perception;
 
@@ -236,65 +225,74 @@ py::dict detectionDict(const perception::Detection &det, bool fits) {
 
 namespace {
 
-// Circle fits on their own (also used by the evaluation and the TLS tree fits).
+// Circle fits on their own (also used by the tree map, the evaluation and the TLS tree fits):
+// the options as one typed class, the result read-only.
+void defineCircleFitTypes(py::module_ &m) {
+    py::class_<CircleFitConfig> c(m, "CircleFitConfig",
+                                  "Options of fit_circle / fit_circle_rays (C++ defaults).");
+    c.def(py::init<>());
+    FS_FIELD(c, CircleFitConfig, inlier_threshold_m);
+    FS_FIELD(c, CircleFitConfig, min_radius_m);
+    FS_FIELD(c, CircleFitConfig, max_radius_m);
+    FS_FIELD(c, CircleFitConfig, max_ransac_iterations);
+    FS_FIELD(c, CircleFitConfig, refine_iterations);
+    FS_FIELD(c, CircleFitConfig, arc_sectors);
+    FS_FIELD(c, CircleFitConfig, seed);
+    FS_FIELD(c, CircleFitConfig, lateral_sigma_m);
+    FS_FIELD(c, CircleFitConfig, min_range_anisotropy);
+
+    py::class_<CircleFit> f(m, "CircleFit",
+                            "A 2D circle fit (read-only). Invalid (valid False, NaN centre and "
+                            "radius) for < 3 finite points, collinear points or a radius outside "
+                            "the bounds.");
+    f.def_readonly("valid", &CircleFit::valid)
+        .def_readonly("centre", &CircleFit::centre, "(2,)")
+        .def_readonly("radius", &CircleFit::radius, "m")
+        .def_readonly("inliers", &CircleFit::inliers, "points within the inlier threshold")
+        .def_readonly("rms_m", &CircleFit::rms_m, "RMS of the inlier residuals")
+        .def_readonly("arc_coverage", &CircleFit::arc_coverage,
+                      "share of the angular sectors holding inliers, in [0, 1]")
+        .def_readonly("inlier_indices", &CircleFit::inlier_indices, "rows of xy (list[int])")
+        .def_readonly("covariance", &CircleFit::covariance,
+                      "(3,3) of (centre x, centre y, radius) from the inliers, sigma^2 (J^T J)^-1 "
+                      "with n - 3 degrees of freedom; infinite for < 4 inliers or a degenerate arc")
+        .def_property_readonly("radius_std", &CircleFit::radiusStd,
+                               "standard deviation (m) of the radius, sqrt(covariance[2, 2])")
+        .def("__repr__", [](const CircleFit &x) {
+            return "CircleFit(valid=" + std::string(x.valid ? "True" : "False") +
+                   ", radius=" + std::to_string(x.radius) +
+                   ", inliers=" + std::to_string(x.inliers) + ")";
+        });
+}
+
 void defineCircleFits(py::module_ &m) {
-    const CircleFitConfig d;  // the keyword defaults are the C++ struct's
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
-           double inlier_threshold_m, double min_radius_m, double max_radius_m,
-           double lateral_sigma_m, std::uint32_t seed) {
+           const CircleFitConfig &config) {
             if (origins.rows() != xy.rows())
                 throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
-            CircleFitConfig o;
-            o.inlier_threshold_m = inlier_threshold_m;
-            o.min_radius_m = min_radius_m;
-            o.max_radius_m = max_radius_m;
-            o.lateral_sigma_m = lateral_sigma_m;
-            o.seed = seed;
-            CircleFit f;
-            {
-                py::gil_scoped_release release;
-                f = fitCircleRays(xy, origins, o);
-            }
-            return circleDict(f);
+            py::gil_scoped_release release;
+            return fitCircleRays(xy, origins, config);
         },
-        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
-        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
-        py::arg("lateral_sigma_m") = d.lateral_sigma_m, py::arg("seed") = d.seed,
+        py::arg("xy"), py::arg("origins"), py::arg("config") = CircleFitConfig(),
         "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
         "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
-        "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
+        "arcs, where fit_circle shrinks the circle). config: CircleFitConfig. Returns CircleFit.");
     m.def(
         "fit_circle",
-        [](const Eigen::Ref<const Points2> &xy, double inlier_threshold_m, double min_radius_m,
-           double max_radius_m, int max_ransac_iterations, int arc_sectors, std::uint32_t seed) {
-            CircleFitConfig o;
-            o.inlier_threshold_m = inlier_threshold_m;
-            o.min_radius_m = min_radius_m;
-            o.max_radius_m = max_radius_m;
-            o.max_ransac_iterations = max_ransac_iterations;
-            o.arc_sectors = arc_sectors;
-            o.seed = seed;
-            CircleFit f;
-            {
-                py::gil_scoped_release release;
-                f = fitCircle(xy, o);
-            }
-            return circleDict(f);
+        [](const Eigen::Ref<const Points2> &xy, const CircleFitConfig &config) {
+            py::gil_scoped_release release;
+            return fitCircle(xy, config);
         },
-        py::arg("xy"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
-        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
-        py::arg("max_ransac_iterations") = d.max_ransac_iterations,
-        py::arg("arc_sectors") = d.arc_sectors, py::arg("seed") = d.seed,
-        "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64.\n"
-        "Returns dict: valid bool, centre (2,), radius, inliers int, rms_m, arc_coverage in [0,1]\n"
-        "(occupied angular sectors), inlier_indices list[int] (rows of xy). Invalid (valid=False,\n"
-        "NaN centre) for < 3 finite points, collinear points or a radius outside the bounds.");
+        py::arg("xy"), py::arg("config") = CircleFitConfig(),
+        "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64;\n"
+        "config: CircleFitConfig. Returns CircleFit (non-finite rows are ignored; inlier_indices\n"
+        "are rows of xy).");
     m.def(
         "fit_circle_algebraic",
-        [](const Eigen::Ref<const Points2> &xy) { return circleDict(fitCircleAlgebraic(xy)); },
-        py::arg("xy"), "Plain Taubin algebraic circle fit of xy (N,2); same dict as fit_circle.");
+        [](const Eigen::Ref<const Points2> &xy) { return fitCircleAlgebraic(xy); }, py::arg("xy"),
+        "Plain Taubin algebraic circle fit of xy (N,2); returns CircleFit.");
 }
 
 // The whole per-scan perception chain.
@@ -438,6 +436,7 @@ void define_perception(py::module_ &m) {
     defineSensorGeometry(m);
     defineFilterOptions(m);
     defineStemOptions(m);
+    defineCircleFitTypes(m);
     defineCircleFits(m);
     defineDetect(m);
     defineFilterStages(m);
