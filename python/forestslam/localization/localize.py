@@ -10,6 +10,7 @@ import numpy as np
 
 from forestslam.core_bridge import fill_core
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose
 from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.tree_map import TreeMap
 
@@ -63,11 +64,7 @@ class Localization:
 
     def matrix(self) -> np.ndarray:
         """(4,4) T_map_local (planar: z, roll and pitch zero)."""
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        T = np.eye(4)
-        T[:2, :2] = [[c, -s], [s, c]]
-        T[:2, 3] = [self.x, self.y]
-        return T
+        return planar_pose(self.x, self.y, self.yaw)
 
     def to_dict(self) -> dict:
         return {

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from forestslam.errors import InputError, ProcessingError
+from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
@@ -44,7 +45,6 @@ from forestslam.tls.features import (
     coarse_stem_alignment,
     frame_features,
     ground_height_near,
-    planar_pose,
     reference_stems,
 )
 from forestslam.tls.initialize import Initializer, PendingFrame
@@ -449,7 +449,7 @@ def _stems_on_reference(feats, T: np.ndarray, ref_stems, config: TlsConfig) -> b
     ref_xyz, _ = ref_stems
     if len(feats.stems) == 0 or len(ref_xyz) == 0:
         return False
-    xy = feats.stems[:, :2] @ T[:2, :2].T + T[:2, 3]
+    xy = transform_xy(T, feats.stems[:, :2])
     d = np.linalg.norm(xy[:, None, :] - ref_xyz[None, :, :2], axis=2)
     hit = d.min(axis=1) < config.registration.coarse_inlier_m
     need = max(config.registration.coarse_min_stems, int(np.ceil(0.5 * len(xy))))
@@ -921,8 +921,8 @@ class _Walk:
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
         if accepted:
-            self.gmap.add(frame.points @ T[:3, :3].T + T[:3, 3])
-            self.centres.append(frame.feats.centres @ T[:3, :3].T + T[:3, 3])
+            self.gmap.add(transform_points(T, frame.points))
+            self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
             reg.good,
             reg.failure,
