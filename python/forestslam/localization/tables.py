@@ -137,7 +137,6 @@ def run_table_localization(
         _load_config,
         _open_map,
         _query_record,
-        _write_outputs,
         map_meta,
         run_localize_job,
     )
@@ -171,7 +170,8 @@ def run_table_localization(
             stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
             run.scans += 1
             run.queries.append(_query_record(stamp, int(k), len(local), loc))
-            if len(run.queries) % 100 == 0:  # a killed run keeps valid files (not O(n^2))
-                _write_outputs(run, meta)
+            run.query_done()
 
-    return run_localize_job(out_dir, meta, [trees_path, config_path, tree_map], overwrite, loop)
+    inputs = [trees_path, config_path, tree_map]
+    # every 100th query: rewriting all queries after each would be O(n^2) over long tables
+    return run_localize_job(out_dir, meta, inputs, overwrite, loop, checkpoint_every=100)
