@@ -122,8 +122,8 @@ def scan_stage_errors(runs) -> dict[str, list]:
                     continue
                 d = stems.diameters[k]
                 for m in ("silhouette", "circle", "cylinder"):
-                    if d[m]["valid"]:
-                        out[m].append(100 * (2 * d[m]["radius"] - tdbh[j]))
+                    if getattr(d, m).valid:
+                        out[m].append(100 * (2 * getattr(d, m).radius - tdbh[j]))
                 out["chosen"].append(100 * (stems.dbh[k] - tdbh[j]))
                 pts = stems.points[k]
                 h = pts[:, 2] - stems.base_z[k]
@@ -206,10 +206,10 @@ def accumulated_dbh(run: Run, window: int = 25):
             normals /= np.linalg.norm(normals, axis=1, keepdims=True)
             d = estimate_diameter(pts, base, normals, cfg)
             truth = run.truth_dbh[j]
-            if d["cylinder"]["valid"]:
-                cyl.append(100 * (2 * d["cylinder"]["radius"] - truth))
-            if d["circle"]["valid"]:
-                band.append(100 * (2 * d["circle"]["radius"] - truth))
+            if d.cylinder.valid:
+                cyl.append(100 * (2 * d.cylinder.radius - truth))
+            if d.circle.valid:
+                band.append(100 * (2 * d.circle.radius - truth))
     return cyl, band
 
 

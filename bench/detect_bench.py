@@ -235,11 +235,11 @@ def real_mls(out: Path) -> None:
     print("  id        x (local)  y (local)   dbh_m   method    arc   rms_mm")
     for i in order:
         q = stems.diameters[i]
-        fit = q.get(q["method"], {}) if q["method"] != "none" else {}
+        fit = getattr(q, q.method) if q.method != "none" else None
+        arc, rms = (fit.arc_coverage, fit.rms_m) if fit is not None else (np.nan, np.nan)
         print(
             f"  {i:3d}  {stems.xy[i, 0] - origin[0]:10.2f} {stems.xy[i, 1] - origin[1]:10.2f}  "
-            f"{stems.dbh[i]:6.3f}  {q['method']:8s}  {fit.get('arc_coverage', np.nan):4.2f}  "
-            f"{1e3 * fit.get('rms_m', np.nan):6.1f}"
+            f"{stems.dbh[i]:6.3f}  {q.method:8s}  {arc:4.2f}  {1e3 * rms:6.1f}"
         )
     fitted = np.isfinite(stems.dbh)
     print(

@@ -56,8 +56,9 @@ def test_per_scan_stages_on_shaped_stems(style):
             if d[j] > 0.5 or np.linalg.norm(txy[j] - sxy) > 15:
                 continue
             for m in ("silhouette", "circle"):
-                if stems.diameters[k][m]["valid"]:
-                    errors[m].append(2 * stems.diameters[k][m]["radius"] - world[j].dbh)
+                fit = getattr(stems.diameters[k], m)
+                if fit.valid:
+                    errors[m].append(2 * fit.radius - world[j].dbh)
             errors["chosen"].append(stems.dbh[k] - world[j].dbh)
     assert min(len(e) for e in errors.values()) >= 100
     # Bias over the estimates within 10 cm of the truth (a stem merged with its neighbour in

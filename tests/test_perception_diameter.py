@@ -28,18 +28,18 @@ def test_partial_noisy_stem():
     for seed in range(10):
         pts, normals = stem_arc(0.2, 0.01, seed)
         d = estimate_diameter(pts, 0.0, normals)
-        assert d["method"] in ("circle", "cylinder")
-        assert d["circle"]["valid"]
-        assert d["circle"]["arc_coverage"] == pytest.approx(1 / 3, abs=0.07)
-        np.testing.assert_allclose(d["centre"], [8.0, 3.0, 1.3], atol=0.03)
-        errors.append(abs(d["dbh"] - 0.4))
+        assert d.method in ("circle", "cylinder")
+        assert d.circle.valid
+        assert d.circle.arc_coverage == pytest.approx(1 / 3, abs=0.07)
+        np.testing.assert_allclose(d.centre, [8.0, 3.0, 1.3], atol=0.03)
+        errors.append(abs(d.dbh - 0.4))
     assert np.mean(errors) < 0.02 and max(errors) < 0.04
 
 
 def test_impossible_radius_rejected_and_no_points():
     pts, _ = stem_arc(1.2, 0.0, 0)
-    assert np.isnan(estimate_diameter(pts, 0.0)["dbh"])
-    assert np.isnan(estimate_diameter(np.zeros((0, 3)), 0.0)["dbh"])
+    assert np.isnan(estimate_diameter(pts, 0.0).dbh)
+    assert np.isnan(estimate_diameter(np.zeros((0, 3)), 0.0).dbh)
 
 
 def test_real_stem_slice_stable_under_resampling():

@@ -318,10 +318,10 @@ def estimate_diameter(
     normals: np.ndarray | None = None,
     config: PerceptionConfig | None = None,
     up: np.ndarray | None = None,
-) -> dict:
+):
     """DBH of one stem's points (M,3) above ground height base_z: circle fit on the
-    breast-height band and (with normals (M,3)) the SAC cylinder; dict with both fits, the
-    chosen `method` and `dbh` (NaN when none is accepted)."""
+    breast-height band and (with normals (M,3)) the SAC cylinder; forestslam._core.StemDiameter
+    with both fits, the chosen `method` and `dbh` (NaN when none is accepted)."""
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -336,23 +336,23 @@ def estimate_diameter(
     )
 
 
-def stems_from_core(result: dict) -> Stems:
-    """Stems from the C++ detection dict (forestslam._core: detectionDict), as both the detector
-    and the odometry return it."""
-    k = len(result["z"])
+def stems_from_core(result, fits: bool = True) -> Stems:
+    """Stems from the C++ detection (forestslam._core.Detection), as both the detector and the
+    odometry return it; fits False: without the per-stem fit qualities (diameters empty)."""
+    k = len(result)
     return Stems(
-        xy=np.asarray(result["xy"]).reshape(k, 2),
-        dbh=np.asarray(result["dbh"]),
-        z=np.asarray(result["z"]),
-        mean=np.asarray(result["mean"]).reshape(k, 3),
-        cov=np.asarray(result["cov"]).reshape(k, 3, 3),
-        axis=np.asarray(result["axis"]).reshape(k, 3),
-        points=[np.asarray(p).reshape(-1, 3) for p in result["points"]],
-        base_z=np.asarray(result["base_z"]),
-        ground=np.asarray(result["ground"]).reshape(-1, 3),
-        diameters=list(result["diameters"]),
-        timing=dict(result["timing"]),
-        cpu_ms=dict(result["cpu_ms"]),
-        counts=dict(result["counts"]),
-        breast_source=np.asarray(result["breast_source"], dtype=np.int64),
+        xy=np.asarray(result.xy).reshape(k, 2),
+        dbh=np.asarray(result.dbh),
+        z=np.asarray(result.z),
+        mean=np.asarray(result.mean).reshape(k, 3),
+        cov=np.asarray(result.cov).reshape(k, 3, 3),
+        axis=np.asarray(result.axis).reshape(k, 3),
+        points=[np.asarray(p).reshape(-1, 3) for p in result.points],
+        base_z=np.asarray(result.base_z),
+        ground=np.asarray(result.ground).reshape(-1, 3),
+        diameters=list(result.diameters) if fits else [],
+        timing=dict(result.timing),
+        cpu_ms=dict(result.cpu_ms),
+        counts=dict(result.counts),
+        breast_source=np.asarray(result.breast_source, dtype=np.int64),
     )

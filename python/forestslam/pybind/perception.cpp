@@ -127,36 +127,6 @@ void defineStemOptions(py::module_ &m) {
     FS_FIELD(p, pc::PerceptionConfig, slice_min_inlier_ratio);
 }
 
-py::dict fitDict(const pc::DiameterFit &f) {
-    py::dict d;
-    d["valid"] = f.valid;
-    d["radius"] = f.radius;
-    d["centre"] = f.centre;
-    d["axis"] = f.axis;
-    d["inliers"] = f.inliers;
-    d["rms_m"] = f.rms_m;
-    d["arc_coverage"] = f.arc_coverage;
-    d["score"] = f.score;
-    d["radius_std"] = f.radius_std;
-    return d;
-}
-
-py::dict diameterDict(const pc::StemDiameter &s) {
-    py::dict d;
-    d["circle"] = fitDict(s.circle);
-    d["cylinder"] = fitDict(s.cylinder);
-    d["silhouette"] = fitDict(s.silhouette);
-    d["method"] = s.method == 1   ? "circle"
-                  : s.method == 2 ? "cylinder"
-                  : s.method == 3 ? "silhouette"
-                                  : "none";
-    d["dbh"] = s.dbh;
-    d["dbh_std"] = s.dbh_std;
-    d["centre"] = s.centre;
-    d["band_points"] = s.band_points;
-    return d;
-}
-
 py::list clustersList(const pc::Clusters &c) {
     py::list out;
     for (const auto &rows : c)
@@ -170,60 +140,170 @@ std::vector<int> toRows(const py::array_t<int, py::array::c_style | py::array::f
 
 }  // namespace
 
-// The stems of a detection in the layout of forestslam.perception.Stems (also the odometry's).
-py::dict detectionDict(const perception::Detection &det, bool fits) {
-    namespace pc = forestslam::perception;
-    const auto k = static_cast<Eigen::Index>(det.stems.size());
-    Points2 xy(k, 2);
-    Eigen::VectorXd z(k), dbh(k), base(k);
-    Points3 mean(k, 3), axis(k, 3);
-    Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
-    Eigen::VectorXi ground_found(k), breast_source(k);
-    py::list pts, diam;
-    for (Eigen::Index i = 0; i < k; ++i) {
-        const pc::Stem &s = det.stems[static_cast<size_t>(i)];
-        xy.row(i) = s.breast.head<2>().transpose();
-        z(i) = s.breast.z();
-        dbh(i) = s.diameter.dbh;
-        base(i) = s.base_z;
-        mean.row(i) = s.shape.mean.transpose();
-        axis.row(i) = s.shape.axis.transpose();
-        for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c) cov(i, 3 * r + c) = s.shape.cov(r, c);
-        ground_found(i) = s.ground_found ? 1 : 0;
-        breast_source(i) = static_cast<int>(s.breast_source);
-        pts.append(py::cast(s.points));
-        if (fits) diam.append(diameterDict(s.diameter));  // most of the conversion's cost
-    }
-    py::dict d;
-    d["xy"] = xy;
-    d["z"] = z;
-    d["dbh"] = dbh;
-    d["base_z"] = base;
-    d["mean"] = mean;
-    d["cov"] = cov;
-    d["axis"] = axis;
-    d["ground_found"] = ground_found;
-    d["breast_source"] = breast_source;
-    d["points"] = pts;
-    d["diameters"] = diam;
-    d["ground"] = det.ground;
-    d["up"] = det.up;
-    d["timing"] = det.timing_ms;
-    d["cpu_ms"] = det.cpu_ms;
-    py::dict counts;
-    counts["input"] = det.input_points;
-    counts["after_intensity"] = det.after_intensity;
-    counts["finite"] = det.finite_points;
-    counts["ground"] = det.ground_points;
-    counts["filtered"] = det.filtered_points;
-    counts["coarse_clusters"] = det.coarse_clusters;
-    counts["refined_clusters"] = det.refined_clusters;
-    d["counts"] = counts;
-    return d;
+namespace {
+
+// Per-stem column of a detection, (K,) or (K,n) with n = the size of what `get` returns.
+template <typename T, typename Get>
+py::array_t<T> stemColumn(const perception::Detection &det, int n, Get get) {
+    const auto k = static_cast<py::ssize_t>(det.stems.size());
+    py::array_t<T> out =
+        n == 1 ? py::array_t<T>(k) : py::array_t<T>(std::vector<py::ssize_t>{k, n});
+    T *data = out.mutable_data();
+    for (size_t i = 0; i < det.stems.size(); ++i) get(det.stems[i], data + i * n);
+    return out;
 }
 
-namespace {
+const char *methodName(int method) {
+    return method == 1 ? "circle" : method == 2 ? "cylinder" : method == 3 ? "silhouette" : "none";
+}
+
+// A stem's diameter estimates, read-only (perception_estimate_diameter, Detection.diameters).
+void defineDiameterResults(py::module_ &m) {
+    py::class_<pc::DiameterFit>(
+        m, "DiameterFit",
+        "One diameter estimate and its quality on the breast-height band (read-only).")
+        .def_readonly("valid", &pc::DiameterFit::valid, "accepted by the DiameterConfig gates")
+        .def_readonly("radius", &pc::DiameterFit::radius, "m")
+        .def_readonly("centre", &pc::DiameterFit::centre, "(3,) at breast height")
+        .def_readonly("axis", &pc::DiameterFit::axis, "(3,) unit")
+        .def_readonly("inliers", &pc::DiameterFit::inliers)
+        .def_readonly("rms_m", &pc::DiameterFit::rms_m, "RMS of the inlier residuals")
+        .def_readonly("arc_coverage", &pc::DiameterFit::arc_coverage, "in [0, 1]")
+        .def_readonly("score", &pc::DiameterFit::score,
+                      "inlier ratio * arc coverage / max(rms, 5 mm): larger is better")
+        .def_readonly("radius_std", &pc::DiameterFit::radius_std,
+                      "expected error (1 sigma) of the radius, m; NaN when unknown");
+
+    py::class_<pc::StemDiameter>(
+        m, "StemDiameter",
+        "Diameter of one stem (read-only): the circle (band), cylinder (PCL SAC) and silhouette "
+        "estimates, the one chosen and its DBH.")
+        .def_readonly("circle", &pc::StemDiameter::circle)
+        .def_readonly("cylinder", &pc::StemDiameter::cylinder,
+                      "not fitted (valid False) when an accepted silhouette or band circle "
+                      "decides, unless DiameterConfig.fit_all")
+        .def_readonly("silhouette", &pc::StemDiameter::silhouette)
+        .def_property_readonly(
+            "method", [](const pc::StemDiameter &d) { return methodName(d.method); },
+            "circle, cylinder, silhouette or none")
+        .def_readonly("dbh", &pc::StemDiameter::dbh, "m; NaN when no estimate is accepted")
+        .def_readonly("dbh_std", &pc::StemDiameter::dbh_std, "expected error (1 sigma), m")
+        .def_readonly("centre", &pc::StemDiameter::centre, "(3,)")
+        .def_readonly("band_points", &pc::StemDiameter::band_points);
+}
+
+// The stems of one detection, read-only, in the layout of forestslam.perception.Stems; the
+// per-stem arrays are made when read (the odometry reads the diameters only when asked).
+void defineDetection(py::module_ &m) {
+    using Det = pc::Detection;
+    using S = pc::Stem;
+    py::class_<Det>(m, "Detection",
+                    "The stems of one scan or cloud (read-only; perception_detect and "
+                    "OdometryResult.stems). K stems, sensor / input frame.")
+        .def_property_readonly(
+            "xy",
+            [](const Det &d) {
+                return stemColumn<double>(
+                    d, 2, [](const S &s, double *o) { o[0] = s.breast.x(), o[1] = s.breast.y(); });
+            },
+            "(K,2) breast-height centres")
+        .def_property_readonly(
+            "z",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.breast.z(); });
+            },
+            "(K,) breast height")
+        .def_property_readonly(
+            "dbh",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.diameter.dbh; });
+            },
+            "(K,) m, NaN where no diameter was accepted")
+        .def_property_readonly(
+            "base_z",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.base_z; });
+            },
+            "(K,) local ground height")
+        .def_property_readonly(
+            "mean",
+            [](const Det &d) {
+                return stemColumn<double>(d, 3, [](const S &s, double *o) {
+                    for (int c = 0; c < 3; ++c) o[c] = s.shape.mean(c);
+                });
+            },
+            "(K,3) mean of the stem points")
+        .def_property_readonly(
+            "cov",
+            [](const Det &d) {
+                return stemColumn<double>(d, 9, [](const S &s, double *o) {
+                    for (int r = 0; r < 3; ++r)
+                        for (int c = 0; c < 3; ++c) o[3 * r + c] = s.shape.cov(r, c);
+                });
+            },
+            "(K,9) row-major 3x3 covariance of the stem points")
+        .def_property_readonly(
+            "axis",
+            [](const Det &d) {
+                return stemColumn<double>(d, 3, [](const S &s, double *o) {
+                    for (int c = 0; c < 3; ++c) o[c] = s.shape.axis(c);
+                });
+            },
+            "(K,3) principal axis, unit, pointing up")
+        .def_property_readonly(
+            "ground_found",
+            [](const Det &d) {
+                return stemColumn<int>(d, 1, [](const S &s, int *o) { *o = s.ground_found; });
+            },
+            "(K,) 1 where base_z is the local ground, 0 where the stem's lowest point")
+        .def_property_readonly(
+            "breast_source",
+            [](const Det &d) {
+                return stemColumn<int>(
+                    d, 1, [](const S &s, int *o) { *o = static_cast<int>(s.breast_source); });
+            },
+            "(K,) index into forestslam.perception.stems.BREAST_HEIGHT_SOURCES")
+        .def_property_readonly(
+            "points",
+            [](const Det &d) {
+                py::list out;
+                for (const S &s : d.stems) out.append(py::cast(s.points));
+                return out;
+            },
+            "list of the K stems' points (Mi,3)")
+        .def_property_readonly(
+            "diameters",
+            [](const Det &d) {
+                py::list out;
+                for (const S &s : d.stems) out.append(py::cast(s.diameter));
+                return out;
+            },
+            "list of the K stems' StemDiameter (copies)")
+        // copies: an array viewing the detection would keep all of it (stem points) alive
+        .def_property_readonly(
+            "ground", [](const Det &d) { return Points3(d.ground); },
+            "(G,3) ground points, one per ground voxel")
+        .def_property_readonly(
+            "up", [](const Det &d) { return Eigen::Vector3d(d.up); },
+            "(3,) ground normal used for the stem axes")
+        .def_readonly("timing", &Det::timing_ms, "wall-clock ms per stage")
+        .def_readonly("cpu_ms", &Det::cpu_ms, "CPU ms of the calling thread per stage")
+        .def_property_readonly(
+            "counts",
+            [](const Det &d) {
+                py::dict c;
+                c["input"] = d.input_points;
+                c["after_intensity"] = d.after_intensity;
+                c["finite"] = d.finite_points;
+                c["ground"] = d.ground_points;
+                c["filtered"] = d.filtered_points;
+                c["coarse_clusters"] = d.coarse_clusters;
+                c["refined_clusters"] = d.refined_clusters;
+                return c;
+            },
+            "per-stage point / cluster counts")
+        .def("__len__", [](const Det &d) { return d.stems.size(); });
+}
 
 // Circle fits on their own (also used by the tree map, the evaluation and the TLS tree fits):
 // the options as one typed class, the result read-only.
@@ -310,16 +390,12 @@ void defineDetect(py::module_ &m) {
                 py::gil_scoped_release release;
                 det = pc::detectStems(points, in, rg, g, scan_centred, o);
             }
-            return detectionDict(det);
+            return det;
         },
         py::arg("points"), py::arg("intensity"), py::arg("ring"), py::arg("sensor"),
         py::arg("scan_centred"), py::arg("options"),
         "Whole perception chain on points (N,3) (intensity (N,)|None, ring (N,)|None).\n"
-        "sensor: SensorGeometry; options: PerceptionConfig.\n"
-        "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
-        "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
-        "diameters list[dict], ground (G,3), up (3,), timing dict ms (wall), cpu_ms dict\n"
-        "(thread CPU ms per stage), counts dict.");
+        "sensor: SensorGeometry; options: PerceptionConfig. Returns Detection.");
 }
 
 // Every stage of the chain on its own (debugging and the ablation): the filters ...
@@ -422,12 +498,11 @@ void defineClusterStages(py::module_ &m) {
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
            const Eigen::Vector3d &up, const pc::DiameterConfig &options) {
             const Points3 n = normals ? *normals : Points3(0, 3);
-            return diameterDict(pc::estimateDiameter(points, n, base_z, up, options));
+            return pc::estimateDiameter(points, n, base_z, up, options);
         },
         py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"), py::arg("options"),
-        "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: dict with\n"
-        "circle / cylinder fits (valid, radius, centre, axis, inliers, rms_m, arc_coverage,\n"
-        "score), method, dbh (NaN if none accepted), centre (3,), band_points.");
+        "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: "
+        "StemDiameter (dbh NaN if none accepted).");
 }
 
 }  // namespace
@@ -438,6 +513,8 @@ void define_perception(py::module_ &m) {
     defineStemOptions(m);
     defineCircleFitTypes(m);
     defineCircleFits(m);
+    defineDiameterResults(m);
+    defineDetection(m);
     defineDetect(m);
     defineFilterStages(m);
     defineClusterStages(m);

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -31,6 +32,9 @@ from forestslam.tls.features import (
     coarse_stem_hypotheses,
     ground_height_near,
 )
+
+if TYPE_CHECKING:
+    from forestslam._core import StemCentreLmResult
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +60,7 @@ class Placement:
     """The latest frame's verified pose T_tls_sensor and what verified it."""
 
     T_tls_sensor: np.ndarray
-    lm: dict
+    lm: StemCentreLmResult
     consensus: int
     local_stems: int
     hypotheses: int
@@ -99,7 +103,7 @@ class Initializer:
                 self.hull = None
 
     def push(
-        self, frame: PendingFrame, ndt_ok: bool, lm_at: Callable[..., dict]
+        self, frame: PendingFrame, ndt_ok: bool, lm_at: Callable[..., StemCentreLmResult]
     ) -> Placement | None:
         """Add a frame (its odometry pose, ndt_ok False: odometry broke before it); try to
         place the latest frame when the local map allows it."""
@@ -220,7 +224,7 @@ class Initializer:
         from forestslam.tls.pipeline import trust_failure
 
         init = self.config.init
-        verified: list[tuple[int, float, np.ndarray, dict, str]] = []
+        verified: list[tuple[int, float, np.ndarray, StemCentreLmResult, str]] = []
         hyps = self.hypotheses(xy, r)
         for pose, source in hyps:
             pose = self.refine(pose, xy)
@@ -231,11 +235,11 @@ class Initializer:
             lm = lm_at(T0, latest.feats, latest.z_points, latest.ms)
             if trust_failure(lm, None, self.config):
                 continue
-            T = np.asarray(lm["T_target_source"])
+            T = np.asarray(lm.T_target_source)
             n, n_inside = self.consensus(T, xy, r)
             if any(_near(T, v[3]) for v in verified):
                 continue
-            verified.append((n, -float(lm["virtual_rms_m"]), n_inside, T, lm, source))
+            verified.append((n, -float(lm.virtual_rms_m), n_inside, T, lm, source))
         verified.sort(key=lambda v: (v[0], v[1]), reverse=True)
         best_n = verified[0][0] if verified else 0
         second_n = verified[1][0] if len(verified) > 1 else 0

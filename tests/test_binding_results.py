@@ -1,0 +1,72 @@
+"""Results cross the binding typed, read-only and documented (issue 18), like RegistrationResult:
+the perception detection and its per-stem diameters, the TLS stem-centre LM and NDT. The values
+themselves are checked by each concept's own tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+_core = pytest.importorskip("forestslam._core")
+
+
+def _read_only(obj, name: str) -> None:
+    with pytest.raises(AttributeError):
+        setattr(obj, name, getattr(obj, name))
+
+
+def test_detection_is_a_typed_read_only_result_in_the_layout_of_stems():
+    from forestslam.perception import PerceptionConfig
+    from forestslam.perception.pipeline import core_options, sensor_geometry
+    from forestslam.perception.synthetic_stems import ROUND, make_world, scan_stems
+    from forestslam.sensors import load_profile
+
+    profile = load_profile("vlp16")
+    world = make_world(ROUND, seed=3, n=25, length_m=20.0)
+    scan = scan_stems(world, np.array([10.0, 0.0]), ROUND, noise_m=0.01, seed=1, gain=1.3)
+    det = _core.perception_detect(
+        scan.points,
+        None,
+        None,
+        sensor_geometry(profile),
+        True,
+        core_options(PerceptionConfig(), profile),
+    )
+    assert isinstance(det, _core.Detection)
+    k = len(det)
+    assert k >= 5
+    assert np.asarray(det.xy).shape == (k, 2) and np.asarray(det.cov).shape == (k, 9)
+    assert len(det.points) == k and np.asarray(det.ground).shape[1] == 3
+    assert set(det.counts) >= {"input", "ground", "refined_clusters"}
+    d = det.diameters[0]
+    assert isinstance(d, _core.StemDiameter) and isinstance(d.circle, _core.DiameterFit)
+    assert d.method in ("circle", "cylinder", "silhouette", "none")
+    np.testing.assert_array_equal(det.dbh, [x.dbh for x in det.diameters])
+    for name in ("xy", "dbh", "diameters", "ground"):
+        _read_only(det, name)
+    _read_only(d, "dbh")
+    _read_only(d.circle, "radius")
+
+
+def test_tls_registration_results_are_typed_and_read_only():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-5, 5, (3000, 2))
+    ground = np.column_stack([xy, 0.02 * xy[:, 0] + rng.normal(0, 0.005, len(xy))])
+    wall = np.column_stack([np.full(1000, 3.0), rng.uniform(-5, 5, (1000, 2))])
+    cloud = np.ascontiguousarray(np.vstack([ground, wall]))
+    target = _core.StemCentreTarget(cloud)
+    lm = _core.register_stem_centre_lm(
+        target, np.zeros((0, 3)), np.zeros(0), cloud[::10], np.eye(4), _core.StemCentreLmConfig()
+    )
+    assert isinstance(lm, _core.StemCentreLmResult)
+    assert isinstance(lm, _core.RegistrationResult)
+    assert np.asarray(lm.T_target_source).shape == (4, 4)
+    assert np.asarray(lm.covariance).shape == (6, 6)
+    assert lm.virtual_inliers == 0 and lm.real_inliers > 0
+    assert np.asarray(lm.sweep).shape[1:] in ((6,), (0,))
+    _read_only(lm, "T_target_source")
+    _read_only(lm, "virtual_rms_m")
+    ndt = _core.register_ndt(cloud, cloud[::5], np.eye(4), _core.NdtConfig())
+    assert isinstance(ndt, _core.NdtResult)
+    assert np.asarray(ndt.T_target_source).shape == (4, 4) and ndt.fitness >= 0
+    _read_only(ndt, "converged")
