@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose
+from forestslam.geometry import parse_yaw, planar_pose
 from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees_csv, write_tum
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
@@ -62,17 +62,20 @@ def with_rings(scans, sensor):
 
 
 def parse_initial_pose(text: str | None) -> np.ndarray | None:
-    """'x,y,yaw_deg' or 'x,y,z,yaw_deg' -> (4,4) T_tls_sensor."""
+    """'x,y,yaw_deg' or 'x,y,z,yaw_deg' -> (4,4) T_tls_sensor (the yaw as geometry.parse_yaw
+    reads it: degrees, or with a unit)."""
     if text is None:
         return None
+    *head, last = text.split(",")
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [float(v) for v in head]
+        yaw = parse_yaw(last, "--initial-pose")
     except ValueError as exc:
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg") from exc
-    if len(values) not in (3, 4) or not np.all(np.isfinite(values)):
+    if len(values) not in (2, 3) or not np.all(np.isfinite(values)):
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg")
-    z = values[2] if len(values) == 4 else 0.0
-    return planar_pose(values[0], values[1], np.radians(values[-1]), z)
+    z = values[2] if len(values) == 3 else 0.0
+    return planar_pose(values[0], values[1], yaw, z)
 
 
 def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
