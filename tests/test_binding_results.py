@@ -70,3 +70,37 @@ def test_tls_registration_results_are_typed_and_read_only():
     assert isinstance(ndt, _core.NdtResult)
     assert np.asarray(ndt.T_target_source).shape == (4, 4) and ndt.fitness >= 0
     _read_only(ndt, "converged")
+
+
+def test_stage_results_are_typed_and_read_only():
+    """The perception filter stages and the TLS virtual features."""
+    from forestslam.perception import PerceptionConfig
+    from forestslam.perception.pipeline import _stage_options
+
+    rng = np.random.default_rng(1)
+    ground = np.column_stack([rng.uniform(-8, 8, (4000, 2)), rng.normal(0, 0.02, 4000)])
+    a = rng.uniform(0, 2 * np.pi, 1500)
+    stem = np.column_stack([3 + 0.2 * np.cos(a), 0.2 * np.sin(a), rng.uniform(0.2, 4, 1500)])
+    cloud = np.ascontiguousarray(np.vstack([ground, stem]))
+    cfg = PerceptionConfig()
+    seg = _core.perception_segment_ground(
+        cloud, _stage_options(cfg.ground, "ground", "GroundConfig")
+    )
+    assert isinstance(seg, _core.GroundSegmentation) and isinstance(seg.grid, _core.GroundGrid)
+    assert seg.is_ground.dtype == bool and seg.is_ground.shape == (len(cloud),)
+    assert seg.ground_count == int(seg.is_ground.sum()) and seg.grid.cell > 0
+    _read_only(seg, "grid")
+    nf = _core.perception_normal_filter(
+        cloud,
+        np.flatnonzero(~seg.is_ground).astype(np.int32),
+        0.035,
+        _stage_options(cfg.filter, "filter", "NormalFilterConfig"),
+    )
+    assert isinstance(nf, _core.NormalFilterResult)
+    assert np.asarray(nf.normals).shape == (len(nf.kept), 3)
+    _read_only(nf, "kept")
+    vf = _core.extract_virtual_features(cloud)
+    assert isinstance(vf, _core.VirtualFeatures)
+    assert np.asarray(vf.centres).shape == (len(vf.radii), 3) and len(vf.stems) == 1
+    assert abs(vf.stem_radii[0] - 0.2) < 0.01
+    _read_only(vf, "stems")

@@ -177,7 +177,7 @@ def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -
     out = _core().perception_segment_ground(
         points, _stage_options(config.ground, "ground", "GroundConfig")
     )
-    return np.asarray(out["is_ground"], dtype=bool)
+    return np.asarray(out.is_ground, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -232,9 +232,9 @@ def ground_surface(
         np.ascontiguousarray(finite - shift), _stage_options(ground, "ground", "GroundConfig")
     )
     return GroundSurface(
-        z=np.asarray(out["grid_z"], dtype=np.float64),
-        origin=np.asarray(out["grid_origin"], dtype=np.float64) + shift[:2],
-        cell=float(out["grid_cell"]),
+        z=np.array(out.grid.z, dtype=np.float64),
+        origin=np.asarray(out.grid.origin, dtype=np.float64) + shift[:2],
+        cell=float(out.grid.cell),
     )
 
 
@@ -256,7 +256,7 @@ def filter_normals(
         profile.theta_v_rad,
         _stage_options(config.filter, "filter", "NormalFilterConfig"),
     )
-    return np.asarray(out["kept"], dtype=np.int64), np.asarray(out["normals"]).reshape(-1, 3)
+    return np.asarray(out.kept, dtype=np.int64), np.array(out.normals).reshape(-1, 3)
 
 
 def coarse_clusters(

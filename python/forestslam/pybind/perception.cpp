@@ -192,21 +192,18 @@ void defineDiameterResults(py::module_ &m) {
         .def_readonly("band_points", &pc::StemDiameter::band_points);
 }
 
-// The stems of one detection, read-only, in the layout of forestslam.perception.Stems; the
-// per-stem arrays are made when read (the odometry reads the diameters only when asked).
-void defineDetection(py::module_ &m) {
+// The stems' per-stem arrays of a Detection (made when read).
+template <typename C>
+void addStemArrays(C &c) {
     using Det = pc::Detection;
     using S = pc::Stem;
-    py::class_<Det>(m, "Detection",
-                    "The stems of one scan or cloud (read-only; perception_detect and "
-                    "OdometryResult.stems). K stems, sensor / input frame.")
-        .def_property_readonly(
-            "xy",
-            [](const Det &d) {
-                return stemColumn<double>(
-                    d, 2, [](const S &s, double *o) { o[0] = s.breast.x(), o[1] = s.breast.y(); });
-            },
-            "(K,2) breast-height centres")
+    c.def_property_readonly(
+         "xy",
+         [](const Det &d) {
+             return stemColumn<double>(
+                 d, 2, [](const S &s, double *o) { o[0] = s.breast.x(), o[1] = s.breast.y(); });
+         },
+         "(K,2) breast-height centres")
         .def_property_readonly(
             "z",
             [](const Det &d) {
@@ -249,13 +246,20 @@ void defineDetection(py::module_ &m) {
                     for (int c = 0; c < 3; ++c) o[c] = s.shape.axis(c);
                 });
             },
-            "(K,3) principal axis, unit, pointing up")
-        .def_property_readonly(
-            "ground_found",
-            [](const Det &d) {
-                return stemColumn<int>(d, 1, [](const S &s, int *o) { *o = s.ground_found; });
-            },
-            "(K,) 1 where base_z is the local ground, 0 where the stem's lowest point")
+            "(K,3) principal axis, unit, pointing up");
+}
+
+// Their breast-height flags, points and diameters, and the detection's totals.
+template <typename C>
+void addStemListsAndTotals(C &c) {
+    using Det = pc::Detection;
+    using S = pc::Stem;
+    c.def_property_readonly(
+         "ground_found",
+         [](const Det &d) {
+             return stemColumn<int>(d, 1, [](const S &s, int *o) { *o = s.ground_found; });
+         },
+         "(K,) 1 where base_z is the local ground, 0 where the stem's lowest point")
         .def_property_readonly(
             "breast_source",
             [](const Det &d) {
@@ -303,6 +307,16 @@ void defineDetection(py::module_ &m) {
             },
             "per-stage point / cluster counts")
         .def("__len__", [](const Det &d) { return d.stems.size(); });
+}
+
+// The stems of one detection, read-only, in the layout of forestslam.perception.Stems; the
+// per-stem arrays are made when read (the odometry reads the diameters only when asked).
+void defineDetection(py::module_ &m) {
+    py::class_<pc::Detection> c(m, "Detection",
+                                "The stems of one scan or cloud (read-only; perception_detect and "
+                                "OdometryResult.stems). K stems, sensor / input frame.");
+    addStemArrays(c);
+    addStemListsAndTotals(c);
 }
 
 // Circle fits on their own (also used by the tree map, the evaluation and the TLS tree fits):
@@ -398,6 +412,37 @@ void defineDetect(py::module_ &m) {
         "sensor: SensorGeometry; options: PerceptionConfig. Returns Detection.");
 }
 
+// The filter stages' results, read-only.
+void defineFilterResults(py::module_ &m) {
+    py::class_<pc::GroundGrid>(m, "GroundGrid", "The ground filter's height grid (read-only).")
+        .def_readonly("z", &pc::GroundGrid::z,
+                      "(rows = y cells, cols = x cells) ground height, NaN where unknown")
+        .def_readonly("origin", &pc::GroundGrid::origin,
+                      "(2,) corner of cell (0, 0): it spans [origin, origin + cell) in x and y")
+        .def_readonly("cell", &pc::GroundGrid::cell, "cell size, m");
+    py::class_<pc::GroundSegmentation>(m, "GroundSegmentation",
+                                       "perception_segment_ground's result (read-only).")
+        .def_property_readonly(
+            "is_ground",
+            [](const pc::GroundSegmentation &g) {
+                py::array_t<bool> mask(static_cast<py::ssize_t>(g.is_ground.size()));
+                bool *out = mask.mutable_data();
+                for (size_t i = 0; i < g.is_ground.size(); ++i) out[i] = g.is_ground[i] != 0;
+                return mask;
+            },
+            "(N,) bool, one flag per input row")
+        .def_readonly("grid", &pc::GroundSegmentation::grid, "GroundGrid")
+        .def_readonly("ground_count", &pc::GroundSegmentation::ground_count);
+    py::class_<pc::NormalFilterResult>(m, "NormalFilterResult",
+                                       "perception_normal_filter's result (read-only).")
+        .def_readonly("kept", &pc::NormalFilterResult::kept,
+                      "rows of the input that pass (list[int])")
+        .def_readonly("normals", &pc::NormalFilterResult::normals,
+                      "(M,3) unit normals of the kept rows")
+        .def_readonly("radius_per_ring", &pc::NormalFilterResult::radius_per_ring,
+                      "search radius used per ring (one value in fixed mode)");
+}
+
 // Every stage of the chain on its own (debugging and the ablation): the filters ...
 void defineFilterStages(py::module_ &m) {
     using IntArray = py::array_t<int, py::array::c_style | py::array::forcecast>;
@@ -411,37 +456,20 @@ void defineFilterStages(py::module_ &m) {
     m.def(
         "perception_segment_ground",
         [](const Eigen::Ref<const Points3> &points, const pc::GroundConfig &options) {
-            const pc::GroundSegmentation gs = pc::segmentGround(points, options);
-            py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
-            auto mm = mask.mutable_unchecked<1>();
-            for (size_t i = 0; i < gs.is_ground.size(); ++i)
-                mm(static_cast<py::ssize_t>(i)) = gs.is_ground[i] != 0;
-            py::dict d;
-            d["is_ground"] = mask;
-            d["grid_z"] = gs.grid.z;
-            d["grid_origin"] = gs.grid.origin;
-            d["grid_cell"] = gs.grid.cell;
-            return d;
+            return pc::segmentGround(points, options);
         },
         py::arg("points"), py::arg("options"),
-        "Approximate progressive morphological ground filter of points (N,3). Returns dict:\n"
-        "is_ground (N,) bool, grid_z (rows,cols) ground height (NaN unknown), grid_origin (2,),\n"
-        "grid_cell (m).");
+        "Approximate progressive morphological ground filter of points (N,3) -> "
+        "GroundSegmentation.");
     m.def(
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
            const pc::NormalFilterConfig &options) {
-            const pc::NormalFilterResult r =
-                pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
-            py::dict d;
-            d["kept"] = r.kept;
-            d["normals"] = r.normals;
-            d["radius_per_ring"] = r.radius_per_ring;
-            return d;
+            return pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
         },
         py::arg("points"), py::arg("candidates"), py::arg("theta_v_rad"), py::arg("options"),
-        "Adaptive ring-based normal filter over rows `candidates` of points (N,3). Returns dict:\n"
-        "kept list[int] (rows), normals (M,3), radius_per_ring list[float].");
+        "Adaptive ring-based normal filter over rows `candidates` of points (N,3) -> "
+        "NormalFilterResult.");
 }
 
 // Clustering, stem classification and DBH of single clusters.
@@ -515,6 +543,7 @@ void define_perception(py::module_ &m) {
     defineCircleFits(m);
     defineDiameterResults(m);
     defineDetection(m);
+    defineFilterResults(m);
     defineDetect(m);
     defineFilterStages(m);
     defineClusterStages(m);

@@ -89,10 +89,10 @@ def frame_features(
     vf = core.extract_virtual_features(points, ring_list, virtual_feature_config(config))
     kp, _ = core.detect_dog_keypoints(points, keypoint_config(config))
     return FrameFeatures(
-        centres=np.asarray(vf["centres"]).reshape(-1, 3),
-        radii=np.asarray(vf["radii"], dtype=np.float64),
-        stems=np.asarray(vf["stems"]).reshape(-1, 3),
-        stem_radii=np.asarray(vf["stem_radii"], dtype=np.float64),
+        centres=np.asarray(vf.centres).reshape(-1, 3),
+        radii=np.asarray(vf.radii, dtype=np.float64),
+        stems=np.asarray(vf.stems).reshape(-1, 3),
+        stem_radii=np.asarray(vf.stem_radii, dtype=np.float64),
         keypoints=np.asarray(kp).reshape(-1, 3),
         ground=ground_samples(points, config),
     )
@@ -113,7 +113,7 @@ def reference_stems(
     vf = _core().extract_virtual_features(
         points, None, virtual_feature_config(config, **band, **fit_options)
     )
-    return np.asarray(vf["stems"]).reshape(-1, 3), np.asarray(vf["stem_radii"])
+    return np.asarray(vf.stems).reshape(-1, 3), np.asarray(vf.stem_radii)
 
 
 def coarse_stem_alignment(
