@@ -73,7 +73,7 @@ def test_tls_registration_results_are_typed_and_read_only():
 
 
 def test_stage_results_are_typed_and_read_only():
-    """The perception filter stages and the TLS virtual features."""
+    """The perception stages (ground, normals, cluster shape) and the TLS virtual features."""
     from forestslam.perception import PerceptionConfig
     from forestslam.perception.pipeline import _stage_options
 
@@ -99,6 +99,12 @@ def test_stage_results_are_typed_and_read_only():
     assert isinstance(nf, _core.NormalFilterResult)
     assert np.asarray(nf.normals).shape == (len(nf.kept), 3)
     _read_only(nf, "kept")
+    shape = _core.perception_cluster_shape(stem, np.array([0.0, 0.0, 1.0]))
+    assert isinstance(shape, _core.ClusterShape) and shape.axis_angle < 0.05
+    assert np.asarray(shape.cov).shape == (3, 3) and 3.5 < shape.length < 4.0
+    seg_cfg = _stage_options(cfg.segmentation, "segmentation", "SegmentationConfig")
+    assert _core.perception_is_stem(shape, len(stem), seg_cfg)
+    _read_only(shape, "axis")
     vf = _core.extract_virtual_features(cloud)
     assert isinstance(vf, _core.VirtualFeatures)
     assert np.asarray(vf.centres).shape == (len(vf.radii), 3) and len(vf.stems) == 1

@@ -300,16 +300,25 @@ def refine_cluster(
     return _core().perception_dbscan(points, eps, seg.dbscan_min_neighbours)
 
 
+@dataclass(frozen=True)
+class ClusterClass:
+    """classify_cluster's result: the cluster's SVD shape (forestslam._core.ClusterShape: mean,
+    cov, axis, singular, length, width, axis_angle) and whether it is a stem."""
+
+    shape: object
+    is_stem: bool
+
+
 def classify_cluster(
     points: np.ndarray, config: PerceptionConfig | None = None, up: np.ndarray | None = None
-) -> dict:
-    """SVD shape of one cluster (M,3) and whether it is a stem: dict mean, cov, axis,
-    singular, length, width, axis_angle, is_stem."""
+) -> ClusterClass:
+    """SVD shape of one cluster (M,3) and whether it is a stem."""
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     seg = _stage_options(config.segmentation, "segmentation", "SegmentationConfig")
-    return _core().perception_cluster_shape(points, up, seg)
+    shape = _core().perception_cluster_shape(points, up)
+    return ClusterClass(shape, bool(_core().perception_is_stem(shape, len(points), seg)))
 
 
 def estimate_diameter(

@@ -414,6 +414,17 @@ void defineDetect(py::module_ &m) {
 
 // The filter stages' results, read-only.
 void defineFilterResults(py::module_ &m) {
+    py::class_<pc::ClusterShape>(m, "ClusterShape",
+                                 "Shape of one cluster from the SVD of its centred points "
+                                 "(read-only).")
+        .def_readonly("mean", &pc::ClusterShape::mean, "(3,)")
+        .def_readonly("cov", &pc::ClusterShape::cov, "(3,3)")
+        .def_readonly("axis", &pc::ClusterShape::axis, "(3,) principal axis, pointing up")
+        .def_readonly("singular", &pc::ClusterShape::singular,
+                      "(3,) s0 >= s1 >= s2, square roots of the eigenvalues")
+        .def_readonly("length", &pc::ClusterShape::length, "extent along the axis, m")
+        .def_readonly("width", &pc::ClusterShape::width, "extent along the second axis, m")
+        .def_readonly("axis_angle", &pc::ClusterShape::axis_angle, "angle to up, rad");
     py::class_<pc::GroundGrid>(m, "GroundGrid", "The ground filter's height grid (read-only).")
         .def_readonly("z", &pc::GroundGrid::z,
                       "(rows = y cells, cols = x cells) ground height, NaN where unknown")
@@ -502,25 +513,21 @@ void defineClusterStages(py::module_ &m) {
         "DBSCAN of points (N,3): list of row arrays (noise dropped).");
     m.def(
         "perception_cluster_shape",
-        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up,
-           const pc::SegmentationConfig &options) {
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up) {
             std::vector<int> rows(static_cast<size_t>(points.rows()));
             for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
-            const pc::ClusterShape s = pc::clusterShape(points, rows, up);
-            py::dict d;
-            d["mean"] = s.mean;
-            d["cov"] = s.cov;
-            d["axis"] = s.axis;
-            d["singular"] = s.singular;
-            d["length"] = s.length;
-            d["width"] = s.width;
-            d["axis_angle"] = s.axis_angle;
-            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), options);
-            return d;
+            return pc::clusterShape(points, rows, up);
         },
-        py::arg("points"), py::arg("up"), py::arg("options"),
-        "SVD shape of one cluster (M,3) and the stem decision: dict mean, cov (3,3), axis,\n"
-        "singular (3,), length, width, axis_angle (rad), is_stem.");
+        py::arg("points"), py::arg("up"),
+        "SVD shape of one cluster (M,3) -> ClusterShape (axis pointing along `up`).");
+    m.def(
+        "perception_is_stem",
+        [](const pc::ClusterShape &shape, int count, const pc::SegmentationConfig &options) {
+            return pc::isStem(shape, count, options);
+        },
+        py::arg("shape"), py::arg("count"), py::arg("options"),
+        "The stem decision on a cluster of `count` points of this shape (SegmentationConfig: "
+        "count, length, angle to up, singular-value ratio, width).");
     m.def(
         "perception_estimate_diameter",
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
