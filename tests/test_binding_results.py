@@ -110,3 +110,26 @@ def test_stage_results_are_typed_and_read_only():
     assert np.asarray(vf.centres).shape == (len(vf.radii), 3) and len(vf.stems) == 1
     assert abs(vf.stem_radii[0] - 0.2) < 0.01
     _read_only(vf, "stems")
+
+
+def test_localization_and_keypoint_results_are_typed_and_read_only():
+    rng = np.random.default_rng(2)
+    xy = np.ascontiguousarray(rng.uniform(0, 30, (40, 2)))
+    tri = _core.delaunay(xy)
+    assert isinstance(tri, _core.Triangulation) and len(tri.used_points) == 40
+    assert np.asarray(tri.triangles).shape == np.asarray(tri.neighbours).shape
+    stars = _core.triangle_stars(xy)
+    assert isinstance(stars, _core.StarSet)
+    assert np.asarray(stars.vertices).shape == (len(stars.centre), 6)
+    assert np.asarray(stars.features).shape == (len(stars.centre), 8)
+    _read_only(tri, "triangles")
+    _read_only(stars, "features")
+    a = rng.uniform(0, 2 * np.pi, 3000)
+    trunk = np.column_stack([5 + 0.2 * np.cos(a), 0.2 * np.sin(a), rng.uniform(0.3, 3, 3000)])
+    ground = np.column_stack([rng.uniform(0, 10, (3000, 2)), np.zeros(3000)])
+    trunks = _core.extract_trunks(np.ascontiguousarray(np.vstack([ground, trunk])))
+    assert isinstance(trunks, _core.Trunks) and len(trunks.sizes) == len(trunks.xy)
+    _read_only(trunks, "xy")
+    kp = _core.detect_dog_keypoints(np.ascontiguousarray(np.vstack([ground, trunk])))
+    assert isinstance(kp, _core.DogKeypoints) and len(kp.points) == len(kp.response)
+    _read_only(kp, "points")

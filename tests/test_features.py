@@ -49,7 +49,8 @@ def test_dog_keypoints_bounded_and_rigid_invariant_response():
     scan = _ring_scan()
     config = _core.DogKeypointsConfig()
     config.max_keypoints = 150
-    kp, resp = _core.detect_dog_keypoints(scan.points, config)
+    found = _core.detect_dog_keypoints(scan.points, config)
+    kp, resp = found.points, found.response
     assert 50 <= len(kp) <= 150
     assert np.all(resp > 0)
     # Keypoints are points of the cloud (after voxel averaging: within a voxel of one).
@@ -60,7 +61,7 @@ def test_dog_keypoints_bounded_and_rigid_invariant_response():
 def test_bad_inputs():
     empty = np.zeros((0, 3))
     assert len(_core.extract_virtual_features(empty).centres) == 0
-    assert len(_core.detect_dog_keypoints(empty)[0]) == 0
+    assert len(_core.detect_dog_keypoints(empty).points) == 0
     with pytest.raises(TypeError):  # options are a typed DogKeypointsConfig, no keywords
         _core.detect_dog_keypoints(empty, sigma=1.0)
     with pytest.raises(AttributeError):

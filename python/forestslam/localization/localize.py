@@ -265,5 +265,5 @@ def extract_trunks(cloud: np.ndarray, height_offset_m: float = 1.0, **kwargs) ->
         if not hasattr(cfg, key):
             raise InputError(f"extract_trunks: unknown option {key}")
         setattr(cfg, key, value)
-    xy, _sizes = _core.extract_trunks(np.ascontiguousarray(cloud), cfg)
+    xy = _core.extract_trunks(np.ascontiguousarray(cloud), cfg).xy
     return np.asarray(xy)

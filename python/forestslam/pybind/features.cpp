@@ -51,8 +51,15 @@ void defineFeatureConfigs(py::module_ &m) {
     FS_FIELD(v, ft::VirtualFeaturesConfig, min_vertical_span_m);
 }
 
-// extract_virtual_features' result, read-only.
+// extract_virtual_features' and detect_dog_keypoints' results, read-only.
 void defineVirtualFeatures(py::module_ &m) {
+    py::class_<ft::DogKeypoints>(m, "DogKeypoints",
+                                 "detect_dog_keypoints' result (read-only), K keypoints.")
+        .def_property_readonly(
+            "points", [](const ft::DogKeypoints &k) { return Points3(k.points); }, "(K,3)")
+        .def_property_readonly(
+            "response", [](const ft::DogKeypoints &k) { return Eigen::VectorXd(k.response); },
+            "(K,) |smoothed_small - smoothed_large| in metres");
     using V = ft::VirtualFeatures;
     // Copies, writable: the TLS pipeline moves its features (deskew, in-sweep motion).
     py::class_<V>(m, "VirtualFeatures",
@@ -98,11 +105,11 @@ void defineFeatureFunctions(py::module_ &m) {
                 py::gil_scoped_release release;
                 kp = ft::detectDogKeypoints(points, cfg);
             }
-            return py::make_tuple(kp.points, kp.response);
+            return kp;
         },
         py::arg("points"), py::arg("config") = ft::DogKeypointsConfig(),
-        "3D difference-of-Gaussians keypoints of points (N,3) -> (keypoints (K,3), response "
-        "(K,)). config: DogKeypointsConfig.");
+        "3D difference-of-Gaussians keypoints of points (N,3) -> DogKeypoints. config: "
+        "DogKeypointsConfig.");
 
     m.def(
         "extract_virtual_features",

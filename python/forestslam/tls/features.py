@@ -87,7 +87,7 @@ def frame_features(
     points = np.ascontiguousarray(points, dtype=np.float64)
     ring_list = None if rings is None else np.asarray(rings, dtype=np.uint16)
     vf = core.extract_virtual_features(points, ring_list, virtual_feature_config(config))
-    kp, _ = core.detect_dog_keypoints(points, keypoint_config(config))
+    kp = core.detect_dog_keypoints(points, keypoint_config(config)).points
     return FrameFeatures(
         centres=np.asarray(vf.centres).reshape(-1, 3),
         radii=np.asarray(vf.radii, dtype=np.float64),
