@@ -122,15 +122,15 @@ def scan_stage_errors(runs) -> dict[str, list]:
                     continue
                 d = stems.diameters[k]
                 for m in ("silhouette", "circle", "cylinder"):
-                    if d[m]["valid"]:
-                        out[m].append(100 * (2 * d[m]["radius"] - tdbh[j]))
+                    if getattr(d, m).valid:
+                        out[m].append(100 * (2 * getattr(d, m).radius - tdbh[j]))
                 out["chosen"].append(100 * (stems.dbh[k] - tdbh[j]))
                 pts = stems.points[k]
                 h = pts[:, 2] - stems.base_z[k]
                 band = pts[(h >= 1.15) & (h <= 1.45)]
                 fit = fit_band_circle(band[:, :2], ORTHO_BAND) if len(band) >= 5 else None
                 if fit is not None:
-                    out["circle_ortho"].append(100 * (2 * fit["radius"] - tdbh[j]))
+                    out["circle_ortho"].append(100 * (2 * fit.radius - tdbh[j]))
     return out
 
 
@@ -152,9 +152,7 @@ def map_dbh(run: Run, cfg: MappingConfig, rays: bool = True, lateral_m: float | 
             tm.n_fits += 1
             fit = fit_band_circle(pts[:, :2], cfg)
             if fit is not None:
-                tree.measurements.append(
-                    (2 * fit["radius"], fit["inliers"] * fit["arc_coverage"] ** 2)
-                )
+                tree.measurements.append((2 * fit.radius, fit.inliers * fit.arc_coverage**2))
 
         tm._fit = ortho_fit
     for i, (sxy, stems, idx) in enumerate(
@@ -208,10 +206,10 @@ def accumulated_dbh(run: Run, window: int = 25):
             normals /= np.linalg.norm(normals, axis=1, keepdims=True)
             d = estimate_diameter(pts, base, normals, cfg)
             truth = run.truth_dbh[j]
-            if d["cylinder"]["valid"]:
-                cyl.append(100 * (2 * d["cylinder"]["radius"] - truth))
-            if d["circle"]["valid"]:
-                band.append(100 * (2 * d["circle"]["radius"] - truth))
+            if d.cylinder.valid:
+                cyl.append(100 * (2 * d.cylinder.radius - truth))
+            if d.circle.valid:
+                band.append(100 * (2 * d.circle.radius - truth))
     return cyl, band
 
 

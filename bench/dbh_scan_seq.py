@@ -48,10 +48,10 @@ def evaluate(sim: Path, n_scans: int, sensor: str) -> dict[str, list]:
             true_range = np.linalg.norm(local[j, :2])
             matched += 1
             for m in ("silhouette", "circle", "cylinder"):
-                fit = stems.diameters[i][m]
-                if fit["valid"]:
-                    err[m].append(100 * (2 * fit["radius"] - truth))
-                    centre = np.asarray(fit["centre"])[:2]
+                fit = getattr(stems.diameters[i], m)
+                if fit.valid:
+                    err[m].append(100 * (2 * fit.radius - truth))
+                    centre = np.asarray(fit.centre)[:2]
                     rng_err[m].append(100 * (np.linalg.norm(centre) - true_range))
             if np.isfinite(stems.dbh[i]):
                 err["chosen"].append(100 * (stems.dbh[i] - truth))

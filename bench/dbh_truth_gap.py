@@ -23,11 +23,10 @@ def gap(sim: Path) -> tuple[int, float, float]:
     bh = np.nonzero((stems[:, 9] <= BREAST_HEIGHT_M) & (BREAST_HEIGHT_M < stems[:, 10]))[0]
     sections = section_points(stems[bh], int(cfg.seed), np.full(len(bh), BREAST_HEIGHT_M))
     tape = girth_dbh(sections)
+    options = _core.CircleFitConfig()
+    options.inlier_threshold_m = 0.05
     circle = np.array(
-        [
-            2 * _core.fit_circle(np.ascontiguousarray(s), inlier_threshold_m=0.05)["radius"]
-            for s in sections
-        ]
+        [2 * _core.fit_circle(np.ascontiguousarray(s), options).radius for s in sections]
     )
     big = tape >= 0.1
     return (

@@ -235,11 +235,11 @@ def real_mls(out: Path) -> None:
     print("  id        x (local)  y (local)   dbh_m   method    arc   rms_mm")
     for i in order:
         q = stems.diameters[i]
-        fit = q.get(q["method"], {}) if q["method"] != "none" else {}
+        fit = getattr(q, q.method) if q.method != "none" else None
+        arc, rms = (fit.arc_coverage, fit.rms_m) if fit is not None else (np.nan, np.nan)
         print(
             f"  {i:3d}  {stems.xy[i, 0] - origin[0]:10.2f} {stems.xy[i, 1] - origin[1]:10.2f}  "
-            f"{stems.dbh[i]:6.3f}  {q['method']:8s}  {fit.get('arc_coverage', np.nan):4.2f}  "
-            f"{1e3 * fit.get('rms_m', np.nan):6.1f}"
+            f"{stems.dbh[i]:6.3f}  {q.method:8s}  {arc:4.2f}  {1e3 * rms:6.1f}"
         )
     fitted = np.isfinite(stems.dbh)
     print(
@@ -323,23 +323,23 @@ def real_slice() -> None:
         return
     pts = read_cloud(path).points
     xy = np.ascontiguousarray(pts[:, :2])
-    fit = _core.fit_circle(xy, inlier_threshold_m=0.02)
+    options = _core.CircleFitConfig()
+    options.inlier_threshold_m = 0.02
+    fit = _core.fit_circle(xy, options)
     alg = _core.fit_circle_algebraic(xy)
     rng = np.random.default_rng(0)
     half = [
         2
         * _core.fit_circle(
-            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 2, replace=False)]),
-            inlier_threshold_m=0.02,
-        )["radius"]
+            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 2, replace=False)]), options
+        ).radius
         for _ in range(50)
     ]
     fifth = [
         2
         * _core.fit_circle(
-            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 5, replace=False)]),
-            inlier_threshold_m=0.02,
-        )["radius"]
+            np.ascontiguousarray(xy[rng.choice(len(xy), len(xy) // 5, replace=False)]), options
+        ).radius
         for _ in range(50)
     ]
     print(
@@ -347,10 +347,10 @@ def real_slice() -> None:
         f"z {pts[:, 2].min():.2f}-{pts[:, 2].max():.2f}"
     )
     print(
-        f"  robust circle: DBH {2 * fit['radius']:.3f} m, inliers {fit['inliers']}/{len(pts)}, "
-        f"rms {1e3 * fit['rms_m']:.1f} mm, arc coverage {fit['arc_coverage']:.2f}"
+        f"  robust circle: DBH {2 * fit.radius:.3f} m, inliers {fit.inliers}/{len(pts)}, "
+        f"rms {1e3 * fit.rms_m:.1f} mm, arc coverage {fit.arc_coverage:.2f}"
     )
-    print(f"  plain algebraic (no robustness): DBH {2 * alg['radius']:.3f} m")
+    print(f"  plain algebraic (no robustness): DBH {2 * alg.radius:.3f} m")
     print(
         f"  resampled 50 % x50: DBH {np.mean(half):.3f} +- {np.std(half) * 1000:.1f} mm; "
         f"20 % x50: {np.mean(fifth):.3f} +- {np.std(fifth) * 1000:.1f} mm"

@@ -101,7 +101,7 @@ def stem_truth(name: str, style: str | None) -> dict:
             np.dot(pts[:, 0], np.roll(pts[:, 1], 1)) - np.dot(pts[:, 1], np.roll(pts[:, 0], 1))
         )
         area_d.append(2 * np.sqrt(area / np.pi))
-        fit_d.append(2 * _core.fit_circle(np.ascontiguousarray(pts))["radius"])
+        fit_d.append(2 * _core.fit_circle(np.ascontiguousarray(pts)).radius)
     truth = trees["dbh_m"]
     return {
         "scenario": name,

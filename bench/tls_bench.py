@@ -222,15 +222,15 @@ def per_frame_comparison(run, by_stamp, truth_mid, ref, ref_trees, cfg, every: i
         T0 = T_true @ perturbation(rng)
         near = np.sum((ndt_ref[:, :2] - T0[:2, 3]) ** 2, axis=1) < 30.0**2
         r = _core.register_ndt(ndt_ref[near], pts, np.ascontiguousarray(T0), ndt)
-        poses["ndt_only"].append(np.asarray(r["T_target_source"]))
+        poses["ndt_only"].append(np.asarray(r.T_target_source))
         icp = _core.icp_point_to_plane(
             plane_target, _core.voxel_downsample(pts, 0.1), np.ascontiguousarray(T0), icp_cfg
         )
         poses["icp_only"].append(np.asarray(icp.T_target_source))
         feats = frame_features(pts, rings, cfg.features)
         lm = _lm(_core, lm_target, feats, T0, cfg)
-        poses["lm_rigid"].append(np.asarray(lm["T_target_source"]))
-        T_p, moved = np.asarray(lm["T_target_source"]), pts
+        poses["lm_rigid"].append(np.asarray(lm.T_target_source))
+        T_p, moved = np.asarray(lm.T_target_source), pts
         if times is not None and cfg.registration.sweep_order > 0:
 
             def lm_at(T_start, feats=feats, **options):
@@ -238,7 +238,7 @@ def per_frame_comparison(run, by_stamp, truth_mid, ref, ref_trees, cfg, every: i
 
             refined = _sweep_lm(lm, feats, pts, times, f.t_mid_s, lm_at, cfg, {"features": 0.0})
             if refined is not None:
-                T_p = np.asarray(refined[0]["T_target_source"])
+                T_p = np.asarray(refined[0].T_target_source)
                 moved = apply_sweep(pts, times - f.t_mid_s, T_p, refined[2])
         poses["proposed"].append(T_p)
         truths.append(T_true)
@@ -268,7 +268,7 @@ def sequential_baselines(run, clouds, truth_mid, ref, ref_trees, cfg) -> dict:
             T = T_prev
         else:
             r = _core.register_ndt(prev, pts, np.ascontiguousarray(T_rel), ndt)
-            T_rel = r["T_target_source"] if r["converged"] else T_rel
+            T_rel = r.T_target_source if r.converged else T_rel
             T = T_prev @ T_rel
         ndt_poses.append(T)
         icp = _core.icp_point_to_plane(
@@ -608,14 +608,14 @@ def run_real(out: Path) -> dict:
         r = _core.register_stem_centre_lm(
             target, feats.centres, feats.radii, feats.real_points, np.ascontiguousarray(d @ T_true)
         )
-        T = r["T_target_source"]
+        T = r.T_target_source
         errors.append(
             (
                 np.linalg.norm(T[:3, 3] - T_true[:3, 3]),
                 rot_err_deg(T, T_true),
                 len(feats.stems),
-                r["virtual_inliers"],
-                r["real_inliers"],
+                r.virtual_inliers,
+                r.real_inliers,
             )
         )
     e = np.array(errors)

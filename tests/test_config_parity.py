@@ -191,6 +191,7 @@ FILLED_ELSEWHERE = {
     "OdometrySensor": "odometry (the sensor profile)",
     "ScanModel": "sim.sensor_model.scan_model (core_struct)",
     "TrunkExtractionConfig": "localization.localize.extract_trunks (keyword options)",
+    "CircleFitConfig": "core_struct at the call: mapping.tree_map.fit_band_circle, tls.trees",
 }
 
 
@@ -238,3 +239,21 @@ def test_sim_scan_model_is_typed_and_checked():
         set_field(model, "materials", np.ones((2, 4)), "scan model")
     with pytest.raises(InputError, match=r"scan model\.object_seed"):
         set_field(model, "object_seed", 1.5, "scan model")
+
+
+def test_circle_fit_options_cross_typed_from_their_configs():
+    """The tree map's and the TLS band fits' circle options: typed, from their own configs."""
+    from forestslam.mapping.config import MappingConfig
+    from forestslam.mapping.tree_map import fit_band_circle
+    from forestslam.tls.config import FeatureConfig
+    from forestslam.tls.trees import _circle_config
+
+    features = FeatureConfig(min_diameter_m=0.1, max_diameter_m=0.8)
+    c = _circle_config(features)
+    assert isinstance(c, _core.CircleFitConfig)
+    assert (c.inlier_threshold_m, c.min_radius_m, c.max_radius_m) == (0.02, 0.05, 0.4)
+    assert c.seed == _core.CircleFitConfig().seed  # the rest keeps the C++ defaults
+    bad = MappingConfig()
+    bad.circle_inlier_m = "3 cm"
+    with pytest.raises(InputError, match=r"mapping\.inlier_threshold_m"):
+        fit_band_circle(np.zeros((50, 2)), bad)

@@ -18,15 +18,15 @@ def _ring_scan():
 def test_virtual_features_by_ring_find_known_centres():
     scan = _ring_scan()
     vf = _core.extract_virtual_features(scan.points, np.asarray(scan.ring, dtype=np.uint16))
-    stems, radii = vf["stems"], vf["stem_radii"]
+    stems, radii = vf.stems, vf.stem_radii
     assert len(stems) == len(TREES)
     for x, y, dbh in TREES:
         d = np.linalg.norm(stems[:, :2] - [x, y], axis=1)
         k = int(np.argmin(d))
         assert d[k] < 0.03
         assert abs(radii[k] - dbh / 2) < 0.02
-    assert vf["centres"].shape == (len(vf["radii"]), 3)
-    assert set(np.unique(vf["stem_ids"])) == set(range(len(stems)))
+    assert vf.centres.shape == (len(vf.radii), 3)
+    assert set(np.unique(vf.stem_ids)) == set(range(len(stems)))
 
 
 def test_virtual_features_by_layer_on_dense_rings():
@@ -38,18 +38,19 @@ def test_virtual_features_by_layer_on_dense_rings():
         z = rng.uniform(0.0, 3.0, 4000)
         parts.append(np.column_stack([x + dbh / 2 * np.cos(a), y + dbh / 2 * np.sin(a), z]))
     vf = _core.extract_virtual_features(np.concatenate(parts))
-    assert len(vf["stems"]) == len(TREES)
+    assert len(vf.stems) == len(TREES)
     for x, y, dbh in TREES:
-        k = int(np.argmin(np.linalg.norm(vf["stems"][:, :2] - [x, y], axis=1)))
-        assert np.linalg.norm(vf["stems"][k, :2] - [x, y]) < 0.005
-        assert abs(vf["stem_radii"][k] - dbh / 2) < 0.005
+        k = int(np.argmin(np.linalg.norm(vf.stems[:, :2] - [x, y], axis=1)))
+        assert np.linalg.norm(vf.stems[k, :2] - [x, y]) < 0.005
+        assert abs(vf.stem_radii[k] - dbh / 2) < 0.005
 
 
 def test_dog_keypoints_bounded_and_rigid_invariant_response():
     scan = _ring_scan()
     config = _core.DogKeypointsConfig()
     config.max_keypoints = 150
-    kp, resp = _core.detect_dog_keypoints(scan.points, config)
+    found = _core.detect_dog_keypoints(scan.points, config)
+    kp, resp = found.points, found.response
     assert 50 <= len(kp) <= 150
     assert np.all(resp > 0)
     # Keypoints are points of the cloud (after voxel averaging: within a voxel of one).
@@ -59,8 +60,8 @@ def test_dog_keypoints_bounded_and_rigid_invariant_response():
 
 def test_bad_inputs():
     empty = np.zeros((0, 3))
-    assert len(_core.extract_virtual_features(empty)["centres"]) == 0
-    assert len(_core.detect_dog_keypoints(empty)[0]) == 0
+    assert len(_core.extract_virtual_features(empty).centres) == 0
+    assert len(_core.detect_dog_keypoints(empty).points) == 0
     with pytest.raises(TypeError):  # options are a typed DogKeypointsConfig, no keywords
         _core.detect_dog_keypoints(empty, sigma=1.0)
     with pytest.raises(AttributeError):

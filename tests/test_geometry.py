@@ -106,3 +106,26 @@ def test_rigid_fit_is_never_a_reflection_and_checks_its_input():
         g.rigid_fit(np.full((2, 3), np.nan), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="weights"):
         g.rigid_fit(src, src, np.zeros(10))
+
+
+def test_parse_yaw_reads_degrees_takes_units_and_warns_when_radians_are_likely(caplog):
+    import logging
+    import math
+
+    from forestslam.geometry import parse_yaw
+
+    with caplog.at_level(logging.WARNING, logger="forestslam.geometry"):
+        assert parse_yaw("90", "--initial-pose") == pytest.approx(math.pi / 2)
+        assert parse_yaw("0", "--initial-pose") == 0.0
+        assert parse_yaw("-170.5", "--initial-pose") == pytest.approx(math.radians(-170.5))
+        assert not caplog.records  # beyond 2 pi (or 0): degrees, nothing to doubt
+        assert parse_yaw("1.571", "--initial-pose") == pytest.approx(math.radians(1.571))
+        assert len(caplog.records) == 1 and "1.571rad" in caplog.text  # may be radians
+        caplog.clear()
+        assert parse_yaw(" 1.571rad", "--georef") == pytest.approx(1.571)
+        assert parse_yaw("1.5deg", "--georef") == pytest.approx(math.radians(1.5))
+        assert parse_yaw("45°", "--georef") == pytest.approx(math.pi / 4)
+        assert not caplog.records  # a unit is explicit
+    for bad in ("", "north", "nan", "1e999rad"):
+        with pytest.raises(ValueError):
+            parse_yaw(bad, "--georef")

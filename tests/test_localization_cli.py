@@ -127,3 +127,37 @@ def test_config_file_reaches_the_localizer(doubles, tmp_path):
     assert all(q["reason"] == "too few inliers" for q in run.queries)
     stamps, _ = read_tum(tmp_path / "out" / "localization.tum")
     assert len(stamps) == 0
+
+
+def test_packets_decoded_by_the_profile_and_a_checkpoint_after_every_query(
+    doubles, tmp_path, monkeypatch
+):
+    """The job skeleton: raw Velodyne packets decoded as the --sensor profile says, and after
+    every query run.yaml (status running, the counts so far) and the outputs are rewritten."""
+    import yaml
+
+    import forestslam.io
+    import forestslam.perception
+    from forestslam.sensors import load_profile
+
+    packets_seen, summaries = [], []
+    out = tmp_path / "out"
+
+    def read_scans(path, topic=None, start=0, packets=None):
+        packets_seen.append(packets)
+        return iter([Scan(0.5 * k, np.zeros((1, 3))) for k in range(6)][start:])
+
+    detect = forestslam.perception.detect  # the fixture's double
+
+    def detect_and_look(scan, sensor, config=None):
+        summaries.append(yaml.safe_load((out / "run.yaml").read_text())["summary"])
+        return detect(scan, sensor, config)
+
+    monkeypatch.setattr(forestslam.io, "read_scans", read_scans)
+    monkeypatch.setattr(forestslam.perception, "detect", detect_and_look)
+    run = run_localization("seq.bag", TreeMap(doubles), "vlp16", out, every=2)
+    assert packets_seen == [load_profile("vlp16").packet_config()]
+    assert len(run.queries) == 3  # scans 0, 2, 4
+    assert [s.get("queries") for s in summaries] == [None, 1, 2]
+    assert all(s["status"] == "running" for s in summaries)
+    assert yaml.safe_load((out / "run.yaml").read_text())["summary"]["queries"] == 3

@@ -1,5 +1,7 @@
 """Tree map (windowed DBH fusion), voxel grid, ground map and DTM against known geometry."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -101,17 +103,17 @@ def test_points_seen_through_a_circle_mark_it_as_no_stem():
     from forestslam.mapping.tree_map import seen_through_share
 
     rng = np.random.default_rng(2)
-    fit = {"centre": np.array([5.0, 0.0]), "radius": 0.2}
+    fit = SimpleNamespace(centre=np.array([5.0, 0.0]), radius=0.2)  # a CircleFit's fields
     origins = np.column_stack([np.zeros(200), rng.uniform(-3, 3, 200)])
     # Points on the half each beam meets first (3 cm range noise): a stem hides nothing.
-    u = fit["centre"] - origins
+    u = fit.centre - origins
     u /= np.linalg.norm(u, axis=1)[:, None]
     ang = np.arctan2(-u[:, 1], -u[:, 0]) + rng.uniform(-1.2, 1.2, 200)
-    near = fit["centre"] + 0.2 * np.column_stack([np.cos(ang), np.sin(ang)])
+    near = fit.centre + 0.2 * np.column_stack([np.cos(ang), np.sin(ang)])
     near += u * rng.normal(scale=0.03, size=(200, 1))
     assert seen_through_share(near, origins, fit, 0.03) < 0.05
     # The same points mirrored to the far half (a circle through stems behind each other).
-    far = 2 * fit["centre"] - near
+    far = 2 * fit.centre - near
     assert seen_through_share(far, origins, fit, 0.03) > 0.9
 
 

@@ -33,8 +33,8 @@ def test_range_model_circle_fit_is_unbiased_where_the_orthogonal_fit_shrinks():
         r = 0.06 + 0.006 * k
         p = one_sided_view((7.0, 2.0), r, np.zeros(2), 0.03, rng, n=200)
         o = np.zeros_like(p)
-        ortho.append(2 * _core.fit_circle(p)["radius"] - 2 * r)
-        rays.append(2 * _core.fit_circle_rays(p, o)["radius"] - 2 * r)
+        ortho.append(2 * _core.fit_circle(p).radius - 2 * r)
+        rays.append(2 * _core.fit_circle_rays(p, o).radius - 2 * r)
     assert np.mean(ortho) < -0.01  # the bias this issue is about: > 1 cm DBH at 3 cm noise
     assert abs(np.mean(rays)) < 0.004
 
@@ -56,8 +56,9 @@ def test_per_scan_stages_on_shaped_stems(style):
             if d[j] > 0.5 or np.linalg.norm(txy[j] - sxy) > 15:
                 continue
             for m in ("silhouette", "circle"):
-                if stems.diameters[k][m]["valid"]:
-                    errors[m].append(2 * stems.diameters[k][m]["radius"] - world[j].dbh)
+                fit = getattr(stems.diameters[k], m)
+                if fit.valid:
+                    errors[m].append(2 * fit.radius - world[j].dbh)
             errors["chosen"].append(stems.dbh[k] - world[j].dbh)
     assert min(len(e) for e in errors.values()) >= 100
     # Bias over the estimates within 10 cm of the truth (a stem merged with its neighbour in
@@ -112,7 +113,7 @@ def _orthogonal_fit(tm):
         tree.band, tree.origins, tree.n_band_scans = [], [], 0
         f = fit_band_circle(pts[:, :2], tm.cfg)
         if f is not None:
-            tree.measurements.append((2 * f["radius"], f["inliers"] * f["arc_coverage"] ** 2))
+            tree.measurements.append((2 * f.radius, f.inliers * f.arc_coverage**2))
 
     return fit
 

@@ -88,8 +88,8 @@ def test_stages_on_their_own():
     for rows in clusters:
         sub = refine_cluster(p[rows], "vlp16")
         assert len(sub) >= 1
-        shape = classify_cluster(p[rows][sub[0]])
-        assert shape["is_stem"]
-        assert shape["axis_angle"] < 0.1
+        c = classify_cluster(p[rows][sub[0]])
+        assert c.is_stem
+        assert c.shape.axis_angle < 0.1
     log = np.c_[np.linspace(0, 3, 50), np.zeros(50), np.full(50, -1.0)]
-    assert not classify_cluster(log)["is_stem"]
+    assert not classify_cluster(log).is_stem

@@ -28,7 +28,8 @@ def test_ray_against_vertical_cylinder_gives_known_range():
     origins = np.array([[0.0, 0.0, 1.3]])
     dirs = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.1 / 5.0, 0]])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    rng_, surface, obj, _ = scene.cast(origins, dirs, 0.1, 100.0, 0)
+    hit = scene.cast(origins, dirs, 0.1, 100.0, 0)
+    rng_, surface, obj = hit.range, hit.surface, hit.object
     assert rng_[0] == pytest.approx(4.8, abs=1e-9)
     assert rng_[1] == pytest.approx(7.0 - 0.35, abs=1e-9)
     assert np.isnan(rng_[2])
@@ -182,7 +183,8 @@ def test_truth_dbh_is_the_tape_girth_of_the_cast_section(style):
     for i in range(0, len(t["id"]), max(1, len(t["id"]) // 10)):
         centre = np.array([t["x"][i], t["y"][i], t["z_ground"][i] + BREAST_HEIGHT_M])
         origins = centre + 1.0 * out
-        rng_, surface, obj, _ = scene.cast(origins, -out, 0.0, 5.0, 0)
+        hit = scene.cast(origins, -out, 0.0, 5.0, 0)
+        rng_, surface, obj = hit.range, hit.surface, hit.object
         assert (obj == i).all() and (surface == STEM).all()
         hits = origins[:, :2] - rng_[:, None] * out[:, :2]
         girth = ConvexHull(hits).area / np.pi

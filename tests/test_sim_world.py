@@ -113,7 +113,8 @@ def test_terrain_heights_agree_with_ray_caster():
     np.testing.assert_allclose(scene.height_at(xy), t.height_at(xy), atol=1e-12)
     # Vertical rays from above land exactly on the same surface.
     origins = np.column_stack([xy, np.full(len(xy), 10.0)])
-    r, surface, _, _ = scene.cast(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)), 0.0, 50.0, 0)
+    hit = scene.cast(origins, np.tile([0.0, 0.0, -1.0], (len(xy), 1)), 0.0, 50.0, 0)
+    r, surface = hit.range, hit.surface
     np.testing.assert_allclose(10.0 - r, t.height_at(xy), atol=1e-9)
     assert (surface == 1).all()
 

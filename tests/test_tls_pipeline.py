@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -138,18 +139,19 @@ def test_large_correction_from_the_prediction_is_not_trusted():
     from forestslam.tls.pipeline import _trusted
 
     cfg = TlsConfig()
-    lm = {
+    fields = {  # the fields of a StemCentreLmResult _trusted reads
         "converged": True,
         "degenerate": False,
         "real_inliers": 50,
         "real_rms_m": 0.02,
         "T_target_source": pose(0.5, 0.0, 0.0),
     }
+    lm = SimpleNamespace(**fields)
     assert _trusted(lm, pose(0.0, 0.0, 0.0), cfg)
-    lm["T_target_source"] = pose(3.0, 0.0, 0.0)
+    lm = SimpleNamespace(**{**fields, "T_target_source": pose(3.0, 0.0, 0.0)})
     assert not _trusted(lm, pose(0.0, 0.0, 0.0), cfg)
-    assert not _trusted({**lm, "converged": False}, None, cfg)
-    assert not _trusted({**lm, "real_rms_m": 0.5}, None, cfg)
+    assert not _trusted(SimpleNamespace(**{**fields, "converged": False}), None, cfg)
+    assert not _trusted(SimpleNamespace(**{**fields, "real_rms_m": 0.5}), None, cfg)
 
 
 def test_velocity_prediction_mode_recovers_poses(world):

@@ -7,7 +7,7 @@ import numpy as np
 from tls_world import stand
 
 from forestslam.tls import TlsConfig
-from forestslam.tls.trees import fuse_with_reference, plot_trees, radius_sigma
+from forestslam.tls.trees import fuse_with_reference, plot_trees
 
 
 def noisy_map(trees: np.ndarray, noise_m: float, seed: int = 2) -> np.ndarray:
@@ -46,26 +46,6 @@ def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
     return np.column_stack(
         [centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), rng.uniform(*z, n)]
     )
-
-
-def test_radius_sigma_grows_as_the_arc_shrinks_and_matches_the_scatter_of_fits():
-    from forestslam import _core
-
-    rng = np.random.default_rng(4)
-    sigmas, spreads = [], []
-    for half_angle in (np.pi, np.pi / 4):
-        radii, predicted = [], []
-        for _ in range(60):
-            pts = arc((0.0, 0.0), 0.15, -half_angle, half_angle, 80, 0.005, rng)[:, :2]
-            fit = _core.fit_circle(np.ascontiguousarray(pts), inlier_threshold_m=0.02)
-            radii.append(fit["radius"])
-            predicted.append(radius_sigma(pts, np.asarray(fit["centre"]), fit["radius"]))
-        sigmas.append(np.median(predicted))
-        spreads.append(np.std(radii))
-    assert sigmas[1] > 5 * sigmas[0]  # a quarter circle vs the full one
-    for s, spread in zip(sigmas, spreads, strict=True):
-        assert 0.6 * spread < s < 1.6 * spread  # the predicted spread is the fits' spread
-    assert radius_sigma(np.zeros((3, 2)), np.zeros(2), 0.1) == np.inf
 
 
 def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_one():

@@ -186,3 +186,39 @@ TEST(CircleFit, RayFitNeedsOneOriginPerPoint) {
     ASSERT_TRUE(c.valid);
     EXPECT_NEAR(c.radius, 0.25, 1e-4);
 }
+
+// The fit's covariance predicts the spread of the radius over noise draws, and grows on a
+// short arc, where centre and radius trade off.
+TEST(CircleFit, RadiusStdPredictsTheSpreadOfFitsAndGrowsOnShortArcs) {
+    double predicted[2], spread[2];
+    const double half[2] = {M_PI, M_PI / 4};
+    for (int k = 0; k < 2; ++k) {
+        double sum = 0, sum2 = 0, std_sum = 0;
+        const int draws = 80;
+        for (int s = 0; s < draws; ++s) {
+            const CircleFit f =
+                forestslam::fitCircle(arc(0.0, 0.0, 0.15, -half[k], half[k], 80, 0.005, 100 + s));
+            ASSERT_TRUE(f.valid);
+            sum += f.radius, sum2 += f.radius * f.radius, std_sum += f.radiusStd();
+        }
+        predicted[k] = std_sum / draws;
+        spread[k] = std::sqrt(sum2 / draws - (sum / draws) * (sum / draws));
+    }
+    EXPECT_GT(predicted[1], 5 * predicted[0]);
+    for (int k = 0; k < 2; ++k) {
+        EXPECT_GT(predicted[k], 0.6 * spread[k]);
+        EXPECT_LT(predicted[k], 1.6 * spread[k]);
+    }
+}
+
+TEST(CircleFit, CovarianceNeedsMoreRowsThanFittedParameters) {
+    const Points2 p = arc(1.0, 2.0, 0.2, 0.0, 2.0, 4, 0.001, 3);
+    const std::vector<int> three = {0, 1, 2}, four = {0, 1, 2, 3};
+    EXPECT_TRUE(std::isinf(forestslam::circleCovariance(p, three, {1.0, 2.0}, 0.2)(2, 2)));
+    EXPECT_TRUE(std::isfinite(forestslam::circleCovariance(p, four, {1.0, 2.0}, 0.2)(2, 2)));
+    // the same circle only evaluated on the rows (fitted elsewhere): residuals over n, not n - 3
+    const double fitted = forestslam::circleCovariance(p, four, {1.0, 2.0}, 0.2, 3)(2, 2);
+    const double evaluated = forestslam::circleCovariance(p, four, {1.0, 2.0}, 0.2, 0)(2, 2);
+    EXPECT_NEAR(evaluated, fitted * (4.0 - 3.0) / 4.0, 1e-12 * fitted);
+    EXPECT_TRUE(std::isinf(forestslam::fitCircle(arc(0, 0, 0.2, 0, 1, 2, 0, 1)).radiusStd()));
+}

@@ -9,7 +9,12 @@ SE(2) ``xi = (rho_x, rho_y, theta)`` (as Sophus and KISS-ICP), with ``exp(xi)`` 
 
 from __future__ import annotations
 
+import logging
+import math
+
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 _SMALL = 1e-8  # below this angle (rad) the series expansions are used
 
@@ -216,3 +221,33 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = Non
     T[:d, :d] = R
     T[:d, d] = mu_d - R @ mu_s
     return T
+
+
+# --------------------------------------------------------------------------------- options
+def parse_yaw(text: str, option: str) -> float:
+    """Yaw (rad) of the last value of a pose option (`--initial-pose x,y,yaw`, `--georef`):
+    degrees, also written ``90deg`` or ``90°``; ``1.571rad`` is radians. A bare value in
+    (0, 2 pi] is read as degrees with a warning, since a yaw given in radians looks the same
+    (a unit silences it). Raises ValueError when it is not a finite number."""
+    text = text.strip()
+    for unit, scale in (("rad", 1.0), ("deg", math.pi / 180), ("°", math.pi / 180)):
+        if text.endswith(unit):
+            value = float(text[: -len(unit)]) * scale
+            break
+    else:
+        degrees = float(text)
+        if 0 < abs(degrees) <= 2 * math.pi:
+            log.warning(
+                "%s: yaw %s is read as %s degrees; if it is in radians (%.1f degrees), write "
+                "%srad (or %sdeg to confirm degrees)",
+                option,
+                text,
+                text,
+                math.degrees(degrees),
+                text,
+                text,
+            )
+        value = math.radians(degrees)
+    if not math.isfinite(value):
+        raise ValueError(f"{option}: yaw {text!r} is not a finite number")
+    return value

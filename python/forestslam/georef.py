@@ -14,19 +14,21 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose, transform_points
+from forestslam.geometry import parse_yaw, planar_pose, transform_points
 
 
 def parse_georef(text: str) -> np.ndarray:
-    """`x,y,z,yaw_deg` -> T_crs_local (4,4) float64 (a yaw about z, then the offset)."""
+    """`x,y,z,yaw_deg` -> T_crs_local (4,4) float64 (a yaw about z, then the offset; the yaw
+    as geometry.parse_yaw reads it)."""
+    *head, last = text.split(",")
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [float(v) for v in head] + [parse_yaw(last, "--georef")]
     except ValueError:
         values = []
     if len(values) != 4 or not np.all(np.isfinite(values)):
         raise InputError(f"--georef must be x,y,z,yaw_deg (four numbers), not {text!r}")
-    x, y, z, yaw_deg = values
-    return planar_pose(x, y, np.radians(yaw_deg), z)
+    x, y, z, yaw = values
+    return planar_pose(x, y, yaw, z)
 
 
 def _projected_crs(text: str):

@@ -1,5 +1,5 @@
-"""The skeleton every job shares (`run`, `localize`, `tls-register`, `detect`, ...): the scan
-window, progress, checkpoints, `run.yaml` and the output directory.
+"""The skeleton every job shares (`run`, `localize`, `tls-register`, `batch`, ...): the scan
+window, progress, checkpoints, `run.yaml` and the output directory (`detect`: see below).
 
 A job owns its output directory while it runs:
 
@@ -15,6 +15,10 @@ A job owns its output directory while it runs:
 - **run.yaml** says ``status: running`` until the end, then ``complete``, ``failed`` (with the
   error) or ``interrupted``; it lists the job's ``outputs``. It is rewritten atomically at every
   checkpoint, so a killed job leaves a valid one.
+
+``detect`` writes one file (``--out trees.csv``), not a directory: it uses the window, the progress
+and ``check_output_file`` but no Job, so no lock and no run.yaml; its CSV is written once, at the
+end and atomically, so a killed ``detect`` leaves no partial table (and nothing to resume).
 """
 
 from __future__ import annotations

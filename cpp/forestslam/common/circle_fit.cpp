@@ -170,6 +170,7 @@ void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, Cir
     fit.inliers = static_cast<int>(fit.inlier_indices.size());
     fit.rms_m = fit.inliers > 0 ? std::sqrt(ss / fit.inliers) : 0.0;
     fit.arc_coverage = arcCoverage(xy, fit.inlier_indices, fit.centre, opt.arc_sectors);
+    fit.covariance = circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius);
 }
 
 }  // namespace
@@ -188,6 +189,33 @@ double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &
         hit[static_cast<size_t>(std::clamp(s, 0, sectors - 1))] = 1;
     }
     return static_cast<double>(std::count(hit.begin(), hit.end(), 1)) / sectors;
+}
+
+double CircleFit::radiusStd() const { return std::sqrt(std::max(covariance(2, 2), 0.0)); }
+
+Eigen::Matrix3d circleCovariance(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                                 const Eigen::Vector2d &centre, double radius,
+                                 int fitted_parameters, double min_variance_m2) {
+    const Eigen::Matrix3d unknown =
+        Eigen::Matrix3d::Constant(std::numeric_limits<double>::infinity());
+    const int n = static_cast<int>(rows.size());
+    if (n < 3 || n <= fitted_parameters) return unknown;
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    double ss = 0;
+    for (int i : rows) {
+        const Eigen::Vector2d v = xy.row(i).transpose() - centre;
+        const double d = v.norm();
+        ss += (d - radius) * (d - radius);
+        if (!(d > 0)) continue;
+        const Eigen::Vector3d J(-v.x() / d, -v.y() / d, -1.0);
+        JtJ += J * J.transpose();
+    }
+    Eigen::Matrix3d inverse;
+    double det = 0;
+    bool invertible = false;
+    JtJ.computeInverseAndDetWithCheck(inverse, det, invertible, 1e-12);
+    if (!invertible) return unknown;
+    return std::max(ss / (n - fitted_parameters), min_variance_m2) * inverse;
 }
 
 CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {

@@ -43,7 +43,25 @@ struct CircleFit {
     double rms_m = std::numeric_limits<double>::quiet_NaN();  // RMS of inlier residuals
     double arc_coverage = 0.0;                                // occupied sectors / all sectors
     std::vector<int> inlier_indices;                          // rows of the input
+    // Covariance of (centre x, centre y, radius) from the inliers (circleCovariance with the
+    // 3 fitted parameters); infinite for fewer than 4 inliers or a degenerate arc.
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Constant(std::numeric_limits<double>::infinity());
+    // Standard deviation (m) of the radius: sqrt(covariance(2, 2)).
+    double radiusStd() const;
 };
+
+// Covariance of (centre x, centre y, radius) of a geometric circle fit (centre, radius) to
+// rows `rows` of xy: sigma^2 (J^T J)^-1 with J_i = [-(p_i - c) / |p_i - c|, -1] and sigma^2
+// the residual variance, sum e_i^2 / (n - fitted_parameters), at least min_variance_m2 (an
+// exact fit through its points does not make the circle exact). On a short arc the centre and
+// the radius trade off along the view, so it grows without bound as the arc shrinks.
+// fitted_parameters: 3 when (centre, radius) were fitted to these rows; 0 when the circle
+// comes from elsewhere (a cylinder's section) and is only evaluated on them.
+// Infinite for fewer than 3 rows, no more rows than fitted_parameters, or |det J^T J| <= 1e-12.
+// A row at the centre itself adds its residual but no direction.
+Eigen::Matrix3d circleCovariance(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                                 const Eigen::Vector2d &centre, double radius,
+                                 int fitted_parameters = 3, double min_variance_m2 = 1e-12);
 
 // Algebraic (Taubin) fit of all rows; no robustness. Invalid for < 3 points or collinear input.
 CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy);

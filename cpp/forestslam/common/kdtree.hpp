@@ -91,7 +91,6 @@ class KdTree3 {
             std::push_heap(items.begin(), items.end());
             bound = std::min(bound, items.front().first);
         }
-        void finish() {}
     };
     // The k best candidates within a radius: collected unordered and cut back to the k nearest
     // (nth_element) whenever 2k have gathered, `bound` then the k-th distance. Within a radius

@@ -43,17 +43,13 @@ void evaluate(const Eigen::Ref<const Points3> &band, const DiameterConfig &opt, 
     }
     f.inliers = static_cast<int>(in.size());
     f.rms_m = in.empty() ? kNaN : std::sqrt(ss / static_cast<double>(in.size()));
-    // Covariance of (centre, radius) of a circle fit to the inliers: rms^2 (J^T J)^-1 with
-    // J_i = [-(unit radial of i), -1]; large on short arcs, where centre and radius trade off.
-    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-    for (int i : in) {
-        const Eigen::Vector2d q = plane.row(i).transpose();
-        if (!(q.norm() > 0)) continue;
-        const Eigen::Vector3d J(-q.x() / q.norm(), -q.y() / q.norm(), -1.0);
-        JtJ += J * J.transpose();
-    }
-    if (in.size() >= 3 && std::abs(JtJ.determinant()) > 1e-12)
-        f.radius_std = f.rms_m * std::sqrt(std::max(0.0, JtJ.inverse()(2, 2)));
+    // Covariance of (centre, radius) of the circle on its inliers, rms^2 (J^T J)^-1: large on
+    // short arcs, where centre and radius trade off. The circle was fitted to other points (the
+    // whole band, or a cylinder by SAC), so the residual variance takes no fitted parameters
+    // (and no floor: the fits' quality scores see their RMS as it is).
+    const double var_r =
+        circleCovariance(plane, in, Eigen::Vector2d::Zero(), f.radius, 0, 0.0)(2, 2);
+    if (std::isfinite(var_r)) f.radius_std = std::sqrt(std::max(0.0, var_r));
     f.arc_coverage = arcCoverage(plane, in, Eigen::Vector2d::Zero(), 36);
     const double ratio = band.rows() > 0 ? static_cast<double>(in.size()) / band.rows() : 0.0;
     f.score = in.empty() ? 0.0 : ratio * f.arc_coverage / std::max(f.rms_m, 0.005);

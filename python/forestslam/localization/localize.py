@@ -10,6 +10,7 @@ import numpy as np
 
 from forestslam.core_bridge import fill_core
 from forestslam.errors import InputError
+from forestslam.geometry import planar_pose
 from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.tree_map import TreeMap
 
@@ -63,11 +64,7 @@ class Localization:
 
     def matrix(self) -> np.ndarray:
         """(4,4) T_map_local (planar: z, roll and pitch zero)."""
-        c, s = math.cos(self.yaw), math.sin(self.yaw)
-        T = np.eye(4)
-        T[:2, :2] = [[c, -s], [s, c]]
-        T[:2, 3] = [self.x, self.y]
-        return T
+        return planar_pose(self.x, self.y, self.yaw)
 
     def to_dict(self) -> dict:
         return {
@@ -268,5 +265,5 @@ def extract_trunks(cloud: np.ndarray, height_offset_m: float = 1.0, **kwargs) ->
         if not hasattr(cfg, key):
             raise InputError(f"extract_trunks: unknown option {key}")
         setattr(cfg, key, value)
-    xy, _sizes = _core.extract_trunks(np.ascontiguousarray(cloud), cfg)
+    xy = _core.extract_trunks(np.ascontiguousarray(cloud), cfg).xy
     return np.asarray(xy)

@@ -16,6 +16,7 @@ import json
 import logging
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,6 +37,8 @@ class LocalizationRun:
     scans: int = 0
     queries: list[dict] = field(default_factory=list)
     wall_s: float = 0.0
+    # Called after every query: the job's checkpoint when one is due (run_localize_job).
+    query_done: Callable[[], None] = lambda: None
 
     @property
     def accepted(self) -> int:
@@ -111,26 +114,40 @@ def map_meta(map_path: str | Path | TreeMap, tree_map: TreeMap) -> dict:
     return {"map": "(in memory)" if in_memory else str(map_path), "map_trees": len(tree_map)}
 
 
-def run_localize_job(out_dir, meta: dict, inputs: list, overwrite: bool, loop) -> LocalizationRun:
-    """The common job skeleton of `localize` (bags and tree tables): lock, run.yaml, outputs
-    rewritten after every query and once more at the end (also after an error), summary.
-    ``loop(run)`` appends the queries."""
-    from forestslam.job import Job
+def run_localize_job(
+    out_dir, meta: dict, inputs: list, overwrite: bool, loop, checkpoint_every: int = 1
+) -> LocalizationRun:
+    """The common job skeleton of `localize` (bags and tree tables): lock, run.yaml, a
+    checkpoint every `checkpoint_every` queries (the outputs and run.yaml's summary rewritten,
+    so a killed run leaves valid files up to it), the same once more at the end (also after an
+    error). ``loop(run)`` appends the queries and calls ``run.query_done()`` after each."""
+    from forestslam.job import Checkpoints, Job
 
     with Job("localize", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
         run = LocalizationRun(job.out)
+        checkpoints = Checkpoints(checkpoint_every)
         t0 = time.perf_counter()
-        try:
-            loop(run)
-        finally:
+
+        def summarize() -> None:
             run.wall_s = time.perf_counter() - t0
-            _write_outputs(run, meta)
             job.summary = {
                 "scans": run.scans,
                 "queries": len(run.queries),
                 "accepted": run.accepted,
                 "wall_s": round(run.wall_s, 3),
             }
+
+        def query_done() -> None:
+            if checkpoints.due(len(run.queries)):
+                summarize()
+                job.checkpoint(lambda: _write_outputs(run, meta))
+
+        run.query_done = query_done
+        try:
+            loop(run)
+        finally:
+            summarize()
+            _write_outputs(run, meta)
     return run
 
 
@@ -164,7 +181,8 @@ def run_localization(
     root, cfg = _load_config(config_path, keyframe_distance_m)
     profile = load_profile(sensor)
     tree_map = _open_map(map_path)
-    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
+    # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
+    stream, scans, count = window.open(input_path, topic, profile.packet_config())
     meta = {
         "input": str(input_path),
         **map_meta(map_path, tree_map),
@@ -249,4 +267,4 @@ def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar
             continue
         loc = localize(q.tree_map, local, q.cfg)
         run.queries.append(_query_record(scan.stamp, i, len(local), loc))
-        _write_outputs(run, q.meta)
+        run.query_done()

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import rot_z, transform_points
 from forestslam.io.tree_tables import TreeTable, level_rotation
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,7 @@ def table_map_xy(
     for k in frames:
         rows = table.rows(int(k))
         T = table.poses[int(k)]
-        parts.append(table.xyz[rows] @ T[:3, :3].T + T[:3, 3])
+        parts.append(transform_points(T, table.xyz[rows]))
         dbhs.append(table.dbh_m[rows])
         ids.append(np.full(len(rows), k))
     if not parts:
@@ -70,9 +71,7 @@ def reference_level(T_world_frame: np.ndarray) -> np.ndarray:
     """R_level_frame from a reference pose: the rotation that removes its roll and pitch."""
     R = np.asarray(T_world_frame, dtype=np.float64)[:3, :3]
     yaw = math.atan2(R[1, 0], R[0, 0])
-    c, s = math.cos(yaw), math.sin(yaw)
-    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    return Rz.T @ R
+    return rot_z(yaw).T @ R
 
 
 def query_xy(
@@ -138,7 +137,6 @@ def run_table_localization(
         _load_config,
         _open_map,
         _query_record,
-        _write_outputs,
         map_meta,
         run_localize_job,
     )
@@ -172,7 +170,8 @@ def run_table_localization(
             stamp = float(table.stamps[k]) if table.stamps is not None else float(k)
             run.scans += 1
             run.queries.append(_query_record(stamp, int(k), len(local), loc))
-            if len(run.queries) % 100 == 0:  # a killed run keeps valid files (not O(n^2))
-                _write_outputs(run, meta)
+            run.query_done()
 
-    return run_localize_job(out_dir, meta, [trees_path, config_path, tree_map], overwrite, loop)
+    inputs = [trees_path, config_path, tree_map]
+    # every 100th query: rewriting all queries after each would be O(n^2) over long tables
+    return run_localize_job(out_dir, meta, inputs, overwrite, loop, checkpoint_every=100)

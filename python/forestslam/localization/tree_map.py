@@ -80,7 +80,7 @@ class TreeMap:
 
     @property
     def n_stars(self) -> int:
-        return len(self._index.stars["centre"])
+        return len(self._index.stars.centre)
 
     @property
     def index(self):
@@ -105,8 +105,8 @@ class TreeMap:
             ids=self.ids,
             triangles=self.triangles.astype(np.int32),
             neighbours=self.neighbours.astype(np.int32),
-            star_vertices=stars["vertices"].astype(np.int32),
-            star_features=stars["features"],
+            star_vertices=stars.vertices.astype(np.int32),
+            star_features=stars.features,
         )
         atomic_write(path, lambda f: f.write(buffer.getvalue()), mode="wb")
         return path

@@ -55,49 +55,49 @@ class _Tree:
     z_n: int = 0
 
 
-def fit_band_circle(
-    xy: np.ndarray, cfg: MappingConfig, origins: np.ndarray | None = None
-) -> dict | None:
-    """Robust circle fit of band points (M,2), under range noise along the beams when their
-    view origins (M,2) are given; None when no acceptable fit."""
+def fit_band_circle(xy: np.ndarray, cfg: MappingConfig, origins: np.ndarray | None = None):
+    """Robust circle fit (forestslam._core.CircleFit) of band points (M,2), under range noise
+    along the beams when their view origins (M,2) are given; None when no acceptable fit."""
     from forestslam import _core
+    from forestslam.core_bridge import core_struct
 
     if len(xy) < cfg.dbh_min_points:
         return None
-    kwargs = dict(
-        inlier_threshold_m=cfg.circle_inlier_m,
-        min_radius_m=cfg.dbh_min_m / 2,
-        max_radius_m=cfg.dbh_max_m / 2,
-    )
+    options = {
+        "inlier_threshold_m": cfg.circle_inlier_m,
+        "min_radius_m": cfg.dbh_min_m / 2,
+        "max_radius_m": cfg.dbh_max_m / 2,
+        "lateral_sigma_m": cfg.dbh_lateral_sigma_m,  # used by the range-model fit only
+    }
+    config = core_struct("CircleFitConfig", options, "mapping")
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     if origins is None:
-        fit = _core.fit_circle(xy, **kwargs)
+        fit = _core.fit_circle(xy, config)
     else:
         origins = np.ascontiguousarray(origins, dtype=np.float64)
-        fit = _core.fit_circle_rays(xy, origins, lateral_sigma_m=cfg.dbh_lateral_sigma_m, **kwargs)
-    if not fit["valid"]:
+        fit = _core.fit_circle_rays(xy, origins, config)
+    if not fit.valid:
         return None
-    if fit["inliers"] < cfg.dbh_min_points or fit["rms_m"] > cfg.dbh_max_rms_m:
+    if fit.inliers < cfg.dbh_min_points or fit.rms_m > cfg.dbh_max_rms_m:
         return None
-    if fit["arc_coverage"] < cfg.dbh_min_arc_coverage:
+    if fit.arc_coverage < cfg.dbh_min_arc_coverage:
         return None
     if origins is not None:
-        fit["seen_through"] = seen_through_share(xy, origins, fit, cfg.circle_inlier_m)
-        if fit["seen_through"] > cfg.dbh_max_seen_through:
+        if seen_through_share(xy, origins, fit, cfg.circle_inlier_m) > cfg.dbh_max_seen_through:
             return None
     # Most of the window's points lie on its circle: a window holding two stems (a far stem
     # associated with its neighbour) otherwise gives a circle through both.
-    if fit["inliers"] < cfg.dbh_min_inlier_ratio * len(xy):
+    if fit.inliers < cfg.dbh_min_inlier_ratio * len(xy):
         return None
     return fit
 
 
-def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit: dict, tol_m: float) -> float:
+def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit, tol_m: float) -> float:
     """Share of the points (M,2) whose beam from its origin (M,2) crosses the fitted circle
     and ends more than tol_m beyond the middle of its chord: points an opaque stem of that
     circle would have hidden (vectorised; an ideal stem view gives 0, range noise alone a few
     per cent at grazing beams)."""
-    centre, radius = np.asarray(fit["centre"], dtype=np.float64)[:2], float(fit["radius"])
+    centre, radius = np.asarray(fit.centre, dtype=np.float64)[:2], float(fit.radius)
     beam = xy - origins
     rng = np.linalg.norm(beam, axis=1)
     ok = rng > 0
@@ -112,7 +112,7 @@ def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit: dict, tol_m: fl
 
 
 def align_scans_across(
-    xy: np.ndarray, origins: np.ndarray, scan_of: np.ndarray, fit: dict, cfg: MappingConfig
+    xy: np.ndarray, origins: np.ndarray, scan_of: np.ndarray, fit, cfg: MappingConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Shift each block's band points (M,2) and view origins (M,2) (scan_of (M,): block index)
     across its line of sight onto the window's circle: the pose error between the scans of a
@@ -121,7 +121,7 @@ def align_scans_across(
     regularised least squares of the inliers' circle residuals, prior sigma dbh_align_sigma_m
     against the points' dbh_lateral_sigma_m (a block seen head-on, whose points' normals are
     along the beam, is hardly moved)."""
-    centre, radius = np.asarray(fit["centre"], dtype=np.float64)[:2], float(fit["radius"])
+    centre, radius = np.asarray(fit.centre, dtype=np.float64)[:2], float(fit.radius)
     d = xy - centre
     dist = np.linalg.norm(d, axis=1)
     e = dist - radius
@@ -231,8 +231,8 @@ class TreeMap:
         if fit is None:
             return
         self.n_fits_accepted += 1
-        weight = fit["inliers"] * fit["arc_coverage"] ** 2
-        tree.measurements.append((2.0 * fit["radius"], weight))
+        weight = fit.inliers * fit.arc_coverage**2
+        tree.measurements.append((2.0 * fit.radius, weight))
 
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
         """Fused DBH, its std and the number of window measurements fused (module docstring)."""

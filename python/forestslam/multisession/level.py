@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from forestslam.geometry import rigid_fit
+from forestslam.geometry import rigid_fit, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ def level_fit(
         return None
     T, keep = rigid_fit(src, dst), np.ones(len(src), dtype=bool)
     for _ in range(2):
-        r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
+        r = np.linalg.norm(transform_points(T, src) - dst, axis=1)
         keep = r <= 3.0 * 1.4826 * max(float(np.median(r)), 1e-3)
         if keep.sum() < min_trees:
             return None

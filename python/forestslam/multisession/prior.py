@@ -27,7 +27,14 @@ import numpy as np
 
 from forestslam.config_utils import Positive, PositiveInt, Range
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose, rigid_fit, transform_points, transform_xy, yaw_of
+from forestslam.geometry import (
+    parse_yaw,
+    planar_pose,
+    rigid_fit,
+    transform_points,
+    transform_xy,
+    yaw_of,
+)
 from forestslam.multisession.fusion import fuse_dbh
 from forestslam.multisession.level import level_fit
 
@@ -129,14 +136,15 @@ def load_prior_map(path: str | Path, config: PriorMapConfig | None = None) -> Pr
 
 
 def parse_initial_pose(text: str) -> np.ndarray:
-    """`x,y,yaw_deg` -> (3,) x, y (map coordinates) and yaw (radians)."""
+    """`x,y,yaw_deg` -> (3,) x, y (map coordinates) and yaw (radians; geometry.parse_yaw)."""
+    *head, last = text.split(",")
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [float(v) for v in head] + [parse_yaw(last, "--initial-pose")]
     except ValueError:
         values = []
     if len(values) != 3 or not np.all(np.isfinite(values)):
         raise InputError(f"--initial-pose must be x,y,yaw_deg (three numbers), not {text!r}")
-    return np.array([values[0], values[1], math.radians(values[2])])
+    return np.array(values)
 
 
 class PriorTracker:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from forestslam.geometry import transform_xy
 from forestslam.slam.association import associate, rigid_2d
 from forestslam.slam.config import SlamConfig
 from forestslam.slam.landmark_slam import lift, planar, pose2_matrix, tilt
@@ -66,7 +67,7 @@ def register_trees(
     if len(prev_xy) < cfg.min_matches or len(cur_xy) < cfg.min_matches:
         return None
     slam_cfg = SlamConfig()
-    pred = cur_xy @ T_prev_cur[:2, :2].T + T_prev_cur[:2, 2]
+    pred = transform_xy(T_prev_cur, cur_xy)
     sigma = np.full(len(prev_xy), slam_cfg.landmark_sigma_floor_m)
     res = associate(
         pred,
@@ -83,7 +84,7 @@ def register_trees(
         return None
     src, dst = pred[ok], prev_xy[res.matches[ok]]
     corr = rigid_2d(src, dst)
-    resid = src @ corr[:2, :2].T + corr[:2, 2] - dst
+    resid = transform_xy(corr, src) - dst
     s2 = float(np.mean(np.sum(resid**2, axis=1))) / 2.0  # per-axis residual variance
     spread = float(np.sum((src - src.mean(axis=0)) ** 2))
     var_xy = max(s2 / n, cfg.sigma_floor_m**2)

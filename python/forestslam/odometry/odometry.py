@@ -101,7 +101,7 @@ class Odometry:
     """`Odometry(sensor, config=None).step(scan) -> OdometryStep`, one scan at a time in time
     order. sensor: profile name, YAML path or SensorProfile. perception_config: the
     PerceptionConfig of the stem detection (default: its defaults). stem_fits False: the steps'
-    stems come without their per-stem fit quality dicts (`Stems.diameters` empty; DBH and
+    stems come without their per-stem fit qualities (`Stems.diameters` empty; DBH and
     centres are there), which saves most of the conversion of the stems into Python."""
 
     def __init__(
@@ -149,7 +149,7 @@ class Odometry:
             T_world_sensor=np.array(res.T_world_sensor),
             covariance=np.array(res.covariance),
             degraded=bool(res.degraded),
-            stems=stems_from_core(res.stems_dict(self.stem_fits)),
+            stems=stems_from_core(res.stems, fits=self.stem_fits),
             timing=dict(res.timing),
             covariance6=None if res.covariance6 is None else np.array(res.covariance6),
             method=res.method,

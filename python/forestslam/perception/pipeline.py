@@ -177,7 +177,7 @@ def segment_ground(points: np.ndarray, config: PerceptionConfig | None = None) -
     out = _core().perception_segment_ground(
         points, _stage_options(config.ground, "ground", "GroundConfig")
     )
-    return np.asarray(out["is_ground"], dtype=bool)
+    return np.asarray(out.is_ground, dtype=bool)
 
 
 @dataclass(frozen=True)
@@ -232,9 +232,9 @@ def ground_surface(
         np.ascontiguousarray(finite - shift), _stage_options(ground, "ground", "GroundConfig")
     )
     return GroundSurface(
-        z=np.asarray(out["grid_z"], dtype=np.float64),
-        origin=np.asarray(out["grid_origin"], dtype=np.float64) + shift[:2],
-        cell=float(out["grid_cell"]),
+        z=np.array(out.grid.z, dtype=np.float64),
+        origin=np.asarray(out.grid.origin, dtype=np.float64) + shift[:2],
+        cell=float(out.grid.cell),
     )
 
 
@@ -256,7 +256,7 @@ def filter_normals(
         profile.theta_v_rad,
         _stage_options(config.filter, "filter", "NormalFilterConfig"),
     )
-    return np.asarray(out["kept"], dtype=np.int64), np.asarray(out["normals"]).reshape(-1, 3)
+    return np.asarray(out.kept, dtype=np.int64), np.array(out.normals).reshape(-1, 3)
 
 
 def coarse_clusters(
@@ -300,16 +300,25 @@ def refine_cluster(
     return _core().perception_dbscan(points, eps, seg.dbscan_min_neighbours)
 
 
+@dataclass(frozen=True)
+class ClusterClass:
+    """classify_cluster's result: the cluster's SVD shape (forestslam._core.ClusterShape: mean,
+    cov, axis, singular, length, width, axis_angle) and whether it is a stem."""
+
+    shape: object
+    is_stem: bool
+
+
 def classify_cluster(
     points: np.ndarray, config: PerceptionConfig | None = None, up: np.ndarray | None = None
-) -> dict:
-    """SVD shape of one cluster (M,3) and whether it is a stem: dict mean, cov, axis,
-    singular, length, width, axis_angle, is_stem."""
+) -> ClusterClass:
+    """SVD shape of one cluster (M,3) and whether it is a stem."""
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     seg = _stage_options(config.segmentation, "segmentation", "SegmentationConfig")
-    return _core().perception_cluster_shape(points, up, seg)
+    shape = _core().perception_cluster_shape(points, up)
+    return ClusterClass(shape, bool(_core().perception_is_stem(shape, len(points), seg)))
 
 
 def estimate_diameter(
@@ -318,10 +327,10 @@ def estimate_diameter(
     normals: np.ndarray | None = None,
     config: PerceptionConfig | None = None,
     up: np.ndarray | None = None,
-) -> dict:
+):
     """DBH of one stem's points (M,3) above ground height base_z: circle fit on the
-    breast-height band and (with normals (M,3)) the SAC cylinder; dict with both fits, the
-    chosen `method` and `dbh` (NaN when none is accepted)."""
+    breast-height band and (with normals (M,3)) the SAC cylinder; forestslam._core.StemDiameter
+    with both fits, the chosen `method` and `dbh` (NaN when none is accepted)."""
     config = config or PerceptionConfig()
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -336,23 +345,23 @@ def estimate_diameter(
     )
 
 
-def stems_from_core(result: dict) -> Stems:
-    """Stems from the C++ detection dict (forestslam._core: detectionDict), as both the detector
-    and the odometry return it."""
-    k = len(result["z"])
+def stems_from_core(result, fits: bool = True) -> Stems:
+    """Stems from the C++ detection (forestslam._core.Detection), as both the detector and the
+    odometry return it; fits False: without the per-stem fit qualities (diameters empty)."""
+    k = len(result)
     return Stems(
-        xy=np.asarray(result["xy"]).reshape(k, 2),
-        dbh=np.asarray(result["dbh"]),
-        z=np.asarray(result["z"]),
-        mean=np.asarray(result["mean"]).reshape(k, 3),
-        cov=np.asarray(result["cov"]).reshape(k, 3, 3),
-        axis=np.asarray(result["axis"]).reshape(k, 3),
-        points=[np.asarray(p).reshape(-1, 3) for p in result["points"]],
-        base_z=np.asarray(result["base_z"]),
-        ground=np.asarray(result["ground"]).reshape(-1, 3),
-        diameters=list(result["diameters"]),
-        timing=dict(result["timing"]),
-        cpu_ms=dict(result["cpu_ms"]),
-        counts=dict(result["counts"]),
-        breast_source=np.asarray(result["breast_source"], dtype=np.int64),
+        xy=np.asarray(result.xy).reshape(k, 2),
+        dbh=np.asarray(result.dbh),
+        z=np.asarray(result.z),
+        mean=np.asarray(result.mean).reshape(k, 3),
+        cov=np.asarray(result.cov).reshape(k, 3, 3),
+        axis=np.asarray(result.axis).reshape(k, 3),
+        points=[np.asarray(p).reshape(-1, 3) for p in result.points],
+        base_z=np.asarray(result.base_z),
+        ground=np.asarray(result.ground).reshape(-1, 3),
+        diameters=list(result.diameters) if fits else [],
+        timing=dict(result.timing),
+        cpu_ms=dict(result.cpu_ms),
+        counts=dict(result.counts),
+        breast_source=np.asarray(result.breast_source, dtype=np.int64),
     )

@@ -30,9 +30,9 @@ class Stems:
     stem points (the Gaussians of shape-to-shape registration); axis (K,3) principal axis
     (unit, pointing up); base_z (K,) local ground height; points list of (Mi,3);
     ground (G,3) ground points thinned to one per voxel; diameters list of per-stem fit
-    quality dicts (circle / cylinder / silhouette: radius, inliers, rms_m, arc_coverage, score;
-    method; the cylinder is not fitted, valid False, when an accepted silhouette or band
-    circle decides unless DiameterConfig.fit_all);
+    qualities (forestslam._core.StemDiameter: circle / cylinder / silhouette with radius,
+    inliers, rms_m, arc_coverage, score; method; the cylinder is not fitted, valid False,
+    when an accepted silhouette or band circle decides unless DiameterConfig.fit_all);
     timing dict of per-stage wall-clock milliseconds; cpu_ms the same stages in CPU time of
     the calling thread (the one-core cost); counts dict of per-stage point / cluster counts;
     breast_source (K,) index into BREAST_HEIGHT_SOURCES.
@@ -47,7 +47,7 @@ class Stems:
     points: list[np.ndarray]
     base_z: np.ndarray
     ground: np.ndarray
-    diameters: list[dict] = field(default_factory=list)
+    diameters: list = field(default_factory=list)  # of forestslam._core.StemDiameter
     timing: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
     cpu_ms: dict[str, float] = field(default_factory=dict)
@@ -66,7 +66,7 @@ class Stems:
         silhouette, the fit covariance for the circle / cylinder; NaN without a DBH."""
         if not self.diameters:
             return np.full(len(self), np.nan)
-        return np.array([float(d.get("dbh_std", np.nan)) for d in self.diameters])
+        return np.array([float(d.dbh_std) for d in self.diameters])
 
     def reported_dbh(self, max_std_m: float = REPORT_MAX_DBH_STD_M) -> np.ndarray:
         """(K,) dbh where its expected error is at most max_std_m, else NaN."""

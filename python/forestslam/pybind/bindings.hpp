@@ -48,8 +48,4 @@ void define_localization(pybind11::module_ &m);
 void define_odometry(pybind11::module_ &m);
 void define_tls(pybind11::module_ &m);
 
-// The stems of a detection as the dict forestslam.perception.Stems is built from (perception.cpp),
-// shared by the detector and the odometry bindings.
-pybind11::dict detectionDict(const perception::Detection &det, bool fits = true);
-
 }  // namespace forestslam::python

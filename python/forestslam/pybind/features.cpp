@@ -51,16 +51,39 @@ void defineFeatureConfigs(py::module_ &m) {
     FS_FIELD(v, ft::VirtualFeaturesConfig, min_vertical_span_m);
 }
 
-py::dict virtualFeaturesDict(const ft::VirtualFeatures &vf) {
-    py::dict out;
-    out["centres"] = vf.centres;
-    out["radii"] = vf.radii;
-    out["stem_ids"] = vf.stem_ids;
-    out["levels"] = vf.levels;
-    out["rms"] = vf.rms;
-    out["stems"] = vf.stems;
-    out["stem_radii"] = vf.stem_radii;
-    return out;
+// extract_virtual_features' and detect_dog_keypoints' results, read-only.
+void defineVirtualFeatures(py::module_ &m) {
+    py::class_<ft::DogKeypoints>(m, "DogKeypoints",
+                                 "detect_dog_keypoints' result (read-only), K keypoints.")
+        .def_property_readonly(
+            "points", [](const ft::DogKeypoints &k) { return Points3(k.points); }, "(K,3)")
+        .def_property_readonly(
+            "response", [](const ft::DogKeypoints &k) { return Eigen::VectorXd(k.response); },
+            "(K,) |smoothed_small - smoothed_large| in metres");
+    using V = ft::VirtualFeatures;
+    // Copies, writable: the TLS pipeline moves its features (deskew, in-sweep motion).
+    py::class_<V>(m, "VirtualFeatures",
+                  "Stem-centre (virtual) features of a cloud (read-only): V circle centres of "
+                  "rings or layers and S stems they belong to.")
+        .def_property_readonly(
+            "centres", [](const V &v) { return Points3(v.centres); },
+            "(V,3) circle centre (x, y) at the cluster's mean z")
+        .def_property_readonly(
+            "radii", [](const V &v) { return Eigen::VectorXd(v.radii); }, "(V,)")
+        .def_property_readonly(
+            "stem_ids", [](const V &v) { return Eigen::VectorXi(v.stem_ids); },
+            "(V,) 0..S-1, centres of one stem share an id")
+        .def_property_readonly(
+            "levels", [](const V &v) { return Eigen::VectorXi(v.levels); },
+            "(V,) ring number or layer index")
+        .def_property_readonly(
+            "rms", [](const V &v) { return Eigen::VectorXd(v.rms); },
+            "(V,) circle-fit RMS residual (m)")
+        .def_property_readonly(
+            "stems", [](const V &v) { return Points3(v.stems); }, "(S,3) per stem: mean centre")
+        .def_property_readonly(
+            "stem_radii", [](const V &v) { return Eigen::VectorXd(v.stem_radii); },
+            "(S,) median radius");
 }
 
 void defineFeatureFunctions(py::module_ &m) {
@@ -82,11 +105,11 @@ void defineFeatureFunctions(py::module_ &m) {
                 py::gil_scoped_release release;
                 kp = ft::detectDogKeypoints(points, cfg);
             }
-            return py::make_tuple(kp.points, kp.response);
+            return kp;
         },
         py::arg("points"), py::arg("config") = ft::DogKeypointsConfig(),
-        "3D difference-of-Gaussians keypoints of points (N,3) -> (keypoints (K,3), response "
-        "(K,)). config: DogKeypointsConfig.");
+        "3D difference-of-Gaussians keypoints of points (N,3) -> DogKeypoints. config: "
+        "DogKeypointsConfig.");
 
     m.def(
         "extract_virtual_features",
@@ -102,20 +125,19 @@ void defineFeatureFunctions(py::module_ &m) {
                 vf = rings ? ft::extractVirtualFeaturesRings(points, *rings, cfg)
                            : ft::extractVirtualFeaturesLayers(points, cfg);
             }
-            return virtualFeaturesDict(vf);
+            return vf;
         },
         py::arg("points"), py::arg("rings") = py::none(),
         py::arg("config") = ft::VirtualFeaturesConfig(),
         "Stem-centre (virtual) features of points (N,3): per ring when rings (N,) uint16 is "
-        "given, else per horizontal layer. -> dict centres (V,3), radii (V,), stem_ids (V,), "
-        "levels (V,), rms (V,), stems (S,3) mean centre per stem, stem_radii (S,). config: "
-        "VirtualFeaturesConfig.");
+        "given, else per horizontal layer. -> VirtualFeatures. config: VirtualFeaturesConfig.");
 }
 
 }  // namespace
 
 void define_features(py::module_ &m) {
     defineFeatureConfigs(m);
+    defineVirtualFeatures(m);
     defineFeatureFunctions(m);
 }
 

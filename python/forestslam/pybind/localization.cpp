@@ -26,19 +26,48 @@ IntRows toRows(const std::vector<std::array<int, 3>> &v) {
     return out;
 }
 
-py::dict starsToDict(const localization::StarSet &set) {
-    IntRows6 vertices(set.stars.size(), 6);
-    Eigen::VectorXi centre(set.stars.size());
-    for (size_t i = 0; i < set.stars.size(); ++i) {
-        for (int k = 0; k < 6; ++k) vertices(i, k) = set.stars[i].vertices[k];
-        centre[i] = set.stars[i].centre;
-    }
-    py::dict d;
-    d["descriptors"] = set.descriptors;
-    d["centre"] = centre;
-    d["vertices"] = vertices;
-    d["features"] = set.features();
-    return d;
+// The triangulation, the stars and the trunks, read-only.
+void defineLocalizationResults(py::module_ &m) {
+    py::class_<lc::Triangulation>(m, "Triangulation", "delaunay's result (read-only), T triangles.")
+        .def_property_readonly(
+            "triangles", [](const lc::Triangulation &t) { return toRows(t.triangles); },
+            "(T,3) int32 counter-clockwise row indices")
+        .def_property_readonly(
+            "neighbours", [](const lc::Triangulation &t) { return toRows(t.neighbours); },
+            "(T,3) int32 triangle across the edge opposite each vertex, -1 on the hull")
+        .def_readonly("used_points", &lc::Triangulation::used_points,
+                      "input rows that took part (finite, not a duplicate of an earlier row)");
+    py::class_<lc::StarSet>(m, "StarSet", "triangle_stars' result (read-only), S stars.")
+        .def_readonly("descriptors", &lc::StarSet::descriptors,
+                      "(T,2) [area, squared perimeter] per triangle")
+        .def_property_readonly(
+            "centre",
+            [](const lc::StarSet &set) {
+                Eigen::VectorXi centre(set.stars.size());
+                for (size_t i = 0; i < set.stars.size(); ++i) centre[i] = set.stars[i].centre;
+                return centre;
+            },
+            "(S,) centre triangle")
+        .def_property_readonly(
+            "vertices",
+            [](const lc::StarSet &set) {
+                IntRows6 vertices(set.stars.size(), 6);
+                for (size_t i = 0; i < set.stars.size(); ++i)
+                    for (int k = 0; k < 6; ++k) vertices(i, k) = set.stars[i].vertices[k];
+                return vertices;
+            },
+            "(S,6) centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, "
+            "v1v2, v2v0")
+        .def_property_readonly(
+            "features", [](const lc::StarSet &set) { return set.features(); },
+            "(S,8) [A0,l0,A1,l1,A2,l2,A3,l3]");
+    py::class_<lc::Trunks>(m, "Trunks", "extract_trunks' result (read-only), K trunks.")
+        .def_property_readonly(
+            "xy", [](const lc::Trunks &t) { return Points2(t.xy); },
+            "(K,2) mean xy per trunk cluster (a writable copy)")
+        .def_readonly("sizes", &lc::Trunks::sizes, "points per cluster (list[int])")
+        .def_readonly("z_min", &lc::Trunks::z_min, "(K,) lowest point of each cluster")
+        .def_readonly("z_max", &lc::Trunks::z_max, "(K,) highest point of each cluster");
 }
 
 // Delaunay triangulation and triangle stars.
@@ -48,24 +77,19 @@ void defineTriangulation(py::module_ &m) {
         [](const Eigen::Ref<const Points2> &xy, double duplicate_tolerance) {
             const localization::Triangulation tri =
                 localization::delaunayTriangulation(xy, duplicate_tolerance);
-            return py::make_tuple(toRows(tri.triangles), toRows(tri.neighbours));
+            return tri;
         },
         py::arg("xy"), py::arg("duplicate_tolerance") = 1e-6,
-        "Delaunay triangulation of xy (N,2) float64 -> (triangles (T,3) int32 counter-clockwise "
-        "row indices, neighbours (T,3) int32: triangle across the edge opposite each vertex, -1 "
-        "on the hull). Non-finite and duplicate rows are skipped; collinear input gives T = 0.");
+        "Delaunay triangulation of xy (N,2) float64 -> Triangulation. Non-finite and duplicate "
+        "rows are skipped; collinear input gives no triangle.");
 
     m.def(
         "triangle_stars",
         [](const Eigen::Ref<const Points2> &xy) {
             const localization::Triangulation tri = localization::delaunayTriangulation(xy);
-            return starsToDict(localization::buildStars(tri, xy));
+            return localization::buildStars(tri, xy);
         },
-        py::arg("xy"),
-        "Triangle stars of the Delaunay triangulation of xy (N,2) -> dict: descriptors (T,2) "
-        "[area, squared perimeter] per triangle, centre (S,) centre triangle, vertices (S,6) "
-        "(centre v0 v1 v2 ccw from the shortest edge, then the apexes across v0v1, v1v2, v2v0), "
-        "features (S,8) [A0,l0,A1,l1,A2,l2,A3,l3].");
+        py::arg("xy"), "Triangle stars of the Delaunay triangulation of xy (N,2) -> StarSet.");
 }
 
 void defineLocalizerConfig(py::module_ &m) {
@@ -188,7 +212,8 @@ void defineTreeMap(py::module_ &m) {
             "neighbours",
             [](const localization::TreeMap &t) { return toRows(t.triangulation().neighbours); })
         .def_property_readonly(
-            "stars", [](const localization::TreeMap &t) { return starsToDict(t.stars()); });
+            "stars", [](const localization::TreeMap &t) { return lc::StarSet(t.stars()); },
+            "the map's triangle stars (StarSet)");
 }
 
 void defineTrunkExtraction(py::module_ &m) {
@@ -210,23 +235,17 @@ void defineTrunkExtraction(py::module_ &m) {
         "extract_trunks",
         [](const Eigen::Ref<const Points3> &cloud,
            const localization::TrunkExtractionConfig &config) {
-            localization::Trunks t;
-            {
-                py::gil_scoped_release release;  // numpy results are built with the GIL held
-                t = localization::extractTrunks(cloud, config);
-            }
-            Eigen::VectorXi sizes =
-                Eigen::Map<const Eigen::VectorXi>(t.sizes.data(), t.sizes.size());
-            return py::make_tuple(t.xy, sizes);
+            py::gil_scoped_release release;
+            return localization::extractTrunks(cloud, config);
         },
         py::arg("cloud"), py::arg("config") = localization::TrunkExtractionConfig(),
-        "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> (xy (K,2), "
-        "points per trunk cluster (K,)).");
+        "Trunk positions from a map cloud (N,3) float64 (Li et al. Algorithm 1) -> Trunks.");
 }
 
 }  // namespace
 
 void define_localization(py::module_ &m) {
+    defineLocalizationResults(m);
     defineTriangulation(m);
     defineLocalizerConfig(m);
     defineLocalizationResult(m);

@@ -120,7 +120,7 @@ void defineTreeOdometry(py::module_ &m) {
         m, "OdometryResult",
         "One scan's odometry: stamp, T_world_sensor (4,4) at the stamp, covariance (3,3) x y yaw "
         "and covariance6 (6,6) (None without a registration), body frame; degraded, method, "
-        "matched_stems, stems (dict in the layout of perception.Stems), stamp_check, "
+        "matched_stems, stems (Detection), stamp_check, "
         "perception_error, timing (wall ms) and cpu_ms (process CPU ms) per stage.")
         .def_readonly("stamp", &od::OdometryResult::stamp)
         .def_readonly("T_world_sensor", &od::OdometryResult::T_world_sensor)
@@ -133,13 +133,8 @@ void defineTreeOdometry(py::module_ &m) {
         .def_readonly("degraded", &od::OdometryResult::degraded)
         .def_readonly("method", &od::OdometryResult::method)
         .def_readonly("matched_stems", &od::OdometryResult::matched_stems)
-        .def_property_readonly(
-            "stems", [](const od::OdometryResult &r) { return detectionDict(r.detection); })
-        .def(
-            "stems_dict",
-            [](const od::OdometryResult &r, bool fits) { return detectionDict(r.detection, fits); },
-            py::arg("fits") = true,
-            "stems; fits False: without the per-stem fit dicts (diameters empty), 5x cheaper.")
+        .def_readonly("stems", &od::OdometryResult::detection,
+                      "the scan's stems: Detection (read-only, sensor frame)")
         .def_readonly("stamp_check", &od::OdometryResult::stamp_check)
         .def_readonly("perception_error", &od::OdometryResult::perception_error)
         .def_readonly("timing", &od::OdometryResult::timing_ms)

@@ -5,6 +5,7 @@
 
 #include <optional>
 #include <stdexcept>
+#include <string>
 
 #include "bindings.hpp"
 #include "forestslam/common/circle_fit.hpp"
@@ -17,18 +18,6 @@ namespace py = pybind11;
 
 namespace forestslam::python {
 namespace {
-
-py::dict circleDict(const CircleFit &f) {
-    py::dict d;
-    d["valid"] = f.valid;
-    d["centre"] = f.centre;
-    d["radius"] = f.radius;
-    d["inliers"] = f.inliers;
-    d["rms_m"] = f.rms_m;
-    d["arc_coverage"] = f.arc_coverage;
-    d["inlier_indices"] = f.inlier_indices;
-    return d;
-}
 
 namespace pc = forestslam::perception;
 
@@ -138,36 +127,6 @@ void defineStemOptions(py::module_ &m) {
     FS_FIELD(p, pc::PerceptionConfig, slice_min_inlier_ratio);
 }
 
-py::dict fitDict(const pc::DiameterFit &f) {
-    py::dict d;
-    d["valid"] = f.valid;
-    d["radius"] = f.radius;
-    d["centre"] = f.centre;
-    d["axis"] = f.axis;
-    d["inliers"] = f.inliers;
-    d["rms_m"] = f.rms_m;
-    d["arc_coverage"] = f.arc_coverage;
-    d["score"] = f.score;
-    d["radius_std"] = f.radius_std;
-    return d;
-}
-
-py::dict diameterDict(const pc::StemDiameter &s) {
-    py::dict d;
-    d["circle"] = fitDict(s.circle);
-    d["cylinder"] = fitDict(s.cylinder);
-    d["silhouette"] = fitDict(s.silhouette);
-    d["method"] = s.method == 1   ? "circle"
-                  : s.method == 2 ? "cylinder"
-                  : s.method == 3 ? "silhouette"
-                                  : "none";
-    d["dbh"] = s.dbh;
-    d["dbh_std"] = s.dbh_std;
-    d["centre"] = s.centre;
-    d["band_points"] = s.band_points;
-    return d;
-}
-
 py::list clustersList(const pc::Clusters &c) {
     py::list out;
     for (const auto &rows : c)
@@ -181,120 +140,253 @@ std::vector<int> toRows(const py::array_t<int, py::array::c_style | py::array::f
 
 }  // namespace
 
-// The stems of a detection in the layout of forestslam.perception.Stems (also the odometry's).
-py::dict detectionDict(const perception::Detection &det, bool fits) {
-    namespace pc = forestslam::perception;
-    const auto k = static_cast<Eigen::Index>(det.stems.size());
-    Points2 xy(k, 2);
-    Eigen::VectorXd z(k), dbh(k), base(k);
-    Points3 mean(k, 3), axis(k, 3);
-    Eigen::Matrix<double, Eigen::Dynamic, 9, Eigen::RowMajor> cov(k, 9);
-    Eigen::VectorXi ground_found(k), breast_source(k);
-    py::list pts, diam;
-    for (Eigen::Index i = 0; i < k; ++i) {
-        const pc::Stem &s = det.stems[static_cast<size_t>(i)];
-        xy.row(i) = s.breast.head<2>().transpose();
-        z(i) = s.breast.z();
-        dbh(i) = s.diameter.dbh;
-        base(i) = s.base_z;
-        mean.row(i) = s.shape.mean.transpose();
-        axis.row(i) = s.shape.axis.transpose();
-        for (int r = 0; r < 3; ++r)
-            for (int c = 0; c < 3; ++c) cov(i, 3 * r + c) = s.shape.cov(r, c);
-        ground_found(i) = s.ground_found ? 1 : 0;
-        breast_source(i) = static_cast<int>(s.breast_source);
-        pts.append(py::cast(s.points));
-        if (fits) diam.append(diameterDict(s.diameter));  // most of the conversion's cost
-    }
-    py::dict d;
-    d["xy"] = xy;
-    d["z"] = z;
-    d["dbh"] = dbh;
-    d["base_z"] = base;
-    d["mean"] = mean;
-    d["cov"] = cov;
-    d["axis"] = axis;
-    d["ground_found"] = ground_found;
-    d["breast_source"] = breast_source;
-    d["points"] = pts;
-    d["diameters"] = diam;
-    d["ground"] = det.ground;
-    d["up"] = det.up;
-    d["timing"] = det.timing_ms;
-    d["cpu_ms"] = det.cpu_ms;
-    py::dict counts;
-    counts["input"] = det.input_points;
-    counts["after_intensity"] = det.after_intensity;
-    counts["finite"] = det.finite_points;
-    counts["ground"] = det.ground_points;
-    counts["filtered"] = det.filtered_points;
-    counts["coarse_clusters"] = det.coarse_clusters;
-    counts["refined_clusters"] = det.refined_clusters;
-    d["counts"] = counts;
-    return d;
-}
-
 namespace {
 
-// Circle fits on their own (also used by the evaluation and the TLS tree fits).
+// Per-stem column of a detection, (K,) or (K,n) with n = the size of what `get` returns.
+template <typename T, typename Get>
+py::array_t<T> stemColumn(const perception::Detection &det, int n, Get get) {
+    const auto k = static_cast<py::ssize_t>(det.stems.size());
+    py::array_t<T> out =
+        n == 1 ? py::array_t<T>(k) : py::array_t<T>(std::vector<py::ssize_t>{k, n});
+    T *data = out.mutable_data();
+    for (size_t i = 0; i < det.stems.size(); ++i) get(det.stems[i], data + i * n);
+    return out;
+}
+
+const char *methodName(int method) {
+    return method == 1 ? "circle" : method == 2 ? "cylinder" : method == 3 ? "silhouette" : "none";
+}
+
+// A stem's diameter estimates, read-only (perception_estimate_diameter, Detection.diameters).
+void defineDiameterResults(py::module_ &m) {
+    py::class_<pc::DiameterFit>(
+        m, "DiameterFit",
+        "One diameter estimate and its quality on the breast-height band (read-only).")
+        .def_readonly("valid", &pc::DiameterFit::valid, "accepted by the DiameterConfig gates")
+        .def_readonly("radius", &pc::DiameterFit::radius, "m")
+        .def_readonly("centre", &pc::DiameterFit::centre, "(3,) at breast height")
+        .def_readonly("axis", &pc::DiameterFit::axis, "(3,) unit")
+        .def_readonly("inliers", &pc::DiameterFit::inliers)
+        .def_readonly("rms_m", &pc::DiameterFit::rms_m, "RMS of the inlier residuals")
+        .def_readonly("arc_coverage", &pc::DiameterFit::arc_coverage, "in [0, 1]")
+        .def_readonly("score", &pc::DiameterFit::score,
+                      "inlier ratio * arc coverage / max(rms, 5 mm): larger is better")
+        .def_readonly("radius_std", &pc::DiameterFit::radius_std,
+                      "expected error (1 sigma) of the radius, m; NaN when unknown");
+
+    py::class_<pc::StemDiameter>(
+        m, "StemDiameter",
+        "Diameter of one stem (read-only): the circle (band), cylinder (PCL SAC) and silhouette "
+        "estimates, the one chosen and its DBH.")
+        .def_readonly("circle", &pc::StemDiameter::circle)
+        .def_readonly("cylinder", &pc::StemDiameter::cylinder,
+                      "not fitted (valid False) when an accepted silhouette or band circle "
+                      "decides, unless DiameterConfig.fit_all")
+        .def_readonly("silhouette", &pc::StemDiameter::silhouette)
+        .def_property_readonly(
+            "method", [](const pc::StemDiameter &d) { return methodName(d.method); },
+            "circle, cylinder, silhouette or none")
+        .def_readonly("dbh", &pc::StemDiameter::dbh, "m; NaN when no estimate is accepted")
+        .def_readonly("dbh_std", &pc::StemDiameter::dbh_std, "expected error (1 sigma), m")
+        .def_readonly("centre", &pc::StemDiameter::centre, "(3,)")
+        .def_readonly("band_points", &pc::StemDiameter::band_points);
+}
+
+// The stems' per-stem arrays of a Detection (made when read).
+template <typename C>
+void addStemArrays(C &c) {
+    using Det = pc::Detection;
+    using S = pc::Stem;
+    c.def_property_readonly(
+         "xy",
+         [](const Det &d) {
+             return stemColumn<double>(
+                 d, 2, [](const S &s, double *o) { o[0] = s.breast.x(), o[1] = s.breast.y(); });
+         },
+         "(K,2) breast-height centres")
+        .def_property_readonly(
+            "z",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.breast.z(); });
+            },
+            "(K,) breast height")
+        .def_property_readonly(
+            "dbh",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.diameter.dbh; });
+            },
+            "(K,) m, NaN where no diameter was accepted")
+        .def_property_readonly(
+            "base_z",
+            [](const Det &d) {
+                return stemColumn<double>(d, 1, [](const S &s, double *o) { *o = s.base_z; });
+            },
+            "(K,) local ground height")
+        .def_property_readonly(
+            "mean",
+            [](const Det &d) {
+                return stemColumn<double>(d, 3, [](const S &s, double *o) {
+                    for (int c = 0; c < 3; ++c) o[c] = s.shape.mean(c);
+                });
+            },
+            "(K,3) mean of the stem points")
+        .def_property_readonly(
+            "cov",
+            [](const Det &d) {
+                return stemColumn<double>(d, 9, [](const S &s, double *o) {
+                    for (int r = 0; r < 3; ++r)
+                        for (int c = 0; c < 3; ++c) o[3 * r + c] = s.shape.cov(r, c);
+                });
+            },
+            "(K,9) row-major 3x3 covariance of the stem points")
+        .def_property_readonly(
+            "axis",
+            [](const Det &d) {
+                return stemColumn<double>(d, 3, [](const S &s, double *o) {
+                    for (int c = 0; c < 3; ++c) o[c] = s.shape.axis(c);
+                });
+            },
+            "(K,3) principal axis, unit, pointing up");
+}
+
+// Their breast-height flags, points and diameters, and the detection's totals.
+template <typename C>
+void addStemListsAndTotals(C &c) {
+    using Det = pc::Detection;
+    using S = pc::Stem;
+    c.def_property_readonly(
+         "ground_found",
+         [](const Det &d) {
+             return stemColumn<int>(d, 1, [](const S &s, int *o) { *o = s.ground_found; });
+         },
+         "(K,) 1 where base_z is the local ground, 0 where the stem's lowest point")
+        .def_property_readonly(
+            "breast_source",
+            [](const Det &d) {
+                return stemColumn<int>(
+                    d, 1, [](const S &s, int *o) { *o = static_cast<int>(s.breast_source); });
+            },
+            "(K,) index into forestslam.perception.stems.BREAST_HEIGHT_SOURCES")
+        .def_property_readonly(
+            "points",
+            [](const Det &d) {
+                py::list out;
+                for (const S &s : d.stems) out.append(py::cast(s.points));
+                return out;
+            },
+            "list of the K stems' points (Mi,3)")
+        .def_property_readonly(
+            "diameters",
+            [](const Det &d) {
+                py::list out;
+                for (const S &s : d.stems) out.append(py::cast(s.diameter));
+                return out;
+            },
+            "list of the K stems' StemDiameter (copies)")
+        // copies: an array viewing the detection would keep all of it (stem points) alive
+        .def_property_readonly(
+            "ground", [](const Det &d) { return Points3(d.ground); },
+            "(G,3) ground points, one per ground voxel")
+        .def_property_readonly(
+            "up", [](const Det &d) { return Eigen::Vector3d(d.up); },
+            "(3,) ground normal used for the stem axes")
+        .def_readonly("timing", &Det::timing_ms, "wall-clock ms per stage")
+        .def_readonly("cpu_ms", &Det::cpu_ms, "CPU ms of the calling thread per stage")
+        .def_property_readonly(
+            "counts",
+            [](const Det &d) {
+                py::dict c;
+                c["input"] = d.input_points;
+                c["after_intensity"] = d.after_intensity;
+                c["finite"] = d.finite_points;
+                c["ground"] = d.ground_points;
+                c["filtered"] = d.filtered_points;
+                c["coarse_clusters"] = d.coarse_clusters;
+                c["refined_clusters"] = d.refined_clusters;
+                return c;
+            },
+            "per-stage point / cluster counts")
+        .def("__len__", [](const Det &d) { return d.stems.size(); });
+}
+
+// The stems of one detection, read-only, in the layout of forestslam.perception.Stems; the
+// per-stem arrays are made when read (the odometry reads the diameters only when asked).
+void defineDetection(py::module_ &m) {
+    py::class_<pc::Detection> c(m, "Detection",
+                                "The stems of one scan or cloud (read-only; perception_detect and "
+                                "OdometryResult.stems). K stems, sensor / input frame.");
+    addStemArrays(c);
+    addStemListsAndTotals(c);
+}
+
+// Circle fits on their own (also used by the tree map, the evaluation and the TLS tree fits):
+// the options as one typed class, the result read-only.
+void defineCircleFitTypes(py::module_ &m) {
+    py::class_<CircleFitConfig> c(m, "CircleFitConfig",
+                                  "Options of fit_circle / fit_circle_rays (C++ defaults).");
+    c.def(py::init<>());
+    FS_FIELD(c, CircleFitConfig, inlier_threshold_m);
+    FS_FIELD(c, CircleFitConfig, min_radius_m);
+    FS_FIELD(c, CircleFitConfig, max_radius_m);
+    FS_FIELD(c, CircleFitConfig, max_ransac_iterations);
+    FS_FIELD(c, CircleFitConfig, refine_iterations);
+    FS_FIELD(c, CircleFitConfig, arc_sectors);
+    FS_FIELD(c, CircleFitConfig, seed);
+    FS_FIELD(c, CircleFitConfig, lateral_sigma_m);
+    FS_FIELD(c, CircleFitConfig, min_range_anisotropy);
+
+    py::class_<CircleFit> f(m, "CircleFit",
+                            "A 2D circle fit (read-only). Invalid (valid False, NaN centre and "
+                            "radius) for < 3 finite points, collinear points or a radius outside "
+                            "the bounds.");
+    f.def_readonly("valid", &CircleFit::valid)
+        .def_readonly("centre", &CircleFit::centre, "(2,)")
+        .def_readonly("radius", &CircleFit::radius, "m")
+        .def_readonly("inliers", &CircleFit::inliers, "points within the inlier threshold")
+        .def_readonly("rms_m", &CircleFit::rms_m, "RMS of the inlier residuals")
+        .def_readonly("arc_coverage", &CircleFit::arc_coverage,
+                      "share of the angular sectors holding inliers, in [0, 1]")
+        .def_readonly("inlier_indices", &CircleFit::inlier_indices, "rows of xy (list[int])")
+        .def_readonly("covariance", &CircleFit::covariance,
+                      "(3,3) of (centre x, centre y, radius) from the inliers, sigma^2 (J^T J)^-1 "
+                      "with n - 3 degrees of freedom; infinite for < 4 inliers or a degenerate arc")
+        .def_property_readonly("radius_std", &CircleFit::radiusStd,
+                               "standard deviation (m) of the radius, sqrt(covariance[2, 2])")
+        .def("__repr__", [](const CircleFit &x) {
+            return "CircleFit(valid=" + std::string(x.valid ? "True" : "False") +
+                   ", radius=" + std::to_string(x.radius) +
+                   ", inliers=" + std::to_string(x.inliers) + ")";
+        });
+}
+
 void defineCircleFits(py::module_ &m) {
-    const CircleFitConfig d;  // the keyword defaults are the C++ struct's
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
-           double inlier_threshold_m, double min_radius_m, double max_radius_m,
-           double lateral_sigma_m, std::uint32_t seed) {
+           const CircleFitConfig &config) {
             if (origins.rows() != xy.rows())
                 throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
-            CircleFitConfig o;
-            o.inlier_threshold_m = inlier_threshold_m;
-            o.min_radius_m = min_radius_m;
-            o.max_radius_m = max_radius_m;
-            o.lateral_sigma_m = lateral_sigma_m;
-            o.seed = seed;
-            CircleFit f;
-            {
-                py::gil_scoped_release release;
-                f = fitCircleRays(xy, origins, o);
-            }
-            return circleDict(f);
+            py::gil_scoped_release release;
+            return fitCircleRays(xy, origins, config);
         },
-        py::arg("xy"), py::arg("origins"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
-        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
-        py::arg("lateral_sigma_m") = d.lateral_sigma_m, py::arg("seed") = d.seed,
+        py::arg("xy"), py::arg("origins"), py::arg("config") = CircleFitConfig(),
         "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
         "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
-        "arcs, where fit_circle shrinks the circle). Same dict as fit_circle.");
+        "arcs, where fit_circle shrinks the circle). config: CircleFitConfig. Returns CircleFit.");
     m.def(
         "fit_circle",
-        [](const Eigen::Ref<const Points2> &xy, double inlier_threshold_m, double min_radius_m,
-           double max_radius_m, int max_ransac_iterations, int arc_sectors, std::uint32_t seed) {
-            CircleFitConfig o;
-            o.inlier_threshold_m = inlier_threshold_m;
-            o.min_radius_m = min_radius_m;
-            o.max_radius_m = max_radius_m;
-            o.max_ransac_iterations = max_ransac_iterations;
-            o.arc_sectors = arc_sectors;
-            o.seed = seed;
-            CircleFit f;
-            {
-                py::gil_scoped_release release;
-                f = fitCircle(xy, o);
-            }
-            return circleDict(f);
+        [](const Eigen::Ref<const Points2> &xy, const CircleFitConfig &config) {
+            py::gil_scoped_release release;
+            return fitCircle(xy, config);
         },
-        py::arg("xy"), py::arg("inlier_threshold_m") = d.inlier_threshold_m,
-        py::arg("min_radius_m") = d.min_radius_m, py::arg("max_radius_m") = d.max_radius_m,
-        py::arg("max_ransac_iterations") = d.max_ransac_iterations,
-        py::arg("arc_sectors") = d.arc_sectors, py::arg("seed") = d.seed,
-        "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64.\n"
-        "Returns dict: valid bool, centre (2,), radius, inliers int, rms_m, arc_coverage in [0,1]\n"
-        "(occupied angular sectors), inlier_indices list[int] (rows of xy). Invalid (valid=False,\n"
-        "NaN centre) for < 3 finite points, collinear points or a radius outside the bounds.");
+        py::arg("xy"), py::arg("config") = CircleFitConfig(),
+        "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64;\n"
+        "config: CircleFitConfig. Returns CircleFit (non-finite rows are ignored; inlier_indices\n"
+        "are rows of xy).");
     m.def(
         "fit_circle_algebraic",
-        [](const Eigen::Ref<const Points2> &xy) { return circleDict(fitCircleAlgebraic(xy)); },
-        py::arg("xy"), "Plain Taubin algebraic circle fit of xy (N,2); same dict as fit_circle.");
+        [](const Eigen::Ref<const Points2> &xy) { return fitCircleAlgebraic(xy); }, py::arg("xy"),
+        "Plain Taubin algebraic circle fit of xy (N,2); returns CircleFit.");
 }
 
 // The whole per-scan perception chain.
@@ -312,16 +404,54 @@ void defineDetect(py::module_ &m) {
                 py::gil_scoped_release release;
                 det = pc::detectStems(points, in, rg, g, scan_centred, o);
             }
-            return detectionDict(det);
+            return det;
         },
         py::arg("points"), py::arg("intensity"), py::arg("ring"), py::arg("sensor"),
         py::arg("scan_centred"), py::arg("options"),
         "Whole perception chain on points (N,3) (intensity (N,)|None, ring (N,)|None).\n"
-        "sensor: SensorGeometry; options: PerceptionConfig.\n"
-        "Returns dict: xy (K,2), z (K,), dbh (K,) NaN=no fit, base_z (K,), mean (K,3),\n"
-        "cov (K,9) row-major 3x3, axis (K,3), ground_found (K,), points list[(Mi,3)],\n"
-        "diameters list[dict], ground (G,3), up (3,), timing dict ms (wall), cpu_ms dict\n"
-        "(thread CPU ms per stage), counts dict.");
+        "sensor: SensorGeometry; options: PerceptionConfig. Returns Detection.");
+}
+
+// The filter stages' results, read-only.
+void defineFilterResults(py::module_ &m) {
+    py::class_<pc::ClusterShape>(m, "ClusterShape",
+                                 "Shape of one cluster from the SVD of its centred points "
+                                 "(read-only).")
+        .def_readonly("mean", &pc::ClusterShape::mean, "(3,)")
+        .def_readonly("cov", &pc::ClusterShape::cov, "(3,3)")
+        .def_readonly("axis", &pc::ClusterShape::axis, "(3,) principal axis, pointing up")
+        .def_readonly("singular", &pc::ClusterShape::singular,
+                      "(3,) s0 >= s1 >= s2, square roots of the eigenvalues")
+        .def_readonly("length", &pc::ClusterShape::length, "extent along the axis, m")
+        .def_readonly("width", &pc::ClusterShape::width, "extent along the second axis, m")
+        .def_readonly("axis_angle", &pc::ClusterShape::axis_angle, "angle to up, rad");
+    py::class_<pc::GroundGrid>(m, "GroundGrid", "The ground filter's height grid (read-only).")
+        .def_readonly("z", &pc::GroundGrid::z,
+                      "(rows = y cells, cols = x cells) ground height, NaN where unknown")
+        .def_readonly("origin", &pc::GroundGrid::origin,
+                      "(2,) corner of cell (0, 0): it spans [origin, origin + cell) in x and y")
+        .def_readonly("cell", &pc::GroundGrid::cell, "cell size, m");
+    py::class_<pc::GroundSegmentation>(m, "GroundSegmentation",
+                                       "perception_segment_ground's result (read-only).")
+        .def_property_readonly(
+            "is_ground",
+            [](const pc::GroundSegmentation &g) {
+                py::array_t<bool> mask(static_cast<py::ssize_t>(g.is_ground.size()));
+                bool *out = mask.mutable_data();
+                for (size_t i = 0; i < g.is_ground.size(); ++i) out[i] = g.is_ground[i] != 0;
+                return mask;
+            },
+            "(N,) bool, one flag per input row")
+        .def_readonly("grid", &pc::GroundSegmentation::grid, "GroundGrid")
+        .def_readonly("ground_count", &pc::GroundSegmentation::ground_count);
+    py::class_<pc::NormalFilterResult>(m, "NormalFilterResult",
+                                       "perception_normal_filter's result (read-only).")
+        .def_readonly("kept", &pc::NormalFilterResult::kept,
+                      "rows of the input that pass (list[int])")
+        .def_readonly("normals", &pc::NormalFilterResult::normals,
+                      "(M,3) unit normals of the kept rows")
+        .def_readonly("radius_per_ring", &pc::NormalFilterResult::radius_per_ring,
+                      "search radius used per ring (one value in fixed mode)");
 }
 
 // Every stage of the chain on its own (debugging and the ablation): the filters ...
@@ -337,37 +467,20 @@ void defineFilterStages(py::module_ &m) {
     m.def(
         "perception_segment_ground",
         [](const Eigen::Ref<const Points3> &points, const pc::GroundConfig &options) {
-            const pc::GroundSegmentation gs = pc::segmentGround(points, options);
-            py::array_t<bool> mask(static_cast<py::ssize_t>(gs.is_ground.size()));
-            auto mm = mask.mutable_unchecked<1>();
-            for (size_t i = 0; i < gs.is_ground.size(); ++i)
-                mm(static_cast<py::ssize_t>(i)) = gs.is_ground[i] != 0;
-            py::dict d;
-            d["is_ground"] = mask;
-            d["grid_z"] = gs.grid.z;
-            d["grid_origin"] = gs.grid.origin;
-            d["grid_cell"] = gs.grid.cell;
-            return d;
+            return pc::segmentGround(points, options);
         },
         py::arg("points"), py::arg("options"),
-        "Approximate progressive morphological ground filter of points (N,3). Returns dict:\n"
-        "is_ground (N,) bool, grid_z (rows,cols) ground height (NaN unknown), grid_origin (2,),\n"
-        "grid_cell (m).");
+        "Approximate progressive morphological ground filter of points (N,3) -> "
+        "GroundSegmentation.");
     m.def(
         "perception_normal_filter",
         [](const Eigen::Ref<const Points3> &points, const IntArray &candidates, double theta_v,
            const pc::NormalFilterConfig &options) {
-            const pc::NormalFilterResult r =
-                pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
-            py::dict d;
-            d["kept"] = r.kept;
-            d["normals"] = r.normals;
-            d["radius_per_ring"] = r.radius_per_ring;
-            return d;
+            return pc::normalFilter(points, toRows(candidates), theta_v, options, nullptr);
         },
         py::arg("points"), py::arg("candidates"), py::arg("theta_v_rad"), py::arg("options"),
-        "Adaptive ring-based normal filter over rows `candidates` of points (N,3). Returns dict:\n"
-        "kept list[int] (rows), normals (M,3), radius_per_ring list[float].");
+        "Adaptive ring-based normal filter over rows `candidates` of points (N,3) -> "
+        "NormalFilterResult.");
 }
 
 // Clustering, stem classification and DBH of single clusters.
@@ -400,36 +513,31 @@ void defineClusterStages(py::module_ &m) {
         "DBSCAN of points (N,3): list of row arrays (noise dropped).");
     m.def(
         "perception_cluster_shape",
-        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up,
-           const pc::SegmentationConfig &options) {
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &up) {
             std::vector<int> rows(static_cast<size_t>(points.rows()));
             for (size_t i = 0; i < rows.size(); ++i) rows[i] = static_cast<int>(i);
-            const pc::ClusterShape s = pc::clusterShape(points, rows, up);
-            py::dict d;
-            d["mean"] = s.mean;
-            d["cov"] = s.cov;
-            d["axis"] = s.axis;
-            d["singular"] = s.singular;
-            d["length"] = s.length;
-            d["width"] = s.width;
-            d["axis_angle"] = s.axis_angle;
-            d["is_stem"] = pc::isStem(s, static_cast<int>(points.rows()), options);
-            return d;
+            return pc::clusterShape(points, rows, up);
         },
-        py::arg("points"), py::arg("up"), py::arg("options"),
-        "SVD shape of one cluster (M,3) and the stem decision: dict mean, cov (3,3), axis,\n"
-        "singular (3,), length, width, axis_angle (rad), is_stem.");
+        py::arg("points"), py::arg("up"),
+        "SVD shape of one cluster (M,3) -> ClusterShape (axis pointing along `up`).");
+    m.def(
+        "perception_is_stem",
+        [](const pc::ClusterShape &shape, int count, const pc::SegmentationConfig &options) {
+            return pc::isStem(shape, count, options);
+        },
+        py::arg("shape"), py::arg("count"), py::arg("options"),
+        "The stem decision on a cluster of `count` points of this shape (SegmentationConfig: "
+        "count, length, angle to up, singular-value ratio, width).");
     m.def(
         "perception_estimate_diameter",
         [](const Eigen::Ref<const Points3> &points, std::optional<Points3> normals, double base_z,
            const Eigen::Vector3d &up, const pc::DiameterConfig &options) {
             const Points3 n = normals ? *normals : Points3(0, 3);
-            return diameterDict(pc::estimateDiameter(points, n, base_z, up, options));
+            return pc::estimateDiameter(points, n, base_z, up, options);
         },
         py::arg("points"), py::arg("normals"), py::arg("base_z"), py::arg("up"), py::arg("options"),
-        "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: dict with\n"
-        "circle / cylinder fits (valid, radius, centre, axis, inliers, rms_m, arc_coverage,\n"
-        "score), method, dbh (NaN if none accepted), centre (3,), band_points.");
+        "Diameter of one stem (M,3) (normals (M,3)|None) above ground height base_z: "
+        "StemDiameter (dbh NaN if none accepted).");
 }
 
 }  // namespace
@@ -438,7 +546,11 @@ void define_perception(py::module_ &m) {
     defineSensorGeometry(m);
     defineFilterOptions(m);
     defineStemOptions(m);
+    defineCircleFitTypes(m);
     defineCircleFits(m);
+    defineDiameterResults(m);
+    defineDetection(m);
+    defineFilterResults(m);
     defineDetect(m);
     defineFilterStages(m);
     defineClusterStages(m);

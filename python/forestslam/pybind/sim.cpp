@@ -130,6 +130,37 @@ void checkScanModel(const sim::ScanModel &m) {
 }
 
 // The scene: ray casting and the synthesis of one scan.
+// The ray casts' results, read-only (their arrays are writable copies).
+void defineSimResults(py::module_ &m) {
+    using C = sim::CastResult;
+    py::class_<C>(m, "CastResult", "SimScene.cast's result (read-only), N rays.")
+        .def_property_readonly(
+            "range", [](const C &r) { return Eigen::VectorXd(r.range); },
+            "(N,) NaN where no return")
+        .def_property_readonly(
+            "surface", [](const C &r) { return decltype(r.surface)(r.surface); },
+            "(N,) uint8 [0 none 1 ground 2 stem 3 branch 4 foliage 5 shrub 6 log]")
+        .def_property_readonly(
+            "object", [](const C &r) { return decltype(r.object)(r.object); },
+            "(N,) int32 row in its table")
+        .def_property_readonly(
+            "cos_incidence", [](const C &r) { return Eigen::VectorXd(r.cos_incidence); }, "(N,)");
+    using S = sim::SynthesizedScan;
+    py::class_<S>(m, "SynthesizedScan", "SimScene.synthesize's result (read-only), K returns.")
+        .def_property_readonly(
+            "ray", [](const S &r) { return decltype(r.ray)(r.ray); },
+            "(K,) int64 pattern rows kept, increasing")
+        .def_property_readonly(
+            "points", [](const S &r) { return Points3(r.points); },
+            "(K,3) sensor frame at each ray's own time")
+        .def_property_readonly(
+            "intensity", [](const S &r) { return Eigen::VectorXf(r.intensity); }, "(K,) float32")
+        .def_property_readonly(
+            "surface", [](const S &r) { return decltype(r.surface)(r.surface); }, "(K,) uint8")
+        .def_property_readonly(
+            "object", [](const S &r) { return decltype(r.object)(r.object); }, "(K,) int32");
+}
+
 void defineSimScene(py::module_ &m) {
     py::class_<sim::ForestScene>(m, "SimScene",
                                  "Forest scene for the LiDAR simulator: heightfield terrain plus "
@@ -155,14 +186,12 @@ void defineSimScene(py::module_ &m) {
                     py::gil_scoped_release release;
                     r = scene.castRays(origins, dirs, range_min, range_max, seed);
                 }
-                return py::make_tuple(r.range, r.surface, r.object, r.cos_incidence);
+                return r;
             },
             py::arg("origins"), py::arg("dirs"), py::arg("range_min"), py::arg("range_max"),
             py::arg("seed") = 0,
             "origins (G,3) with G dividing N (ray i starts at origin i // (N/G)), unit dirs (N,3) "
-            "-> (range (N,) NaN = no return, surface (N,) "
-            "uint8 [0 none 1 ground 2 stem 3 branch 4 foliage 5 shrub 6 log], object (N,) int32 "
-            "row in its table, cos_incidence (N,)).")
+            "-> CastResult.")
         .def(
             "synthesize",
             [](const sim::ForestScene &scene, const Eigen::Ref<const Eigen::VectorXd> &knot_time,
@@ -179,16 +208,14 @@ void defineSimScene(py::module_ &m) {
                     r = sim::synthesizeScan(scene, knot_time, knot_pose, group_time, group,
                                             local_dirs, model, cast_seed, noise_seed);
                 }
-                return py::make_tuple(r.ray, r.points, r.intensity, r.surface, r.object);
+                return r;
             },
             py::arg("knot_time"), py::arg("knot_pose"), py::arg("group_time"), py::arg("group"),
             py::arg("local_dirs"), py::arg("model"), py::arg("cast_seed"), py::arg("noise_seed"),
             "One scan: knot_time (M,) increasing with knot_pose (M,16) row-major T_world_sensor, "
             "interpolated to group_time (G,); ray i fires local_dirs[i] (N,3, sensor frame) from "
-            "the pose of group[i] (N,) int64. model: ScanModel. -> (ray (K,) int64 "
-            "rows kept, points (K,3) sensor frame, intensity (K,) float32, surface (K,) uint8, "
-            "object (K,) int32). Dropouts, range and intensity noise are drawn from noise_seed, "
-            "foliage from cast_seed.")
+            "the pose of group[i] (N,) int64. model: ScanModel. -> SynthesizedScan. Dropouts, "
+            "range and intensity noise are drawn from noise_seed, foliage from cast_seed.")
         .def(
             "height_at",
             [](const sim::ForestScene &scene, const Eigen::Ref<const Points2> &xy) {
@@ -224,6 +251,7 @@ void defineStemSections(py::module_ &m) {
 
 void define_sim(py::module_ &m) {
     defineScanModel(m);
+    defineSimResults(m);
     defineSimScene(m);
     defineStemSections(m);
     m.attr("SIM_SURFACES") =

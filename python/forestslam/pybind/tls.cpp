@@ -5,6 +5,7 @@
 #include <pybind11/stl.h>
 
 #include <optional>
+#include <string>
 
 #include "bindings.hpp"
 #include "forestslam/registration/ndt.hpp"
@@ -53,21 +54,41 @@ void defineTlsConfigs(py::module_ &m) {
     FS_FIELD(n, rg::NdtConfig, min_points);
 }
 
-py::dict lmResultDict(const rg::StemCentreLmResult &r) {
-    py::dict out;
-    out["T_target_source"] = r.T_target_source;
-    out["covariance"] = r.covariance;
-    out["converged"] = r.converged;
-    out["degenerate"] = r.degenerate;
-    out["inliers"] = r.inliers;
-    out["virtual_inliers"] = r.virtual_inliers;
-    out["real_inliers"] = r.real_inliers;
-    out["virtual_rms_m"] = r.virtual_rms_m;
-    out["real_rms_m"] = r.real_rms_m;
-    out["rmse"] = r.rmse;
-    out["iterations"] = r.iterations;
-    out["sweep"] = r.sweep;
-    return out;
+// The results, read-only like RegistrationResult (made by the registration functions).
+void defineTlsResults(py::module_ &m) {
+    using Lm = rg::StemCentreLmResult;
+    py::class_<Lm, rg::RegistrationResult>(
+        m, "StemCentreLmResult",
+        "register_stem_centre_lm's result (read-only): RegistrationResult (T_target_source, "
+        "covariance (6,6) over [tx,ty,tz,rx,ry,rz] (left perturbation), converged, degenerate, "
+        "inliers, iterations, rmse) plus the pairs of each kind.")
+        .def_readonly("virtual_inliers", &Lm::virtual_inliers, "stem-centre (virtual) pairs")
+        .def_readonly("real_inliers", &Lm::real_inliers, "point-to-plane (real) pairs")
+        .def_readonly("virtual_rms_m", &Lm::virtual_rms_m,
+                      "RMS of distance - radius over the virtual pairs (0 without any)")
+        .def_readonly("real_rms_m", &Lm::real_rms_m,
+                      "RMS point-to-plane distance over the real pairs (0 without any)")
+        .def_readonly("sweep", &Lm::sweep,
+                      "(sweep_order, 6) in-sweep motion: row k-1 the coefficient of tau^k of "
+                      "[t, w] in the target frame; (0, 6) when rigid")
+        .def("__repr__", [](const Lm &r) {
+            return "StemCentreLmResult(converged=" + std::to_string(r.converged) +
+                   ", degenerate=" + std::to_string(r.degenerate) +
+                   ", virtual_inliers=" + std::to_string(r.virtual_inliers) +
+                   ", virtual_rms_m=" + std::to_string(r.virtual_rms_m) + ")";
+        });
+
+    py::class_<rg::NdtResult>(m, "NdtResult", "register_ndt's result (read-only).")
+        .def_readonly("T_target_source", &rg::NdtResult::T_target_source,
+                      "(4,4); the initial guess when not converged")
+        .def_readonly("converged", &rg::NdtResult::converged)
+        .def_readonly("iterations", &rg::NdtResult::iterations)
+        .def_readonly("fitness", &rg::NdtResult::fitness,
+                      "PCL fitness score: mean squared nearest distance (m^2)")
+        .def("__repr__", [](const rg::NdtResult &r) {
+            return "NdtResult(converged=" + std::to_string(r.converged) +
+                   ", fitness=" + std::to_string(r.fitness) + ")";
+        });
 }
 
 void defineStemCentreLm(py::module_ &m) {
@@ -99,17 +120,15 @@ void defineStemCentreLm(py::module_ &m) {
                 py::gil_scoped_release release;
                 r = rg::registerStemCentreLm(target, centres, radii, real, T_initial, cfg, &times);
             }
-            return lmResultDict(r);
+            return r;
         },
         py::arg("target"), py::arg("centres"), py::arg("radii"), py::arg("real_points"),
         py::arg("T_initial"), py::arg("config") = rg::StemCentreLmConfig(),
         py::arg("centre_times") = py::none(), py::arg("real_times") = py::none(),
         "Stem-centre LM: virtual features centres (V,3) + radii (V,), real features (R,3), all "
         "in the source frame, onto target from T_initial (4,4); config: StemCentreLmConfig. "
-        "-> dict T_target_source (4,4), covariance (6,6) over [tx,ty,tz,rx,ry,rz] (left "
-        "perturbation), converged, degenerate, inliers, virtual_inliers, real_inliers, "
-        "virtual_rms_m, real_rms_m, rmse, iterations, sweep (sweep_order,6) in-sweep motion "
-        "coefficients. With config.sweep_order > 0 also centre_times (V,) and real_times (R,): "
+        "-> StemCentreLmResult. With config.sweep_order > 0 also centre_times (V,) and "
+        "real_times (R,): "
         "feature times in seconds from the registration time.");
 }
 
@@ -124,23 +143,19 @@ void defineNdt(py::module_ &m) {
                 py::gil_scoped_release release;
                 r = rg::registerNdt(target, source, T_initial, cfg);
             }
-            py::dict out;
-            out["T_target_source"] = r.T_target_source;
-            out["converged"] = r.converged;
-            out["iterations"] = r.iterations;
-            out["fitness"] = r.fitness;
-            return out;
+            return r;
         },
         py::arg("target"), py::arg("source"), py::arg("T_initial") = Pose3::Identity(),
         py::arg("config") = rg::NdtConfig(),
         "3D-NDT (PCL) of source (N,3) onto target (M,3) from T_initial (4,4); config: NdtConfig. "
-        "-> dict T_target_source (4,4), converged, iterations, fitness (m^2).");
+        "-> NdtResult.");
 }
 
 }  // namespace
 
 void define_tls(py::module_ &m) {
     defineTlsConfigs(m);
+    defineTlsResults(m);
     defineStemCentreLm(m);
     defineNdt(m);
 }

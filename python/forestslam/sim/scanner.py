@@ -111,7 +111,7 @@ def synthesize_scan(
     intensity noise (drawn in C++, one hash per ray). With labels=True also the per-point surface
     class (N,) uint8 (see forest.SURFACES) and object (N,) int32 (the tree id for stems)."""
     knot_time = pattern.group_time if pose_times is None else np.asarray(pose_times, np.float64)
-    idx, points, intensity, surface, obj = scene.synthesize(
+    res = scene.synthesize(
         np.ascontiguousarray(knot_time, dtype=np.float64),
         np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 16)),
         pattern.group_time,
@@ -121,11 +121,12 @@ def synthesize_scan(
         int(cast_seed),
         int(rng.integers(0, 2**63)),
     )
+    ray = res.ray
     scan = Scan(
         stamp=float(stamp),
-        points=points,
-        intensity=intensity,
-        ring=pattern.ring[idx],
-        time=pattern.time64[idx],
+        points=res.points,
+        intensity=res.intensity,
+        ring=pattern.ring[ray],
+        time=pattern.time64[ray],
     )
-    return (scan, surface, obj) if labels else scan
+    return (scan, res.surface, res.object) if labels else scan

@@ -370,7 +370,7 @@ class LandmarkSlam:
         self._scan_kf.append(self.n_keyframes - 1)
         pred = self._predict(o2)
         if len(idx) and self.n_landmarks:
-            obs = stems_xy[idx] @ pred[:2, :2].T + pred[:2, 2]
+            obs = geometry.transform_xy(pred, stems_xy[idx])
             res = self._associate(
                 obs, stems_dbh[idx], np.eye(2) * cfg.search_radius_min_m**2 / 9, False
             )
@@ -558,7 +558,7 @@ class LandmarkSlam:
         else:
             pred = self._predict(o2)
             pose_cov = self._pose_cov[:2, :2] + self._cov_acc[:2, :2]
-        obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
+        obs_map = geometry.transform_xy(pred, obs_s)
         res = self._associate(obs_map, obs_dbh, pose_cov)
         if not first:
             odom_noise = self._odometry_noise()
@@ -579,7 +579,7 @@ class LandmarkSlam:
             if refined is not None:
                 pred = refined[0]
                 graph.add(self._refinement_factor(kf, pred, refined[1]))
-        obs_map = obs_s @ pred[:2, :2].T + pred[:2, 2]
+        obs_map = geometry.transform_xy(pred, obs_s)
         values.insert(X(kf), gtsam.Pose2(*matrix_pose2(pred)))
         bearings = np.arctan2(obs_s[:, 1], obs_s[:, 0])
         ranges = np.linalg.norm(obs_s, axis=1)

@@ -177,3 +177,6 @@ class TlsConfig:
     init: InitConfig = field(default_factory=InitConfig)
     trees: TreeConfig = field(default_factory=TreeConfig)
     frame_step: PositiveInt = 1  # process every n-th MLS frame
+    # tls-register rewrites run.yaml and trajectory.tum (the frames registered so far) every
+    # this many frames, so a killed run leaves valid files up to its last checkpoint.
+    checkpoint_every_frames: PositiveInt = 20

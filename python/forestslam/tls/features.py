@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from forestslam.geometry import rigid_fit, yaw_of
 from forestslam.tls.bridge import keypoint_config, virtual_feature_config
 from forestslam.tls.config import FeatureConfig, RegistrationConfig
 
@@ -86,12 +87,12 @@ def frame_features(
     points = np.ascontiguousarray(points, dtype=np.float64)
     ring_list = None if rings is None else np.asarray(rings, dtype=np.uint16)
     vf = core.extract_virtual_features(points, ring_list, virtual_feature_config(config))
-    kp, _ = core.detect_dog_keypoints(points, keypoint_config(config))
+    kp = core.detect_dog_keypoints(points, keypoint_config(config)).points
     return FrameFeatures(
-        centres=np.asarray(vf["centres"]).reshape(-1, 3),
-        radii=np.asarray(vf["radii"], dtype=np.float64),
-        stems=np.asarray(vf["stems"]).reshape(-1, 3),
-        stem_radii=np.asarray(vf["stem_radii"], dtype=np.float64),
+        centres=np.asarray(vf.centres).reshape(-1, 3),
+        radii=np.asarray(vf.radii, dtype=np.float64),
+        stems=np.asarray(vf.stems).reshape(-1, 3),
+        stem_radii=np.asarray(vf.stem_radii, dtype=np.float64),
         keypoints=np.asarray(kp).reshape(-1, 3),
         ground=ground_samples(points, config),
     )
@@ -112,17 +113,7 @@ def reference_stems(
     vf = _core().extract_virtual_features(
         points, None, virtual_feature_config(config, **band, **fit_options)
     )
-    return np.asarray(vf["stems"]).reshape(-1, 3), np.asarray(vf["stem_radii"])
-
-
-def _rigid2d(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation R (2,2) and translation t (2,) with dst ~ R src + t."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    h = (src - cs).T @ (dst - cd)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-    r = vt.T @ np.diag([1.0, d]) @ u.T
-    return r, cd - r @ cs
+    return np.asarray(vf.stems).reshape(-1, 3), np.asarray(vf.stem_radii)
 
 
 def coarse_stem_alignment(
@@ -206,8 +197,8 @@ def coarse_stem_hypotheses(
         moved = np.stack([px[best], py[best]], axis=1)
         _, nn = tree.query(moved)
         mask = inl[best]
-        r, t = _rigid2d(src_xy[mask], dst_xy[nn[mask]])
-        pose = np.array([t[0], t[1], np.arctan2(r[1, 0], r[0, 0])])
+        fit = rigid_fit(src_xy[mask], dst_xy[nn[mask]])
+        pose = np.array([fit[0, 2], fit[1, 2], yaw_of(fit)])
         if not any(_same_pose(pose, p) for p, _ in out):
             out.append((pose, n_in))
     return out
@@ -216,14 +207,6 @@ def coarse_stem_hypotheses(
 def _same_pose(a: np.ndarray, b: np.ndarray) -> bool:
     dyaw = abs((a[2] - b[2] + np.pi) % (2 * np.pi) - np.pi)
     return bool(np.hypot(a[0] - b[0], a[1] - b[1]) < 1.0 and dyaw < np.radians(5.0))
-
-
-def planar_pose(x: float, y: float, yaw: float, z: float = 0.0) -> np.ndarray:
-    T = np.eye(4)
-    c, s = np.cos(yaw), np.sin(yaw)
-    T[:2, :2] = [[c, -s], [s, c]]
-    T[:3, 3] = [x, y, z]
-    return T
 
 
 def ground_height_near(points: np.ndarray, xy: np.ndarray, radius_m: float = 4.0) -> float | None:

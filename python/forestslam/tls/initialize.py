@@ -19,19 +19,22 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from forestslam.geometry import planar_pose, rigid_fit, rot_z, transform_xy, yaw_of
 from forestslam.localization import LocalizationConfig, build_map, localize, merge_close
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
     FrameFeatures,
-    _rigid2d,
     coarse_stem_hypotheses,
     ground_height_near,
-    planar_pose,
 )
+
+if TYPE_CHECKING:
+    from forestslam._core import StemCentreLmResult
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +60,7 @@ class Placement:
     """The latest frame's verified pose T_tls_sensor and what verified it."""
 
     T_tls_sensor: np.ndarray
-    lm: dict
+    lm: StemCentreLmResult
     consensus: int
     local_stems: int
     hypotheses: int
@@ -100,7 +103,7 @@ class Initializer:
                 self.hull = None
 
     def push(
-        self, frame: PendingFrame, ndt_ok: bool, lm_at: Callable[..., dict]
+        self, frame: PendingFrame, ndt_ok: bool, lm_at: Callable[..., StemCentreLmResult]
     ) -> Placement | None:
         """Add a frame (its odometry pose, ndt_ok False: odometry broke before it); try to
         place the latest frame when the local map allows it."""
@@ -161,7 +164,7 @@ class Initializer:
             if len(f.feats.stems) == 0:
                 continue
             T = T_last_inv @ f.T_local
-            parts.append(f.feats.stems[:, :2] @ T[:2, :2].T + T[:2, 3])
+            parts.append(transform_xy(T, f.feats.stems[:, :2]))
             radii.append(f.feats.stem_radii)
             frame_ids.append(np.full(len(f.feats.stems), k))
         if not parts:
@@ -197,13 +200,13 @@ class Initializer:
         """Planar pose refined on the local stems matched to reference stems, gate shrinking."""
         for gate in (0.5, 0.3, 0.15):
             T = planar_pose(*pose)
-            moved = xy @ T[:2, :2].T + T[:2, 3]
+            moved = transform_xy(T, xy)
             d, j = self.tree.query(moved)
             ok = d < gate
             if ok.sum() < 3:
                 break
-            R, t = _rigid2d(xy[ok], self.ref_xy[j[ok]])
-            pose = np.array([t[0], t[1], np.arctan2(R[1, 0], R[0, 0])])
+            fit = rigid_fit(xy[ok], self.ref_xy[j[ok]])
+            pose = np.array([fit[0, 2], fit[1, 2], yaw_of(fit)])
         return pose
 
     def consensus(self, T: np.ndarray, xy: np.ndarray, r: np.ndarray) -> tuple[int, int]:
@@ -211,7 +214,7 @@ class Initializer:
         of them lie inside the hull of the reference's stems (where the reference would have
         seen a stem; outside it no match is expected)."""
         init = self.config.init
-        moved = xy @ T[:2, :2].T + T[:2, 3]
+        moved = transform_xy(T, xy)
         d, j = self.tree.query(moved)
         hit = (d < init.consensus_gate_m) & (np.abs(r - self.ref_r[j]) < init.consensus_radius_m)
         inside = self.hull.find_simplex(moved) >= 0 if self.hull is not None else hit
@@ -221,7 +224,7 @@ class Initializer:
         from forestslam.tls.pipeline import trust_failure
 
         init = self.config.init
-        verified: list[tuple[int, float, np.ndarray, dict, str]] = []
+        verified: list[tuple[int, float, np.ndarray, StemCentreLmResult, str]] = []
         hyps = self.hypotheses(xy, r)
         for pose, source in hyps:
             pose = self.refine(pose, xy)
@@ -232,11 +235,11 @@ class Initializer:
             lm = lm_at(T0, latest.feats, latest.z_points, latest.ms)
             if trust_failure(lm, None, self.config):
                 continue
-            T = np.asarray(lm["T_target_source"])
+            T = np.asarray(lm.T_target_source)
             n, n_inside = self.consensus(T, xy, r)
             if any(_near(T, v[3]) for v in verified):
                 continue
-            verified.append((n, -float(lm["virtual_rms_m"]), n_inside, T, lm, source))
+            verified.append((n, -float(lm.virtual_rms_m), n_inside, T, lm, source))
         verified.sort(key=lambda v: (v[0], v[1]), reverse=True)
         best_n = verified[0][0] if verified else 0
         second_n = verified[1][0] if len(verified) > 1 else 0
@@ -282,10 +285,7 @@ class Initializer:
 def _with_planar(T: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
     """T with its x, y and heading replaced (height, roll and pitch kept)."""
     out = T.copy()
-    D = np.eye(4)
-    c, s = np.cos(yaw - np.arctan2(T[1, 0], T[0, 0])), np.sin(yaw - np.arctan2(T[1, 0], T[0, 0]))
-    D[:2, :2] = [[c, -s], [s, c]]
-    out[:3, :3] = D[:3, :3] @ T[:3, :3]
+    out[:3, :3] = rot_z(yaw - yaw_of(T)) @ T[:3, :3]
     out[:2, 3] = [x, y]
     return out
 
@@ -294,13 +294,13 @@ def _refine_on(tree, xy: np.ndarray, src: np.ndarray, T: np.ndarray) -> np.ndarr
     """T refined in x, y and yaw by matching stems src (S,2) (frame) to xy (K,2) (tree over
     them) with shrinking gates; None when fewer than 3 or half of src match at the end."""
     for gate in (0.6, 0.3, 0.15):
-        d, j = tree.query(src @ T[:2, :2].T + T[:2, 3])
+        d, j = tree.query(transform_xy(T, src))
         ok = d < gate
         if ok.sum() < 3:
             return None
-        R, t = _rigid2d(src[ok], xy[j[ok]])
-        T = _with_planar(T, t[0], t[1], np.arctan2(R[1, 0], R[0, 0]))
-    d, _ = tree.query(src @ T[:2, :2].T + T[:2, 3])
+        fit = rigid_fit(src[ok], xy[j[ok]])
+        T = _with_planar(T, fit[0, 2], fit[1, 2], yaw_of(fit))
+    d, _ = tree.query(transform_xy(T, src))
     ok = d < 0.15
     return T if ok.sum() >= max(3, 0.5 * len(src)) else None
 

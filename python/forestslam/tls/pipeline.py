@@ -31,10 +31,12 @@ import logging
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from forestslam.errors import InputError, ProcessingError
+from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
@@ -44,11 +46,13 @@ from forestslam.tls.features import (
     coarse_stem_alignment,
     frame_features,
     ground_height_near,
-    planar_pose,
     reference_stems,
 )
 from forestslam.tls.initialize import Initializer, PendingFrame
 from forestslam.tls.sweep import apply_sweep, feature_times, sweep_pose
+
+if TYPE_CHECKING:
+    from forestslam._core import StemCentreLmResult
 
 log = logging.getLogger(__name__)
 
@@ -303,30 +307,30 @@ def _correction(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(T_b[:3, 3] - T_a[:3, 3])), float(np.degrees(np.arccos(c)))
 
 
-def trust_failure(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> str:
+def trust_failure(lm: StemCentreLmResult, T_pred: np.ndarray | None, config: TlsConfig) -> str:
     """Why an LM result is not trusted ("" when it is): not converged, degenerate, real
     residuals too high, or (T_pred given) a correction too large for the motion model."""
     reg = config.registration
-    if not lm["converged"]:
+    if not lm.converged:
         return "LM did not converge"
-    if lm["degenerate"]:
+    if lm.degenerate:
         return "LM degenerate"
-    if lm["real_inliers"] > 0 and lm["real_rms_m"] > reg.good_real_rms_m:
-        return f"real-feature residual {100 * lm['real_rms_m']:.1f} cm"
+    if lm.real_inliers > 0 and lm.real_rms_m > reg.good_real_rms_m:
+        return f"real-feature residual {100 * lm.real_rms_m:.1f} cm"
     if T_pred is not None:
-        dt, dr = _correction(T_pred, lm["T_target_source"])
+        dt, dr = _correction(T_pred, lm.T_target_source)
         if dt > reg.max_correction_m or dr > reg.max_correction_deg:
             return f"correction {dt:.2f} m / {dr:.1f} deg from the prediction"
     return ""
 
 
-def _trusted(lm: dict, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
+def _trusted(lm: StemCentreLmResult, T_pred: np.ndarray | None, config: TlsConfig) -> bool:
     return not trust_failure(lm, T_pred, config)
 
 
 def _lm(
     core, target, feats, T_init, config: TlsConfig, centre_times=None, real_times=None, **options
-) -> dict:
+) -> StemCentreLmResult:
     """The stem-centre LM with the lm_* options of config, then `options` (C++ field names)."""
     return core.register_stem_centre_lm(
         target,
@@ -364,18 +368,19 @@ class _ReferenceCheck:
             max_rounds=m.accept_reference_rounds,
             coarse_gate_factor=1.0,
         )
-        dt, dr = _correction(T, r["T_target_source"])
-        r["correction_m"], r["correction_deg"] = dt, dr
+        dt, dr = _correction(T, r.T_target_source)
         ok = (
-            bool(r["converged"])
-            and not r["degenerate"]
+            bool(r.converged)
+            and not r.degenerate
             and dt <= m.accept_reference_max_m
             and dr <= m.accept_reference_max_deg
         )
-        return ok, r
+        return ok, {"lm": r, "correction_m": dt, "correction_deg": dr}
 
 
-def _sweep_lm(lm: dict, feats, points, times, t_mid: float, lm_at, config: TlsConfig, ms: dict):
+def _sweep_lm(
+    lm: StemCentreLmResult, feats, points, times, t_mid: float, lm_at, config: TlsConfig, ms: dict
+):
     """The trusted rigid result lm refined with the motion during the sweep (see tls.sweep)
     -> (LM result, features moved by that motion into the registration frame, sweep (K,6)),
     or None when the refined LM is not trusted (then the rigid result stands)."""
@@ -385,7 +390,7 @@ def _sweep_lm(lm: dict, feats, points, times, t_mid: float, lm_at, config: TlsCo
     tau_c = feature_times(feats.centres, points, times) - t_mid
     tau_r = feature_times(real, points, times) - t_mid
     ms["features"] += (time.process_time() - t0) * 1e3
-    T0 = np.asarray(lm["T_target_source"])
+    T0 = np.asarray(lm.T_target_source)
     result = lm_at(
         T0,
         sweep_order=reg.sweep_order,
@@ -396,7 +401,7 @@ def _sweep_lm(lm: dict, feats, points, times, t_mid: float, lm_at, config: TlsCo
     )
     if not _trusted(result, T0, config):
         return None
-    T, sweep = np.asarray(result["T_target_source"]), np.asarray(result["sweep"])
+    T, sweep = np.asarray(result.T_target_source), np.asarray(result.sweep)
     real = apply_sweep(real, tau_r, T, sweep)
     k = len(feats.keypoints)
     moved = FrameFeatures(
@@ -449,7 +454,7 @@ def _stems_on_reference(feats, T: np.ndarray, ref_stems, config: TlsConfig) -> b
     ref_xyz, _ = ref_stems
     if len(feats.stems) == 0 or len(ref_xyz) == 0:
         return False
-    xy = feats.stems[:, :2] @ T[:2, :2].T + T[:2, 3]
+    xy = transform_xy(T, feats.stems[:, :2])
     d = np.linalg.norm(xy[:, None, :] - ref_xyz[None, :, :2], axis=2)
     hit = d.min(axis=1) < config.registration.coarse_inlier_m
     need = max(config.registration.coarse_min_stems, int(np.ceil(0.5 * len(xy))))
@@ -460,7 +465,7 @@ def _unmerged_reason(
     good: bool,
     failure: str,
     stems_agree: bool,
-    lm: dict,
+    lm: StemCentreLmResult,
     on_reference: bool,
     relocalized: bool,
     swept: bool,
@@ -475,8 +480,8 @@ def _unmerged_reason(
         return f"not trusted: {failure}"
     if not stems_agree:
         return (
-            f"stem pairs too few or loose ({lm['virtual_inliers']} pairs, "
-            f"{100 * lm['virtual_rms_m']:.1f} cm RMS)"
+            f"stem pairs too few or loose ({lm.virtual_inliers} pairs, "
+            f"{100 * lm.virtual_rms_m:.1f} cm RMS)"
         )
     if not on_reference:
         return "its stems are not on the reference's stems"
@@ -492,12 +497,12 @@ def _record(stamp, T_stamp, lm, ms, reason: str = "", **fields) -> FrameRecord:
         stamp=float(stamp),
         T_tls_sensor=np.asarray(T_stamp),
         accepted=not reason,
-        converged=bool(lm["converged"]),
-        degenerate=bool(lm["degenerate"]),
-        virtual_inliers=int(lm["virtual_inliers"]),
-        virtual_rms_m=float(lm["virtual_rms_m"]),
-        real_inliers=int(lm["real_inliers"]),
-        real_rms_m=float(lm["real_rms_m"]),
+        converged=bool(lm.converged),
+        degenerate=bool(lm.degenerate),
+        virtual_inliers=int(lm.virtual_inliers),
+        virtual_rms_m=float(lm.virtual_rms_m),
+        real_inliers=int(lm.real_inliers),
+        real_rms_m=float(lm.real_rms_m),
         ms_features=ms["features"],
         ms_lm=ms["lm"],
         ms_ndt=ms["ndt"],
@@ -524,9 +529,9 @@ def _backfill(init: Initializer, T_latest: np.ndarray, lm_with, on_reference, co
         lm = lm_with(T_guess, f.feats, f.z_points)
         f.ms["lm"] += (time.process_time() - t0) * 1e3
         failure = trust_failure(lm, T_guess, config)
-        if not failure and not on_reference(f.feats, np.asarray(lm["T_target_source"])):
+        if not failure and not on_reference(f.feats, np.asarray(lm.T_target_source)):
             failure = "its stems are not on the reference's stems"
-        T = np.asarray(lm["T_target_source"]) if not failure else T_guess
+        T = np.asarray(lm.T_target_source) if not failure else T_guess
         t_ref = f.stamp + f.t_mid_s
         twist = np.zeros(6)
         if t_next is not None and t_next > t_ref:
@@ -594,7 +599,7 @@ class _Registration:
     """How a frame was registered: the LM result, the initial pose it started from, the
     prediction it is checked against (None before the walk is anchored), trusted or why not."""
 
-    lm: dict
+    lm: StemCentreLmResult
     T_init: np.ndarray
     T_pred: np.ndarray | None
     failure: str
@@ -698,7 +703,7 @@ class _Walk:
             index, float(scan.stamp), t_mid, t_ref, points, rings, times, feats, ms, twist
         )
 
-    def _lm(self, T_start: np.ndarray, feats, z_points, ms=None, **options) -> dict:
+    def _lm(self, T_start: np.ndarray, feats, z_points, ms=None, **options) -> StemCentreLmResult:
         """LM of features from T_start against the map target cropped around it."""
         t0 = time.process_time()
         target, _ = self.gmap.target_at(T_start[:2, 3], _z_range(z_points, T_start))
@@ -709,7 +714,7 @@ class _Walk:
             ms["lm"] += (time.process_time() - t1) * 1e3
         return result
 
-    def _lm_at(self, frame: _Frame, T_start: np.ndarray, **options) -> dict:
+    def _lm_at(self, frame: _Frame, T_start: np.ndarray, **options) -> StemCentreLmResult:
         return self._lm(T_start, frame.feats, frame.points, frame.ms, **options)
 
     def _ndt(self, frame: _Frame, V: np.ndarray) -> np.ndarray | None:
@@ -723,7 +728,7 @@ class _Walk:
             ndt_config(self.config.registration),
         )
         frame.ms["ndt"] += (time.process_time() - t0) * 1e3
-        return np.asarray(ndt["T_target_source"]) if ndt["converged"] else None
+        return np.asarray(ndt.T_target_source) if ndt.converged else None
 
     @property
     def ref_stems(self):
@@ -850,7 +855,7 @@ class _Walk:
             return
         lm2 = self._lm_at(frame, T_c)
         if _trusted(lm2, None, self.config) and _stems_on_reference(
-            frame.feats, lm2["T_target_source"], self.ref_stems, self.config
+            frame.feats, lm2.T_target_source, self.ref_stems, self.config
         ):
             reg.lm, reg.failure, reg.fallback, reg.relocalized = lm2, "", True, True
             log.info(
@@ -876,7 +881,7 @@ class _Walk:
             if refined is not None:
                 reg.lm, frame.feats, sweep = refined
                 frame.points = apply_sweep(
-                    frame.points, frame.times - frame.t_mid, reg.lm["T_target_source"], sweep
+                    frame.points, frame.times - frame.t_mid, reg.lm.T_target_source, sweep
                 )
         return reg, sweep
 
@@ -889,10 +894,10 @@ class _Walk:
         frame lost). Else the initial pose. Only trusted frames join the map or give a
         velocity either way."""
         lm = reg.lm
-        ran_out = lm["iterations"] >= self.config.registration.lm_max_rounds
-        lm_ok = (lm["converged"] or ran_out) and not lm["degenerate"]
+        ran_out = lm.iterations >= self.config.registration.lm_max_rounds
+        lm_ok = (lm.converged or ran_out) and not lm.degenerate
         use_lm = reg.good or (self.config.registration.initial_pose == "ndt" and lm_ok)
-        return np.asarray(lm["T_target_source"] if use_lm else reg.T_init)
+        return np.asarray(lm.T_target_source if use_lm else reg.T_init)
 
     def _merge(self, frame: _Frame, reg: _Registration, sweep: np.ndarray, T: np.ndarray):
         """Whether the frame joins the map (merged when it does) -> (accepted, reason,
@@ -905,8 +910,8 @@ class _Walk:
         of a vibrating scanner is distorted by centimetres (its ground above all)."""
         cfg, lm = self.config, reg.lm
         stems_agree = (
-            lm["virtual_inliers"] >= cfg.map.accept_min_virtual_inliers
-            and lm["virtual_rms_m"] <= cfg.map.accept_virtual_rms_m
+            lm.virtual_inliers >= cfg.map.accept_min_virtual_inliers
+            and lm.virtual_rms_m <= cfg.map.accept_virtual_rms_m
         )
         on_reference = (
             reg.good and stems_agree and _stems_on_reference(frame.feats, T, self.ref_stems, cfg)
@@ -921,8 +926,8 @@ class _Walk:
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
         if accepted:
-            self.gmap.add(frame.points @ T[:3, :3].T + T[:3, 3])
-            self.centres.append(frame.feats.centres @ T[:3, :3].T + T[:3, 3])
+            self.gmap.add(transform_points(T, frame.points))
+            self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
             reg.good,
             reg.failure,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
-from forestslam.geometry import planar_pose
+from forestslam.geometry import parse_yaw, planar_pose
 from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees_csv, write_tum
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
@@ -42,9 +42,10 @@ def load_reference(path: str | Path) -> np.ndarray:
     return read_cloud(path).points
 
 
-def with_rings(scans, sensor: str):
+def with_rings(scans, sensor):
     """Scans with a ring per point: kept when present, else from the profile's beam angles
-    (spinning sensors); for other profiles rings stay None (layers are used instead)."""
+    (spinning sensors); for other profiles rings stay None (layers are used instead). `sensor`:
+    a profile or its name."""
     profile = load_profile(sensor)
     angles = np.asarray(profile.vertical_angles_rad) if profile.kind == "spinning" else None
     for scan in scans:
@@ -61,17 +62,20 @@ def with_rings(scans, sensor: str):
 
 
 def parse_initial_pose(text: str | None) -> np.ndarray | None:
-    """'x,y,yaw_deg' or 'x,y,z,yaw_deg' -> (4,4) T_tls_sensor."""
+    """'x,y,yaw_deg' or 'x,y,z,yaw_deg' -> (4,4) T_tls_sensor (the yaw as geometry.parse_yaw
+    reads it: degrees, or with a unit)."""
     if text is None:
         return None
+    *head, last = text.split(",")
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [float(v) for v in head]
+        yaw = parse_yaw(last, "--initial-pose")
     except ValueError as exc:
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg") from exc
-    if len(values) not in (3, 4) or not np.all(np.isfinite(values)):
+    if len(values) not in (2, 3) or not np.all(np.isfinite(values)):
         raise InputError(f"--initial-pose {text!r}: expected x,y,yaw_deg or x,y,z,yaw_deg")
-    z = values[2] if len(values) == 4 else 0.0
-    return planar_pose(values[0], values[1], np.radians(values[-1]), z)
+    z = values[2] if len(values) == 3 else 0.0
+    return planar_pose(values[0], values[1], yaw, z)
 
 
 def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
@@ -162,13 +166,15 @@ def run_tls_register(
 
     window = ScanWindow(start, max_scans)
     config = validate(config or TlsConfig(), "tls")
+    profile = load_profile(sensor)
     reference = load_reference(reference_path)
-    stream, scans, count = window.open(input_path, topic)  # `start` skipped undecoded
+    # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
+    stream, scans, count = window.open(input_path, topic, profile.packet_config())
     meta = {
         "input": str(input_path),
         "reference": str(reference_path),
         "topic": topic,
-        "sensor": sensor,
+        "sensor": profile.name,
         **window.meta(),
         "initial_pose": None if initial_pose is None else np.asarray(initial_pose).tolist(),
         "config": {"tls": to_dict(config)},
@@ -176,18 +182,39 @@ def run_tls_register(
     inputs = [input_path, reference_path]
     with Job("tls-register", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
         bar = Progress(count, "frame", "tls-register", enabled=progress)
-
-        def frame_done(record) -> None:
-            bar.update(1, accepted=record.accepted, stems_rms=f"{record.virtual_rms_m:.3f}")
-            if on_frame is not None:
-                on_frame(record)
-
+        frame_done = _frame_done(job, config, bar, on_frame)
         try:
             run = register_mls_to_tls(
-                with_rings(scans, sensor), reference, config, initial_pose, on_frame=frame_done
+                with_rings(scans, profile), reference, config, initial_pose, on_frame=frame_done
             )
         finally:
             bar.close()
         job.summary = write_products(run, job.out, config, title=Path(input_path).name)
         job.summary["read_stats"] = stream.stats.to_dict() if hasattr(stream, "stats") else {}
     return job.summary
+
+
+def _frame_done(job, config: TlsConfig, bar, on_frame):
+    """The per-frame callback: progress, the caller's `on_frame`, and a checkpoint every
+    config.checkpoint_every_frames frames (trajectory.tum of the frames registered so far and
+    run.yaml with their counts; the final outputs replace both)."""
+    from forestslam.job import Checkpoints
+
+    checkpoints = Checkpoints(config.checkpoint_every_frames)
+    records = []
+
+    def write_trajectory() -> None:
+        done = sorted(records, key=lambda r: r.stamp)
+        poses = np.array([r.T_tls_sensor for r in done]).reshape(-1, 4, 4)
+        write_tum(job.out / "trajectory.tum", np.array([r.stamp for r in done]), poses)
+
+    def frame_done(record) -> None:
+        records.append(record)
+        bar.update(1, accepted=record.accepted, stems_rms=f"{record.virtual_rms_m:.3f}")
+        if on_frame is not None:
+            on_frame(record)
+        if checkpoints.due(len(records)):
+            job.summary = {"frames": len(records), "accepted": sum(r.accepted for r in records)}
+            job.checkpoint(write_trajectory)
+
+    return frame_done

@@ -84,15 +84,10 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
         band = near[(z >= lo) & (z <= hi)]
         fit = None
         if len(band) >= 5:
-            fit = core.fit_circle(
-                np.ascontiguousarray(band[:, :2]),
-                inlier_threshold_m=0.02,
-                min_radius_m=0.5 * features.min_diameter_m,
-                max_radius_m=0.5 * features.max_diameter_m,
-            )
-        if fit is None or not fit["valid"]:
+            fit = core.fit_circle(np.ascontiguousarray(band[:, :2]), _circle_config(features))
+        if fit is None or not fit.valid:
             continue
-        centre = np.asarray(fit["centre"])
+        centre = np.asarray(fit.centre)
         # Diameter spread over four sub-slices of the band: the uncertainty of the DBH.
         edges = np.linspace(lo, hi, 5)
         zb = band[:, 2] - base[s]
@@ -100,11 +95,11 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
         for a, b in zip(edges[:-1], edges[1:], strict=True):
             part = band[(zb >= a) & (zb < b)]
             if len(part) >= 5:
-                f = core.fit_circle(np.ascontiguousarray(part[:, :2]), inlier_threshold_m=0.02)
-                if f["valid"] and abs(f["radius"] - fit["radius"]) < 0.05:
-                    sub.append(2 * f["radius"])
+                f = core.fit_circle(np.ascontiguousarray(part[:, :2]), _circle_config())
+                if f.valid and abs(f.radius - fit.radius) < 0.05:
+                    sub.append(2 * f.radius)
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
-        dbh.append(2 * fit["radius"])
+        dbh.append(2 * fit.radius)
         dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
         bases.append(base[s])
         bands.append(band)
@@ -117,45 +112,28 @@ def plot_trees(points: np.ndarray, config: TreeConfig, features: FeatureConfig) 
     )
 
 
-def circle_covariance(xy: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-    """Covariance (3,3) of [centre x, centre y, radius] of a geometric circle fit to xy (M,2):
-    sigma^2 (J^T J)^-1, J rows [-(p - c)/|p - c|, -1] and sigma^2 the residual variance
-    (M - 3 degrees of freedom). On a short arc the centre and the radius trade off along the
-    view, so it grows without bound as the arc shrinks; infinite for fewer than 4 points."""
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    if len(xy) < 4:
-        return np.full((3, 3), np.inf)
-    v = xy - np.asarray(centre, dtype=np.float64)
-    d = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
-    J = np.column_stack([-v / d[:, None], -np.ones(len(xy))])
-    var = max(float(np.sum((d - radius) ** 2)) / (len(xy) - 3), 1e-12)
-    try:
-        return var * np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return np.full((3, 3), np.inf)
+def _circle_config(features: FeatureConfig | None = None):
+    """The circle fit of a stem band: 2 cm inliers, radii within the features' diameter range
+    (any radius without `features`)."""
+    from forestslam.core_bridge import core_struct
 
-
-def radius_sigma(xy: np.ndarray, centre: np.ndarray, radius: float) -> float:
-    """Standard deviation (m) of the radius of a geometric circle fit (circle_covariance)."""
-    return float(np.sqrt(max(circle_covariance(xy, centre, radius)[2, 2], 0.0)))
+    options = {"inlier_threshold_m": 0.02}
+    if features is not None:
+        options["min_radius_m"] = 0.5 * features.min_diameter_m
+        options["max_radius_m"] = 0.5 * features.max_diameter_m
+    return core_struct("CircleFitConfig", options, "tls.features")
 
 
 def _circle(core, band_xy: np.ndarray, features: FeatureConfig):
     """[centre x, centre y, radius] (3,) of the robust circle fit of band points (M,2) and its
-    covariance (3,3) (circle_covariance of the inliers), or None without a valid fit."""
+    covariance (3,3) (CircleFit.covariance: from the inliers), or None without a valid fit."""
     if len(band_xy) < 5:
         return None
-    fit = core.fit_circle(
-        np.ascontiguousarray(band_xy),
-        inlier_threshold_m=0.02,
-        min_radius_m=0.5 * features.min_diameter_m,
-        max_radius_m=0.5 * features.max_diameter_m,
-    )
-    if not fit["valid"]:
+    fit = core.fit_circle(np.ascontiguousarray(band_xy), _circle_config(features))
+    if not fit.valid:
         return None
-    inl = band_xy[np.asarray(fit["inlier_indices"], dtype=np.int64)]
-    x = np.array([*np.asarray(fit["centre"]), fit["radius"]])
-    cov = circle_covariance(inl, x[:2], x[2])
+    x = np.array([*np.asarray(fit.centre), fit.radius])
+    cov = np.asarray(fit.covariance)
     return (x, cov) if np.all(np.isfinite(cov)) else None
 
 
@@ -178,7 +156,7 @@ def fuse_with_reference(
 ) -> PlotTrees:
     """The merged map's stems with each breast-height circle (centre and DBH) fused with the
     TLS reference's own circle at the same stem, weighted by the inverse covariance of each
-    fit (circle_covariance: residual spread and arc geometry; see _fused). A stem the TLS
+    fit (CircleFit.covariance: residual spread and arc geometry; see _fused). A stem the TLS
     saw along a wide arc keeps its TLS circle (the mobile frames' points are noisier and
     carry the registration spread); a stem the TLS saw on a short arc takes the merged
     map's wider one.
