@@ -812,10 +812,14 @@ def simulate_plot(plot: dict, frames: int) -> tuple[Path, Path]:
     from forestslam.sim import simulate
 
     folder = CACHE / "plots" / f"{plot['name']}-{model_tag()}-{frames}"
-    tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames)
-    for yaml_path, sub in ((tls_yaml, "tls"), (mls_yaml, "mls")):
-        if not (folder / sub / "truth" / "trajectory.tum").is_file():
-            simulate(yaml_path, folder / sub)
+    missing = [s for s in ("tls", "mls") if not (folder / s / "truth" / "trajectory.tum").is_file()]
+    # The scenario files (which name each other by absolute path) are written only to simulate:
+    # a cached plot is shared by every checkout and must not be rewritten with this one's paths
+    # (truth_world finds the sibling scenario wherever the plot was simulated).
+    if missing:
+        tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames)
+        for sub in missing:
+            simulate(tls_yaml if sub == "tls" else mls_yaml, folder / sub)
     return folder / "tls", folder / "mls"
 
 

@@ -27,6 +27,9 @@ std::int64_t bucketKey(const Eigen::Vector3d &p, double bucket_m) {
 // cell are contiguous, and a cell's 27-cell candidates are gathered once for all its points
 // (PCL's k-d tree spent more time per query than the ~40 neighbours of a point cost).
 // Distances are single precision, as the k-d tree computed them (same neighbour sets).
+// Not common/kdtree.hpp's KdTree3: it answers nearest / k-nearest queries, not all points within
+// a radius, and here every point of the cloud asks for its ~40 neighbours, which one candidate
+// list per cell serves without a tree descent per query.
 class CellGrid {
   public:
     CellGrid(const Points3 &pts, double cell_m) : cell_(cell_m) {
@@ -101,52 +104,40 @@ class CellGrid {
     std::unordered_map<std::uint64_t, int> cells_;
 };
 
-}  // namespace
-
-DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
-                                const DogKeypointsConfig &config) {
-    DogKeypoints result;
-    result.points.resize(0, 3);
-    result.response.resize(0);
-    const Points3 sampled = voxelDownsample(points, config.voxel_m);
-    if (sampled.rows() < std::max(config.min_neighbours, 3) || config.max_keypoints <= 0) {
-        return result;
+// Gaussian weights by table over the squared distance (linear interpolation, relative error
+// ~1e-5): exp() per neighbour pair dominated the cost.
+class GaussTable {
+  public:
+    GaussTable(double sigma_m, double radius_m) : r2_(radius_m * radius_m) {
+        const double a = -0.5 / (sigma_m * sigma_m);
+        t_.resize(kBins + 2);
+        for (int k = 0; k <= kBins + 1; ++k) t_[k] = std::exp(a * k * r2_ / kBins);
+    }
+    double r2() const { return r2_; }
+    double operator()(double d2) const {
+        const double u = std::min(d2, r2_) / r2_ * kBins;
+        const auto b = static_cast<int>(u);
+        return t_[b] + (u - b) * (t_[b + 1] - t_[b]);
     }
 
-    // Single precision coordinates (keypoints are returned as such, as with PCL before).
-    const Points3 pts = sampled.cast<float>().cast<double>();
-    const Eigen::Index n = pts.rows();
-    if (n < std::max(config.min_neighbours, 3)) return result;
+  private:
+    static constexpr int kBins = 1024;
+    double r2_;
+    std::vector<double> t_;
+};
 
-    // Gaussian-weighted means at two scales from one neighbourhood search; the DoG response
-    // is the displacement between them (rigid-motion invariant, large at corners, stems,
-    // branches, small on flat ground).
-    const double r_small = 3.0 * config.sigma_small_m;
-    const double r_large = 3.0 * std::max(config.sigma_large_m, config.sigma_small_m);
-    const double r2_small = r_small * r_small, r2_large = r_large * r_large;
-    const double a_small = -0.5 / (config.sigma_small_m * config.sigma_small_m);
-    const double a_large = -0.5 / (config.sigma_large_m * config.sigma_large_m);
-    // Gaussian weights by table over the squared distance (linear interpolation, relative
-    // error ~1e-5): exp() per neighbour pair dominated the cost.
-    constexpr int kBins = 1024;
-    auto table = [](double a, double r2) {
-        std::vector<double> t(kBins + 2);
-        for (int k = 0; k <= kBins + 1; ++k) t[k] = std::exp(a * k * r2 / kBins);
-        return t;
-    };
-    const std::vector<double> tab_small = table(a_small, r2_small);
-    const std::vector<double> tab_large = table(a_large, r2_large);
-    const CellGrid grid(pts, std::max(r_large, config.nms_radius_m));
-    auto weight = [](const std::vector<double> &t, double d2, double r2) {
-        const double u = std::min(d2, r2) / r2 * kBins;
-        const auto b = static_cast<int>(u);
-        return t[b] + (u - b) * (t[b + 1] - t[b]);
-    };
-
-    std::vector<double> response(static_cast<std::size_t>(n), -1.0);
+// DoG response per point (-1: too few neighbours, or an isolated return): Gaussian-weighted
+// means at two scales from one neighbourhood search; the response is the displacement between
+// them (rigid-motion invariant, large at corners, stems, branches, small on flat ground).
+std::vector<double> dogResponses(const Points3 &pts, const CellGrid &grid,
+                                 const DogKeypointsConfig &config) {
+    const GaussTable small(config.sigma_small_m, 3.0 * config.sigma_small_m);
+    const GaussTable large(config.sigma_large_m,
+                           3.0 * std::max(config.sigma_large_m, config.sigma_small_m));
+    std::vector<double> response(static_cast<std::size_t>(pts.rows()), -1.0);
     std::vector<int> idx, cand;
     std::vector<float> d2;
-    const auto r2_large_f = static_cast<float>(r2_large);
+    const auto r2_large_f = static_cast<float>(large.r2());
     for (int c = 0; c < grid.cells(); ++c) {
         grid.candidates(c, cand);
         for (const int *it = grid.cellBegin(c); it != grid.cellEnd(c); ++it) {
@@ -159,11 +150,11 @@ DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
             for (std::size_t k = 0; k < idx.size(); ++k) {
                 const Eigen::Vector3d q = pts.row(idx[k]).transpose();
                 const double dk = d2[k];
-                const double wl = weight(tab_large, dk, r2_large);
+                const double wl = large(dk);
                 s_large += wl * q;
                 w_large += wl;
-                if (dk <= r2_small) {
-                    const double ws = weight(tab_small, dk, r2_small);
+                if (dk <= small.r2()) {
+                    const double ws = small(dk);
                     s_small += ws * q;
                     w_small += ws;
                     ++near;
@@ -175,31 +166,40 @@ DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
             response[static_cast<std::size_t>(i)] = (s_small / w_small - s_large / w_large).norm();
         }
     }
+    return response;
+}
 
-    // Non-maximum suppression, strongest first.
-    std::vector<int> order(static_cast<std::size_t>(n));
+// Non-maximum suppression within radius_m, strongest first -> maxima in descending response.
+std::vector<int> localMaxima(const CellGrid &grid, const std::vector<double> &response,
+                             double radius_m) {
+    const auto n = response.size();
+    std::vector<int> order(n);
     std::iota(order.begin(), order.end(), 0);
     std::sort(order.begin(), order.end(), [&](int a, int b) { return response[a] > response[b]; });
-    std::vector<char> suppressed(static_cast<std::size_t>(n), 0);
-    std::vector<int> maxima;
+    std::vector<char> suppressed(n, 0);
+    std::vector<int> maxima, idx, cand;
+    std::vector<float> d2;
     for (int i : order) {
         if (response[i] <= 0.0) break;
         if (suppressed[i]) continue;
         maxima.push_back(i);
         grid.candidates(grid.cellOf(i), cand);
-        grid.within(i, cand, static_cast<float>(config.nms_radius_m * config.nms_radius_m), idx,
-                    d2);
+        grid.within(i, cand, static_cast<float>(radius_m * radius_m), idx, d2);
         for (int j : idx) suppressed[j] = 1;
     }
+    return maxima;
+}
 
-    // Even spread: round-robin over voxel buckets, each bucket giving its best maxima first.
+// Even spread: round-robin over voxel buckets, each bucket giving its best maxima first (maxima
+// in descending response order), at most config.max_keypoints.
+std::vector<int> spreadEvenly(const Points3 &pts, const std::vector<int> &maxima,
+                              const std::vector<double> &response,
+                              const DogKeypointsConfig &config) {
     std::map<std::int64_t, std::vector<int>> buckets;
-    for (int i : maxima) {  // maxima are in descending response order
-        buckets[bucketKey(pts.row(i).transpose(), config.bucket_m)].push_back(i);
-    }
+    for (int i : maxima) buckets[bucketKey(pts.row(i).transpose(), config.bucket_m)].push_back(i);
+    const auto max_keypoints = static_cast<std::size_t>(config.max_keypoints);
     std::vector<int> chosen;
-    for (std::size_t rank = 0; chosen.size() < static_cast<std::size_t>(config.max_keypoints);
-         ++rank) {
+    for (std::size_t rank = 0; chosen.size() < max_keypoints; ++rank) {
         std::vector<int> round;
         for (const auto &[key, members] : buckets) {
             if (rank < members.size()) round.push_back(members[rank]);
@@ -208,10 +208,32 @@ DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
         std::sort(round.begin(), round.end(),
                   [&](int a, int b) { return response[a] > response[b]; });
         for (int i : round) {
-            if (chosen.size() >= static_cast<std::size_t>(config.max_keypoints)) break;
+            if (chosen.size() >= max_keypoints) break;
             chosen.push_back(i);
         }
     }
+    return chosen;
+}
+
+}  // namespace
+
+DogKeypoints detectDogKeypoints(const Eigen::Ref<const Points3> &points,
+                                const DogKeypointsConfig &config) {
+    DogKeypoints result;
+    result.points.resize(0, 3);
+    result.response.resize(0);
+    const int min_points = std::max(config.min_neighbours, 3);
+    const Points3 sampled = voxelDownsample(points, config.voxel_m);
+    if (sampled.rows() < min_points || config.max_keypoints <= 0) return result;
+    // Single precision coordinates (keypoints are returned as such, as with PCL before).
+    const Points3 pts = sampled.cast<float>().cast<double>();
+
+    const double r_large = 3.0 * std::max(config.sigma_large_m, config.sigma_small_m);
+    const CellGrid grid(pts, std::max(r_large, config.nms_radius_m));
+    const std::vector<double> response = dogResponses(pts, grid, config);
+    const std::vector<int> maxima = localMaxima(grid, response, config.nms_radius_m);
+    const std::vector<int> chosen = spreadEvenly(pts, maxima, response, config);
+
     result.points = selectRows(pts, chosen);
     result.response.resize(static_cast<Eigen::Index>(chosen.size()));
     for (std::size_t k = 0; k < chosen.size(); ++k) result.response[k] = response[chosen[k]];

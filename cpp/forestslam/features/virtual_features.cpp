@@ -69,8 +69,11 @@ int findRoot(std::vector<int> &parent, int i) {
     return i;
 }
 
-// Vertical continuity: link candidates of different levels, keep groups spanning enough levels.
-VirtualFeatures linkStems(const std::vector<Candidate> &cands, const VirtualFeaturesConfig &cfg) {
+// Vertical continuity: candidates of different levels that may belong to one stem (close in
+// x-y and z, radii within the taper) are linked; returns the linked groups (union-find roots in
+// order, members in index order).
+std::map<int, std::vector<int>> linkedGroups(const std::vector<Candidate> &cands,
+                                             const VirtualFeaturesConfig &cfg) {
     const int n = static_cast<int>(cands.size());
     std::vector<int> parent(n);
     std::iota(parent.begin(), parent.end(), 0);
@@ -80,64 +83,61 @@ VirtualFeatures linkStems(const std::vector<Candidate> &cands, const VirtualFeat
     for (int i = 0; i < n; ++i) {
         grid[cellKey(cellOf(cands[i].centre.x()), cellOf(cands[i].centre.y()))].push_back(i);
     }
+    auto linked = [&cfg](const Candidate &a, const Candidate &b) {
+        if (a.level == b.level) return false;
+        if ((a.centre.head<2>() - b.centre.head<2>()).norm() > cfg.max_centre_shift_m) return false;
+        const double dz = std::abs(a.centre.z() - b.centre.z());
+        if (dz > cfg.max_vertical_gap_m) return false;
+        return !(std::abs(a.radius - b.radius) > cfg.radius_tolerance_m + cfg.max_taper * dz);
+    };
     for (int i = 0; i < n; ++i) {
-        const auto &a = cands[i];
-        const auto cx = cellOf(a.centre.x()), cy = cellOf(a.centre.y());
+        const auto cx = cellOf(cands[i].centre.x()), cy = cellOf(cands[i].centre.y());
         for (std::int64_t dx = -1; dx <= 1; ++dx) {
             for (std::int64_t dy = -1; dy <= 1; ++dy) {
                 auto it = grid.find(cellKey(cx + dx, cy + dy));
                 if (it == grid.end()) continue;
                 for (int j : it->second) {
-                    if (j <= i) continue;
-                    const auto &b = cands[j];
-                    if (a.level == b.level) continue;
-                    if ((a.centre.head<2>() - b.centre.head<2>()).norm() > cfg.max_centre_shift_m)
-                        continue;
-                    const double dz = std::abs(a.centre.z() - b.centre.z());
-                    if (dz > cfg.max_vertical_gap_m) continue;
-                    if (std::abs(a.radius - b.radius) > cfg.radius_tolerance_m + cfg.max_taper * dz)
-                        continue;
-                    parent[findRoot(parent, i)] = findRoot(parent, j);
+                    if (j > i && linked(cands[i], cands[j]))
+                        parent[findRoot(parent, i)] = findRoot(parent, j);
                 }
             }
         }
     }
     std::map<int, std::vector<int>> groups;
     for (int i = 0; i < n; ++i) groups[findRoot(parent, i)].push_back(i);
+    return groups;
+}
 
-    std::vector<int> kept, kept_stem;
-    std::vector<Eigen::Vector3d> stem_mean;
-    std::vector<double> stem_radius;
-    for (auto &[root, members] : groups) {
-        std::vector<double> radii;
-        for (int i : members) radii.push_back(cands[i].radius);
-        std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
-        const double med = radii[radii.size() / 2];
-        std::vector<int> good;
-        std::vector<int> levels;
-        double zmin = 1e300, zmax = -1e300;
-        for (int i : members) {
-            if (std::abs(cands[i].radius - med) <= std::max(0.02, 0.3 * med)) {
-                good.push_back(i);
-                levels.push_back(cands[i].level);
-                zmin = std::min(zmin, cands[i].centre.z());
-                zmax = std::max(zmax, cands[i].centre.z());
-            }
+// One stem of a linked group: its members within the radius tolerance of the group's median
+// radius; false when they span too few levels or too little height.
+bool stemOfGroup(const std::vector<Candidate> &cands, const std::vector<int> &members,
+                 const VirtualFeaturesConfig &cfg, std::vector<int> &good, double &median_radius) {
+    std::vector<double> radii;
+    for (int i : members) radii.push_back(cands[i].radius);
+    std::nth_element(radii.begin(), radii.begin() + radii.size() / 2, radii.end());
+    median_radius = radii[radii.size() / 2];
+    good.clear();
+    std::vector<int> levels;
+    double zmin = 1e300, zmax = -1e300;
+    for (int i : members) {
+        if (std::abs(cands[i].radius - median_radius) <= std::max(0.02, 0.3 * median_radius)) {
+            good.push_back(i);
+            levels.push_back(cands[i].level);
+            zmin = std::min(zmin, cands[i].centre.z());
+            zmax = std::max(zmax, cands[i].centre.z());
         }
-        std::sort(levels.begin(), levels.end());
-        const auto distinct = std::unique(levels.begin(), levels.end()) - levels.begin();
-        if (distinct < cfg.min_levels || zmax - zmin < cfg.min_vertical_span_m) continue;
-        const int id = static_cast<int>(stem_mean.size());
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (int i : good) {
-            kept.push_back(i);
-            kept_stem.push_back(id);
-            mean += cands[i].centre;
-        }
-        stem_mean.push_back(mean / static_cast<double>(good.size()));
-        stem_radius.push_back(med);
     }
+    std::sort(levels.begin(), levels.end());
+    const auto distinct = std::unique(levels.begin(), levels.end()) - levels.begin();
+    return distinct >= cfg.min_levels && zmax - zmin >= cfg.min_vertical_span_m;
+}
 
+// The kept candidates (rows of cands) with their stem ids, and the stems' mean centres and
+// median radii, as the result arrays.
+VirtualFeatures packFeatures(const std::vector<Candidate> &cands, const std::vector<int> &kept,
+                             const std::vector<int> &kept_stem,
+                             const std::vector<Eigen::Vector3d> &stem_mean,
+                             const std::vector<double> &stem_radius) {
     VirtualFeatures out;
     const auto k = static_cast<Eigen::Index>(kept.size());
     out.centres.resize(k, 3);
@@ -161,6 +161,27 @@ VirtualFeatures linkStems(const std::vector<Candidate> &cands, const VirtualFeat
         out.stem_radii[r] = stem_radius[r];
     }
     return out;
+}
+
+// Vertical continuity: link candidates of different levels, keep groups spanning enough levels.
+VirtualFeatures linkStems(const std::vector<Candidate> &cands, const VirtualFeaturesConfig &cfg) {
+    std::vector<int> kept, kept_stem, good;
+    std::vector<Eigen::Vector3d> stem_mean;
+    std::vector<double> stem_radius;
+    for (const auto &[root, members] : linkedGroups(cands, cfg)) {
+        double median_radius = 0.0;
+        if (!stemOfGroup(cands, members, cfg, good, median_radius)) continue;
+        const int id = static_cast<int>(stem_mean.size());
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (int i : good) {
+            kept.push_back(i);
+            kept_stem.push_back(id);
+            mean += cands[i].centre;
+        }
+        stem_mean.push_back(mean / static_cast<double>(good.size()));
+        stem_radius.push_back(median_radius);
+    }
+    return packFeatures(cands, kept, kept_stem, stem_mean, stem_radius);
 }
 
 }  // namespace

@@ -47,6 +47,7 @@ def plot_tls_run(
     circles coloured by merged coverage, MLS trajectory; right: coverage TLS alone vs merged
     per stem."""
     from matplotlib import colormaps
+    from matplotlib.collections import PatchCollection
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Circle
 
@@ -63,13 +64,13 @@ def plot_tls_run(
             grey = ListedColormap([(1, 1, 1, 0), (0.55, 0.55, 0.55, 1)])
             ax.imshow(image, extent=extent, origin="lower", cmap=grey, interpolation="nearest")
             ax.plot([], [], "s", color="0.55", ms=3, label="slice")
-    viridis = colormaps["viridis"]
-    for k in range(len(trees_xyz)):
-        r = 0.5 * dbh_m[k]
-        if np.isfinite(r):
-            ax.add_patch(
-                Circle(trees_xyz[k, :2], r, fill=False, color=viridis(coverage_merged[k]), lw=1.5)
-            )
+    # One collection for all stems: adding a patch per stem re-computed the data limits each
+    # time (0.4 s for 120 stems).
+    ok = np.isfinite(dbh_m)
+    if ok.any():
+        circles = [Circle(c, 0.5 * d) for c, d in zip(trees_xyz[ok, :2], dbh_m[ok], strict=True)]
+        colours = colormaps["viridis"](np.asarray(coverage_merged)[ok])
+        ax.add_collection(PatchCollection(circles, facecolors="none", edgecolors=colours, lw=1.5))
     if len(poses):
         ax.plot(poses[:, 0, 3], poses[:, 1, 3], "r-", lw=0.8, label="MLS trajectory")
     ax.plot([0], [0], "k^", label="TLS station")
@@ -96,8 +97,10 @@ def plot_tls_run(
     bx.set_ylabel("circumference covered at breast height (%)")
     bx.set_ylim(0, 105)
     bx.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    # Fixed margins for this fixed layout (tight_layout measured every text: 0.8 s); fast PNG
+    # compression (the default level took most of savefig's time; the file is ~30 % larger).
+    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.09, top=0.95, wspace=0.18)
+    fig.savefig(path, dpi=120, pil_kwargs={"compress_level": 1})
 
 
 def plot_breast_height_slice(

@@ -39,7 +39,28 @@ def load_reference(path: str | Path) -> np.ndarray:
                 f"{path}: a reference bag must hold exactly one scan, it holds {len(scans)}"
             )
         return scans[0].points
+    if path.suffix.lower() in (".las", ".laz"):
+        return _las_xyz(path)
     return read_cloud(path).points
+
+
+def _las_xyz(path: Path) -> np.ndarray:
+    """The points (R,3) of a LAS/LAZ file as read_cloud keeps them (finite, not at the origin),
+    without its structured copy of every field (1.4 -> 1.2 s CPU for a 4.4 M point plot, of
+    which 1.0 s is the LAZ decompression)."""
+    import laspy
+
+    try:
+        las = laspy.read(path)
+    except Exception as exc:  # noqa: BLE001 - laspy raises many types for bad files
+        raise InputError(f"{path}: cannot read LAS/LAZ ({exc})") from None
+    # Scaled from the integer records (as laspy scales them; its lazy x/y/z views cost 0.3 s).
+    raw, scales, offsets = las.points.array, las.header.scales, las.header.offsets
+    pts = np.empty((len(raw), 3))
+    for k, name in enumerate("XYZ"):
+        pts[:, k] = raw[name] * scales[k] + offsets[k]
+    keep = np.isfinite(pts).all(axis=1) & np.any(pts != 0, axis=1)
+    return pts if keep.all() else pts[keep]
 
 
 def with_rings(scans, sensor):
