@@ -51,6 +51,7 @@ class _Tree:
     scan_dbh: list = field(default_factory=list)  # per-scan perception DBH (bounded)
     n_scans: int = 0  # scans that observed the tree
     n_scans_dbh: int = 0  # of those, scans with a per-scan DBH
+    n_support_scans: int = 0  # of those, scans with stem points in the breast-height band
     z_sum: float = 0.0
     z_n: int = 0
 
@@ -190,6 +191,7 @@ class TreeMap:
             band = pts[(h >= lo) & (h <= hi)]
             if len(band) == 0:
                 continue
+            tree.n_support_scans += 1
             if tree.n_band_scans == 0:
                 tree.first_scan = scan_index
             tree.band.append(transform_points(T_odom, band))
@@ -264,6 +266,17 @@ class TreeMap:
         floor = self.cfg.dbh_std_floor_rel * mean
         return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
+    def is_stem(self, tree: _Tree) -> bool:
+        """Stem-or-not test for a tree without an accepted window circle: its silhouettes may
+        stand in for a band circle that failed (a thin or far stem: too few points per window
+        for the circle), not for a missing band. A stem has a vertical surface at breast
+        height, so the normal filter keeps its band returns in scan after scan; foliage, a
+        shrub or a sapling hidden in its crown leaves none, while perception's silhouettes of
+        it can still look like a 40-140 cm stem (vlp16/hdl32 style b: clutter mapped at
+        125-137 cm and 39 cm from 0-3 scans with band points). The test asks for the same
+        evidence as one window fit: dbh_min_window_scans scans with band points."""
+        return tree.n_support_scans >= self.cfg.dbh_min_window_scans
+
     def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
         """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
         only when at least dbh_fallback_min_scans agree (robust spread within
@@ -274,6 +287,8 @@ class TreeMap:
         56 cm DBH on a 3 cm sapling from 3 of its 24 scans): better none than that."""
         d = np.asarray(tree.scan_dbh)
         if len(d) < self.cfg.dbh_fallback_min_scans or 2 * tree.n_scans_dbh < tree.n_scans:
+            return float("nan"), float("nan"), 0
+        if not self.is_stem(tree):
             return float("nan"), float("nan"), 0
         med = float(np.median(d))
         spread = _spread(d)

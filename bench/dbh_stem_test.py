@@ -1,0 +1,99 @@
+"""The tree map's stem-or-not test (TreeMap.is_stem), before/after on recorded runs.
+
+  python bench/dbh_pose_replay.py record BAG --sensor vlp16 --out RUN [other `run` options]
+  forestslam evaluate RUN --truth TRUTH
+  python bench/dbh_stem_test.py RUN TRUTH [RUN TRUTH ...]
+
+Replays each run's recorded tree-map calls (same scans, poses and associations) twice: with
+every tree taken as a stem (before the test) and with the test. Prints per run: mapped trees,
+trees passing the test, the share of mapped trees and of stems with a DBH, and every tree
+whose DBH the test removed with the truth it matches (truth DBH, or "no tree" when it matches
+no truth stem). Then bias, MAE, the share within +-1 sigma and the share with a DBH on the
+trees `forestslam evaluate` scores (truth DBH >= 10 cm, within 15 m of the path), both ways.
+Tree positions are the same both ways (the test only decides the DBH), so tree recall and
+precision are those `forestslam evaluate` printed for the run.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from dbh_pose_replay import replay  # noqa: E402
+
+from forestslam.evaluation.trees import tree_errors  # noqa: E402
+from forestslam.io import read_trees_csv, read_tum  # noqa: E402
+from forestslam.mapping import tree_map as tm  # noqa: E402
+
+
+def replayed_table(run: Path, every_tree_a_stem: bool) -> tuple[dict, np.ndarray]:
+    """trees.csv columns of the run's trees from a replay, and which trees pass the test."""
+    is_stem = tm.TreeMap.is_stem
+    if every_tree_a_stem:
+        tm.TreeMap.is_stem = lambda self, tree: True
+    est = read_trees_csv(run / "trees.csv")
+    ids = est["id"].astype(np.int64) - 1  # trees.csv ids are landmarks + 1
+    try:
+        trees = replay(run, None, {})
+        table = trees.table(ids, np.c_[est["x"], est["y"]], est["observations"])
+    finally:
+        tm.TreeMap.is_stem = is_stem
+    stem = np.array([i in trees.trees and is_stem(trees, trees.trees[i]) for i in ids])
+    return table | {"x": est["x"], "y": est["y"], "z": est["z"]}, stem
+
+
+def matches(run: Path, truth: Path, table: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Truth row of each mapped tree (-1 none), which of those are scored, and the truth."""
+    metrics = json.loads((run / "metrics.json").read_text())
+    alignment = np.asarray(metrics["trajectory"]["alignment"])
+    tru = read_trees_csv(truth / "trees.csv")
+    _, poses = read_tum(truth / "trajectory.tum")
+    tru_xy = np.c_[tru["x"], tru["y"]]
+    est_xyz = np.c_[table["x"], table["y"], np.nan_to_num(table["z"])]
+    r = tree_errors(est_xyz, table["dbh_m"], tru_xy, tru["dbh_m"], poses[:, :2, 3], alignment)
+    m = r["match_est_to_truth"]
+    near = np.hypot(*(tru_xy[:, None, :] - poses[None, :, :2, 3]).transpose(2, 0, 1)).min(1)
+    scored_truth = (tru["dbh_m"] >= 0.1) & (near <= 15)
+    scored = np.zeros(len(m), dtype=bool)
+    scored[m >= 0] = scored_truth[m[m >= 0]]
+    return m, scored, tru
+
+
+def scored_figures(table: dict, m: np.ndarray, scored: np.ndarray, tru: dict) -> str:
+    e = 100 * (table["dbh_m"][scored] - tru["dbh_m"][m[scored]])
+    sd = 100 * table["dbh_std_m"][scored]
+    ok = np.isfinite(e)
+    within = np.mean(np.abs(e[ok]) <= sd[ok])
+    return (
+        f"bias {e[ok].mean():+.2f} MAE {np.abs(e[ok]).mean():.2f} within 1 sigma {within:.2f} "
+        f"with DBH {ok.mean():.2f} ({ok.sum()}/{len(e)})"
+    )
+
+
+def main(argv: list[str]) -> None:
+    for run, truth in zip(argv[::2], argv[1::2], strict=True):
+        run, truth = Path(run), Path(truth)
+        before, _ = replayed_table(run, every_tree_a_stem=True)
+        after, stem = replayed_table(run, every_tree_a_stem=False)
+        m, scored, tru = matches(run, truth, after)
+        has_b, has_a = np.isfinite(before["dbh_m"]), np.isfinite(after["dbh_m"])
+        print(
+            f"{run}: mapped {len(stem)}, stems {stem.sum()}; with DBH of mapped "
+            f"{has_b.mean():.2f} -> {has_a.mean():.2f}, of stems {has_a[stem].mean():.2f}"
+        )
+        for j in np.nonzero(has_b & ~has_a)[0]:
+            what = f"truth DBH {100 * tru['dbh_m'][m[j]]:.1f} cm" if m[j] >= 0 else "no tree"
+            tree, dbh_cm = int(after["id"][j]) + 1, 100 * before["dbh_m"][j]
+            print(f"  DBH removed: tree {tree} {dbh_cm:.1f} cm, {what}")
+        print(f"  scored before: {scored_figures(before, m, scored, tru)}")
+        print(f"  scored after:  {scored_figures(after, m, scored, tru)}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)
+    main(sys.argv[1:])
