@@ -74,6 +74,17 @@ def scored_figures(table: dict, m: np.ndarray, scored: np.ndarray, tru: dict) ->
     )
 
 
+def classes(table: dict, m: np.ndarray, tru: dict) -> str:
+    """Mapped trees with a DBH / all, by the truth they match: a tree of DBH >= 10 cm, a
+    sapling under 10 cm, no truth tree (clutter, a shrub)."""
+    truth_cm = np.full(len(m), np.nan)
+    truth_cm[m >= 0] = 100 * tru["dbh_m"][m[m >= 0]]
+    has = np.isfinite(table["dbh_m"])
+    kinds = {"tree >= 10 cm": truth_cm >= 10, "sapling < 10 cm": truth_cm < 10}
+    kinds["no tree"] = m < 0
+    return ", ".join(f"{name} {has[k].sum()}/{k.sum()}" for name, k in kinds.items())
+
+
 def main(argv: list[str]) -> None:
     for run, truth in zip(argv[::2], argv[1::2], strict=True):
         run, truth = Path(run), Path(truth)
@@ -89,6 +100,7 @@ def main(argv: list[str]) -> None:
             what = f"truth DBH {100 * tru['dbh_m'][m[j]]:.1f} cm" if m[j] >= 0 else "no tree"
             tree, dbh_cm = int(after["id"][j]) + 1, 100 * before["dbh_m"][j]
             print(f"  DBH removed: tree {tree} {dbh_cm:.1f} cm, {what}")
+        print(f"  with a DBH after / mapped, by what the tree matches: {classes(after, m, tru)}")
         print(f"  scored before: {scored_figures(before, m, scored, tru)}")
         print(f"  scored after:  {scored_figures(after, m, scored, tru)}")
 
