@@ -5,7 +5,8 @@
   python bench/dbh_stem_test.py RUN TRUTH [RUN TRUTH ...]
 
 Replays each run's recorded tree-map calls (same scans, poses and associations) twice: with
-every tree taken as a stem (before the test) and with the test. Prints per run: mapped trees,
+round 1's rule (before the test; checked equal to a run's own trees.csv when the run was made
+before the test) and with the test. Prints per run: mapped trees,
 trees passing the test, the share of mapped trees and of stems with a DBH, and every tree
 whose DBH the test removed with the truth it matches (truth DBH, or "no tree" when it matches
 no truth stem). Then bias, MAE, the share within +-1 sigma and the share with a DBH on the
@@ -30,11 +31,24 @@ from forestslam.io import read_trees_csv, read_tum  # noqa: E402
 from forestslam.mapping import tree_map as tm  # noqa: E402
 
 
-def replayed_table(run: Path, every_tree_a_stem: bool) -> tuple[dict, np.ndarray]:
+def round1_rule(self, tree) -> bool:
+    """Before the test (h4-dbh round 1): a window DBH when a window agrees with the scans'
+    width (TreeMap.dbh), else the per-scan fallback when perception had a DBH in at least half
+    of the tree's scans."""
+    scans = np.asarray(tree.scan_dbh)
+    windows = np.array([d for d, _ in tree.measurements])
+    if len(windows) and len(scans) < self.cfg.dbh_fallback_min_scans:
+        return True
+    if (windows <= self.cfg.dbh_max_scan_ratio * np.median(scans)).any():
+        return True
+    return 2 * tree.n_scans_dbh >= tree.n_scans
+
+
+def replayed_table(run: Path, before: bool) -> tuple[dict, np.ndarray]:
     """trees.csv columns of the run's trees from a replay, and which trees pass the test."""
     is_stem = tm.TreeMap.is_stem
-    if every_tree_a_stem:
-        tm.TreeMap.is_stem = lambda self, tree: True
+    if before:
+        tm.TreeMap.is_stem = round1_rule
     est = read_trees_csv(run / "trees.csv")
     ids = est["id"].astype(np.int64) - 1  # trees.csv ids are landmarks + 1
     try:
@@ -88,13 +102,18 @@ def classes(table: dict, m: np.ndarray, tru: dict) -> str:
 def main(argv: list[str]) -> None:
     for run, truth in zip(argv[::2], argv[1::2], strict=True):
         run, truth = Path(run), Path(truth)
-        before, _ = replayed_table(run, every_tree_a_stem=True)
-        after, stem = replayed_table(run, every_tree_a_stem=False)
+        before, _ = replayed_table(run, before=True)
+        after, stem = replayed_table(run, before=False)
         m, scored, tru = matches(run, truth, after)
         has_b, has_a = np.isfinite(before["dbh_m"]), np.isfinite(after["dbh_m"])
+        recorded = read_trees_csv(run / "trees.csv")["dbh_m"]
+        same = np.array_equal(np.isnan(recorded), ~has_b) and np.allclose(
+            recorded[has_b], before["dbh_m"][has_b], atol=1e-6
+        )
         print(
             f"{run}: mapped {len(stem)}, stems {stem.sum()}; with DBH of mapped "
-            f"{has_b.mean():.2f} -> {has_a.mean():.2f}, of stems {has_a[stem].mean():.2f}"
+            f"{has_b.mean():.2f} -> {has_a.mean():.2f}, of stems {has_a[stem].mean():.2f}; "
+            f"before = the run's own trees.csv: {same}"
         )
         for j in np.nonzero(has_b & ~has_a)[0]:
             what = f"truth DBH {100 * tru['dbh_m'][m[j]]:.1f} cm" if m[j] >= 0 else "no tree"

@@ -164,6 +164,11 @@ def test_no_dbh_without_stem_points_at_breast_height():
     assert not tm.is_stem(tm.trees[1]) and np.isnan(tm.dbh(1)[0])
     assert not tm.is_stem(tm.trees[2]) and np.isnan(tm.dbh(2)[0])
     assert tm.is_stem(tm.trees[3]) and tm.dbh(3)[0] == pytest.approx(0.21)
+    # A window circle on a tree perception measured in only 5 of its 12 scans: chance.
+    for i in range(12):
+        _scan_dbh_only(tm, i, 4, 0.13 if i < 5 else np.nan)
+    tm.trees[4].measurements = [(0.13, 40.0)]
+    assert not tm.is_stem(tm.trees[4]) and np.isnan(tm.dbh(4)[0])
     table = tm.table(np.array([1, 2, 3]), np.zeros((3, 2)), np.full(3, 12))
     assert table["id"].tolist() == [1, 2, 3]  # positions kept for the localizer
     assert np.isnan(table["dbh_m"][:2]).all() and np.isfinite(table["dbh_m"][2])
