@@ -117,17 +117,26 @@ def test_points_seen_through_a_circle_mark_it_as_no_stem():
     assert seen_through_share(far, origins, fit, 0.03) > 0.9
 
 
+BAND_POINT = np.array([[4.0, 0.0, 1.3]])  # one stem return at breast height (base_z 0)
+
+
+def _scan_dbh_only(tm, scan, tree_id, dbh, band=True):
+    """One scan of tree tree_id with perception's DBH dbh and (band) one breast-height return."""
+    points = [BAND_POINT if band else np.zeros((0, 3))]
+    tm.add(scan, np.eye(4), np.array([tree_id]), points, np.zeros(1), np.ones(1), np.array([dbh]))
+
+
 def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
     tm = TreeMap(MappingConfig())
-    for i in range(3):
+    for i in range(5):
         tm.add(
             i,
             np.eye(4),
             np.array([-1, 2]),
-            [np.zeros((0, 3)), np.zeros((0, 3))],
+            [np.zeros((0, 3)), BAND_POINT],
             np.array([0.0, 0.0]),
             np.array([1.0, 1.0]),
-            np.array([0.5, 0.2 + 0.01 * i]),
+            np.array([0.5, 0.2 + 0.01 * (i % 3)]),
         )
     dbh, std, n = tm.dbh(2)
     # The scans agree: their median; std: their robust spread with the 2 % model floor.
@@ -135,22 +144,36 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
     assert std == pytest.approx(np.hypot(1.4826 * 0.01, 0.02 * 0.21))
     assert np.isnan(tm.dbh(5)[0])
     # Scans that disagree (a far stem merged with its neighbour in some): no DBH.
-    for i in range(3, 6):
-        tm.add(
-            i,
-            np.eye(4),
-            np.array([2]),
-            [np.zeros((0, 3))],
-            np.zeros(1),
-            np.ones(1),
-            np.array([0.6]),
-        )
+    for i in range(5, 10):
+        _scan_dbh_only(tm, i, 2, 0.6)
     assert np.isnan(tm.dbh(2)[0])
     # A DBH in only 3 of a tree's 8 scans (the others found no circle): a chance circle.
     for i in range(8):
-        dbh = np.array([0.3 if i < 3 else np.nan])
-        tm.add(i, np.eye(4), np.array([9]), [np.zeros((0, 3))], np.zeros(1), np.ones(1), dbh)
+        _scan_dbh_only(tm, i, 9, 0.3 if i < 3 else np.nan)
     assert np.isnan(tm.dbh(9)[0])
+
+
+def test_no_dbh_without_stem_points_at_breast_height():
+    """Stem-or-not: silhouettes that agree scan after scan (a shrub or foliage looks like a
+    1.3 m stem to them) give no DBH unless the tree's band held stem returns in as many scans
+    as a window fit needs (dbh_min_window_scans); the tree stays in the table, DBH empty."""
+    cfg = MappingConfig()
+    tm = TreeMap(cfg)
+    for i in range(12):
+        _scan_dbh_only(tm, i, 1, 1.30 + 0.01 * (i % 3), band=False)
+        _scan_dbh_only(tm, i, 2, 0.20 + 0.01 * (i % 3), band=i < cfg.dbh_min_window_scans - 1)
+        _scan_dbh_only(tm, i, 3, 0.20 + 0.01 * (i % 3), band=i < cfg.dbh_min_window_scans)
+    assert not tm.is_stem(tm.trees[1]) and np.isnan(tm.dbh(1)[0])
+    assert not tm.is_stem(tm.trees[2]) and np.isnan(tm.dbh(2)[0])
+    assert tm.is_stem(tm.trees[3]) and tm.dbh(3)[0] == pytest.approx(0.21)
+    # A window circle on a tree perception measured in only 5 of its 12 scans: chance.
+    for i in range(12):
+        _scan_dbh_only(tm, i, 4, 0.13 if i < 5 else np.nan)
+    tm.trees[4].measurements = [(0.13, 40.0)]
+    assert not tm.is_stem(tm.trees[4]) and np.isnan(tm.dbh(4)[0])
+    table = tm.table(np.array([1, 2, 3]), np.zeros((3, 2)), np.full(3, 12))
+    assert table["id"].tolist() == [1, 2, 3]  # positions kept for the localizer
+    assert np.isnan(table["dbh_m"][:2]).all() and np.isfinite(table["dbh_m"][2])
 
 
 def test_tree_map_drops_windows_that_disagree_with_the_scans_width():
@@ -158,15 +181,7 @@ def test_tree_map_drops_windows_that_disagree_with_the_scans_width():
     is not fused; without any agreeing window the per-scan fallback decides."""
     tm = TreeMap(MappingConfig())
     for i in range(10):
-        tm.add(
-            i,
-            np.eye(4),
-            np.array([1]),
-            [np.zeros((0, 3))],
-            np.zeros(1),
-            np.ones(1),
-            np.array([0.18 + 0.002 * (i % 3)]),
-        )
+        _scan_dbh_only(tm, i, 1, 0.18 + 0.002 * (i % 3))
     # Two clump windows outvote the stem's one in the median: the scans' width decides.
     tm.trees[1].measurements = [(0.55, 80.0), (0.56, 80.0), (0.19, 40.0)]
     dbh, _, n = tm.dbh(1)

@@ -51,6 +51,7 @@ class _Tree:
     scan_dbh: list = field(default_factory=list)  # per-scan perception DBH (bounded)
     n_scans: int = 0  # scans that observed the tree
     n_scans_dbh: int = 0  # of those, scans with a per-scan DBH
+    n_support_scans: int = 0  # of those, scans with stem points in the breast-height band
     z_sum: float = 0.0
     z_n: int = 0
 
@@ -190,6 +191,7 @@ class TreeMap:
             band = pts[(h >= lo) & (h <= hi)]
             if len(band) == 0:
                 continue
+            tree.n_support_scans += 1
             if tree.n_band_scans == 0:
                 tree.first_scan = scan_index
             tree.band.append(transform_points(T_odom, band))
@@ -237,7 +239,7 @@ class TreeMap:
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
         """Fused DBH, its std and the number of window measurements fused (module docstring)."""
         tree = self.trees.get(tree_id)
-        if tree is None:
+        if tree is None or not self.is_stem(tree):
             return float("nan"), float("nan"), 0
         if not tree.measurements:
             return self._scan_fallback(tree)
@@ -264,16 +266,29 @@ class TreeMap:
         floor = self.cfg.dbh_std_floor_rel * mean
         return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
+    def is_stem(self, tree: _Tree) -> bool:
+        """Stem-or-not test of a mapped tree, from the evidence of all its scans: is it a stem
+        whose DBH can be measured? (1) Perception found a stem with a diameter in at least half
+        of the scans that saw it: a circle or silhouette in only a few of them is chance (two
+        stems crossing, foliage; a 56 cm per-scan and a 13 cm window DBH on 3 and 2.5 cm
+        saplings seen in 24 and 72 scans). (2) Its 1.15-1.45 m band held stem returns (the
+        normal filter's vertical surfaces) in as many scans as one window fit needs
+        (dbh_min_window_scans): a shrub, foliage or a sapling inside its crown leaves none there
+        while its silhouettes can look like a 40-140 cm stem (vlp16/hdl32 style b: 125-137 cm
+        and 39 cm from 0-3 scans with band returns). Silhouettes may stand in for a band
+        circle that failed (a thin or far stem), not for a missing band. A tree that fails
+        keeps its position (the localizer's evidence) without a DBH."""
+        enough_scans = 2 * tree.n_scans_dbh >= tree.n_scans
+        return enough_scans and tree.n_support_scans >= self.cfg.dbh_min_window_scans
+
     def _scan_fallback(self, tree: _Tree) -> tuple[float, float, int]:
-        """DBH of a tree without an accepted window: the median of perception's per-scan DBH,
-        only when at least dbh_fallback_min_scans agree (robust spread within
-        dbh_fallback_max_spread of the median, or 2 cm) and perception measured a DBH in most
-        of the scans that saw the tree; its std is that spread (at least 5 mm) with the model
-        floor. Scans of a far tree merged with its neighbour give 2-4x its DBH, and a DBH found
-        in only a few of a tree's scans is a chance circle (clutter, two stems crossing; a
-        56 cm DBH on a 3 cm sapling from 3 of its 24 scans): better none than that."""
+        """DBH of a stem (is_stem) without an accepted window: the median of perception's
+        per-scan DBH, only when at least dbh_fallback_min_scans agree (robust spread within
+        dbh_fallback_max_spread of the median, or 2 cm); its std is that spread (at least
+        5 mm) with the model floor. Scans of a far tree merged with its neighbour give 2-4x its
+        DBH: better none than that."""
         d = np.asarray(tree.scan_dbh)
-        if len(d) < self.cfg.dbh_fallback_min_scans or 2 * tree.n_scans_dbh < tree.n_scans:
+        if len(d) < self.cfg.dbh_fallback_min_scans:
             return float("nan"), float("nan"), 0
         med = float(np.median(d))
         spread = _spread(d)
