@@ -100,3 +100,26 @@ def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_
     alone = plot_trees(reference, cfg.trees, cfg.features)
     k_b = int(np.argmin(np.abs(alone.xyz[:, 0] - b[0])))
     assert np.linalg.norm(alone.xyz[k_b, :2] - b[:2]) > 0.005
+
+
+def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumference():
+    """Stem A seen on 60 deg (the TLS from afar, no mobile frame near it): its radius is not
+    determined by the points, so it keeps its position but gets no DBH (NaN), while its
+    fitted circle stays in fit_dbh_m. Stem B seen on 150 deg: its DBH is reported."""
+    rng = np.random.default_rng(6)
+    cfg = TlsConfig()
+    g = np.arange(-4.0, 4.0, 0.05)
+    gx, gy = np.meshgrid(g, g)
+    ground = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
+    half_a, half_b = np.radians(30), np.radians(75)
+    tls_a = arc(a[:2], a[2] / 2, -half_a, half_a, 600, 0.003, rng, (0.3, 3.0))
+    tls_b = arc(b[:2], b[2] / 2, -half_b, half_b, 600, 0.003, rng, (0.3, 3.0))
+    reference = np.concatenate([ground, tls_a, tls_b])
+    trees = plot_trees(reference, cfg.trees, cfg.features)
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    k_a = int(np.argmin(np.abs(fused.xyz[:, 0] - a[0])))
+    k_b = int(np.argmin(np.abs(fused.xyz[:, 0] - b[0])))
+    assert np.isnan(fused.dbh_m[k_a]) and np.isfinite(fused.fit_dbh_m[k_a])
+    assert np.linalg.norm(fused.xyz[k_a, :2] - a[:2]) < 0.02
+    assert abs(fused.dbh_m[k_b] - b[2]) < 0.01

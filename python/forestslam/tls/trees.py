@@ -19,14 +19,22 @@ def _core():
 
 @dataclass
 class PlotTrees:
-    """K stems: xyz (K,3) breast-height centre, dbh_m (K,) (NaN: no fit), dbh_std_m (K,) spread
-    of per-slice diameters, base_z (K,) ground height, band_points list of (Mi,3)."""
+    """K stems: xyz (K,3) breast-height centre, dbh_m (K,) the reported DBH (NaN: its circle
+    is not measured well enough, see report_dbh), dbh_std_m (K,) spread of per-slice
+    diameters, base_z (K,) ground height, band_points list of (Mi,3), fit_dbh_m (K,) the
+    diameter of the fitted breast-height circle (always finite: the stem's extent for
+    coverage, observations and drawing)."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
     dbh_std_m: np.ndarray
     base_z: np.ndarray
     band_points: list[np.ndarray]
+    fit_dbh_m: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.fit_dbh_m is None:
+            self.fit_dbh_m = np.array(self.dbh_m, dtype=np.float64, copy=True)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -182,16 +190,24 @@ def fuse_with_reference(
     saw along a wide arc keeps its TLS circle (the mobile frames' points are noisier and
     carry the registration spread); a stem the TLS saw on a short arc takes the merged
     map's wider one.
-    Without a TLS fit the merged circle stands; without a merged fit the TLS one."""
+    Without a TLS fit the merged circle stands; without a merged fit the TLS one. Then a DBH
+    is reported only for a circle measured along enough of its circumference (report_dbh)."""
     ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    return report_dbh(_fused_circles(trees, ref, config, features), ref, config)
+
+
+def _fused_circles(
+    trees: PlotTrees, ref: np.ndarray, config: TreeConfig, features: FeatureConfig
+) -> PlotTrees:
+    """fuse_with_reference's circles, from the reference's points at band heights ref (R,3)."""
     if len(trees) == 0 or len(ref) == 0:
         return trees
     core = _core()
     lo, hi = config.band_m
     tree2d = cKDTree(ref[:, :2])
-    xyz, dbh = trees.xyz.copy(), trees.dbh_m.copy()
+    xyz, dbh = trees.xyz.copy(), trees.fit_dbh_m.copy()
     for k in range(len(trees)):
-        near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.dbh_m[k] + 0.15)]
+        near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)]
         z = near[:, 2] - trees.base_z[k]
         tls = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
         if tls is None:
@@ -200,6 +216,25 @@ def fuse_with_reference(
         x = tls[0] if merged is None else _fused(tls, merged)
         xyz[k, :2], dbh[k] = x[:2], 2 * x[2]
     return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points)
+
+
+def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> PlotTrees:
+    """The stems with a DBH reported only where their breast-height circle is measured: its
+    points (the map's band and the reference's) cover at least config.min_dbh_coverage of
+    the circumference (coverage_tolerance_m of the circle). On a shorter arc the radius and
+    the centre along the view trade off (circle_covariance grows without bound) and the fit
+    follows the noise: on the 7 generated bench plots, stems seen on less than a quarter of
+    their circumference were off by up to 14 cm (a 2 cm sapling fitted 12 cm, edge stems 30 m
+    out with one-sided points). Such a stem keeps its position; its dbh_m is NaN, its
+    fitted circle stays in fit_dbh_m."""
+    if len(trees) == 0:
+        return trees
+    points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
+    cover = circumference_coverage(points, trees, config)
+    dbh = np.where(cover >= config.min_dbh_coverage, trees.fit_dbh_m, np.nan)
+    return PlotTrees(
+        trees.xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, trees.fit_dbh_m
+    )
 
 
 def _band_slab(points: np.ndarray, base_z: np.ndarray, band_m) -> np.ndarray:
@@ -227,7 +262,7 @@ def circumference_coverage(points: np.ndarray, trees: PlotTrees, config: TreeCon
     tree2d = cKDTree(points[:, :2])
     n = config.coverage_sectors
     for k in range(len(trees)):
-        r = 0.5 * trees.dbh_m[k]
+        r = 0.5 * trees.fit_dbh_m[k]
         c = trees.xyz[k, :2]
         idx = tree2d.query_ball_point(c, r + config.coverage_tolerance_m)
         p = points[idx]
@@ -256,6 +291,6 @@ def observations(
         if len(centres) == 0:
             continue
         d, idx = tree2d.query(centres[:, :2])
-        hit = idx[d <= 0.5 * trees.dbh_m[idx] + radius_margin_m]
+        hit = idx[d <= 0.5 * trees.fit_dbh_m[idx] + radius_margin_m]
         counts[np.unique(hit)] += 1
     return counts
