@@ -374,6 +374,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         "frames_registered": len(run.frames),
         "tracked_within_10cm_1deg": int(tracked.sum()),
         "tracked_share": float(tracked.sum() / len(scans)),
+        "untracked_frames": [int(k) for k in np.flatnonzero(~tracked)],
         "accepted": int(acc.sum()),
         "relocalized": int(sum(f.relocalized for f in run.frames)),
         "accepted_trans_err_mean_m": float(ta.mean()) if len(ta) else None,
@@ -508,7 +509,8 @@ def print_simulated(name: str, r: dict) -> None:
     print(
         f"frames tracked within 10 cm and 1 deg: {t['tracked_within_10cm_1deg']} of "
         f"{t['frames_input']} ({100 * t['tracked_share']:.1f} %); merged (accepted) "
-        f"{t['accepted']}; relocalized {t['relocalized']}"
+        f"{t['accepted']}; relocalized {t['relocalized']}; not tracked: frames "
+        f"{t['untracked_frames'] or 'none'}"
     )
     if t["accepted"]:
         print(

@@ -484,7 +484,8 @@ def _unmerged_reason(
         return "relocalized after tracking loss (placed afresh, not merged)"
     if not swept:
         return "in-sweep motion not estimated"
-    return f"moved {100 * ref_dt:.1f} cm / {ref_dr:.2f} deg on the reference alone"
+    # One reason kind for the summary, the figures in parentheses (see unmerged_summary).
+    return f"does not hold on the reference alone (moved {100 * ref_dt:.1f} cm / {ref_dr:.2f} deg)"
 
 
 def _record(stamp, T_stamp, lm, ms, reason: str = "", **fields) -> FrameRecord:
