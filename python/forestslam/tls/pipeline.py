@@ -113,6 +113,12 @@ class TlsRun:
     def poses(self) -> np.ndarray:
         return np.array([f.T_tls_sensor for f in self.frames]).reshape(-1, 4, 4)
 
+    @property
+    def views(self) -> np.ndarray:
+        """x-y positions (P,2) the merged frames were scanned from (mid-sweep): where the map's
+        mobile points were seen from (trees.plot_trees fits their stems under range noise)."""
+        return np.array([f.T_tls_mid[:2, 3] for f in self.frames if f.accepted]).reshape(-1, 2)
+
 
 def _check_reference(reference: np.ndarray) -> np.ndarray:
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
