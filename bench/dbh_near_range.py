@@ -89,8 +89,8 @@ def evaluate(sim: Path, n_scans: int, sensor: str, min_dbh: float) -> dict:
         local = transform_points(np.linalg.inv(poses[k]), world)
         stems = detect(scan, sensor, cfg)
         for i in range(len(stems)):
-            sil = stems.diameters[i]["silhouette"]
-            if not sil["valid"]:
+            sil = stems.diameters[i].silhouette
+            if not sil.valid:
                 continue
             d = np.linalg.norm(local[:, :2] - stems.xy[i], axis=1)
             d[trees["dbh_m"] < min_dbh] = np.inf
@@ -98,7 +98,7 @@ def evaluate(sim: Path, n_scans: int, sensor: str, min_dbh: float) -> dict:
             if d[j] > 0.5:
                 continue
             r_true = 0.5 * trees["dbh_m"][j]
-            centre = np.asarray(sil["centre"])[:2]
+            centre = np.asarray(sil.centre)[:2]
             D_true = float(np.linalg.norm(local[j, :2]))
             mid = stems.base_z[i] + 1.3
             sec = (np.abs(scan.points[:, 2] - mid) <= half) & (
@@ -125,7 +125,7 @@ def evaluate(sim: Path, n_scans: int, sensor: str, min_dbh: float) -> dict:
                     D_true,
                     2 * r_true,
                     gap,
-                    2 * sil["radius"],
+                    2 * sil.radius,
                     2 * radius(lines_stem, "min"),
                     2 * radius(lines_all, "min"),
                     2 * radius(lines_thr, "min") if lines_thr else np.nan,

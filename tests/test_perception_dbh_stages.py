@@ -186,11 +186,11 @@ def test_near_silhouettes_keep_their_edges():
             sxy = np.array([x, 0.0])
             stems = detect(scan_stems(world, sxy, ROUND, noise_m=0.03, seed=seed), "vlp16")
             for k in range(len(stems)):
-                sil = stems.diameters[k]["silhouette"]
+                sil = stems.diameters[k].silhouette
                 d = np.linalg.norm(txy - sxy - stems.xy[k], axis=1)
                 j = int(np.argmin(d))
-                if sil["valid"] and d[j] <= 0.3 and np.linalg.norm(txy[j] - sxy) <= 6.0:
-                    errors.append(2 * sil["radius"] - world[j].dbh)
+                if sil.valid and d[j] <= 0.3 and np.linalg.norm(txy[j] - sxy) <= 6.0:
+                    errors.append(2 * sil.radius - world[j].dbh)
     errors = np.asarray(errors)
     assert len(errors) >= 40
     assert abs(np.mean(errors[np.abs(errors) < 0.1])) < 0.003

@@ -167,6 +167,10 @@ class TreeConfig:
     # spread, so the single-scan gates (1.5 cm) drop most of its stems; 2x the sensor noise.
     stem_fit_inlier_m: Positive = 0.03
     stem_max_fit_rms_m: Positive = 0.03
+    # A stem's DBH is reported only when the points of the map and the reference cover this
+    # share of its breast-height circumference (trees.report_dbh; else NaN, position kept):
+    # on a shorter arc the radius is not determined by the points.
+    min_dbh_coverage: Fraction = 0.25
 
 
 @dataclass

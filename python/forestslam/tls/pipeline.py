@@ -117,6 +117,12 @@ class TlsRun:
     def poses(self) -> np.ndarray:
         return np.array([f.T_tls_sensor for f in self.frames]).reshape(-1, 4, 4)
 
+    @property
+    def views(self) -> np.ndarray:
+        """x-y positions (P,2) the merged frames were scanned from (mid-sweep): where the map's
+        mobile points were seen from (trees.plot_trees fits their stems under range noise)."""
+        return np.array([f.T_tls_mid[:2, 3] for f in self.frames if f.accepted]).reshape(-1, 2)
+
 
 def _check_reference(reference: np.ndarray) -> np.ndarray:
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
@@ -489,7 +495,8 @@ def _unmerged_reason(
         return "relocalized after tracking loss (placed afresh, not merged)"
     if not swept:
         return "in-sweep motion not estimated"
-    return f"moved {100 * ref_dt:.1f} cm / {ref_dr:.2f} deg on the reference alone"
+    # One reason kind for the summary, the figures in parentheses (see unmerged_summary).
+    return f"does not hold on the reference alone (moved {100 * ref_dt:.1f} cm / {ref_dr:.2f} deg)"
 
 
 def _record(stamp, T_stamp, lm, ms, reason: str = "", **fields) -> FrameRecord:
