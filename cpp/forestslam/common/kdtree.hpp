@@ -24,11 +24,19 @@ class KdTree3 {
         nodes_.clear();
         pts_.clear();
         if (ids_.empty()) return;
-        nodes_.reserve(2 * ids_.size() / kLeaf + 2);
-        buildNode(points, 0, static_cast<int>(ids_.size()));
-        pts_.resize(ids_.size());
+        // Built over a contiguous copy of (point, row) entries: the partitions then read and
+        // move whole entries instead of gathering strided matrix rows through the row ids. The
+        // comparisons are the same as on the ids, so the tree (and every query's order) is too.
+        std::vector<Entry> work(ids_.size());
         for (size_t k = 0; k < ids_.size(); ++k)
-            pts_[k] = {points(ids_[k], 0), points(ids_[k], 1), points(ids_[k], 2)};
+            work[k] = {{points(ids_[k], 0), points(ids_[k], 1), points(ids_[k], 2)}, ids_[k]};
+        nodes_.reserve(2 * ids_.size() / kLeaf + 2);
+        buildNode(work, 0, static_cast<int>(work.size()));
+        pts_.resize(work.size());
+        for (size_t k = 0; k < work.size(); ++k) {
+            pts_[k] = work[k].p;
+            ids_[k] = work[k].row;
+        }
     }
 
     bool empty() const { return ids_.empty(); }
@@ -39,7 +47,8 @@ class KdTree3 {
         const std::array<double, 3> qa{q.x(), q.y(), q.z()};
         double best = max_d2;
         int best_k = -1;
-        nearestIn(0, qa, best, best_k);
+        std::array<double, 3> axis_d2{0.0, 0.0, 0.0};
+        nearestIn(0, qa, 0.0, axis_d2, best, best_k);
         if (best_k < 0) return -1;
         d2 = best;
         return ids_[static_cast<size_t>(best_k)];
@@ -52,13 +61,14 @@ class KdTree3 {
         out.clear();
         if (ids_.empty() || k <= 0) return 0;
         const std::array<double, 3> qa{q.x(), q.y(), q.z()};
+        std::array<double, 3> axis_d2{0.0, 0.0, 0.0};
         if (std::isfinite(max_d2)) {
             Buffer b{out, static_cast<size_t>(k), max_d2};
-            knnIn(0, qa, b);
+            knnIn(0, qa, 0.0, axis_d2, b);
             b.finish();
         } else {
             Heap h{out, static_cast<size_t>(k), max_d2};
-            knnIn(0, qa, h);
+            knnIn(0, qa, 0.0, axis_d2, h);
         }
         for (auto &item : out) item.second = ids_[static_cast<size_t>(item.second)];
         return static_cast<int>(out.size());
@@ -113,27 +123,36 @@ class KdTree3 {
         }
     };
 
-    int buildNode(const Eigen::Ref<const Points3> &points, int begin, int end) {
+    struct Entry {
+        std::array<double, 3> p;
+        int row;
+    };
+
+    int buildNode(std::vector<Entry> &work, int begin, int end) {
         const int id = static_cast<int>(nodes_.size());
         nodes_.emplace_back();
         nodes_[static_cast<size_t>(id)].begin = begin;
         nodes_[static_cast<size_t>(id)].end = end;
         if (end - begin <= kLeaf) return id;
-        Eigen::Array3d lo = Eigen::Array3d::Constant(std::numeric_limits<double>::max());
-        Eigen::Array3d hi = -lo;
+        std::array<double, 3> lo, hi;
+        lo.fill(std::numeric_limits<double>::max());
+        hi.fill(-std::numeric_limits<double>::max());
         for (int k = begin; k < end; ++k) {
-            const Eigen::Array3d p = points.row(ids_[static_cast<size_t>(k)]).transpose().array();
-            lo = lo.min(p);
-            hi = hi.max(p);
+            const auto &p = work[static_cast<size_t>(k)].p;
+            for (size_t a = 0; a < 3; ++a) {
+                lo[a] = std::min(lo[a], p[a]);
+                hi[a] = std::max(hi[a], p[a]);
+            }
         }
-        int axis = 0;
-        (hi - lo).maxCoeff(&axis);
+        int axis = 0;  // the widest extent, the first on a tie (as Eigen's maxCoeff)
+        for (int a = 1; a < 3; ++a)
+            if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
         const int mid = begin + (end - begin) / 2;
-        std::nth_element(ids_.begin() + begin, ids_.begin() + mid, ids_.begin() + end,
-                         [&](int a, int b) { return points(a, axis) < points(b, axis); });
-        const double split = points(ids_[static_cast<size_t>(mid)], axis);
-        const int left = buildNode(points, begin, mid);
-        const int right = buildNode(points, mid, end);
+        std::nth_element(work.begin() + begin, work.begin() + mid, work.begin() + end,
+                         [axis](const Entry &a, const Entry &b) { return a.p[axis] < b.p[axis]; });
+        const double split = work[static_cast<size_t>(mid)].p[static_cast<size_t>(axis)];
+        const int left = buildNode(work, begin, mid);
+        const int right = buildNode(work, mid, end);
         Node &n = nodes_[static_cast<size_t>(id)];
         n.axis = axis;
         n.split = split;
@@ -147,7 +166,16 @@ class KdTree3 {
         return dx * dx + dy * dy + dz * dz;
     }
 
-    void nearestIn(int id, const std::array<double, 3> &q, double &best, int &best_k) const {
+    // The queries descend the near side first and enter the far side only when its cell can
+    // still hold a candidate. The cell's lower bound is the squared distance to the split planes
+    // met on the way, one per axis (nanoflann's incremental distance): tighter than the last
+    // plane alone, and it only skips cells whose points the candidate test would reject, so the
+    // visiting order and the results are those of the plane-only test. The relative margin
+    // keeps rounding in the running sum from skipping a cell with a point exactly at the bound.
+    static constexpr double kMargin = 1.0 - 1e-12;
+
+    void nearestIn(int id, const std::array<double, 3> &q, double cell_d2,
+                   std::array<double, 3> &axis_d2, double &best, int &best_k) const {
         const Node &n = nodes_[static_cast<size_t>(id)];
         if (n.axis < 0) {
             for (int k = n.begin; k < n.end; ++k) {
@@ -156,13 +184,20 @@ class KdTree3 {
             }
             return;
         }
-        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
-        nearestIn(diff < 0 ? n.left : n.right, q, best, best_k);
-        if (diff * diff <= best) nearestIn(diff < 0 ? n.right : n.left, q, best, best_k);
+        const auto axis = static_cast<size_t>(n.axis);
+        const double diff = q[axis] - n.split;
+        nearestIn(diff < 0 ? n.left : n.right, q, cell_d2, axis_d2, best, best_k);
+        const double old = axis_d2[axis];
+        const double far_d2 = cell_d2 - old + diff * diff;
+        if (far_d2 * kMargin > best) return;
+        axis_d2[axis] = diff * diff;
+        nearestIn(diff < 0 ? n.right : n.left, q, far_d2, axis_d2, best, best_k);
+        axis_d2[axis] = old;
     }
 
     template <class Best>
-    void knnIn(int id, const std::array<double, 3> &q, Best &h) const {
+    void knnIn(int id, const std::array<double, 3> &q, double cell_d2,
+               std::array<double, 3> &axis_d2, Best &h) const {
         const Node &n = nodes_[static_cast<size_t>(id)];
         if (n.axis < 0) {
             for (int k = n.begin; k < n.end; ++k) {
@@ -171,9 +206,15 @@ class KdTree3 {
             }
             return;
         }
-        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
-        knnIn(diff < 0 ? n.left : n.right, q, h);
-        if (diff * diff <= h.bound) knnIn(diff < 0 ? n.right : n.left, q, h);
+        const auto axis = static_cast<size_t>(n.axis);
+        const double diff = q[axis] - n.split;
+        knnIn(diff < 0 ? n.left : n.right, q, cell_d2, axis_d2, h);
+        const double old = axis_d2[axis];
+        const double far_d2 = cell_d2 - old + diff * diff;
+        if (far_d2 * kMargin > h.bound) return;
+        axis_d2[axis] = diff * diff;
+        knnIn(diff < 0 ? n.right : n.left, q, far_d2, axis_d2, h);
+        axis_d2[axis] = old;
     }
 
     std::vector<int> ids_;
