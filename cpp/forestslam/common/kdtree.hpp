@@ -47,8 +47,7 @@ class KdTree3 {
         const std::array<double, 3> qa{q.x(), q.y(), q.z()};
         double best = max_d2;
         int best_k = -1;
-        std::array<double, 3> axis_d2{0.0, 0.0, 0.0};
-        nearestIn(0, qa, 0.0, axis_d2, best, best_k);
+        nearestIn(0, qa, best, best_k);
         if (best_k < 0) return -1;
         d2 = best;
         return ids_[static_cast<size_t>(best_k)];
@@ -61,14 +60,13 @@ class KdTree3 {
         out.clear();
         if (ids_.empty() || k <= 0) return 0;
         const std::array<double, 3> qa{q.x(), q.y(), q.z()};
-        std::array<double, 3> axis_d2{0.0, 0.0, 0.0};
         if (std::isfinite(max_d2)) {
             Buffer b{out, static_cast<size_t>(k), max_d2};
-            knnIn(0, qa, 0.0, axis_d2, b);
+            knnIn(0, qa, b);
             b.finish();
         } else {
             Heap h{out, static_cast<size_t>(k), max_d2};
-            knnIn(0, qa, 0.0, axis_d2, h);
+            knnIn(0, qa, h);
         }
         for (auto &item : out) item.second = ids_[static_cast<size_t>(item.second)];
         return static_cast<int>(out.size());
@@ -166,16 +164,7 @@ class KdTree3 {
         return dx * dx + dy * dy + dz * dz;
     }
 
-    // The queries descend the near side first and enter the far side only when its cell can
-    // still hold a candidate. The cell's lower bound is the squared distance to the split planes
-    // met on the way, one per axis (nanoflann's incremental distance): tighter than the last
-    // plane alone, and it only skips cells whose points the candidate test would reject, so the
-    // visiting order and the results are those of the plane-only test. The relative margin
-    // keeps rounding in the running sum from skipping a cell with a point exactly at the bound.
-    static constexpr double kMargin = 1.0 - 1e-12;
-
-    void nearestIn(int id, const std::array<double, 3> &q, double cell_d2,
-                   std::array<double, 3> &axis_d2, double &best, int &best_k) const {
+    void nearestIn(int id, const std::array<double, 3> &q, double &best, int &best_k) const {
         const Node &n = nodes_[static_cast<size_t>(id)];
         if (n.axis < 0) {
             for (int k = n.begin; k < n.end; ++k) {
@@ -184,20 +173,13 @@ class KdTree3 {
             }
             return;
         }
-        const auto axis = static_cast<size_t>(n.axis);
-        const double diff = q[axis] - n.split;
-        nearestIn(diff < 0 ? n.left : n.right, q, cell_d2, axis_d2, best, best_k);
-        const double old = axis_d2[axis];
-        const double far_d2 = cell_d2 - old + diff * diff;
-        if (far_d2 * kMargin > best) return;
-        axis_d2[axis] = diff * diff;
-        nearestIn(diff < 0 ? n.right : n.left, q, far_d2, axis_d2, best, best_k);
-        axis_d2[axis] = old;
+        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
+        nearestIn(diff < 0 ? n.left : n.right, q, best, best_k);
+        if (diff * diff <= best) nearestIn(diff < 0 ? n.right : n.left, q, best, best_k);
     }
 
     template <class Best>
-    void knnIn(int id, const std::array<double, 3> &q, double cell_d2,
-               std::array<double, 3> &axis_d2, Best &h) const {
+    void knnIn(int id, const std::array<double, 3> &q, Best &h) const {
         const Node &n = nodes_[static_cast<size_t>(id)];
         if (n.axis < 0) {
             for (int k = n.begin; k < n.end; ++k) {
@@ -206,15 +188,9 @@ class KdTree3 {
             }
             return;
         }
-        const auto axis = static_cast<size_t>(n.axis);
-        const double diff = q[axis] - n.split;
-        knnIn(diff < 0 ? n.left : n.right, q, cell_d2, axis_d2, h);
-        const double old = axis_d2[axis];
-        const double far_d2 = cell_d2 - old + diff * diff;
-        if (far_d2 * kMargin > h.bound) return;
-        axis_d2[axis] = diff * diff;
-        knnIn(diff < 0 ? n.right : n.left, q, far_d2, axis_d2, h);
-        axis_d2[axis] = old;
+        const double diff = q[static_cast<size_t>(n.axis)] - n.split;
+        knnIn(diff < 0 ? n.left : n.right, q, h);
+        if (diff * diff <= h.bound) knnIn(diff < 0 ? n.right : n.left, q, h);
     }
 
     std::vector<int> ids_;
