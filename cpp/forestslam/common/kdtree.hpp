@@ -24,11 +24,19 @@ class KdTree3 {
         nodes_.clear();
         pts_.clear();
         if (ids_.empty()) return;
-        nodes_.reserve(2 * ids_.size() / kLeaf + 2);
-        buildNode(points, 0, static_cast<int>(ids_.size()));
-        pts_.resize(ids_.size());
+        // Built over a contiguous copy of (point, row) entries: the partitions then read and
+        // move whole entries instead of gathering strided matrix rows through the row ids. The
+        // comparisons are the same as on the ids, so the tree (and every query's order) is too.
+        std::vector<Entry> work(ids_.size());
         for (size_t k = 0; k < ids_.size(); ++k)
-            pts_[k] = {points(ids_[k], 0), points(ids_[k], 1), points(ids_[k], 2)};
+            work[k] = {{points(ids_[k], 0), points(ids_[k], 1), points(ids_[k], 2)}, ids_[k]};
+        nodes_.reserve(2 * ids_.size() / kLeaf + 2);
+        buildNode(work, 0, static_cast<int>(work.size()));
+        pts_.resize(work.size());
+        for (size_t k = 0; k < work.size(); ++k) {
+            pts_[k] = work[k].p;
+            ids_[k] = work[k].row;
+        }
     }
 
     bool empty() const { return ids_.empty(); }
@@ -112,27 +120,36 @@ class KdTree3 {
         }
     };
 
-    int buildNode(const Eigen::Ref<const Points3> &points, int begin, int end) {
+    struct Entry {
+        std::array<double, 3> p;
+        int row;
+    };
+
+    int buildNode(std::vector<Entry> &work, int begin, int end) {
         const int id = static_cast<int>(nodes_.size());
         nodes_.emplace_back();
         nodes_[static_cast<size_t>(id)].begin = begin;
         nodes_[static_cast<size_t>(id)].end = end;
         if (end - begin <= kLeaf) return id;
-        Eigen::Array3d lo = Eigen::Array3d::Constant(std::numeric_limits<double>::max());
-        Eigen::Array3d hi = -lo;
+        std::array<double, 3> lo, hi;
+        lo.fill(std::numeric_limits<double>::max());
+        hi.fill(-std::numeric_limits<double>::max());
         for (int k = begin; k < end; ++k) {
-            const Eigen::Array3d p = points.row(ids_[static_cast<size_t>(k)]).transpose().array();
-            lo = lo.min(p);
-            hi = hi.max(p);
+            const auto &p = work[static_cast<size_t>(k)].p;
+            for (size_t a = 0; a < 3; ++a) {
+                lo[a] = std::min(lo[a], p[a]);
+                hi[a] = std::max(hi[a], p[a]);
+            }
         }
-        int axis = 0;
-        (hi - lo).maxCoeff(&axis);
+        int axis = 0;  // the widest extent, the first on a tie (as Eigen's maxCoeff)
+        for (int a = 1; a < 3; ++a)
+            if (hi[a] - lo[a] > hi[axis] - lo[axis]) axis = a;
         const int mid = begin + (end - begin) / 2;
-        std::nth_element(ids_.begin() + begin, ids_.begin() + mid, ids_.begin() + end,
-                         [&](int a, int b) { return points(a, axis) < points(b, axis); });
-        const double split = points(ids_[static_cast<size_t>(mid)], axis);
-        const int left = buildNode(points, begin, mid);
-        const int right = buildNode(points, mid, end);
+        std::nth_element(work.begin() + begin, work.begin() + mid, work.begin() + end,
+                         [axis](const Entry &a, const Entry &b) { return a.p[axis] < b.p[axis]; });
+        const double split = work[static_cast<size_t>(mid)].p[static_cast<size_t>(axis)];
+        const int left = buildNode(work, begin, mid);
+        const int right = buildNode(work, mid, end);
         Node &n = nodes_[static_cast<size_t>(id)];
         n.axis = axis;
         n.split = split;
