@@ -48,6 +48,13 @@ def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
     )
 
 
+def flat_ground(half_m: float = 4.0, step_m: float = 0.05) -> np.ndarray:
+    """A flat ground grid (N,3) at z = 0 around the origin: the stems' local ground."""
+    g = np.arange(-half_m, half_m, step_m)
+    gx, gy = np.meshgrid(g, g)
+    return np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+
+
 def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_one():
     """Stem A: the TLS saw half of it (sharp), the merged map adds the other half with more
     noise and a radius 1 cm too small: the fused DBH is closer to the truth than the map's
@@ -55,9 +62,7 @@ def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_
     map all around: the fused DBH is within 6 mm, as the map's."""
     rng = np.random.default_rng(5)
     cfg = TlsConfig()
-    g = np.arange(-4.0, 4.0, 0.05)
-    gx, gy = np.meshgrid(g, g)
-    ground = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     tls_a = arc(a[:2], a[2] / 2, -np.pi / 2, np.pi / 2, 400, 0.003, rng, (0.3, 3.0))
     tls_b = arc(b[:2], b[2] / 2, -0.35, 0.35, 400, 0.003, rng, (0.3, 3.0))
@@ -88,9 +93,7 @@ def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumf
     fitted circle stays in fit_dbh_m. Stem B seen on 150 deg: its DBH is reported."""
     rng = np.random.default_rng(6)
     cfg = TlsConfig()
-    g = np.arange(-4.0, 4.0, 0.05)
-    gx, gy = np.meshgrid(g, g)
-    ground = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     half_a, half_b = np.radians(30), np.radians(75)
     tls_a = arc(a[:2], a[2] / 2, -half_a, half_a, 600, 0.003, rng, (0.3, 3.0))

@@ -7,6 +7,32 @@
 
 using forestslam::Points2;
 
+namespace {
+
+struct ClosenessStats {
+    double mean = 0;    // mean closeness of the chance landings
+    double above3 = 0;  // share of them scoring above 3
+};
+
+// Closeness of 20,000 chance landings, uniform in the gate's disc around the predicted position
+// (offset r at angle a), scored by the radius radiusOf(r, a) (seeded).
+template <class RadiusOf>
+ClosenessStats chanceCloseness(unsigned seed, double density, double gate, RadiusOf radiusOf) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0, 1);
+    const int n = 20000;
+    ClosenessStats stats;
+    for (int i = 0; i < n; ++i) {
+        const double r = gate * std::sqrt(u(rng)), a = 2 * 3.14159265358979 * u(rng);
+        const double v = forestslam::localization::closeness(density, radiusOf(r, a), gate, 0.0);
+        stats.mean += v / n;
+        stats.above3 += (v > 3) / double(n);
+    }
+    return stats;
+}
+
+}  // namespace
+
 TEST(Acceptance, PoissonTailKnownValues) {
     // P(X >= 1) = 1 - e^-mu; P(X >= 2) = 1 - e^-mu (1 + mu).
     EXPECT_NEAR(forestslam::localization::poissonTailLog10(0.5, 1), -std::log10(1 - std::exp(-0.5)),
@@ -80,20 +106,11 @@ TEST(Acceptance, TruncatedProductTailKnownValue) {
 TEST(Acceptance, ClosenessOfChanceInliersIsExponential) {
     // Chance inliers land uniformly in the gate's disc: -ln(U / p) is Exp(1) (mean 1, and
     // P(> 3) = e^-3), so the test's null model holds; a fit within the noise floor scores high.
-    std::mt19937 rng(11);
-    std::uniform_real_distribution<double> u(0, 1);
     const double density = 0.05, gate = 0.5;
-    double sum = 0;
-    int above3 = 0;
-    const int n = 20000;
-    for (int i = 0; i < n; ++i) {
-        const double v =
-            forestslam::localization::closeness(density, gate * std::sqrt(u(rng)), gate, 0.0);
-        sum += v;
-        above3 += v > 3;
-    }
-    EXPECT_NEAR(sum / n, 1.0, 0.03);
-    EXPECT_NEAR(double(above3) / n, std::exp(-3.0), 0.005);
+    const ClosenessStats chance =
+        chanceCloseness(11, density, gate, [](double r, double) { return r; });
+    EXPECT_NEAR(chance.mean, 1.0, 0.03);
+    EXPECT_NEAR(chance.above3, std::exp(-3.0), 0.005);
     EXPECT_NEAR(forestslam::localization::closeness(density, 0.0, gate, 0.05),
                 forestslam::localization::closeness(density, 0.05, gate, 0.05),
                 1e-12);  // the noise floor
@@ -213,19 +230,9 @@ TEST(Acceptance, LeaveOneOutRadiusDiscountsTheLeverArm) {
 TEST(Acceptance, LeaveOneOutRadiiOfChanceLandingsAreConservative) {
     // Under a chance pose the map trunk lies anywhere in the gate around a far trunk's predicted
     // position: the closeness of its radius is at most Exp(1) (mean <= 1, P(> 3) <= e^-3).
-    std::mt19937 rng(5);
-    std::uniform_real_distribution<double> u(0, 1);
-    const double density = 0.02, gate = 0.5;
-    double sum = 0;
-    int above3 = 0;
-    const int n = 20000;
-    for (int i = 0; i < n; ++i) {
-        const double r = gate * std::sqrt(u(rng)), a = 2 * 3.14159265358979 * u(rng);
-        const double radius = farTrunkRadius({15, 3}, {r * std::cos(a), r * std::sin(a)});
-        const double v = forestslam::localization::closeness(density, radius, gate, 0.0);
-        sum += v;
-        above3 += v > 3;
-    }
-    EXPECT_LT(sum / n, 1.0 + 0.03);
-    EXPECT_LT(double(above3) / n, std::exp(-3.0) + 0.005);
+    const ClosenessStats chance = chanceCloseness(5, 0.02, 0.5, [](double r, double a) {
+        return farTrunkRadius({15, 3}, {r * std::cos(a), r * std::sin(a)});
+    });
+    EXPECT_LT(chance.mean, 1.0 + 0.03);
+    EXPECT_LT(chance.above3, std::exp(-3.0) + 0.005);
 }
