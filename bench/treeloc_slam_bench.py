@@ -12,7 +12,9 @@ relative to the first pose's position and heading, world z up): the drifted odom
 tree-registered odometry alone, the SLAM on the drifted odometry (no registration), the SLAM
 without and with place recognition; place-recognition closures, tied tree pairs and false ones
 (a closure is false when its tied trees lie > 1 m apart in the reference frame: the trees'
-positions are their observations placed by the reference poses), and CPU ms per frame.
+positions are their observations placed by the reference poses), CPU ms per frame, and the
+place-recognition queries by outcome, made at a revisit (>= 6 query trees have their copy among
+the queried map trees in the reference frame) or elsewhere (where rejection is right).
 Target (issue 21): <= 0.3 m over V03's 4.5 km, no false loop closure.
 
     bench/treeloc_slam_bench.py [--session wild_v03] [--drift 0.02,1.0] [--frames N]
@@ -26,12 +28,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from forestslam.geometry import transform_points
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data" / "treeloc"
 MAX_FALSE_M = 1.0
+PARTNER_M = 0.3  # a query tree's copy in the map (reference frame)
+PARTNERS_MIN = 6  # PlaceRecognitionConfig.min_query_trees: a revisit place
 
 
 def planar_ate(est_xy: np.ndarray, ref_xy: np.ndarray) -> float:
@@ -57,13 +62,16 @@ def reference_tree_positions(result, ref_poses: np.ndarray) -> dict[int, np.ndar
 
 
 def recorded_place_recognition():
-    """PlaceRecognition that keeps the tree pairs (older, newer) each closure tied."""
+    """PlaceRecognition that keeps the tree pairs (older, newer) each closure tied, and every
+    query: (kind "loop" / "relocalization", query landmark ids, map landmark ids, reason)."""
     from forestslam.multisession.loops import PlaceRecognition
 
     class Recorded(PlaceRecognition):
         closures: list
+        queries: list
 
         def step(self, slam, keyframe, T_map_sensor):
+            self._slam = slam
             before = slam.aliases()
             closed = super().step(slam, keyframe, T_map_sensor)
             if closed:
@@ -73,9 +81,31 @@ def recorded_place_recognition():
                 self.closures.append(np.column_stack([after[new], new]))
             return closed
 
+        def _query(self, xy, mapped, query_xy):
+            loc, m_ids = super()._query(xy, mapped, query_xy)
+            q_ids = cKDTree(xy).query(query_xy)[1]  # the queried trees are landmarks
+            kind = "loop" if self._slam.lost_since is None else "relocalization"
+            self.queries.append((kind, q_ids, m_ids.copy(), loc.reason or "accepted"))
+            return loc, m_ids
+
     pr = Recorded()
-    pr.closures = []
+    pr.closures, pr.queries = [], []
     return pr
+
+
+def queries_by_place(pr, ref_trees: dict[int, np.ndarray]) -> dict[str, int]:
+    """Loop and relocalization queries counted by outcome and by whether they were made at a
+    revisit: at least PARTNERS_MIN query trees have a copy < PARTNER_M away among the queried
+    map trees in the reference frame (the trees' positions are their reference placements)."""
+    out: dict[str, int] = {}
+    for kind, q_ids, m_ids, reason in pr.queries:
+        q = np.array([ref_trees[int(i)] for i in q_ids if int(i) in ref_trees]).reshape(-1, 2)
+        m = np.array([ref_trees[int(i)] for i in m_ids if int(i) in ref_trees]).reshape(-1, 2)
+        partners = int((cKDTree(m).query(q)[0] < PARTNER_M).sum()) if len(q) and len(m) else 0
+        place = "revisit" if partners >= PARTNERS_MIN else "no revisit"
+        key = f"{kind} at {place}: {reason.split(':')[0]}"
+        out[key] = out.get(key, 0) + 1
+    return dict(sorted(out.items()))
 
 
 def false_closures(pr, ref_trees: dict[int, np.ndarray]) -> tuple[int, int, int]:
@@ -143,13 +173,16 @@ def main() -> int:
         if pr is None:
             print(f"{label:44s} {ate:7.3f} {'':8s} {'':5s} {'':6s} {res.cpu_ms_per_frame:6.1f}")
             continue
-        n_false, n_pairs, n_far = false_closures(pr, reference_tree_positions(res, ref_poses))
+        ref_trees = reference_tree_positions(res, ref_poses)
+        n_false, n_pairs, n_far = false_closures(pr, ref_trees)
         print(
             f"{label:44s} {ate:7.3f} {len(pr.closures):8d} {n_false:5d} {n_pairs:6d} "
             f"{res.cpu_ms_per_frame:6.1f}"
         )
         print(f"  place recognition {pr.stats}; tied pairs > {MAX_FALSE_M} m apart: {n_far}")
         print(f"  rejected queries by reason: {pr.reasons}")
+        for key, count in queries_by_place(pr, ref_trees).items():
+            print(f"  {key}: {count}")
         worst = ate if n_false == 0 else math.inf
     met = worst <= 0.3
     print(f"target <= 0.3 m with place recognition, no false closure: {'met' if met else 'MISSED'}")

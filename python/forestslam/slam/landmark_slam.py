@@ -546,47 +546,78 @@ class LandmarkSlam:
         return gtsam.BearingRangeFactor2D(X(kf), L(lm), gtsam.Rot2.fromAngle(bearing), rng, noise)
 
     def _add_keyframe(self, o2, obs_s, obs_dbh, obs_z, ids, idx, first: bool) -> int:
-        cfg = self.cfg
+        """A keyframe at planar odometry pose o2 (3,) with its stems (levelled sensor frame):
+        predict, associate, factors (odometry, refinement, trees), tentative trees, iSAM2."""
         kf = self.n_keyframes
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        if first:
-            pred = pose2_matrix(o2)
-            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
-            graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*o2), prior))
-            pose_cov = np.zeros((2, 2))
-        else:
-            pred = self._predict(o2)
-            pose_cov = self._pose_cov[:2, :2] + self._cov_acc[:2, :2]
-        obs_map = geometry.transform_xy(pred, obs_s)
-        res = self._associate(obs_map, obs_dbh, pose_cov)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        pred, pose_cov = self._predict_keyframe(o2, first, graph)
+        res = self._associate(geometry.transform_xy(pred, obs_s), obs_dbh, pose_cov)
         if not first:
-            odom_noise = self._odometry_noise()
-            if self._tracking_lost(kf, pred, len(obs_s), res.matches):
-                # a new segment: nearly free of the chain, its trees its own until relocalized
-                odom_noise = gtsam.noiseModel.Diagonal.Sigmas(
-                    np.array([cfg.loss_sigma_m] * 2 + [math.radians(cfg.loss_sigma_deg)])
-                )
-                res = AssociationResult(matches=np.full(len(obs_s), -1, dtype=np.int64))
-                self.lost_since, self.losses = kf, self.losses + 1
-                self._loss_kfs.append(kf)
-                log.info("tracking lost at keyframe %d: a new segment starts", kf)
-            delta = matrix_pose2(np.linalg.inv(pose2_matrix(self._kf_odom2[-1])) @ pose2_matrix(o2))
-            graph.add(gtsam.BetweenFactorPose2(X(kf - 1), X(kf), gtsam.Pose2(*delta), odom_noise))
-        pred = res.correction @ pred
-        if not first and self.refine_hook is not None:
-            refined = self.refine_hook(pred)
-            if refined is not None:
-                pred = refined[0]
-                graph.add(self._refinement_factor(kf, pred, refined[1]))
+            res = self._add_odometry_factor(kf, o2, pred, len(obs_s), res, graph)
+        pred = self._refine_keyframe(kf, res.correction @ pred, first, graph)
         obs_map = geometry.transform_xy(pred, obs_s)
         values.insert(X(kf), gtsam.Pose2(*matrix_pose2(pred)))
         bearings = np.arctan2(obs_s[:, 1], obs_s[:, 0])
         ranges = np.linalg.norm(obs_s, axis=1)
         noise = self._observation_noise(ranges)
         matched = res.matches >= 0
-        for i in np.nonzero(matched)[0]:
-            lm = int(res.matches[i])
+        self._add_tree_observations(kf, res.matches, bearings, ranges, noise, obs_dbh, graph)
+        ids[idx[matched]] = res.matches[matched]
+        self._add_tree_heights(kf, res.matches, obs_z, first)
+        if res.support and np.hypot(*res.correction[:2, 2]) > self.cfg.loop_correction_m:
+            self.reassociation_corrections += 1
+        new_ids = self._update_tentatives(
+            kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, ~matched, graph, values
+        )
+        for i, lm in new_ids.items():
+            ids[idx[i]] = lm
+        self._commit_keyframe(kf, o2, graph, values, res)
+        self._update_range_offset(kf, res.matches, ranges)
+        return kf
+
+    def _predict_keyframe(self, o2: np.ndarray, first: bool, graph) -> tuple:
+        """The keyframe's predicted planar map pose (3,3) and its position covariance (2,2);
+        the first keyframe is anchored by a tight prior (added to `graph`)."""
+        if not first:
+            return self._predict(o2), self._pose_cov[:2, :2] + self._cov_acc[:2, :2]
+        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3, 1e-3, 1e-4]))
+        graph.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(*o2), prior))
+        return pose2_matrix(o2), np.zeros((2, 2))
+
+    def _add_odometry_factor(self, kf, o2, pred, n_obs, res, graph) -> AssociationResult:
+        """The odometry between factor from the previous keyframe; when the trees tracked there
+        vanished (a jump), a nearly free one that starts a new segment, whose trees are then its
+        own (the association is dropped). Returns the association to use."""
+        cfg = self.cfg
+        odom_noise = self._odometry_noise()
+        if self._tracking_lost(kf, pred, n_obs, res.matches):
+            # a new segment: nearly free of the chain, its trees its own until relocalized
+            odom_noise = gtsam.noiseModel.Diagonal.Sigmas(
+                np.array([cfg.loss_sigma_m] * 2 + [math.radians(cfg.loss_sigma_deg)])
+            )
+            res = AssociationResult(matches=np.full(n_obs, -1, dtype=np.int64))
+            self.lost_since, self.losses = kf, self.losses + 1
+            self._loss_kfs.append(kf)
+            log.info("tracking lost at keyframe %d: a new segment starts", kf)
+        delta = matrix_pose2(np.linalg.inv(pose2_matrix(self._kf_odom2[-1])) @ pose2_matrix(o2))
+        graph.add(gtsam.BetweenFactorPose2(X(kf - 1), X(kf), gtsam.Pose2(*delta), odom_noise))
+        return res
+
+    def _refine_keyframe(self, kf: int, pred: np.ndarray, first: bool, graph) -> np.ndarray:
+        """The scan-to-map refinement of `refine_hook` (when set): its pose (3,3) replaces the
+        prediction and its result is a second between factor."""
+        if first or self.refine_hook is None:
+            return pred
+        refined = self.refine_hook(pred)
+        if refined is None:
+            return pred
+        graph.add(self._refinement_factor(kf, refined[0], refined[1]))
+        return refined[0]
+
+    def _add_tree_observations(self, kf, matches, bearings, ranges, noise, obs_dbh, graph):
+        """Range-bearing factors to the matched trees; their counts and running-mean DBH."""
+        for i in np.nonzero(matches >= 0)[0]:
+            lm = int(matches[i])
             graph.add(self._landmark_factor(kf, lm, bearings[i], ranges[i], *noise[i]))
             self._lm_nobs[lm] += 1
             self._lm_run_obs[lm] += 1
@@ -597,20 +628,20 @@ class LandmarkSlam:
                 self._lm_dbh[lm] = (
                     obs_dbh[i] if not np.isfinite(old) else old + (obs_dbh[i] - old) / n
                 )
-        ids[idx[matched]] = res.matches[matched]
-        self._add_heights(res.matches[matched], obs_z[matched])
+
+    def _add_tree_heights(self, kf: int, matches, obs_z, first: bool) -> None:
+        """The matched trees' observed centre heights (and the height graph's, when on)."""
+        matched = matches >= 0
+        self._add_heights(matches[matched], obs_z[matched])
         if self.height is not None:
             self.height.add_keyframe(0.0 if first else self._dist_acc)
             for i in np.nonzero(matched)[0]:
-                self.height.add_observation(kf, int(res.matches[i]), obs_z[i])
-        if res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m:
-            self.reassociation_corrections += 1
-        new_ids = self._update_tentatives(
-            kf, obs_map, obs_dbh, obs_z, bearings, ranges, noise, ~matched, graph, values
-        )
-        for i, lm in new_ids.items():
-            ids[idx[i]] = lm
+                self.height.add_observation(kf, int(matches[i]), obs_z[i])
 
+    def _commit_keyframe(self, kf, o2, graph, values, res: AssociationResult) -> None:
+        """iSAM2 update with the keyframe's factors (a failure rebuilds iSAM2 and raises), extra
+        relinearizing iterations after a big re-association correction, the new estimate and
+        pose marginal; the odometry accumulators restart."""
         self._kf_scan.append(len(self._stamps) - 1)
         self._kf_odom2.append(o2)
         try:
@@ -619,8 +650,8 @@ class LandmarkSlam:
             self._rebuild_isam()
             raise ProcessingError(f"pose graph update failed at keyframe {kf}: {exc}") from exc
         self._graph.push_back(graph)
-        big = res.support and np.hypot(*res.correction[:2, 2]) > cfg.loop_correction_m
-        for _ in range(cfg.extra_updates_on_loop if big else 0):
+        big = res.support and np.hypot(*res.correction[:2, 2]) > self.cfg.loop_correction_m
+        for _ in range(self.cfg.extra_updates_on_loop if big else 0):
             self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
@@ -632,8 +663,6 @@ class LandmarkSlam:
             log.debug("marginal covariance of keyframe %d unavailable", kf)
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
-        self._update_range_offset(kf, res.matches, ranges)
-        return kf
 
     def _update_range_offset(self, kf: int, matches: np.ndarray, ranges: np.ndarray) -> None:
         """Move `range_offset` towards the median range residual (predicted minus observed)
