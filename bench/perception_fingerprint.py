@@ -39,19 +39,19 @@ def main(bags: list[str]) -> str:
             if k % 3:
                 continue
             g = _core.perception_segment_ground(scan.points, ground_cfg)
-            add(g["is_ground"], g["grid_z"], g["grid_origin"])
+            add(g.is_ground, g.grid.z, g.grid.origin)
             ring = None if scan.ring is None else scan.ring.astype(np.int32)
             clusters = _core.perception_range_image_clusters(scan.points, ring, geometry, seg_cfg)
             add(*(np.asarray(c) for c in clusters))
-            rows = np.flatnonzero(~g["is_ground"]).astype(np.int64)
+            rows = np.flatnonzero(~np.asarray(g.is_ground)).astype(np.int64)
             n = _core.perception_normal_filter(scan.points, rows, geometry.theta_v_rad, normal_cfg)
-            add(np.asarray(n["kept"]), n["normals"])
+            add(np.asarray(n.kept), n.normals)
             if k % 30 == 0:
                 wide.append(scan.points + np.array([k * 0.7, k * 0.3, 0.0]))
     if wide:
         g = _core.perception_segment_ground(np.vstack(wide), ground_cfg)
-        add(g["is_ground"], g["grid_z"])
-        return f"{digest.hexdigest()} (map cloud: {int(g['is_ground'].sum())} ground points)"
+        add(g.is_ground, g.grid.z)
+        return f"{digest.hexdigest()} (map cloud: {int(np.asarray(g.is_ground).sum())} ground points)"
     return digest.hexdigest()
 
 
