@@ -261,22 +261,51 @@ bool reachesHeight(const Points3 &p, double z, double half) {
 // voxel; where returns lie closer than a voxel (within about 14 m on a VLP-16 at 5 cm) that
 // drops the outermost returns of a silhouette, which came out 1-1.6 cm small within 8 m
 // (bench/dbh_near_range.py).
+// Box of voxel indices. Keys wrap every 2^21 cells (voxel_key.hpp): within +-2^20 cells, a
+// return outside the box shares no key with a voxel inside it.
+struct VoxelBox {
+    static constexpr std::int64_t kExact = std::int64_t{1} << 20;
+    std::int64_t lo[3] = {kExact, kExact, kExact}, hi[3] = {-kExact, -kExact, -kExact};
+    void add(const std::int64_t (&v)[3]) {
+        for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], v[a]), hi[a] = std::max(hi[a], v[a]);
+    }
+    // True when no key of `v` can equal a key of the box's voxels (box and v within +-2^20).
+    bool excludes(const std::int64_t (&v)[3]) const {
+        bool outside = false;
+        for (int a = 0; a < 3; ++a) {
+            if (lo[a] <= -kExact || hi[a] >= kExact || v[a] <= -kExact || v[a] >= kExact)
+                return false;
+            outside = outside || v[a] < lo[a] || v[a] > hi[a];
+        }
+        return outside;
+    }
+};
+
 std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegmentation &gs,
                                          const NormalFilterResult &nf, const Clusters &stems,
                                          double voxel_m) {
     std::vector<Points3> out(stems.size());
     if (!(voxel_m > 0)) return out;  // nothing thinned: the stems' own points
+    auto cell = [&](Eigen::Index i, std::int64_t (&v)[3]) {
+        for (int a = 0; a < 3; ++a) v[a] = cellIndex(pts(i, a), voxel_m);
+    };
+    // Most returns lie outside the stems' voxel box and skip the hash look-up.
     std::unordered_map<std::uint64_t, int> stem_of;
+    VoxelBox box;
+    std::int64_t v[3];
     for (size_t k = 0; k < stems.size(); ++k)
         for (int r : stems[k]) {
             const int i = nf.kept[static_cast<size_t>(r)];
-            stem_of.emplace(voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), voxel_m),
-                            static_cast<int>(k));
+            cell(i, v);
+            box.add(v);
+            stem_of.emplace(cellKey3(v[0], v[1], v[2]), static_cast<int>(k));
         }
     std::vector<std::vector<int>> rows(stems.size());
     for (Eigen::Index i = 0; i < pts.rows(); ++i) {
         if (gs.is_ground[static_cast<size_t>(i)]) continue;
-        const auto it = stem_of.find(voxelKey(pts(i, 0), pts(i, 1), pts(i, 2), voxel_m));
+        cell(i, v);
+        if (box.excludes(v)) continue;
+        const auto it = stem_of.find(cellKey3(v[0], v[1], v[2]));
         if (it != stem_of.end())
             rows[static_cast<size_t>(it->second)].push_back(static_cast<int>(i));
     }
@@ -285,32 +314,61 @@ std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegment
 }
 
 // Non-ground returns of a scan by azimuth column (one sensor step wide): where the occluders
-// of a stem's silhouette are looked up.
+// of a stem's silhouette are looked up. Only returns nearer than `far2` (squared horizontal
+// range) are kept: nothing farther than every stem's farthest return can stand in front of
+// one. Rows of column c: rows[start[c] .. start[c + 1]), ascending.
 struct AzimuthColumns {
     double step = 0;
-    std::vector<std::vector<int>> rows;
+    std::vector<int> start, rows;
+    int count() const { return start.empty() ? 0 : static_cast<int>(start.size()) - 1; }
     int of(double az) const {
-        const int n = static_cast<int>(rows.size());
+        const int n = count();
         return ((static_cast<int>(std::floor((az + M_PI) / step)) % n) + n) % n;
     }
 };
 
-AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, double step) {
+AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, double step,
+                              double far2) {
     AzimuthColumns c;
     if (!(step > 0)) return c;
     c.step = step;
-    c.rows.resize(static_cast<size_t>(std::ceil(2 * M_PI / step)));
-    for (Eigen::Index i = 0; i < pts.rows(); ++i)
-        if (!gs.is_ground[static_cast<size_t>(i)])
-            c.rows[static_cast<size_t>(c.of(std::atan2(pts(i, 1), pts(i, 0))))].push_back(
-                static_cast<int>(i));
+    const size_t n = static_cast<size_t>(std::ceil(2 * M_PI / step));
+    c.start.assign(n + 1, 0);
+    std::vector<int> near, col;  // counting sort by column keeps each column's rows ascending
+    for (Eigen::Index i = 0; i < pts.rows(); ++i) {
+        if (gs.is_ground[static_cast<size_t>(i)]) continue;
+        if (!(pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) <= far2)) continue;
+        near.push_back(static_cast<int>(i));
+        col.push_back(c.of(std::atan2(pts(i, 1), pts(i, 0))));
+        ++c.start[static_cast<size_t>(col.back()) + 1];
+    }
+    for (size_t k = 0; k < n; ++k) c.start[k + 1] += c.start[k];
+    c.rows.resize(near.size());
+    std::vector<int> next(c.start.begin(), c.start.end() - 1);
+    for (size_t j = 0; j < near.size(); ++j)
+        c.rows[static_cast<size_t>(next[static_cast<size_t>(col[j])]++)] = near[j];
     return c;
+}
+
+// Largest squared horizontal range of the returns each stem is seen by (its full-resolution
+// returns, else its own points), with a relative margin: a bound, compared with `<` after.
+double farthestStem2(const std::vector<Points3> &seen, const Points3 &filtered,
+                     const Clusters &stems) {
+    double far2 = 0;
+    for (size_t k = 0; k < stems.size(); ++k) {
+        if (seen[k].rows() > 0) {
+            far2 = std::max(far2, seen[k].leftCols<2>().rowwise().squaredNorm().maxCoeff());
+        } else {
+            for (int r : stems[k]) far2 = std::max(far2, filtered.row(r).head<2>().squaredNorm());
+        }
+    }
+    return far2 * (1.0 + 1e-9);
 }
 
 // The returns within two azimuth steps of the bearings the stem `seen` covers and nearer than
 // its farthest return (what may stand in front of it; the rest cannot occlude it).
 Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols) {
-    if (seen.rows() == 0 || cols.rows.empty()) return Points3(0, 3);
+    if (seen.rows() == 0 || cols.count() == 0) return Points3(0, 3);
     const double far2 = seen.leftCols<2>().rowwise().squaredNorm().maxCoeff();
     const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
@@ -321,12 +379,15 @@ Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColu
         lo = std::min(lo, w), hi = std::max(hi, w);
     }
     std::vector<int> rows;
-    const int n = static_cast<int>(cols.rows.size());
+    const int n = cols.count();
     const int first = cols.of(bearing + lo) - 2,
               count = static_cast<int>((hi - lo) / cols.step) + 5;
     for (int k = 0; k < std::min(count, n); ++k) {
-        for (int i : cols.rows[static_cast<size_t>(((first + k) % n + n) % n)])
+        const size_t c = static_cast<size_t>(((first + k) % n + n) % n);
+        for (int j = cols.start[c]; j < cols.start[c + 1]; ++j) {
+            const int i = cols.rows[static_cast<size_t>(j)];
             if (pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) < far2) rows.push_back(i);
+        }
     }
     return selectRows(pts, rows);
 }
@@ -347,7 +408,8 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
         use_silhouette ? fullResolutionStems(pts, gs, nf, stems, opt.filter.voxel_m)
                        : std::vector<Points3>(stems.size());
     const AzimuthColumns columns = use_silhouette
-                                       ? azimuthColumns(pts, gs, silhouette.sensor.azimuth_step_rad)
+                                       ? azimuthColumns(pts, gs, silhouette.sensor.azimuth_step_rad,
+                                                        farthestStem2(seen, filtered, stems))
                                        : AzimuthColumns{};
     const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
     for (size_t k = 0; k < stems.size(); ++k) {

@@ -174,17 +174,34 @@ double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
 
 namespace {
 
+// Horizontal bearing and range of each row of a section, computed once for the silhouette's
+// stages (scan lines, line extents, centre distance).
+struct Polar {
+    std::vector<double> az, rho;
+};
+
+Polar polar(const Eigen::Ref<const Points3> &p) {
+    Polar pl;
+    pl.az.resize(static_cast<size_t>(p.rows()));
+    pl.rho.resize(static_cast<size_t>(p.rows()));
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        pl.az[static_cast<size_t>(i)] = std::atan2(p(i, 1), p(i, 0));
+        pl.rho[static_cast<size_t>(i)] = std::hypot(p(i, 0), p(i, 1));
+    }
+    return pl;
+}
+
 // Distance from the sensor to the centre of a stem of radius r seen at azimuth az. A point at
 // range rho, azimuth offset a from az, lies r from the centre (D, 0) of the bearing frame, so
 // D = rho cos a + sqrt(r^2 - (rho sin a)^2). The median over the points facing the sensor
 // (lateral offset <= r/2, where the root is well conditioned) is unbiased under range noise;
 // the nearest range of the section, used before, is the minimum of noisy ranges and put stem
 // centres 3-4 cm (median) toward a VLP-16. `fallback` when no point qualifies.
-double centreDistance(const Eigen::Ref<const Points3> &p, double az, double r, double fallback) {
+double centreDistance(const Polar &pl, double az, double r, double fallback) {
     std::vector<double> d;
-    for (Eigen::Index i = 0; i < p.rows(); ++i) {
-        const double rho = std::hypot(p(i, 0), p(i, 1));
-        double a = std::atan2(p(i, 1), p(i, 0)) - az;
+    for (size_t i = 0; i < pl.rho.size(); ++i) {
+        const double rho = pl.rho[i];
+        double a = pl.az[i] - az;
         a = std::atan2(std::sin(a), std::cos(a));
         const double lateral = rho * std::sin(a);
         if (std::abs(lateral) <= 0.5 * r)
@@ -206,16 +223,16 @@ struct SilhouetteLine {
 // r = front sin(w/2) / (1 - sin(w/2)) that shrank near stems (-0.5 cm DBH within 6 m at 3 cm
 // noise, bench/dbh_near_range.py). The facing returns lie up to 0.13 r behind the front,
 // which moves r by 0.13 r^2 / front at most.
-SilhouetteLine lineExtent(const Eigen::Ref<const Points3> &p, const std::vector<int> &rows,
-                          double bearing, double step) {
+SilhouetteLine lineExtent(const Polar &pl, const std::vector<int> &rows, double bearing,
+                          double step) {
     SilhouetteLine sl;
     std::vector<double> a(rows.size()), rho(rows.size());
     double lo = 1e9, hi = -1e9;
     for (size_t k = 0; k < rows.size(); ++k) {
-        const int i = rows[k];
-        const double az = std::atan2(p(i, 1), p(i, 0)) - bearing;
+        const size_t i = static_cast<size_t>(rows[k]);
+        const double az = pl.az[i] - bearing;
         a[k] = std::atan2(std::sin(az), std::cos(az));
-        rho[k] = std::hypot(p(i, 0), p(i, 1));
+        rho[k] = pl.rho[i];
         lo = std::min(lo, a[k]), hi = std::max(hi, a[k]);
     }
     sl.width = hi - lo + step;
@@ -232,10 +249,11 @@ SilhouetteLine lineExtent(const Eigen::Ref<const Points3> &p, const std::vector<
 }
 
 // Scan line of each row of `p`: the sensor's vertical angle nearest its elevation.
-std::vector<int> scanLines(const Eigen::Ref<const Points3> &p, const std::vector<double> &va) {
+std::vector<int> scanLines(const Eigen::Ref<const Points3> &p, const Polar &pl,
+                           const std::vector<double> &va) {
     std::vector<int> line(static_cast<size_t>(p.rows()));
     for (Eigen::Index i = 0; i < p.rows(); ++i) {
-        const double el = std::atan2(p(i, 2), std::hypot(p(i, 0), p(i, 1)));
+        const double el = std::atan2(p(i, 2), pl.rho[static_cast<size_t>(i)]);
         const auto it = std::lower_bound(va.begin(), va.end(), el);
         size_t k = static_cast<size_t>(it - va.begin());
         if (k == va.size() || (k > 0 && el - va[k - 1] < va[k] - el)) k = k - 1;
@@ -252,14 +270,15 @@ struct NearbyReturn {
 
 std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
                                         const std::vector<double> &va, double bearing) {
-    const std::vector<int> line = scanLines(p, va);
+    const Polar pl = polar(p);
+    const std::vector<int> line = scanLines(p, pl, va);
     std::vector<NearbyReturn> out(line.size());
-    for (Eigen::Index i = 0; i < p.rows(); ++i) {
-        NearbyReturn &o = out[static_cast<size_t>(i)];
-        const double a = std::atan2(p(i, 1), p(i, 0)) - bearing;
-        o.line = line[static_cast<size_t>(i)];
+    for (size_t i = 0; i < line.size(); ++i) {
+        NearbyReturn &o = out[i];
+        const double a = pl.az[i] - bearing;
+        o.line = line[i];
         o.a = std::atan2(std::sin(a), std::cos(a));
-        o.rho = std::hypot(p(i, 0), p(i, 1));
+        o.rho = pl.rho[i];
     }
     return out;
 }
@@ -288,14 +307,15 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     std::map<int, std::vector<int>> lines;
-    const std::vector<int> line_of = scanLines(p, va);
+    const Polar pl = polar(p);
+    const std::vector<int> line_of = scanLines(p, pl, va);
     for (Eigen::Index i = 0; i < p.rows(); ++i)
         lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
     const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, va, bearing);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
         if (rows.size() < 2) continue;
-        const SilhouetteLine sl = lineExtent(p, rows, bearing, sensor.azimuth_step_rad);
+        const SilhouetteLine sl = lineExtent(pl, rows, bearing, sensor.azimuth_step_rad);
         const double s = std::sin(0.5 * sl.width);
         if (!(s > 0 && s < 0.9)) continue;
         if (edgeOccluded(sl, line, nearby, sensor.azimuth_step_rad)) continue;
@@ -309,7 +329,7 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     for (double x : radii) dev.push_back(std::abs(x - r));
     const double spread = 1.4826 * median(dev);
     const double az = bearing + median(mids);
-    const double d = centreDistance(p, az, r, median(dists) + r);
+    const double d = centreDistance(pl, az, r, median(dists) + r);
     f.radius = r;
     f.centre = Eigen::Vector3d(d * std::cos(az), d * std::sin(az), mid_z);
     f.inliers = static_cast<int>(radii.size());
