@@ -171,6 +171,11 @@ class TreeConfig:
     # share of its breast-height circumference (trees.report_dbh; else NaN, position kept):
     # on a shorter arc the radius is not determined by the points.
     min_dbh_coverage: Fraction = 0.25
+    # ... and only when its fit resolves the diameter: the 1-sigma of the fitted diameter from
+    # the fit's own covariance (residual spread, point count, arc geometry; trees.report_dbh)
+    # at most this DBH precision (the stated target, Shao et al.'s 1.5 cm DBH RMSE). A larger
+    # sigma means the points allow circles that differ by more than the figure reported.
+    max_dbh_sigma_m: Positive = 0.015
 
 
 @dataclass
