@@ -249,7 +249,7 @@ def fuse_with_reference(
     views, view_range_m: the walk's scanner positions, as given to plot_trees."""
     ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
     fused = _fused_circles(trees, ref, config, features, views, view_range_m)
-    return report_dbh(fused, ref, config)
+    return report_dbh(fused, ref, config, features)
 
 
 def _fused_circles(
@@ -282,7 +282,12 @@ def _fused_circles(
     return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, None, sigma)
 
 
-def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> PlotTrees:
+def report_dbh(
+    trees: PlotTrees,
+    reference: np.ndarray,
+    config: TreeConfig,
+    features: FeatureConfig | None = None,
+) -> PlotTrees:
     """The stems with a DBH reported only where their breast-height circle is measured: the
     diameter is resolved (diameter_resolved: the fit's covariance and the agreement of
     sub-slices, a 1-sigma of at most config.max_dbh_sigma_m) and its
@@ -300,7 +305,7 @@ def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> P
         return trees
     points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
     cover = circumference_coverage(points, trees, config)
-    resolved = diameter_resolved(trees, config)
+    resolved = diameter_resolved(trees, config, features)
     dbh = np.where((cover >= config.min_dbh_coverage) & resolved, trees.fit_dbh_m, np.nan)
     return PlotTrees(
         trees.xyz,
@@ -313,17 +318,26 @@ def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> P
     )
 
 
-def diameter_resolved(trees: PlotTrees, config: TreeConfig) -> np.ndarray:
+def diameter_resolved(
+    trees: PlotTrees, config: TreeConfig, features: FeatureConfig | None = None
+) -> np.ndarray:
     """Per stem (K,) bool: both estimates of its diameter's 1-sigma are at most
-    config.max_dbh_sigma_m. (1) The fit's covariance (dbh_sigma_m; NaN: not computed, not
-    judged). It comes from the inliers within the fit's 2 cm threshold, so on sparse points
-    with centimetre noise it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for
-    a diameter 5 cm off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
+    config.max_dbh_sigma_m and (with features) the diameter stands clear of the circle fit's
+    lower bound (features.min_diameter_m) by that precision: a circle fitted at the bound is
+    held there by the bound, not by the points (a 2 cm sapling's noise smear fits the
+    smallest circle allowed, or one a little larger). The two estimates of the 1-sigma:
+    (1) the fit's covariance (dbh_sigma_m; NaN: not computed, not judged). It comes from
+    the inliers within the fit's 2 cm threshold, so on sparse points with centimetre noise
+    it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for a diameter 5 cm
+    off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
     sqrt(4): independent points of the same section must agree; fewer than two sub-slices
     that hold a circle (NaN) do not resolve it."""
     sub = trees.dbh_std_m / 2.0
     cov_ok = ~(trees.dbh_sigma_m > config.max_dbh_sigma_m)
-    return cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
+    ok = cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
+    if features is not None:
+        ok &= trees.fit_dbh_m >= features.min_diameter_m + config.max_dbh_sigma_m
+    return ok
 
 
 def _band_slab(points: np.ndarray, base_z: np.ndarray, band_m) -> np.ndarray:
