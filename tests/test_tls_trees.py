@@ -152,3 +152,46 @@ def test_dbh_of_stems_seen_from_one_side_under_range_noise_is_not_shrunk():
     assert np.mean(errors["orthogonal"]) < -0.01  # the bias the range-noise fit removes
     assert abs(np.mean(errors["range noise"])) < 0.006
     assert np.max(np.abs(errors["range noise"])) < 0.01
+
+
+def test_a_dbh_is_reported_only_when_the_fit_resolves_the_diameter():
+    """Two stems of 24 cm seen on the same 150 deg arc (coverage passes for both). Stem A:
+    sparse points with 2 cm range noise (25 in the breast-height band): its fit is 5 cm off,
+    and its four sub-slices disagree, so it keeps its position but gets no DBH, although
+    the fit's covariance alone (optimistic on so few noisy points) would pass it. Stem B:
+    well sampled with 5 mm noise: its DBH is reported within 1 cm."""
+    rng = np.random.default_rng(3)
+    cfg = TlsConfig()
+    a, b = (-1.5, 0.0, 0.24), (1.5, 0.0, 0.24)  # x, y, dbh
+    half = np.radians(75)
+    sparse = arc(a[:2], a[2] / 2, -half, half, 500, 0.02, rng, (0.3, 3.0))
+    dense = arc(b[:2], b[2] / 2, -half, half, 3000, 0.005, rng, (0.3, 3.0))
+    reference = np.concatenate([flat_ground(), sparse, dense])
+    trees = plot_trees(reference, cfg.trees, cfg.features)
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    k_a = int(np.argmin(np.abs(fused.xyz[:, 0] - a[0])))
+    k_b = int(np.argmin(np.abs(fused.xyz[:, 0] - b[0])))
+    assert abs(fused.fit_dbh_m[k_a] - a[2]) > 0.03  # the sparse fit is wrong...
+    assert fused.dbh_sigma_m[k_a] < cfg.trees.max_dbh_sigma_m  # ...its covariance says it is not
+    assert np.isnan(fused.dbh_m[k_a]) and np.linalg.norm(fused.xyz[k_a, :2] - a[:2]) < 0.05
+    assert fused.dbh_sigma_m[k_b] < 0.005 and abs(fused.dbh_m[k_b] - b[2]) < 0.01
+
+
+def test_a_circle_held_at_the_fits_smallest_diameter_gets_no_dbh():
+    """A 3 cm sapling (below the 6 cm stem minimum) seen with 3 cm range noise next to a 24 cm
+    stem: its noise smear is found as a stem and keeps its position but gets no DBH, since its
+    circle sits at the fit's lower bound, not where its points put it; the stem keeps its DBH."""
+    rng = np.random.default_rng(4)
+    cfg = TlsConfig()
+    a, b = (-1.5, 0.0, 0.03), (1.5, 0.0, 0.24)  # x, y, dbh
+    sapling = arc(a[:2], a[2] / 2, -np.pi, np.pi, 800, 0.03, rng, (0.3, 3.0))
+    stem = arc(b[:2], b[2] / 2, -np.pi, np.pi, 3000, 0.005, rng, (0.3, 3.0))
+    reference = np.concatenate([flat_ground(), sapling, stem])
+    trees = plot_trees(reference, cfg.trees, cfg.features)
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    k_b = int(np.argmin(np.abs(fused.xyz[:, 0] - b[0])))
+    assert abs(fused.dbh_m[k_b] - b[2]) < 0.01
+    small = np.flatnonzero(np.linalg.norm(fused.xyz[:, :2] - a[:2], axis=1) < 0.1)
+    assert len(small) == 1  # the smear is found as a stem...
+    assert fused.fit_dbh_m[small[0]] < cfg.features.min_diameter_m + cfg.trees.max_dbh_sigma_m
+    assert np.isnan(fused.dbh_m[small[0]])  # ...at the fit's bound: no DBH

@@ -171,6 +171,14 @@ class TreeConfig:
     # share of its breast-height circumference (trees.report_dbh; else NaN, position kept):
     # on a shorter arc the radius is not determined by the points.
     min_dbh_coverage: Fraction = 0.25
+    # ... and only when its fit resolves the diameter: the 1-sigma of the fitted diameter, both
+    # from the fit's own covariance (residual spread, point count, arc geometry) and from the
+    # spread of four independent sub-slice fits (trees.diameter_resolved), at most this DBH
+    # precision (the stated target, Shao et al.'s 1.5 cm DBH RMSE). A larger sigma means the
+    # points allow circles that differ by more than the figure reported.
+    # A diameter within this precision of the smallest fitted (features.min_diameter_m) is
+    # held by that bound, not by the points: no DBH either.
+    max_dbh_sigma_m: Positive = 0.015
 
 
 @dataclass

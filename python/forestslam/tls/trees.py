@@ -27,7 +27,8 @@ class PlotTrees:
     is not measured well enough, see report_dbh), dbh_std_m (K,) spread of per-slice
     diameters, base_z (K,) ground height, band_points list of (Mi,3), fit_dbh_m (K,) the
     diameter of the fitted breast-height circle (always finite: the stem's extent for
-    coverage, observations and drawing)."""
+    coverage, observations and drawing), dbh_sigma_m (K,) its 1-sigma from the fit's own
+    covariance (2 x the radius standard deviation; NaN: not known)."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -35,10 +36,13 @@ class PlotTrees:
     base_z: np.ndarray
     band_points: list[np.ndarray]
     fit_dbh_m: np.ndarray | None = None
+    dbh_sigma_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.fit_dbh_m is None:
             self.fit_dbh_m = np.array(self.dbh_m, dtype=np.float64, copy=True)
+        if self.dbh_sigma_m is None:
+            self.dbh_sigma_m = np.full(len(self.dbh_m), np.nan)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -96,7 +100,7 @@ def plot_trees(
     lo, hi = config.band_m
     points = _band_slab(points, base, config.band_m)
     tree2d = cKDTree(points[:, :2])
-    xyz, dbh, dbh_std, bases, bands = [], [], [], [], []
+    xyz, dbh, dbh_std, sigma, bases, bands = [], [], [], [], [], []
     for s in range(len(stems)):
         idx = tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15)
         near = points[idx]
@@ -119,6 +123,7 @@ def plot_trees(
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * fit.radius)
         dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
+        sigma.append(_dbh_sigma(np.asarray(fit.covariance)[2, 2]))
         bases.append(base[s])
         bands.append(band)
     return PlotTrees(
@@ -127,7 +132,14 @@ def plot_trees(
         dbh_std_m=np.array(dbh_std),
         base_z=np.array(bases),
         band_points=bands,
+        dbh_sigma_m=np.array(sigma),
     )
+
+
+def _dbh_sigma(radius_variance: float) -> float:
+    """1-sigma of a diameter from its radius variance (inf when the fit does not know it)."""
+    v = float(radius_variance)
+    return 2.0 * np.sqrt(v) if np.isfinite(v) and v >= 0 else float("inf")
 
 
 def _circle_config(features: FeatureConfig | None = None):
@@ -237,7 +249,7 @@ def fuse_with_reference(
     views, view_range_m: the walk's scanner positions, as given to plot_trees."""
     ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
     fused = _fused_circles(trees, ref, config, features, views, view_range_m)
-    return report_dbh(fused, ref, config)
+    return report_dbh(fused, ref, config, features)
 
 
 def _fused_circles(
@@ -254,7 +266,7 @@ def _fused_circles(
     core = _core()
     lo, hi = config.band_m
     tree2d = cKDTree(ref[:, :2])
-    xyz, dbh = trees.xyz.copy(), trees.fit_dbh_m.copy()
+    xyz, dbh, sigma = trees.xyz.copy(), trees.fit_dbh_m.copy(), trees.dbh_sigma_m.copy()
     for k in range(len(trees)):
         near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)]
         z = near[:, 2] - trees.base_z[k]
@@ -264,13 +276,26 @@ def _fused_circles(
         merged = _circle(core, trees.band_points[k][:, :2], features, views, view_range_m)
         x = tls[0] if merged is None else _fused(tls, merged)
         xyz[k, :2], dbh[k] = x[:2], 2 * x[2]
-    return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points)
+        # The radius is fused by its marginal variances (_fused): so is its variance.
+        var = [c[1][2, 2] for c in (tls, merged) if c is not None]
+        sigma[k] = _dbh_sigma(1.0 / sum(1.0 / max(v, 1e-12) for v in var))
+    return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, None, sigma)
 
 
-def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> PlotTrees:
-    """The stems with a DBH reported only where their breast-height circle is measured: its
+def report_dbh(
+    trees: PlotTrees,
+    reference: np.ndarray,
+    config: TreeConfig,
+    features: FeatureConfig | None = None,
+) -> PlotTrees:
+    """The stems with a DBH reported only where their breast-height circle is measured: the
+    diameter is resolved (diameter_resolved: the fit's covariance and the agreement of
+    sub-slices, a 1-sigma of at most config.max_dbh_sigma_m) and its
     points (the map's band and the reference's) cover at least config.min_dbh_coverage of
-    the circumference (coverage_tolerance_m of the circle). On a shorter arc the radius and
+    the circumference (coverage_tolerance_m of the circle). A few sparse points with range
+    noise as large as the radius (a far stem's 30-40 points, a sapling's noise smear) can be
+    fitted by circles of very different radii: the covariance says so, the coverage may not.
+    On a shorter arc the radius and
     the centre along the view trade off (the fit's covariance grows without bound) and the fit
     follows the noise: on the 7 generated bench plots, stems seen on less than a quarter of
     their circumference were off by up to 14 cm (a 2 cm sapling fitted 12 cm, edge stems 30 m
@@ -280,10 +305,39 @@ def report_dbh(trees: PlotTrees, reference: np.ndarray, config: TreeConfig) -> P
         return trees
     points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
     cover = circumference_coverage(points, trees, config)
-    dbh = np.where(cover >= config.min_dbh_coverage, trees.fit_dbh_m, np.nan)
+    resolved = diameter_resolved(trees, config, features)
+    dbh = np.where((cover >= config.min_dbh_coverage) & resolved, trees.fit_dbh_m, np.nan)
     return PlotTrees(
-        trees.xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, trees.fit_dbh_m
+        trees.xyz,
+        dbh,
+        trees.dbh_std_m,
+        trees.base_z,
+        trees.band_points,
+        trees.fit_dbh_m,
+        trees.dbh_sigma_m,
     )
+
+
+def diameter_resolved(
+    trees: PlotTrees, config: TreeConfig, features: FeatureConfig | None = None
+) -> np.ndarray:
+    """Per stem (K,) bool: both estimates of its diameter's 1-sigma are at most
+    config.max_dbh_sigma_m and (with features) the diameter stands clear of the circle fit's
+    lower bound (features.min_diameter_m) by that precision: a circle fitted at the bound is
+    held there by the bound, not by the points (a 2 cm sapling's noise smear fits the
+    smallest circle allowed, or one a little larger). The two estimates of the 1-sigma:
+    (1) the fit's covariance (dbh_sigma_m; NaN: not computed, not judged). It comes from
+    the inliers within the fit's 2 cm threshold, so on sparse points with centimetre noise
+    it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for a diameter 5 cm
+    off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
+    sqrt(4): independent points of the same section must agree; fewer than two sub-slices
+    that hold a circle (NaN) do not resolve it."""
+    sub = trees.dbh_std_m / 2.0
+    cov_ok = ~(trees.dbh_sigma_m > config.max_dbh_sigma_m)
+    ok = cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
+    if features is not None:
+        ok &= trees.fit_dbh_m >= features.min_diameter_m + config.max_dbh_sigma_m
+    return ok
 
 
 def _band_slab(points: np.ndarray, base_z: np.ndarray, band_m) -> np.ndarray:
