@@ -51,7 +51,8 @@ def main(bags: list[str]) -> str:
     if wide:
         g = _core.perception_segment_ground(np.vstack(wide), ground_cfg)
         add(g.is_ground, g.grid.z)
-        return f"{digest.hexdigest()} (map cloud: {int(np.asarray(g.is_ground).sum())} ground points)"
+        ground = int(np.asarray(g.is_ground).sum())
+        return f"{digest.hexdigest()} (map cloud: {ground} ground points)"
     return digest.hexdigest()
 
 
