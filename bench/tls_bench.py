@@ -415,7 +415,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
     dbh_err = dbh_err[np.isfinite(dbh_err)]  # stems the map gives no DBH (counted below)
     ia_t, ib_t = match(ref_trees.xyz[:, :2], truth_xy_tls, 0.5)
     # The TLS alone under the same DBH reporting rule as the merged map.
-    ref_reported = report_dbh(ref_trees, np.zeros((0, 3)), cfg.trees)
+    ref_reported = report_dbh(ref_trees, np.zeros((0, 3)), cfg.trees, cfg.features)
     # Completeness, so that a better score cannot come from leaving hard stems out: the true
     # stems the TLS alone finds but the merged map does not, and the merged map's detections
     # that match no true stem.
