@@ -290,17 +290,16 @@ def report_dbh(
 ) -> PlotTrees:
     """The stems with a DBH reported only where their breast-height circle is measured: the
     diameter is resolved (diameter_resolved: the fit's covariance and the agreement of
-    sub-slices, a 1-sigma of at most config.max_dbh_sigma_m) and its
-    points (the map's band and the reference's) cover at least config.min_dbh_coverage of
-    the circumference (coverage_tolerance_m of the circle). A few sparse points with range
-    noise as large as the radius (a far stem's 30-40 points, a sapling's noise smear) can be
-    fitted by circles of very different radii: the covariance says so, the coverage may not.
-    On a shorter arc the radius and
-    the centre along the view trade off (the fit's covariance grows without bound) and the fit
-    follows the noise: on the 7 generated bench plots, stems seen on less than a quarter of
-    their circumference were off by up to 14 cm (a 2 cm sapling fitted 12 cm, edge stems 30 m
-    out with one-sided points). Such a stem keeps its position; its dbh_m is NaN, its
-    fitted circle stays in fit_dbh_m."""
+    sub-slices, a 1-sigma of at most config.max_dbh_sigma_m) and its points (the map's band
+    and the reference's) cover at least config.min_dbh_coverage of the circumference
+    (coverage_tolerance_m of the circle).
+    A few sparse points with range noise as large as the radius (a far stem's 30-40 points, a
+    sapling's noise smear) can be fitted by circles of very different radii: the covariance
+    says so, the coverage may not. On a shorter arc the radius and the centre along the view
+    trade off (the fit's covariance grows without bound) and the fit follows the noise: on the
+    7 generated bench plots, stems seen on less than a quarter of their circumference were off
+    by up to 14 cm (a 2 cm sapling fitted 12 cm, edge stems 30 m out with one-sided points).
+    Such a stem keeps its position; its dbh_m is NaN, its fitted circle stays in fit_dbh_m."""
     if len(trees) == 0:
         return trees
     points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
