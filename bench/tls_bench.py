@@ -407,7 +407,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
 
     views = (run.views, (cfg.map.frame_min_range_m, cfg.map.frame_max_range_m))
     merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views)
-    merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features, *views)
+    merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
     ia, ib = match(merged.xyz[:, :2], truth_xy_tls, 0.5)
     pos_err = np.linalg.norm(merged.xyz[ia, :2] - truth_xy_tls[ib], axis=1)

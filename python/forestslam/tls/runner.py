@@ -109,7 +109,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
     write_cloud(out_dir / "plot.laz", run.map_points)
     views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
     trees = plot_trees(run.map_points, config.trees, config.features, *views)
-    trees = fuse_with_reference(trees, run.reference, config.trees, config.features, *views)
+    trees = fuse_with_reference(trees, run.reference, config.trees, config.features)
     cov_tls = circumference_coverage(run.reference, trees, config.trees)
     cov_merged = circumference_coverage(run.map_points, trees, config.trees)
     obs = observations(trees, run.frame_centres, cov_tls > 0)

@@ -28,7 +28,9 @@ class PlotTrees:
     diameters, base_z (K,) ground height, band_points list of (Mi,3), fit_dbh_m (K,) the
     diameter of the fitted breast-height circle (always finite: the stem's extent for
     coverage, observations and drawing), dbh_sigma_m (K,) its 1-sigma from the fit's own
-    covariance (2 x the radius standard deviation; NaN: not known)."""
+    covariance (2 x the radius standard deviation; NaN: not known), circle_cov (K,3,3) that
+    covariance of [centre x, centre y, radius] (inf: no fit), kept so that the fusion with
+    the reference does not fit the same band points again."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -37,12 +39,15 @@ class PlotTrees:
     band_points: list[np.ndarray]
     fit_dbh_m: np.ndarray | None = None
     dbh_sigma_m: np.ndarray | None = None
+    circle_cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.fit_dbh_m is None:
             self.fit_dbh_m = np.array(self.dbh_m, dtype=np.float64, copy=True)
         if self.dbh_sigma_m is None:
             self.dbh_sigma_m = np.full(len(self.dbh_m), np.nan)
+        if self.circle_cov is None:
+            self.circle_cov = np.full((len(self.dbh_m), 3, 3), np.inf)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -100,7 +105,7 @@ def plot_trees(
     lo, hi = config.band_m
     points = _band_slab(points, base, config.band_m)
     tree2d = cKDTree(points[:, :2])
-    xyz, dbh, dbh_std, sigma, bases, bands = [], [], [], [], [], []
+    xyz, dbh, dbh_std, covs, bases, bands = [], [], [], [], [], []
     for s in range(len(stems)):
         idx = tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15)
         near = points[idx]
@@ -123,7 +128,7 @@ def plot_trees(
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * fit.radius)
         dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
-        sigma.append(_dbh_sigma(np.asarray(fit.covariance)[2, 2]))
+        covs.append(np.asarray(fit.covariance))
         bases.append(base[s])
         bands.append(band)
     return PlotTrees(
@@ -132,7 +137,8 @@ def plot_trees(
         dbh_std_m=np.array(dbh_std),
         base_z=np.array(bases),
         band_points=bands,
-        dbh_sigma_m=np.array(sigma),
+        dbh_sigma_m=np.array([_dbh_sigma(c[2, 2]) for c in covs]),
+        circle_cov=np.array(covs).reshape(-1, 3, 3),
     )
 
 
@@ -204,11 +210,10 @@ def view_origins(
     return np.where(count[:, None] > 0, xy + mean, xy + n)
 
 
-def _circle(core, band_xy: np.ndarray, features: FeatureConfig, views=None, view_range_m=None):
-    """[centre x, centre y, radius] (3,) of the robust circle fit of band points (M,2) (with
-    views: under range noise, see breast_circle) and its covariance (3,3) (CircleFit.covariance:
-    from the inliers), or None without a valid fit."""
-    fit = breast_circle(core, band_xy, features, views, view_range_m or (0.0, np.inf))
+def _circle(core, band_xy: np.ndarray, features: FeatureConfig):
+    """[centre x, centre y, radius] (3,) of the robust circle fit of band points (M,2) and its
+    covariance (3,3) (CircleFit.covariance: from the inliers), or None without a valid fit."""
+    fit = breast_circle(core, band_xy, features)
     if fit is None:
         return None
     x = np.array([*np.asarray(fit.centre), fit.radius])
@@ -235,8 +240,6 @@ def fuse_with_reference(
     reference: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig,
-    views: np.ndarray | None = None,
-    view_range_m: tuple[float, float] = (0.0, np.inf),
 ) -> PlotTrees:
     """The merged map's stems with each breast-height circle (centre and DBH) fused with the
     TLS reference's own circle at the same stem, weighted by the inverse covariance of each
@@ -246,9 +249,10 @@ def fuse_with_reference(
     map's wider one.
     Without a TLS fit the merged circle stands; without a merged fit the TLS one. Then a DBH
     is reported only for a circle measured along enough of its circumference (report_dbh).
-    views, view_range_m: the walk's scanner positions, as given to plot_trees."""
+    The merged circle is plot_trees' own (under range noise when it was given the walk's
+    scanner positions), not fitted again."""
     ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
-    fused = _fused_circles(trees, ref, config, features, views, view_range_m)
+    fused = _fused_circles(trees, ref, config, features)
     return report_dbh(fused, ref, config, features)
 
 
@@ -257,8 +261,6 @@ def _fused_circles(
     ref: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig,
-    views: np.ndarray | None,
-    view_range_m: tuple[float, float],
 ) -> PlotTrees:
     """fuse_with_reference's circles, from the reference's points at band heights ref (R,3)."""
     if len(trees) == 0 or len(ref) == 0:
@@ -273,13 +275,22 @@ def _fused_circles(
         tls = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
         if tls is None:
             continue
-        merged = _circle(core, trees.band_points[k][:, :2], features, views, view_range_m)
+        merged = _band_circle(trees, k)
         x = tls[0] if merged is None else _fused(tls, merged)
         xyz[k, :2], dbh[k] = x[:2], 2 * x[2]
         # The radius is fused by its marginal variances (_fused): so is its variance.
         var = [c[1][2, 2] for c in (tls, merged) if c is not None]
         sigma[k] = _dbh_sigma(1.0 / sum(1.0 / max(v, 1e-12) for v in var))
     return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, None, sigma)
+
+
+def _band_circle(trees: PlotTrees, k: int):
+    """Stem k's breast-height circle as plot_trees fitted it ([centre x, centre y, radius] (3,),
+    covariance (3,3)), or None when its covariance is not known."""
+    cov = trees.circle_cov[k]
+    if not np.all(np.isfinite(cov)):
+        return None
+    return np.array([trees.xyz[k, 0], trees.xyz[k, 1], 0.5 * trees.fit_dbh_m[k]]), cov
 
 
 def report_dbh(
