@@ -161,3 +161,46 @@ def test_packets_decoded_by_the_profile_and_a_checkpoint_after_every_query(
     assert [s.get("queries") for s in summaries] == [None, 1, 2]
     assert all(s["status"] == "running" for s in summaries)
     assert yaml.safe_load((out / "run.yaml").read_text())["summary"]["queries"] == 3
+
+
+def test_a_rejected_query_is_retried_on_more_frames(doubles, tmp_path):
+    """--retry-frames: one scan holds 16-19 trunks, too few for min_inliers 20, so every query is
+    rejected at first; the retry aggregates up to 4 keyframes (20-22 trunks) and the record says
+    so. The first scan has no earlier frame to retry with."""
+    config = tmp_path / "config.yaml"
+    config.write_text("localization:\n  min_inliers: 20\n")
+    run = run_localization(
+        "seq.bag",
+        TreeMap(doubles),
+        "vlp16",
+        tmp_path / "out",
+        config_path=config,
+        keyframe_distance_m=1.0,
+        retry_frames=4,
+    )
+    queries = json.loads((tmp_path / "out" / "localization.json").read_text())["queries"]
+    assert len(queries) == 12
+    assert queries[0]["frames"] == 1 and queries[0]["first_reason"] == ""
+    assert not queries[0]["accepted"]
+    for q in queries[1:]:
+        assert q["first_reason"] == "too few inliers"
+        assert 2 <= q["frames"] <= 4
+    accepted = [q for q in queries if q["accepted"]]
+    assert len(accepted) >= 3
+    assert all(q["frames"] > 1 for q in accepted)
+    for q in accepted:
+        truth = _pose(q["stamp"])
+        assert np.hypot(q["x"] - truth[0, 3], q["y"] - truth[1, 3]) < 0.1
+    # Without the retry the same queries are all rejected (the 1-frame answer is not relabelled).
+    plain = run_localization(
+        "seq.bag", TreeMap(doubles), "vlp16", tmp_path / "plain", config_path=config
+    )
+    assert plain.accepted == 0
+    assert all(q["frames"] == 1 and q["first_reason"] == "" for q in plain.queries)
+
+
+def test_retry_frames_must_exceed_frames(doubles, tmp_path):
+    from forestslam.errors import InputError
+
+    with pytest.raises(InputError, match="retry-frames"):
+        run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path, frames=3, retry_frames=3)

@@ -37,6 +37,13 @@ def register(app: typer.Typer) -> None:
         ),
         out: OutDir = ...,
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
+        retry_frames: int = typer.Option(
+            0,
+            "--retry-frames",
+            help="When a query is rejected, retry it once on up to this many of the last "
+            "frames (> N), aggregated by odometry; each query records the frames of its "
+            "answer (0: no retry).",
+        ),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
         keyframe_distance: float | None = typer.Option(
             None,
@@ -64,6 +71,7 @@ def register(app: typer.Typer) -> None:
         tree_map = _load_map(map_path, config, save_map)
         if is_tree_table(input_path):
             _ignored_sensor(sensor, input_path)
+            _ignored_retry(retry_frames, input_path)
             _localize_table(
                 input_path, tree_map, out, every, config, gravity, start, max_scans, overwrite
             )
@@ -82,6 +90,7 @@ def register(app: typer.Typer) -> None:
             progress=not no_progress,
             keyframe_distance_m=keyframe_distance,
             overwrite=overwrite,
+            retry_frames=retry_frames,
         )
 
 
@@ -94,6 +103,17 @@ def _ignored_sensor(sensor: str | None, input_path: Path) -> None:
         )
 
 
+def _ignored_retry(retry_frames: int, input_path: Path) -> None:
+    if retry_frames:
+        import logging
+
+        logging.getLogger("forestslam.localize").warning(
+            "--retry-frames %d ignored: %s is a tree table (one frame per query)",
+            retry_frames,
+            input_path,
+        )
+
+
 def _localize_scans(input_path: Path, tree_map, sensor: str | None, out: Path, **options) -> None:
     """Queries from the scans of a bag, folder or cloud (run_localization's options)."""
     from forestslam.errors import InputError
@@ -103,8 +123,14 @@ def _localize_scans(input_path: Path, tree_map, sensor: str | None, out: Path, *
     from forestslam.localization.runner import run_localization
 
     r = run_localization(input_path, tree_map, sensor, out, **options)
+    retried = [q for q in r.queries if q["first_reason"]]
+    retry = (
+        f" ({sum(q['accepted'] for q in retried)} of them on a retry with more frames)"
+        if options.get("retry_frames")
+        else ""
+    )
     print(
-        f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted, "
+        f"{r.scans} scans, {len(r.queries)} queries, {r.accepted} accepted{retry}, "
         f"median {r.median_query_ms:.2f} ms per query ({tree_map}) -> {r.out_dir}"
     )
 

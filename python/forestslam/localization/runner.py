@@ -8,6 +8,12 @@ leaves valid files up to its last query.
 
 With ``keyframe_distance_m`` > 0 the N frames of a query are the current scan and the N-1 latest
 earlier scans at least that far apart (a wider view); 0 means the last N scans.
+
+With ``retry_frames`` R > N, a rejected query is tried once more on the last R frames (as many as
+the sequence has given so far), aggregated by odometry like N: the machine told "rejected" waits
+for more trunks, and these are the trunks it has already driven past. The record says which
+answer it is: ``frames`` (the frames of the answer) and ``first_reason`` (why the N-frame query
+was rejected; "" when not retried).
 """
 
 from __future__ import annotations
@@ -49,10 +55,14 @@ class LocalizationRun:
         return float(np.median([q["time_ms"] for q in self.queries])) if self.queries else 0.0
 
 
-def _query_record(stamp: float, scan: int, trunks: int, loc: Localization) -> dict:
+def _query_record(
+    stamp: float, scan: int, trunks: int, loc: Localization, frames: int = 1, first_reason: str = ""
+) -> dict:
     return {
         "stamp": float(stamp),
         "scan": int(scan),
+        "frames": int(frames),
+        "first_reason": first_reason,
         "accepted": loc.accepted,
         "x": float(loc.x),
         "y": float(loc.y),
@@ -165,11 +175,13 @@ def run_localization(
     progress: bool = False,
     keyframe_distance_m: float | None = None,
     overwrite: bool = False,
+    retry_frames: int = 0,
 ) -> LocalizationRun:
     """Localize along the scans of ``input_path`` in the map; writes the two output files.
 
     The local frame of a query is the sensor frame of its last scan; the pose written is that
-    sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame.
+    sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame. ``retry_frames``
+    > ``frames``: a rejected query is retried once on up to that many frames (0: never).
     """
     from forestslam.config_utils import to_dict
     from forestslam.job import Progress, ScanWindow
@@ -177,6 +189,10 @@ def run_localization(
 
     if frames < 1 or every < 1:
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
+    if retry_frames != 0 and retry_frames <= frames:
+        raise InputError(
+            f"--retry-frames must be 0 (off) or more than --frames (got {retry_frames}, {frames})"
+        )
     window = ScanWindow(start, max_scans)
     root, cfg = _load_config(config_path, keyframe_distance_m)
     profile = load_profile(sensor)
@@ -188,13 +204,14 @@ def run_localization(
         **map_meta(map_path, tree_map),
         "sensor": profile.name,
         "frames": frames,
+        "retry_frames": retry_frames,
         "every": every,
         "keyframe_distance_m": cfg.keyframe_distance_m,
         **window.meta(),
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
         "config": {"localization": to_dict(cfg)},
     }
-    query = _QuerySetup(tree_map, profile, root, cfg, frames, every, meta)
+    query = _QuerySetup(tree_map, profile, root, cfg, frames, every, meta, retry_frames)
 
     def loop(run: LocalizationRun) -> None:
         bar = Progress(count, "scan", "localize", enabled=progress)
@@ -218,29 +235,37 @@ class _QuerySetup:
     frames: int
     every: int
     meta: dict
+    retry_frames: int = 0  # > frames: a rejected query is retried on up to this many frames
+
+    @property
+    def window_frames(self) -> int:
+        """Frames kept for a query: the current scan and window_frames - 1 earlier ones."""
+        return max(self.frames, self.retry_frames)
 
 
 def _make_odometry(q: _QuerySetup):
-    """Odometry for aggregated queries (frames > 1), else None."""
-    if q.frames <= 1:
+    """Odometry for aggregated queries (frames or retry_frames > 1), else None."""
+    if q.window_frames <= 1:
         return None
     try:
         from forestslam.odometry import Odometry
     except ImportError as exc:
-        raise ProcessingError(f"--frames {q.frames} needs odometry, not available: {exc}") from exc
+        raise ProcessingError(
+            f"{q.window_frames} frames per query need odometry, not available: {exc}"
+        ) from exc
     return Odometry(
         q.profile, getattr(q.root, "odometry", None), getattr(q.root, "perception", None)
     )
 
 
 def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar) -> None:
-    """The query loop: stems per scan (odometry when frames > 1), a query when due."""
+    """The query loop: stems per scan (odometry when several frames), a query when due."""
     from forestslam.perception import detect
 
     odometry = _make_odometry(q)
-    # Earlier frames of the query window (keyframes at least keyframe_distance_m apart); the
-    # current scan is always the last frame of a query.
-    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=q.frames - 1)
+    # Earlier frames (keyframes at least keyframe_distance_m apart); the current scan is always
+    # the last frame of a query.
+    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=q.window_frames - 1)
     for i, scan in enumerate(scans, start=first):
         run.scans += 1
         bar.update(1, queries=len(run.queries), accepted=run.accepted)
@@ -254,17 +279,33 @@ def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar
         else:
             continue
         xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
-        local = None
-        if due and len(window) == q.frames - 1:
-            frames_xy = [w[0] for w in window] + [xy]
-            local = aggregate_stems(frames_xy, [w[1] for w in window] + [T], q.cfg)
-        if q.frames > 1 and (
+        record = None
+        if due and len(window) >= q.frames - 1:
+            record = _query(q, list(window), xy, T, scan.stamp, i)
+        if q.window_frames > 1 and (
             not window
             or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= q.cfg.keyframe_distance_m
         ):
             window.append((xy, T))
-        if local is None:
+        if record is None:
             continue
-        loc = localize(q.tree_map, local, q.cfg)
-        run.queries.append(_query_record(scan.stamp, i, len(local), loc))
+        run.queries.append(record)
         run.query_done()
+
+
+def _query(q: _QuerySetup, earlier: list, xy: np.ndarray, T: np.ndarray, stamp, scan) -> dict:
+    """The record of one query: the current scan and the last frames - 1 earlier frames; when
+    rejected and retry_frames asks for more than that, once more on up to retry_frames."""
+
+    def attempt(n: int) -> tuple[Localization, int, int]:
+        frames = earlier[len(earlier) - (n - 1) :] if n > 1 else []
+        local = aggregate_stems([f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg)
+        return localize(q.tree_map, local, q.cfg), len(local), len(frames) + 1
+
+    loc, trunks, used = attempt(q.frames)
+    first_reason = ""
+    if loc.rejected and q.retry_frames > q.frames and len(earlier) >= q.frames:
+        first_reason = loc.reason
+        loc, trunks, used = attempt(min(q.retry_frames, len(earlier) + 1))
+        log.debug("scan %d: rejected (%s), retried on %d frames", scan, first_reason, used)
+    return _query_record(stamp, scan, trunks, loc, used, first_reason)
