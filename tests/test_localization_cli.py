@@ -169,7 +169,7 @@ def test_a_rejected_query_is_retried_on_more_frames(doubles, tmp_path):
     so. The first scan has no earlier frame to retry with."""
     config = tmp_path / "config.yaml"
     config.write_text("localization:\n  min_inliers: 20\n")
-    run = run_localization(
+    run_localization(
         "seq.bag",
         TreeMap(doubles),
         "vlp16",
