@@ -9,12 +9,11 @@ the local frame of the query is the levelled frame of pose k.
 from __future__ import annotations
 
 import logging
-import math
 
 import numpy as np
 
 from forestslam.errors import InputError
-from forestslam.geometry import rot_z, transform_points
+from forestslam.geometry import pose3, rot_z, transform_points, yaw_of
 from forestslam.io.tree_tables import TreeTable, level_rotation
 
 log = logging.getLogger(__name__)
@@ -70,8 +69,7 @@ def table_map_xy(
 def reference_level(T_world_frame: np.ndarray) -> np.ndarray:
     """R_level_frame from a reference pose: the rotation that removes its roll and pitch."""
     R = np.asarray(T_world_frame, dtype=np.float64)[:3, :3]
-    yaw = math.atan2(R[1, 0], R[0, 0])
-    return rot_z(yaw).T @ R
+    return rot_z(float(yaw_of(R))).T @ R
 
 
 def query_xy(
@@ -101,7 +99,7 @@ def query_trees(
         R = np.eye(3)
     else:
         raise InputError(f"gravity must be stems, reference or none, not {gravity!r}")
-    xy = (xyz @ R.T)[:, :2]
+    xy = transform_points(pose3(R), xyz)[:, :2]
     near = np.hypot(xy[:, 0], xy[:, 1]) <= max_range_m
     return xy[near], np.asarray(table.dbh_m[rows], dtype=np.float64)[near], R
 
@@ -109,8 +107,7 @@ def query_trees(
 def true_planar_pose(table: TreeTable, k: int, R_level: np.ndarray) -> tuple[float, float, float]:
     """Reference (x, y, yaw) of the levelled frame of pose k in the world frame."""
     T = table.poses[int(k)]
-    M = T[:3, :3] @ R_level.T
-    return float(T[0, 3]), float(T[1, 3]), math.atan2(M[1, 0], M[0, 0])
+    return float(T[0, 3]), float(T[1, 3]), float(yaw_of(T[:3, :3] @ R_level.T))
 
 
 def run_table_localization(
