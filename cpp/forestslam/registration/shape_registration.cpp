@@ -120,51 +120,44 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
     checkPairs("consensusPairs", pairs, source.rows(), target.rows());
     const int n = static_cast<int>(pairs.size());
     const double thr2 = config.inlier_threshold_m * config.inlier_threshold_m;
-    // The pairs' XY positions, gathered once (every candidate pose scores all of them).
-    std::vector<Eigen::Vector2d> src(static_cast<size_t>(n)), tgt(static_cast<size_t>(n));
-    for (int k = 0; k < n; ++k) {
-        src[static_cast<size_t>(k)] = source.row(pairs[k].first).head<2>().transpose();
-        tgt[static_cast<size_t>(k)] = target.row(pairs[k].second).head<2>().transpose();
-    }
-    // Inliers of `pose`; false (and stopped early) once it cannot reach `at_least` of them.
-    auto score = [&](const Eigen::Vector3d &pose, size_t at_least, std::vector<int> &inliers,
-                     double &sse) {
+    auto xy = [](const Eigen::Ref<const Points3> &p, int i) -> Eigen::Vector2d {
+        return p.row(i).head<2>().transpose();
+    };
+    auto score = [&](const Eigen::Vector3d &pose, std::vector<int> &inliers, double &sse) {
         const Eigen::Rotation2Dd R(pose.z());
         inliers.clear();
         sse = 0.0;
         for (int k = 0; k < n; ++k) {
-            if (inliers.size() + static_cast<size_t>(n - k) < at_least) return false;
             const Eigen::Vector2d r =
-                R * src[static_cast<size_t>(k)] + pose.head<2>() - tgt[static_cast<size_t>(k)];
+                R * xy(source, pairs[k].first) + pose.head<2>() - xy(target, pairs[k].second);
             const double e = r.squaredNorm();
             if (e <= thr2) {
                 inliers.push_back(k);
                 sse += e;
             }
         }
-        return true;
     };
     Eigen::Vector3d best_pose = poseToPlanar(T_init);
     std::vector<int> best, cand;
     double best_sse = 0.0, sse = 0.0;
-    score(best_pose, 0, best, best_sse);
+    score(best_pose, best, best_sse);
     int tried = 0;
     for (int a = 0; a < n && tried < config.max_consensus_pairs; ++a) {
         for (int b = a + 1; b < n && tried < config.max_consensus_pairs; ++b) {
-            const size_t ua = static_cast<size_t>(a), ub = static_cast<size_t>(b);
-            const Eigen::Vector2d s = src[ub] - src[ua];
-            const Eigen::Vector2d t = tgt[ub] - tgt[ua];
+            const Eigen::Vector2d s = xy(source, pairs[b].first) - xy(source, pairs[a].first);
+            const Eigen::Vector2d t = xy(target, pairs[b].second) - xy(target, pairs[a].second);
             if (std::abs(s.norm() - t.norm()) > config.consensus_tolerance_m) continue;
             if (s.norm() < 2.0 * config.consensus_tolerance_m) continue;  // direction ill-defined
             ++tried;
             const double yaw = std::atan2(t.y(), t.x()) - std::atan2(s.y(), s.x());
             const Eigen::Rotation2Dd R(yaw);
-            const Eigen::Vector2d mid_s = 0.5 * (src[ua] + src[ub]);
-            const Eigen::Vector2d mid_t = 0.5 * (tgt[ua] + tgt[ub]);
+            const Eigen::Vector2d mid_s =
+                0.5 * (xy(source, pairs[a].first) + xy(source, pairs[b].first));
+            const Eigen::Vector2d mid_t =
+                0.5 * (xy(target, pairs[a].second) + xy(target, pairs[b].second));
             const Eigen::Vector3d pose(mid_t.x() - (R * mid_s).x(), mid_t.y() - (R * mid_s).y(),
                                        std::atan2(std::sin(yaw), std::cos(yaw)));
-            // A candidate with fewer inliers than the best never wins: scoring stops there.
-            if (!score(pose, best.size(), cand, sse)) continue;
+            score(pose, cand, sse);
             if (cand.size() > best.size() || (cand.size() == best.size() && sse < best_sse)) {
                 best = cand;
                 best_sse = sse;
