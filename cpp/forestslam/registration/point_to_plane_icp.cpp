@@ -102,9 +102,6 @@ NormalEquations linearise(const PlaneTarget &target, const Points3 &source, cons
     const double max_d2 = max_d * max_d;
     NormalEquations eq;
     Eigen::Matrix<double, 1, 6> J;
-    // H and b summed in locals element by element, in the order of Eigen's outer products
-    // (`H += w * J^T J`, `b += w * r * J^T`): the same sums, without a 6x6 product per point.
-    double H[6][6] = {}, b[6] = {};
     for (Eigen::Index i = 0; i < source.rows(); ++i) {
         const Eigen::Vector3d p = source.row(i).transpose();
         double d2 = 0.0;
@@ -114,18 +111,10 @@ NormalEquations linearise(const PlaneTarget &target, const Points3 &source, cons
             pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
         const double a = std::abs(r);
         const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
-        const double wr = w * r;
-        for (int u = 0; u < 6; ++u) {
-            const double wJ = w * J(u);
-            for (int v = 0; v < 6; ++v) H[u][v] += wJ * J(v);
-            b[u] += wr * J(u);
-        }
+        eq.H.noalias() += w * J.transpose() * J;
+        eq.b.noalias() += w * r * J.transpose();
         eq.sse += w * r * r;
         ++eq.used;
-    }
-    for (int u = 0; u < 6; ++u) {
-        for (int v = 0; v < 6; ++v) eq.H(u, v) = H[u][v];
-        eq.b(u) = b[u];
     }
     return eq;
 }
