@@ -99,48 +99,99 @@ double tukeyWeight(double e, double c) {
     return t * t;
 }
 
+// One pass of refineGeometric over the rows at (c, r): Tukey weights, normal equations and
+// the weighted cost. Written exactly as the separate passes it replaces (same expressions in
+// the same order), so the refinement stays bit-identical.
+struct GeoLinearization {
+    std::vector<double> w;
+    Eigen::Matrix3d JtJ;
+    Eigen::Vector3d Jte;
+    double wsum, cost;
+};
+
+// Normal equations J^T W J, J^T W e of a 3-parameter fit, summed element by element in the
+// order of Eigen's products (a generic 3x3 product through Eigen cost most of the refinement
+// on small arcs), so the sums are bit-identical to `JtJ += w * J * J.transpose()`.
+struct NormalSums {
+    double jtj[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    double jte[3] = {0, 0, 0};
+
+    // += wJ J^T and wJ e for one residual e with gradient J (wJ = w * J).
+    void addOuter(const Eigen::Vector3d &wJ, const Eigen::Vector3d &J, double e) {
+        for (int j = 0; j < 3; ++j)
+            for (int i = 0; i < 3; ++i) jtj[i][j] += wJ(i) * J(j);
+        for (int i = 0; i < 3; ++i) jte[i] += wJ(i) * e;
+    }
+    // += w J^T J and w J^T e for two residuals e with a 2x3 Jacobian J.
+    void addNormal(double w, const Eigen::Matrix<double, 2, 3> &J, const Eigen::Vector2d &e) {
+        double wJt[3][2];
+        for (int i = 0; i < 3; ++i) wJt[i][0] = w * J(0, i), wJt[i][1] = w * J(1, i);
+        for (int j = 0; j < 3; ++j)
+            for (int i = 0; i < 3; ++i) jtj[i][j] += wJt[i][0] * J(0, j) + wJt[i][1] * J(1, j);
+        for (int i = 0; i < 3; ++i) jte[i] += wJt[i][0] * e(0) + wJt[i][1] * e(1);
+    }
+    void store(Eigen::Matrix3d &JtJ, Eigen::Vector3d &Jte) const {
+        for (int i = 0; i < 3; ++i) {
+            for (int j = 0; j < 3; ++j) JtJ(i, j) = jtj[i][j];
+            Jte(i) = jte[i];
+        }
+    }
+};
+
+// Weighted cost of (c, r) under the weights `w_old` (returned), and the linearization there.
+double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, double tukey_c,
+                          const Eigen::Vector2d &c, double r, const std::vector<double> *w_old,
+                          GeoLinearization &lin) {
+    // Sums in locals: stores through lin.w would otherwise alias them.
+    NormalSums sums;
+    double wsum = 0, cost = 0, old_cost = 0;
+    double *w_new = lin.w.data();
+    for (size_t k = 0; k < pts.size(); ++k) {
+        const Eigen::Vector2d dvec = pts[k] - c;
+        const double dist = dvec.norm();
+        const double e = dist - r;
+        if (w_old != nullptr) old_cost += (*w_old)[k] * e * e;
+        const double w = w_new[k] = tukeyWeight(e, tukey_c);
+        wsum += w;
+        cost += w * e * e;
+        if (w == 0.0 || dist == 0.0) continue;
+        const Eigen::Vector3d J(-dvec.x() / dist, -dvec.y() / dist, -1.0);
+        sums.addOuter(w * J, J, e);
+    }
+    sums.store(lin.JtJ, lin.Jte);
+    lin.wsum = wsum;
+    lin.cost = cost;
+    return old_cost;
+}
+
 // Geometric LM on (cx, cy, r) minimising sum w_i (|p_i - c| - r)^2, Tukey weights with scale
-// `tukey_c` re-evaluated every iteration (IRLS).
+// `tukey_c` re-evaluated every iteration (IRLS). A trial step's cost (under the current
+// weights) and the linearization at it come from one pass: an accepted step is the next
+// iteration's starting point.
 void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
                      double tukey_c, int iterations, Eigen::Vector2d &c, double &r) {
     double lambda = 1e-3;
-    auto cost = [&](const Eigen::Vector2d &cc, double rr, const std::vector<double> &w) {
-        double s = 0;
-        for (size_t k = 0; k < rows.size(); ++k) {
-            const double e = (xy.row(rows[k]).transpose() - cc).norm() - rr;
-            s += w[k] * e * e;
-        }
-        return s;
-    };
-    std::vector<double> w(rows.size());
+    GeoLinearization cur{std::vector<double>(rows.size()), Eigen::Matrix3d::Zero(),
+                         Eigen::Vector3d::Zero(), 0, 0};
+    GeoLinearization trial = cur;
+    std::vector<Eigen::Vector2d> pts(rows.size());  // the rows, contiguous
+    for (size_t k = 0; k < rows.size(); ++k) pts[k] = xy.row(rows[k]).transpose();
+    linearizeGeometric(pts, tukey_c, c, r, nullptr, cur);
     for (int it = 0; it < iterations; ++it) {
-        Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-        Eigen::Vector3d Jte = Eigen::Vector3d::Zero();
-        double wsum = 0;
-        for (size_t k = 0; k < rows.size(); ++k) {
-            const Eigen::Vector2d dvec = xy.row(rows[k]).transpose() - c;
-            const double dist = dvec.norm();
-            const double e = dist - r;
-            w[k] = tukeyWeight(e, tukey_c);
-            wsum += w[k];
-            if (w[k] == 0.0 || dist == 0.0) continue;
-            const Eigen::Vector3d J(-dvec.x() / dist, -dvec.y() / dist, -1.0);
-            JtJ += w[k] * J * J.transpose();
-            Jte += w[k] * J * e;
-        }
-        if (wsum < 3.0) return;
-        const double before = cost(c, r, w);
+        if (cur.wsum < 3.0) return;
+        const double before = cur.cost;
         bool improved = false;
         for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
-            Eigen::Matrix3d A = JtJ;
+            Eigen::Matrix3d A = cur.JtJ;
             A.diagonal() *= (1.0 + lambda);
-            const Eigen::Vector3d step = A.ldlt().solve(-Jte);
+            const Eigen::Vector3d step = A.ldlt().solve(-cur.Jte);
             if (!step.allFinite()) return;
             const Eigen::Vector2d cn = c + step.head<2>();
             const double rn = r + step(2);
-            if (rn > 0 && cost(cn, rn, w) <= before) {
+            if (rn > 0 && linearizeGeometric(pts, tukey_c, cn, rn, &cur.w, trial) <= before) {
                 c = cn;
                 r = rn;
+                std::swap(cur, trial);
                 lambda = std::max(lambda * 0.3, 1e-9);
                 improved = true;
                 if (step.norm() < 1e-9) return;
@@ -159,6 +210,13 @@ std::vector<int> inliersOf(const Eigen::Ref<const Points2> &xy, const std::vecto
         if (std::abs((xy.row(i).transpose() - c).norm() - r) <= threshold) in.push_back(i);
     }
     return in;
+}
+
+size_t inlierCount(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                   const Eigen::Vector2d &c, double r, double threshold) {
+    size_t count = 0;
+    for (int i : rows) count += std::abs((xy.row(i).transpose() - c).norm() - r) <= threshold;
+    return count;
 }
 
 void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, CircleFit &fit) {
@@ -233,7 +291,10 @@ CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {
     return fit;
 }
 
-CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
+namespace {
+
+// fitCircle without its quality figures (finish): fitCircleRays replaces them when it refines.
+CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
     CircleFit fit;
     const std::vector<int> rows = finiteIndices(xy);
     const int n = static_cast<int>(rows.size());
@@ -255,9 +316,10 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
                          xy.row(rows[s]).transpose(), c, r) ||
             !inBounds(r))
             continue;
-        std::vector<int> in = inliersOf(xy, rows, c, r, thr);
-        if (in.size() > best.size()) {
-            best.swap(in);
+        // Count first: most candidates lose, and only a winner's rows are kept.
+        if (inlierCount(xy, rows, c, r, thr) <= best.size()) continue;
+        {
+            best = inliersOf(xy, rows, c, r, thr);
             const double w = static_cast<double>(best.size()) / n;
             const double p_fail = 1.0 - w * w * w;
             if (p_fail <= 1e-12) break;
@@ -287,7 +349,14 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
     fit.centre = c;
     fit.radius = r;
     fit.inlier_indices = inliersOf(xy, rows, c, r, thr);
-    finish(xy, opt, fit);
+    return fit;
+}
+
+}  // namespace
+
+CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
+    CircleFit fit = robustFit(xy, opt);
+    if (fit.valid) finish(xy, opt, fit);
     return fit;
 }
 
@@ -299,8 +368,10 @@ struct RayPoint {
     double range;                 // measured range (in the plane)
 };
 
-Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x, double sr, double st,
-                            Eigen::Matrix<double, 2, 3> *J = nullptr) {
+// Not inlined: GCC's inlined copy in the refinement loop ran 5 % slower (measured).
+[[gnu::noinline]] Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x,
+                                              double sr, double st,
+                                              Eigen::Matrix<double, 2, 3> *J = nullptr) {
     const Eigen::Vector2d w = x.head<2>() - p.origin;
     const double a = p.dir.dot(w);
     const double d2 = std::max(0.0, w.squaredNorm() - a * a);
@@ -328,38 +399,58 @@ Eigen::Vector2d rayResidual(const RayPoint &p, const Eigen::Vector3d &x, double 
 
 double cauchyWeight(double e2) { return 1.0 / (1.0 + e2 / (2.5 * 2.5)); }
 
-// IRLS Levenberg-Marquardt on (cx, cy, r) with analytic Jacobians (3 parameters).
+// One pass of refineRays at x: Cauchy weights, normal equations and the weighted cost, as in
+// linearizeGeometric (same expressions in the same order as the separate passes).
+struct RayLinearization {
+    std::vector<double> w;
+    Eigen::Matrix3d JtJ;
+    Eigen::Vector3d Jte;
+    double cost;
+};
+
+double linearizeRays(const std::vector<RayPoint> &pts, double sr, double st,
+                     const Eigen::Vector3d &x, const std::vector<double> *w_old,
+                     RayLinearization &lin) {
+    NormalSums sums;
+    double cost = 0, old_cost = 0;
+    double *w_new = lin.w.data();
+    for (size_t k = 0; k < pts.size(); ++k) {
+        Eigen::Matrix<double, 2, 3> J;
+        const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st, &J);
+        const double e2 = e.squaredNorm();
+        if (w_old != nullptr) old_cost += (*w_old)[k] * e2;
+        const double w = w_new[k] = cauchyWeight(e2);
+        cost += w * e2;
+        sums.addNormal(w, J, e);
+    }
+    sums.store(lin.JtJ, lin.Jte);
+    lin.cost = cost;
+    return old_cost;
+}
+
+// IRLS Levenberg-Marquardt on (cx, cy, r) with analytic Jacobians (3 parameters); trial cost
+// and next linearization in one pass, as in refineGeometric.
 bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iterations,
                 Eigen::Vector3d &x) {
     double lambda = 1e-3;
-    auto cost = [&](const Eigen::Vector3d &xx, const std::vector<double> &w) {
-        double s = 0;
-        for (size_t k = 0; k < pts.size(); ++k)
-            s += w[k] * rayResidual(pts[k], xx, sr, st).squaredNorm();
-        return s;
-    };
-    std::vector<double> w(pts.size());
+    RayLinearization cur{std::vector<double>(pts.size()), Eigen::Matrix3d::Zero(),
+                         Eigen::Vector3d::Zero(), 0};
+    RayLinearization trial = cur;
+    linearizeRays(pts, sr, st, x, nullptr, cur);
     for (int it = 0; it < iterations; ++it) {
-        Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-        Eigen::Vector3d Jte = Eigen::Vector3d::Zero();
-        for (size_t k = 0; k < pts.size(); ++k) {
-            Eigen::Matrix<double, 2, 3> J;
-            const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st, &J);
-            w[k] = cauchyWeight(e.squaredNorm());
-            JtJ += w[k] * J.transpose() * J;
-            Jte += w[k] * J.transpose() * e;
-        }
-        const double before = cost(x, w);
+        const double before = cur.cost;
         bool improved = false;
         for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
-            Eigen::Matrix3d A = JtJ;
+            Eigen::Matrix3d A = cur.JtJ;
             A.diagonal() *= (1.0 + lambda);
-            const Eigen::Vector3d step = A.ldlt().solve(-Jte);
+            const Eigen::Vector3d step = A.ldlt().solve(-cur.Jte);
             if (!step.allFinite()) return false;
             const Eigen::Vector3d xn = x + step;
-            const double after = xn(2) > 0 ? cost(xn, w) : before + 1.0;
+            const double after =
+                xn(2) > 0 ? linearizeRays(pts, sr, st, xn, &cur.w, trial) : before + 1.0;
             if (after <= before) {
                 x = xn;
+                std::swap(cur, trial);
                 lambda = std::max(lambda * 0.3, 1e-9);
                 improved = true;
                 // converged: a step under a micrometre, or no cost left to gain
@@ -375,13 +466,12 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
 
 }  // namespace
 
-CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
-                        const Eigen::Ref<const Points2> &origins, const CircleFitConfig &opt) {
-    if (origins.rows() != xy.rows())
-        throw std::invalid_argument("fitCircleRays: " + std::to_string(origins.rows()) +
-                                    " view origins for " + std::to_string(xy.rows()) + " points");
-    CircleFit fit = fitCircle(xy, opt);
-    if (!fit.valid) return fit;
+namespace {
+
+// The range-model refinement of a valid orthogonal fit into `out` (its quality figures not yet
+// computed); false when the orthogonal fit stands.
+bool rayRefined(const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
+                const CircleFitConfig &opt, const CircleFit &fit, CircleFit &out) {
     // Beams of the points near the orthogonal fit (clutter stays out), range spread first
     // from the orthogonal residuals.
     std::vector<RayPoint> pts;
@@ -400,7 +490,7 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
         if (c > 0.8) facing.push_back(e);
         if (c < 0.5) grazing.push_back(e);
     }
-    if (pts.size() < 3) return fit;
+    if (pts.size() < 3) return false;
     // The range model holds when the spread lies along the beams. Where it is as wide across
     // them (bark roughness, registration jitter, dense scanners) the orthogonal fit is the
     // unbiased one, and the range model would run large (+1 cm on such arcs).
@@ -410,34 +500,49 @@ CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
     };
     if (facing.size() >= 5 && grazing.size() >= 5 &&
         median(facing) < opt.min_range_anisotropy * median(grazing))
-        return fit;
+        return false;
     const double st = std::max(opt.lateral_sigma_m, 1e-4);
     std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
                      ortho.end());
     double sr = std::max(1.4826 * ortho[ortho.size() / 2], st);
     Eigen::Vector3d x(fit.centre.x(), fit.centre.y(), fit.radius);
     for (int round = 0; round < 3; ++round) {
-        if (!refineRays(pts, sr, st, opt.refine_iterations, x)) return fit;
+        if (!refineRays(pts, sr, st, opt.refine_iterations, x)) return false;
         std::vector<double> res;
         for (const RayPoint &p : pts) res.push_back(std::abs(rayResidual(p, x, 1.0, 1.0).x()));
         std::nth_element(res.begin(), res.begin() + static_cast<long>(res.size() / 2), res.end());
         sr = std::max(1.4826 * res[res.size() / 2], st);
     }
-    if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return fit;
+    if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return false;
     // A refinement that wandered off the points is not trusted: the range model moves a
     // sound circle by about the range noise, and keeps most of its inliers.
     const double moved = std::max(2.0 * opt.inlier_threshold_m, 0.25 * fit.radius);
     if ((x.head<2>() - fit.centre).norm() > moved || std::abs(x(2) - fit.radius) > moved)
-        return fit;
-    CircleFit out = fit;
+        return false;
+    out = fit;
     out.centre = x.head<2>();
     out.radius = x(2);
     out.inlier_indices =
         inliersOf(xy, finiteIndices(xy), out.centre, out.radius, opt.inlier_threshold_m);
     if (out.inlier_indices.size() < 0.8 * static_cast<double>(fit.inlier_indices.size()))
-        return fit;
-    finish(xy, opt, out);
-    return out;
+        return false;
+    return true;
+}
+
+}  // namespace
+
+CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
+                        const Eigen::Ref<const Points2> &origins, const CircleFitConfig &opt) {
+    if (origins.rows() != xy.rows())
+        throw std::invalid_argument("fitCircleRays: " + std::to_string(origins.rows()) +
+                                    " view origins for " + std::to_string(xy.rows()) + " points");
+    CircleFit fit = robustFit(xy, opt);
+    if (!fit.valid) return fit;
+    // The orthogonal fit's quality figures only when it is the answer.
+    CircleFit out;
+    CircleFit &best = rayRefined(xy, origins, opt, fit, out) ? out : fit;
+    finish(xy, opt, best);
+    return best;
 }
 
 }  // namespace forestslam

@@ -1,6 +1,7 @@
 #include "forestslam/registration/deskew.hpp"
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -16,14 +17,19 @@ Points3 deskewPoints(const Eigen::Ref<const Points3> &points,
     const Eigen::Vector3d w = twist_per_s.tail<3>();
     const double speed = w.norm();
     const Eigen::Vector3d k = speed > 1e-12 ? Eigen::Vector3d(w / speed) : Eigen::Vector3d::Zero();
+    // Drivers that stamp a firing once give its returns one time (about 9 per time in the
+    // simulated VLP-16 scans): the rotation's cos and sin once per run of equal times.
+    double t_last = std::numeric_limits<double>::quiet_NaN(), c = 1.0, s = 0.0;
     for (Eigen::Index i = 0; i < points.rows(); ++i) {
         const double t = times(i);
         if (!std::isfinite(t)) continue;
         const Eigen::Vector3d p = points.row(i).transpose();
         Eigen::Vector3d q = p;
         if (speed > 1e-12) {
-            const double theta = t * speed;
-            const double c = std::cos(theta), s = std::sin(theta);
+            if (t != t_last) {
+                const double theta = t * speed;
+                c = std::cos(theta), s = std::sin(theta), t_last = t;
+            }
             q = p * c + k.cross(p) * s + k * (k.dot(p) * (1.0 - c));
         }
         out.row(i) = (q + t * v).transpose();
