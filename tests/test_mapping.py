@@ -75,28 +75,93 @@ def stem_scan(sensor_xy, centre, radius, rng, base_z=-1.0):
     return world - [sensor_xy[0], sensor_xy[1], 0.0]
 
 
-def test_tree_map_fuses_dbh_over_windows():
+def _pass_stem(tm, scan_dbh, n=40, tree_id=7):
+    """A sensor passes a 30 cm stem at (5, 2) in n scans; scan_dbh(i): perception's DBH."""
     rng = np.random.default_rng(4)
-    cfg = MappingConfig(dbh_window_scans=25)
-    tm = TreeMap(cfg)
     centre, radius = np.array([5.0, 2.0]), 0.15
-    for i in range(40):
+    for i in range(n):
         sensor = np.array([0.1 * i, 0.0])
         T = np.eye(4)
         T[:2, 3] = sensor
         pts = stem_scan(sensor, centre, radius, rng)
         tm.add(
-            i, T, np.array([7]), [pts], np.array([-1.0]), np.array([0.3]), np.array([0.40])
-        )  # a bad per-scan DBH: the window fit must win
+            i,
+            T,
+            np.array([tree_id]),
+            [pts],
+            np.array([-1.0]),
+            np.array([0.3]),
+            np.array([scan_dbh(i)]),
+        )
     tm.flush(None)
-    dbh, std, n = tm.dbh(7)
+
+
+def test_tree_map_fuses_dbh_over_windows():
+    tm = TreeMap(MappingConfig(dbh_window_scans=25))
+    rng = np.random.default_rng(1)
+    _pass_stem(tm, lambda i: 0.30 + rng.normal(scale=0.01))
+    # The window circles alone: two windows, on the 30 cm stem.
+    dbh, std, n = tm.window_dbh(7)
     assert n == 2
     assert dbh == pytest.approx(0.30, abs=0.01)
     assert std < 0.01
+    # The per-scan DBHs agree: their median decides, its std from their spread and the windows.
+    dbh, std, n = tm.dbh(7)
+    assert n == 2
+    assert dbh == pytest.approx(0.30, abs=0.005)
+    assert 0.001 < std < 0.006
     table = tm.table(np.array([7, 8]), np.array([[5.0, 2.0], [1.0, 1.0]]), np.array([5, 1]))
     assert table["id"].tolist() == [7]  # tree 8 has too few observations
     assert table["dbh_m"][0] == pytest.approx(dbh)
     assert table["z"][0] == pytest.approx(0.3)
+
+
+def test_tree_map_windows_decide_when_scans_disagree():
+    """Per-scan DBHs that disagree (the stem merged with a neighbour in every other scan): the
+    window circles decide."""
+    tm = TreeMap(MappingConfig(dbh_window_scans=25))
+    _pass_stem(tm, lambda i: 0.30 if i % 2 else 0.55)
+    assert tm.dbh(7)[0] == pytest.approx(tm.window_dbh(7)[0])
+    assert tm.dbh(7)[0] == pytest.approx(0.30, abs=0.01)
+
+
+def test_window_disagreement_widens_the_scan_dbh_std():
+    """Per-scan DBHs that agree on 40 cm while the window circles say 30 cm: the median
+    decides, and its std carries dbh_disagreement_share of the squared difference."""
+    cfg = MappingConfig(dbh_window_scans=25)
+    tm = TreeMap(cfg)
+    _pass_stem(tm, lambda i: 0.40)
+    dbh, std, _ = tm.dbh(7)
+    gap = dbh - tm.window_dbh(7)[0]
+    assert dbh == pytest.approx(0.40) and gap > 0.08
+    assert std == pytest.approx(np.sqrt(cfg.dbh_disagreement_share) * gap, rel=0.05)
+
+
+def test_scan_dbh_std_counts_views_not_scans():
+    """Scans of one view share their error: 8 views of 25 scans each, each view 1 cm off in
+    its own way, give the standard error of 8 views, not of 200 scans."""
+    cfg = MappingConfig(dbh_window_scans=25)
+    offsets = np.array([-1.5, -1.0, -0.5, 0.0, 0.0, 0.5, 1.0, 1.5]) * 0.01
+    tm = TreeMap(cfg)
+    for i in range(200):
+        _scan_dbh_only(tm, i, 3, 0.25 + offsets[i // 25])
+    dbh, std, _ = tm.dbh(3)
+    assert dbh == pytest.approx(0.25, abs=0.003)
+    views = 1.2533 * 1.4826 * np.median(np.abs(offsets)) / np.sqrt(8)
+    assert std == pytest.approx(views, rel=0.01)
+
+
+def test_scan_dbh_buffer_spans_the_whole_observation():
+    """More scans than the buffer holds: every other value is dropped and the stride doubled,
+    so the kept values span all scans (the first scans are the far approach views)."""
+    tm = TreeMap(MappingConfig())
+    n = 3 * TreeMap.MAX_SCAN_DBH
+    for i in range(n):
+        _scan_dbh_only(tm, i, 1, 0.2 if i < n // 2 else 0.3)
+    tree = tm.trees[1]
+    assert tree.n_scans_dbh == n and len(tree.scan_dbh) < TreeMap.MAX_SCAN_DBH
+    kept = np.asarray(tree.scan_dbh)
+    assert np.mean(kept == 0.3) == pytest.approx(0.5, abs=0.01)
 
 
 def test_points_seen_through_a_circle_mark_it_as_no_stem():
@@ -126,7 +191,7 @@ def _scan_dbh_only(tm, scan, tree_id, dbh, band=True):
     tm.add(scan, np.eye(4), np.array([tree_id]), points, np.zeros(1), np.ones(1), np.array([dbh]))
 
 
-def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
+def test_tree_map_dbh_from_scans_alone_and_ignores_unmatched():
     tm = TreeMap(MappingConfig())
     for i in range(5):
         tm.add(
@@ -139,9 +204,9 @@ def test_tree_map_falls_back_to_scan_dbh_and_ignores_unmatched():
             np.array([0.5, 0.2 + 0.01 * (i % 3)]),
         )
     dbh, std, n = tm.dbh(2)
-    # The scans agree: their median; std: their robust spread with the 2 % model floor.
+    # The scans agree: their median; std: its standard error (5 scans, fewer than one view).
     assert dbh == pytest.approx(0.21) and n == 0
-    assert std == pytest.approx(np.hypot(1.4826 * 0.01, 0.02 * 0.21))
+    assert std == pytest.approx(1.2533 * 1.4826 * 0.01 / np.sqrt(5))
     assert np.isnan(tm.dbh(5)[0])
     # Scans that disagree (a far stem merged with its neighbour in some): no DBH.
     for i in range(5, 10):
@@ -178,21 +243,23 @@ def test_no_dbh_without_stem_points_at_breast_height():
 
 def test_tree_map_drops_windows_that_disagree_with_the_scans_width():
     """A window circle 3x the stem's per-scan (silhouette) DBH is a circle through a clump: it
-    is not fused; without any agreeing window the per-scan fallback decides."""
+    is not fused into the window DBH; the per-scan DBHs, which agree, decide anyway."""
     tm = TreeMap(MappingConfig())
     for i in range(10):
         _scan_dbh_only(tm, i, 1, 0.18 + 0.002 * (i % 3))
-    # Two clump windows outvote the stem's one in the median: the scans' width decides.
+    # Two clump windows outvote the stem's one in the median: the scans' width gates them.
     tm.trees[1].measurements = [(0.55, 80.0), (0.56, 80.0), (0.19, 40.0)]
-    dbh, _, n = tm.dbh(1)
+    dbh, _, n = tm.window_dbh(1)
     assert n == 1 and dbh == pytest.approx(0.19)
+    assert tm.dbh(1)[0] == pytest.approx(0.182)
     tm.trees[1].measurements = [(0.55, 80.0)]
+    assert np.isnan(tm.window_dbh(1)[0])
     dbh, _, n = tm.dbh(1)
     assert n == 0 and dbh == pytest.approx(0.182)
     # Windows narrower than the scans' width are kept: scans that merged the stem with a
     # neighbour widen it, the windows' circle does not follow them.
     tm.trees[1].measurements = [(0.09, 40.0), (0.095, 40.0)]
-    dbh, _, n = tm.dbh(1)
+    dbh, _, n = tm.window_dbh(1)
     assert n == 2 and dbh == pytest.approx(0.0925)
 
 

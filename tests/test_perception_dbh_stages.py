@@ -94,12 +94,13 @@ def test_tree_map_dbh_from_one_sided_windows():
                 pts.append(np.c_[xy, np.full(len(xy), 1.3)])
             base = np.zeros(len(ids))
             # Perception's per-scan DBH (its silhouettes): the stem test asks for one in most
-            # scans; these windows are far narrower than 1.5x it, so it decides nothing else.
+            # scans; these windows are far narrower than 1.5x it, so it gates nothing (the
+            # window circles alone are scored: window_dbh).
             scan_dbh = np.array([2 * stems[j][1] for j in ids])
             tm.add(s, T, np.array(ids), pts, base, base + 1.3, scan_dbh)
             tm.flush(s)
         tm.flush()
-        errors[rays] = [tm.dbh(j)[0] - 2 * r for j, (_, r) in enumerate(stems)]
+        errors[rays] = [tm.window_dbh(j)[0] - 2 * r for j, (_, r) in enumerate(stems)]
     # Measured on these 2.5 m windows of 8-point views: orthogonal -5.2 cm, range model
     # -1.9 cm (a residual bias left; some windows keep the orthogonal fit when their spread
     # does not look beam-aligned, see fitCircleRays and the report of issue 15).

@@ -170,7 +170,8 @@ def test_run_slam_outputs_and_accuracy(tmp_path, monkeypatch):
     assert m["odometry"]["ate_rmse_m"] > 0.1  # the drift SLAM has to remove
     assert m["trajectory"]["ate_rmse_m"] < 0.05
     assert m["trees"]["recall"] == 1.0 and m["trees"]["precision"] == 1.0
-    assert m["trees"]["dbh_mae_m"] < 0.01  # windowed circle fits, not the noisy per-scan DBH
+    # the median of the per-scan DBHs (2 cm noise each) or the windowed circle fits
+    assert m["trees"]["dbh_mae_m"] < 0.01
     trees = read_trees_csv(out / "trees.csv")
     assert list(trees) == ["id", "x", "y", "z", "dbh_m", "dbh_std_m", "observations"]
 

@@ -319,3 +319,27 @@ TEST(RayPrimitives, SweptStemSegmentsLeaveNoGapAtTheirJoint) {
     }
     EXPECT_EQ(hits, 720);
 }
+
+TEST(RayPrimitives, GrazingRayThatClipsAPolygonCornerHitsIt) {
+    // A 7-sided stem seen edge-on: horizontal rays at breast height, 0.5 mm apart across the
+    // silhouette. A ray crosses the section exactly when its vertices lie on both sides of its
+    // line; every such ray must hit (a corner-clipping ray passes the axis closest beside a
+    // narrower side and was lost: silhouettes 1 cm too narrow on style b stems).
+    Stem s = verticalStem(0.0, 0.0, 0.2);
+    s.sides = 7;
+    s.poly_angle = 0.3;
+    const StemCoeffs coeffs(s);
+    const Eigen::MatrixX2d xy = stemSection(s, kBreastHeight, 7 * 400);
+    int crossing = 0, lost = 0;
+    for (double y = -0.26; y <= 0.26; y += 0.0005) {
+        const Ray ray = makeRay(Eigen::Vector3d(-5.0, y, kBreastHeight), Eigen::Vector3d::UnitX());
+        const bool crosses = (xy.col(1).array() > y).any() && (xy.col(1).array() < y).any();
+        Hit hit;
+        const bool hits = intersectStem(s, coeffs, ray, kInf, hit);
+        if (crosses) ++crossing;
+        if (crosses && !hits) ++lost;
+        if (!crosses) EXPECT_FALSE(hits) << y;
+    }
+    EXPECT_GT(crossing, 700);
+    EXPECT_LE(lost, 1);  // at most the one ray within a hair of a vertex
+}

@@ -131,3 +131,33 @@ TEST(Stems, NormalsOfAnotherLengthThrow) {
     // No normals at all is allowed (no cylinder).
     EXPECT_TRUE(estimateDiameter(p, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}).circle.valid);
 }
+
+TEST(Stems, SingleScanCircleWiderThanTheSeenSectionIsNotItsDbh) {
+    // One scan line across a 25 cm wide piece of a 1 m circle 10 m away (a flat fragment, or
+    // the front of a clump): no stem shows less than its diameter, so that circle is no DBH.
+    const double R = 0.5, D = 10.0, z = 1.3;
+    std::vector<Eigen::Vector3d> p;
+    for (double y = -0.125; y <= 0.125; y += 0.01)
+        p.emplace_back(D + R - std::sqrt(R * R - y * y), y, z);
+    Points3 pts(static_cast<Eigen::Index>(p.size()), 3);
+    for (size_t i = 0; i < p.size(); ++i) pts.row(static_cast<Eigen::Index>(i)) = p[i].transpose();
+    SilhouetteView view;
+    view.sensor.azimuth_step_rad = 0.001;
+    view.sensor.vertical_angles_rad = {std::atan2(z, D)};  // one line: no silhouette
+    const StemDiameter map =
+        estimateDiameter(pts, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {});
+    ASSERT_EQ(map.method, 1);  // a map cloud: no view, the circle stands
+    EXPECT_NEAR(map.dbh, 2 * R, 1e-3);
+    const StemDiameter scan =
+        estimateDiameter(pts, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
+    EXPECT_FALSE(scan.silhouette.valid);
+    EXPECT_TRUE(scan.circle.valid);  // the fit itself is kept (bench stages)
+    EXPECT_EQ(scan.method, 0);
+    EXPECT_TRUE(std::isnan(scan.dbh));
+    // Partly hidden by something nearer at its edge, a stem may show less than its diameter.
+    view.occluders = Points3(1, 3);
+    view.occluders.row(0) << 4.0, 4.0 * std::tan(0.0135), z;
+    const StemDiameter hidden =
+        estimateDiameter(pts, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
+    EXPECT_EQ(hidden.method, 1);
+}

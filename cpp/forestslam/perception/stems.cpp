@@ -459,21 +459,61 @@ DiameterFit sacCylinder(const Eigen::Ref<const Points3> &points,
     return f;
 }
 
+// Width (m) the section `p` spans as seen from the sensor at the origin: its angular extent
+// (plus one azimuth step: each edge lies on average half a step beyond its outermost return)
+// at its median range. A stem seen from outside shows its whole diameter, so no circle of it
+// can be wider; a wider one is fitted to a flat fragment or a cluster of several objects
+// (single VLP-16 scans: 60-110 cm circles on 14-34 cm stems of a clump). Infinite (no bound)
+// with < 2 points or when one of `occluders` lies within 1.5 steps beyond either edge and
+// 0.15 m nearer (the stem is partly hidden: it shows less than its diameter).
+double seenWidth(const Eigen::Ref<const Points3> &p, const Eigen::Ref<const Points3> &occluders,
+                 double step) {
+    constexpr double kNoBound = std::numeric_limits<double>::infinity();
+    if (p.rows() < 2) return kNoBound;
+    const Polar pl = polar(p);
+    const Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    auto offset = [bearing](double az) {
+        return std::atan2(std::sin(az - bearing), std::cos(az - bearing));
+    };
+    double lo = 1e9, hi = -1e9;
+    for (double az : pl.az) lo = std::min(lo, offset(az)), hi = std::max(hi, offset(az));
+    const double range = median(pl.rho);
+    const Polar po = polar(occluders);
+    for (size_t i = 0; i < po.az.size(); ++i) {
+        const double a = offset(po.az[i]);
+        const bool at_edge = (a < lo && a >= lo - 1.5 * step) || (a > hi && a <= hi + 1.5 * step);
+        if (at_edge && po.rho[i] < range - 0.15) return kNoBound;
+    }
+    return 2.0 * range * std::sin(0.5 * std::min(hi - lo + step, M_PI));
+}
+
+// A valid fit no wider than the section it was fitted to is seen (plus twice the inlier
+// threshold: range noise at the edges); a wider one is not that stem's DBH.
+bool plausible(const DiameterFit &f, double seen_width, const DiameterConfig &opt) {
+    return f.valid && 2.0 * f.radius <= seen_width + 2.0 * opt.inlier_threshold_m;
+}
+
 // The band circle is the DBH definition itself; the SAC cylinder is only the fallback: on
 // one-sided views its radius is off by several cm either way, far more on polygonal or rough
 // stems (bench/dbh_bench.py: bias -3 cm on round, +12 to +28 cm on rough stems). An accepted
-// silhouette (single scans) decides over both.
-void chooseDiameter(StemDiameter &out) {
+// silhouette (single scans) decides over both. In a single scan (`single_scan`) the cylinder
+// gives the stem centre but no DBH: on one scan's one-sided view its DBH is 10-17 cm off (MAE;
+// bench/dbh_scan_seq.py, all four loops), worse than none. Circles and cylinders wider than
+// the section is seen (`seen_width`, see seenWidth) are not chosen.
+void chooseDiameter(StemDiameter &out, bool single_scan, double seen_width,
+                    const DiameterConfig &opt) {
     const DiameterFit *best = nullptr;
-    if (out.circle.valid)
+    if (plausible(out.circle, seen_width, opt))
         best = &out.circle, out.method = 1;
-    else if (out.cylinder.valid)
+    else if (plausible(out.cylinder, seen_width, opt))
         best = &out.cylinder, out.method = 2;
     if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {
+        out.centre = best->centre;
+        if (single_scan && out.method == 2) return;
         out.dbh = 2.0 * best->radius;
         out.dbh_std = 2.0 * best->radius_std;
-        out.centre = best->centre;
     }
 }
 
@@ -491,19 +531,23 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     const Points3 band = breastHeightBand(points, mid, opt);
     out.band_points = static_cast<int>(band.rows());
     out.circle = bandCircle(band, mid, opt, view_origin);
+    double seen_width = std::numeric_limits<double>::infinity();  // bound in single scans
     if (silhouette != nullptr) {
         const double lo = mid - opt.band_max_half_m, hi = mid + opt.band_max_half_m;
         const Points3 sec = silhouette->points.rows() > 0 ? rowsBetween(silhouette->points, lo, hi)
                                                           : rowsBetween(points, lo, hi);
         const Points3 occluders = rowsBetween(silhouette->occluders, lo, hi);
         out.silhouette = silhouetteFit(sec, occluders, mid, silhouette->sensor, opt);
+        seen_width =
+            seenWidth(sec.rows() >= 2 ? sec : band, occluders, silhouette->sensor.azimuth_step_rad);
     }
     // The cylinder is the costliest estimate and only the fallback: skipped when an accepted
     // silhouette or band circle decides anyway (unless every estimate is asked for).
-    const bool cylinder_needed = opt.fit_all || !(out.silhouette.valid || out.circle.valid);
+    const bool cylinder_needed =
+        opt.fit_all || !(out.silhouette.valid || plausible(out.circle, seen_width, opt));
     if (cylinder_needed && normals.rows() == points.rows() && points.rows() >= 8)
         out.cylinder = sacCylinder(points, normals, base_z, mid, up.normalized(), band, opt);
-    chooseDiameter(out);
+    chooseDiameter(out, silhouette != nullptr, seen_width, opt);
     return out;
 }
 

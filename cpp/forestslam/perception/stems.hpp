@@ -73,7 +73,9 @@ struct StemDiameter {
     // stem's angular width per scan line seen from the sensor, r = d sin(w/2) / (1 - sin(w/2))
     // (insensitive to range noise, which makes partial-arc fits uncertain).
     DiameterFit circle, cylinder, silhouette;
-    int method = 0;  // 0 none accepted, 1 circle, 2 cylinder, 3 silhouette
+    // 0 none accepted, 1 circle, 2 cylinder (in a single scan: its centre only, dbh NaN: see
+    // chooseDiameter), 3 silhouette
+    int method = 0;
     double dbh = kNaN;
     // Expected error (1 sigma) of dbh. Silhouette: the angular sampling (each edge of the
     // width falls anywhere within one azimuth step, and every scan line shares the same
