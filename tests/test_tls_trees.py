@@ -7,7 +7,13 @@ import numpy as np
 from tls_world import stand
 
 from forestslam.tls import TlsConfig
-from forestslam.tls.trees import fuse_with_reference, plot_trees
+from forestslam.tls.trees import (
+    PlotTrees,
+    faced_share,
+    fuse_with_reference,
+    plot_trees,
+    report_dbh,
+)
 
 
 def noisy_map(trees: np.ndarray, noise_m: float, seed: int = 2) -> np.ndarray:
@@ -48,6 +54,14 @@ def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
     )
 
 
+def unscanned_config() -> TlsConfig:
+    """The config for synthetic arcs that model no scanner position: the reference's scanners
+    are not known, so the face test (trees.faced_share) has nothing to judge."""
+    cfg = TlsConfig()
+    cfg.trees.reference_scanners_xy = ()
+    return cfg
+
+
 def flat_ground(half_m: float = 4.0, step_m: float = 0.05) -> np.ndarray:
     """A flat ground grid (N,3) at z = 0 around the origin: the stems' local ground."""
     g = np.arange(-half_m, half_m, step_m)
@@ -61,7 +75,7 @@ def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_
     (the TLS arc weighs more). Stem B: the TLS saw 40 deg of it (its fit is 8 mm off), the
     map all around: the fused DBH is within 6 mm, as the map's."""
     rng = np.random.default_rng(5)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     tls_a = arc(a[:2], a[2] / 2, -np.pi / 2, np.pi / 2, 400, 0.003, rng, (0.3, 3.0))
@@ -92,7 +106,7 @@ def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumf
     determined by the points, so it keeps its position but gets no DBH (NaN), while its
     fitted circle stays in fit_dbh_m. Stem B seen on 150 deg: its DBH is reported."""
     rng = np.random.default_rng(6)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     half_a, half_b = np.radians(30), np.radians(75)
@@ -161,7 +175,7 @@ def test_a_dbh_is_reported_only_when_the_fit_resolves_the_diameter():
     the fit's covariance alone (optimistic on so few noisy points) would pass it. Stem B:
     well sampled with 5 mm noise: its DBH is reported within 1 cm."""
     rng = np.random.default_rng(3)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     a, b = (-1.5, 0.0, 0.24), (1.5, 0.0, 0.24)  # x, y, dbh
     half = np.radians(75)
     sparse = arc(a[:2], a[2] / 2, -half, half, 500, 0.02, rng, (0.3, 3.0))
@@ -182,7 +196,7 @@ def test_a_circle_held_at_the_fits_smallest_diameter_gets_no_dbh():
     stem: its noise smear is found as a stem and keeps its position but gets no DBH, since its
     circle sits at the fit's lower bound, not where its points put it; the stem keeps its DBH."""
     rng = np.random.default_rng(4)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     a, b = (-1.5, 0.0, 0.03), (1.5, 0.0, 0.24)  # x, y, dbh
     sapling = arc(a[:2], a[2] / 2, -np.pi, np.pi, 800, 0.03, rng, (0.3, 3.0))
     stem = arc(b[:2], b[2] / 2, -np.pi, np.pi, 3000, 0.005, rng, (0.3, 3.0))
@@ -195,3 +209,58 @@ def test_a_circle_held_at_the_fits_smallest_diameter_gets_no_dbh():
     assert len(small) == 1  # the smear is found as a stem...
     assert fused.fit_dbh_m[small[0]] < cfg.features.min_diameter_m + cfg.trees.max_dbh_sigma_m
     assert np.isnan(fused.dbh_m[small[0]])  # ...at the fit's bound: no DBH
+
+
+def test_a_circle_whose_centre_is_on_the_scanners_side_of_its_points_gets_no_dbh():
+    """A 1 m stem 8 m from the station (the reference's scanner, at the origin) seen on 20 deg
+    of its near face: its true circle faces the station with all its points; the mirrored
+    circle through the same points (centre on the station's side, as a fit on a noise blob
+    can bend) faces it with none, so it gives no DBH and no measured position."""
+    rng = np.random.default_rng(8)
+    cfg = TlsConfig()
+    cfg.trees.min_dbh_coverage = 0.0  # 20 deg: the face test alone decides here
+    centre, radius = np.array([8.0, 0.0]), 0.5
+    near = arc(centre, radius, np.pi - np.radians(10), np.pi + np.radians(10), 400, 0.002, rng)
+    chord_x = centre[0] - radius * np.cos(np.radians(10))
+    mirrored = np.array([2 * chord_x - centre[0], 0.0])  # reflected about the chord
+    for c, expect in ((centre, 1.0), (mirrored, 0.0)):
+        share = faced_share(near[:, :2], c, radius, [(np.zeros((1, 2)), (0.0, np.inf))], 0.03)
+        assert share == expect
+    trees = [
+        PlotTrees(
+            xyz=np.array([[c[0], c[1], 1.3]]),
+            dbh_m=np.array([2 * radius]),
+            dbh_std_m=np.array([0.002]),
+            base_z=np.zeros(1),
+            band_points=[near],
+            dbh_sigma_m=np.array([0.002]),
+            circle_cov=np.diag([1e-6, 1e-6, 1e-6])[None],
+        )
+        for c in (centre, mirrored)
+    ]
+    true, bent = (report_dbh(t, np.zeros((0, 3)), cfg.trees, cfg.features) for t in trees)
+    assert np.isfinite(true.dbh_m[0]) and true.position_measured[0]
+    assert np.isnan(bent.dbh_m[0]) and not bent.position_measured[0]
+
+
+def test_a_position_is_measured_only_within_the_stated_precision():
+    """The stem's circle passes the face test; its centre's 1-sigma decides whether its
+    position is a measurement: 5 mm is, 3 cm is not (the position is reported either way)."""
+    rng = np.random.default_rng(9)
+    cfg = TlsConfig()
+    centre = np.array([5.0, 0.0])
+    near = arc(centre, 0.15, np.pi / 2, 1.5 * np.pi, 400, 0.002, rng)
+    out = []
+    for sigma in (0.005, 0.03):
+        t = PlotTrees(
+            xyz=np.array([[5.0, 0.0, 1.3]]),
+            dbh_m=np.array([0.3]),
+            dbh_std_m=np.array([0.002]),
+            base_z=np.zeros(1),
+            band_points=[near],
+            dbh_sigma_m=np.array([0.002]),
+            circle_cov=np.diag([sigma**2, (sigma / 2) ** 2, 1e-6])[None],
+        )
+        out.append(report_dbh(t, np.zeros((0, 3)), cfg.trees, cfg.features))
+    assert out[0].position_measured[0] and not out[1].position_measured[0]
+    assert np.allclose(out[1].xyz[0, :2], centre)

@@ -179,6 +179,23 @@ class TreeConfig:
     # A diameter within this precision of the smallest fitted (features.min_diameter_m) is
     # held by that bound, not by the points: no DBH either.
     max_dbh_sigma_m: Positive = 0.015
+    # A stem's points are a face seen from outside: every point faces a scanner that saw it
+    # (its outward normal from the circle's centre points towards the scanner). A circle
+    # fitted on a noise blob can bend the other way, its centre on the scanners' side of the
+    # points (a 24 cm stem 27.6 m out fitted 10 cm; a 14.5 cm stem 31.8 m out fitted 28 cm,
+    # 23 cm off). A circle whose inliers face a scanner less often than this share gives its
+    # stem no DBH and no measured position (trees.faced_share).
+    min_faced_share: Fraction = 0.75
+    # Where the reference was scanned from, in its own frame (x, y): a single TLS scan is
+    # stored in its scanner's frame, the origin. Empty: not known; then only the mobile walk's
+    # positions are scanners for the face test (a stem whose back only the reference saw
+    # then fails it: it loses its DBH, it is not given a wrong one).
+    reference_scanners_xy: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    # A stem's position (breast-height circle centre) counts as measured when its circle
+    # passes the face test and the 1-sigma of its centre (the largest from the fit's
+    # covariance) is at most this (the stated target, Shao et al.'s stem position error). The
+    # position is always reported; trees.csv and the bench say which are measured.
+    max_position_sigma_m: Positive = 0.015
 
 
 @dataclass
