@@ -102,6 +102,11 @@ class RegistrationConfig:
     # pose (fallback); when that fails too the frame is rejected (not merged, velocity not
     # updated) and keeps the NDT-chained (else predicted) pose.
     good_real_rms_m: Positive = 0.12
+    # A frame that does not join the map (its pose not verified) between two merged frames at
+    # most this far apart in time keeps its own orientation and takes its position from them,
+    # linear in time (tls.bridging; 0: off). A walk's position changes smoothly over half a
+    # second (5 frames of a 10 Hz scanner), its orientation not (vibration).
+    bridge_max_gap_s: NonNegative = 0.5
     max_correction_m: Positive = 1.5
     max_correction_deg: Positive = 15.0
     # Coarse alignment by stem positions (pairwise-spacing vote: placement hypotheses, see
