@@ -122,6 +122,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
             "z": trees.xyz[:, 2],
             "dbh_m": trees.dbh_m,
             "dbh_std_m": trees.dbh_std_m,
+            "position_measured": trees.position_measured.astype(np.int64),
             "observations": obs,
         },
     )

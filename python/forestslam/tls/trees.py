@@ -134,7 +134,7 @@ def plot_trees(
                     sub.append(2 * f.radius)
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * fit.radius)
-        dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
+        dbh_std.append(float(np.std(sub, ddof=1)) if len(sub) >= 2 else float("nan"))
         covs.append(np.asarray(fit.covariance))
         bases.append(base[s])
         bands.append(band)
