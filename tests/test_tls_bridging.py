@@ -61,3 +61,17 @@ def test_an_unmerged_frame_between_merged_ones_takes_their_position_and_keeps_it
     assert tight[3] is frames[3] and tight[4] is frames[4]
     assert np.allclose(tight[1].T_tls_mid[:3, 3], [0.1, 0.0, 0.0])
     assert bridge_unmerged(frames, 0.0) is frames
+
+
+def test_no_position_is_bridged_across_a_relocalization():
+    """The tracking was lost between the merged frames 0 and 3 (frame 2 relocalized on the
+    reference's stems): the walk may have jumped, so frames 1 and 2 keep their own poses."""
+    frames = [
+        record(0.0, 0.0, 0.0, 0.0, True),
+        record(0.1, 2.0, 1.0, 0.0, False),
+        record(0.2, 4.0, 2.0, 0.0, False),
+        record(0.3, 4.1, 2.0, 0.0, True),
+    ]
+    frames[2].relocalized = True
+    out = bridge_unmerged(frames, 0.5)
+    assert all(a is b for a, b in zip(out, frames, strict=True))

@@ -56,7 +56,7 @@ def test_products_and_coverage(world, run, tmp_path):
     for name in ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"):
         assert (tmp_path / name).stat().st_size > 0
     lines = (tmp_path / "trees.csv").read_text().splitlines()
-    assert lines[0] == "id,x,y,z,dbh_m,dbh_std_m,observations"
+    assert lines[0] == "id,x,y,z,dbh_m,dbh_std_m,position_measured,observations"
     rows = np.array([[float(v or "nan") for v in ln.split(",")] for ln in lines[1:]])
     # Every mapped stem is a true stem with its DBH within 1.5 cm.
     assert len(rows) >= 10

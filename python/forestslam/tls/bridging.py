@@ -8,7 +8,9 @@ see opposite sides of the stems in between, and one-sided stem fits pull the LM)
 gap a walking scanner's position changes smoothly, while its orientation does not (vibration
 shakes roll and pitch from frame to frame), so such a frame keeps its own orientation and takes
 its position from the merged frames before and after it, linear in time. Frames outside a gap
-(before the first merged frame, after the last, or in a longer gap) keep their own pose.
+(before the first merged frame, after the last, or in a longer gap) keep their own pose, and so
+do the frames of a gap in which the tracking was lost (a frame relocalized on the reference's
+stems: the walk may have jumped, e.g. frames dropped by the recorder).
 """
 
 from __future__ import annotations
@@ -24,8 +26,8 @@ if TYPE_CHECKING:
 
 def bridge_unmerged(frames: list[FrameRecord], max_gap_s: float) -> list[FrameRecord]:
     """The records with every frame that did not join the map, lying between two merged frames
-    at most max_gap_s apart (registration times), moved to the position interpolated between
-    them; the rest unchanged. 0 turns it off."""
+    at most max_gap_s apart (registration times) with no relocalized frame between them, moved
+    to the position interpolated between them; the rest unchanged. 0 turns it off."""
     if max_gap_s <= 0 or len(frames) < 3:
         return frames
     t = np.array([f.stamp + f.t_mid_s for f in frames])
@@ -36,7 +38,7 @@ def bridge_unmerged(frames: list[FrameRecord], max_gap_s: float) -> list[FrameRe
         if k == 0 or k == len(merged):
             continue
         a, b = merged[k - 1], merged[k]
-        if t[b] - t[a] > max_gap_s:
+        if t[b] - t[a] > max_gap_s or any(f.relocalized for f in frames[a : b + 1]):
             continue
         w = (t[i] - t[a]) / (t[b] - t[a])
         p = (1 - w) * frames[a].T_tls_mid[:3, 3] + w * frames[b].T_tls_mid[:3, 3]
