@@ -59,6 +59,7 @@ from forestslam.tls.trees import (
     circumference_coverage,
     fuse_with_reference,
     plot_trees,
+    reference_scanners,
     report_dbh,
 )
 
@@ -407,7 +408,8 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
 
     views = (run.views, (cfg.map.frame_min_range_m, cfg.map.frame_max_range_m))
     merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views)
-    merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features)
+    scanners = reference_scanners(ref, cfg.trees, trees=merged)  # as write_products resolves
+    merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features, scanners)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
     ia, ib = match(merged.xyz[:, :2], truth_xy_tls, 0.5)
     pos_err = np.linalg.norm(merged.xyz[ia, :2] - truth_xy_tls[ib], axis=1)
@@ -418,7 +420,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
     dbh_err = dbh_err[np.isfinite(dbh_err)]  # stems the map gives no DBH (counted below)
     ia_t, ib_t = match(ref_trees.xyz[:, :2], truth_xy_tls, 0.5)
     # The TLS alone under the same DBH reporting rule as the merged map.
-    ref_reported = report_dbh(ref_trees, np.zeros((0, 3)), cfg.trees, cfg.features)
+    ref_reported = report_dbh(ref_trees, np.zeros((0, 3)), cfg.trees, cfg.features, scanners)
     # Completeness, so that a better score cannot come from leaving hard stems out: the true
     # stems the TLS alone finds but the merged map does not, and the merged map's detections
     # that match no true stem.
@@ -493,6 +495,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         "load_average_1_5_15": load,
     }
     report["unmerged"] = summary["unmerged"]
+    report["reference_scanners"] = summary["reference_scanners"]
     report["without_pose"] = summary["without_pose"]
     report["accepted_frames"] = summary["accepted"]
     report["fallback_frames"] = int(sum(f.fallback for f in run.frames))
@@ -590,6 +593,8 @@ def print_simulated(name: str, r: dict) -> None:
     print(f"CPU per stage: {stage_ms}")
     kinds = "; ".join(f"{n} {k}" for k, n in r["unmerged"].items()) or "none"
     print(f"frames not merged: {kinds} (without a pose: {r['without_pose']})")
+    scanners = r["reference_scanners"]
+    print(f"face test: reference scanners {scanners['xy'] or 'none'} ({scanners['source']})")
     blocks = (
         (
             "per_frame_same_initial_pose",

@@ -20,6 +20,7 @@ from forestslam.tls.trees import (
     fuse_with_reference,
     observations,
     plot_trees,
+    reference_scanners,
 )
 
 log = logging.getLogger(__name__)
@@ -42,6 +43,16 @@ def load_reference(path: str | Path) -> np.ndarray:
     if path.suffix.lower() in (".las", ".laz"):
         return _las_xyz(path)
     return read_cloud(path).points
+
+
+def reference_viewpoint(path: str | Path) -> np.ndarray | None:
+    """The scanner position (3,) the reference file gives in its own frame, when its format
+    has one (a .pcd VIEWPOINT); None otherwise (LAS/LAZ, PLY and bags carry none)."""
+    if Path(path).suffix.lower() != ".pcd":
+        return None
+    from forestslam.io.pcd import read_pcd_viewpoint
+
+    return read_pcd_viewpoint(path)
 
 
 def _las_xyz(path: Path) -> np.ndarray:
@@ -99,9 +110,16 @@ def parse_initial_pose(text: str | None) -> np.ndarray | None:
     return planar_pose(values[0], values[1], yaw, z)
 
 
-def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
+def write_products(
+    run: TlsRun,
+    out_dir: Path,
+    config: TlsConfig,
+    title: str = "",
+    viewpoint: np.ndarray | None = None,
+) -> dict:
     """trajectory.tum, plot.laz, trees.csv, coverage.json, unmerged.csv, plot.png; returns
-    the summary."""
+    the summary. viewpoint: the scanner position the reference file gives (reference_viewpoint;
+    see trees.reference_scanners for where the face test takes the reference's scanners)."""
     from forestslam.tls.plotting import plot_tls_run
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -109,7 +127,13 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
     write_cloud(out_dir / "plot.laz", run.map_points)
     views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
     trees = plot_trees(run.map_points, config.trees, config.features, *views)
-    trees = fuse_with_reference(trees, run.reference, config.trees, config.features)
+    scanners = reference_scanners(run.reference, config.trees, viewpoint, trees)
+    log.info(
+        "face test: reference scanners %s (%s)",
+        np.round(scanners.xy, 3).tolist() or "none",
+        scanners.source,
+    )
+    trees = fuse_with_reference(trees, run.reference, config.trees, config.features, scanners)
     cov_tls = circumference_coverage(run.reference, trees, config.trees)
     cov_merged = circumference_coverage(run.map_points, trees, config.trees)
     obs = observations(trees, run.frame_centres, cov_tls > 0)
@@ -165,6 +189,7 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         "initial_pose": run.initial_method,
         "without_pose": len(run.unplaced),
         "unmerged": unmerged_summary(run),
+        "reference_scanners": {"xy": scanners.xy.tolist(), "source": scanners.source},
     }
 
 
@@ -191,6 +216,7 @@ def run_tls_register(
     config = validate(config or TlsConfig(), "tls")
     profile = load_profile(sensor)
     reference = load_reference(reference_path)
+    viewpoint = reference_viewpoint(reference_path)
     # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
     stream, scans, count = window.open(input_path, topic, profile.packet_config())
     meta = {
@@ -212,7 +238,8 @@ def run_tls_register(
             )
         finally:
             bar.close()
-        job.summary = write_products(run, job.out, config, title=Path(input_path).name)
+        title = Path(input_path).name
+        job.summary = write_products(run, job.out, config, title, viewpoint)
         job.summary["read_stats"] = stream.stats.to_dict() if hasattr(stream, "stats") else {}
     return job.summary
 

@@ -253,6 +253,7 @@ def fuse_with_reference(
     reference: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig,
+    scanners: ReferenceScanners | None = None,
 ) -> PlotTrees:
     """The merged map's stems with each breast-height circle (centre and DBH) fused with the
     TLS reference's own circle at the same stem, weighted by the inverse covariance of each
@@ -263,10 +264,14 @@ def fuse_with_reference(
     Without a TLS fit the merged circle stands; without a merged fit the TLS one. Then a DBH
     is reported only for a circle measured along enough of its circumference (report_dbh).
     The merged circle is plot_trees' own (under range noise when it was given the walk's
-    scanner positions), not fitted again."""
-    ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    scanner positions), not fitted again. scanners: where the reference was scanned from
+    (None: reference_scanners of the whole reference and config, checked on trees)."""
+    reference = np.ascontiguousarray(reference, dtype=np.float64).reshape(-1, 3)
+    if scanners is None:
+        scanners = reference_scanners(reference, config, trees=trees)
+    ref = _band_slab(reference, trees.base_z, config.band_m)
     fused = _fused_circles(trees, ref, config, features)
-    return report_dbh(fused, ref, config, features)
+    return report_dbh(fused, ref, config, features, scanners)
 
 
 def _fused_circles(
@@ -321,6 +326,7 @@ def report_dbh(
     reference: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig | None = None,
+    scanners: ReferenceScanners | None = None,
 ) -> PlotTrees:
     """The stems with a DBH reported only where their breast-height circle is measured: the
     diameter is resolved (diameter_resolved: the fit's covariance and the agreement of
@@ -336,12 +342,18 @@ def report_dbh(
     Such a stem keeps its position; its dbh_m is NaN, its fitted circle stays in fit_dbh_m.
     A circle that is not a face seen from outside (faced_share below config.min_faced_share)
     gives no DBH and no measured position; nor does a centre whose 1-sigma exceeds
-    config.max_position_sigma_m (position_measured False; the position is still reported)."""
+    config.max_position_sigma_m (position_measured False; the position is still reported).
+    scanners: where the reference was scanned from (None: reference_scanners of reference
+    and config, without the check on the stems' points; pass them when reference is not the
+    whole reference cloud: fuse_with_reference and the runner resolve them over all stems)."""
     if len(trees) == 0:
         return trees
-    points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
+    reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    if scanners is None:  # not checked on these stems' points: a bent circle would fail it
+        scanners = reference_scanners(reference, config)
+    points = np.concatenate([np.vstack(trees.band_points), reference])
     cover = circumference_coverage(points, trees, config)
-    faced = faced_shares(trees, config) >= config.min_faced_share
+    faced = faced_shares(trees, config, scanners.xy) >= config.min_faced_share
     resolved = diameter_resolved(trees, config, features) & faced
     dbh = np.where((cover >= config.min_dbh_coverage) & resolved, trees.fit_dbh_m, np.nan)
     return PlotTrees(
@@ -370,11 +382,98 @@ def position_sigma(trees: PlotTrees) -> np.ndarray:
     return out
 
 
-def faced_shares(trees: PlotTrees, config: TreeConfig) -> np.ndarray:
+@dataclass(frozen=True)
+class ReferenceScanners:
+    """Where the reference was scanned from, as the face test uses it: xy (S,2) in the
+    reference's frame (the frame of the trees; empty: not known) and source, why (for the
+    log and run.yaml)."""
+
+    xy: np.ndarray
+    source: str
+
+
+def reference_scanners(
+    reference: np.ndarray,
+    config: TreeConfig,
+    viewpoint: np.ndarray | None = None,
+    trees: PlotTrees | None = None,
+) -> ReferenceScanners:
+    """config.reference_scanners_xy resolved for the reference (R,3): a list as given; "auto":
+    the file's scanner position viewpoint (x, y[, z]) when the reader has one, else the
+    origin when it lies inside the reference's xy extent (a single scan is stored in its
+    scanner's frame and surrounds it), else none; with trees, such a position is kept only
+    when the reference's points on their breast-height circles face it (at least
+    config.min_reference_faced_share of them: a single scan from there; a registered
+    multi-scan plot stored in one station's frame is not). A wrong position would make the
+    points the reference saw on the far sides of stems fail the face test (their stems
+    silently lose their DBH); an unknown one only leaves the reference's points unjudged."""
+    setting = config.reference_scanners_xy
+    if setting != "auto":
+        xy = np.asarray(setting, dtype=np.float64).reshape(-1, 2)
+        return ReferenceScanners(xy, "configured" if len(xy) else "none: configured empty")
+    reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    if viewpoint is not None:
+        xy = np.asarray(viewpoint, dtype=np.float64).reshape(-1)[:2].reshape(1, 2)
+        source = "auto: the reference file's scanner position (viewpoint)"
+    elif _origin_inside(reference[:, :2]):
+        xy, source = np.zeros((1, 2)), "auto: the reference frame's origin, inside its extent"
+    else:
+        extent = _extent_text(reference[:, :2]) if len(reference) else "empty"
+        return ReferenceScanners(
+            np.zeros((0, 2)),
+            f"auto: none known (the origin lies outside the reference's extent, {extent}: not "
+            "a single scan in its scanner's frame; set tls.trees.reference_scanners_xy if known)",
+        )
+    share = None if trees is None else reference_faced_share(reference, trees, xy, config)
+    if share is not None and share < config.min_reference_faced_share:
+        return ReferenceScanners(
+            np.zeros((0, 2)),
+            f"auto: none known ({source[6:]} {xy[0].tolist()} faces only {100 * share:.0f} % of "
+            "the reference's stem points: not a single scan from there, e.g. a registered "
+            "multi-scan plot; set tls.trees.reference_scanners_xy to its stations if known)",
+        )
+    faces = "" if share is None else f"; faces {100 * share:.1f} % of the reference's stem points"
+    return ReferenceScanners(xy, source + faces)
+
+
+def reference_faced_share(
+    reference: np.ndarray, trees: PlotTrees, xy: np.ndarray, config: TreeConfig
+) -> float | None:
+    """Share of the reference's points (R,3) on the stems' breast-height circles (at band
+    height, within coverage_tolerance_m) that face a station in xy (S,2) (see faced_share);
+    None: no such point."""
+    ref = _band_slab(np.asarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    if len(ref) == 0 or len(trees) == 0:
+        return None
+    tree2d, tol = cKDTree(ref[:, :2]), config.coverage_tolerance_m
+    faced = total = 0.0
+    for k in range(len(trees)):
+        r, c = 0.5 * trees.fit_dbh_m[k], trees.xyz[k, :2]
+        p = ref[tree2d.query_ball_point(c, r + tol)]
+        z = p[:, 2] - trees.base_z[k]
+        p = p[(z >= config.band_m[0]) & (z <= config.band_m[1])]
+        n = int(np.sum(np.abs(np.linalg.norm(p[:, :2] - c, axis=1) - r) <= tol))
+        if n:
+            faced += n * faced_share(p[:, :2], c, r, [(xy, (0.0, np.inf))], tol)
+            total += n
+    return faced / total if total else None
+
+
+def _origin_inside(xy: np.ndarray) -> bool:
+    """The origin lies within the xy extent (bounding box) of the points (N,2)."""
+    return bool(len(xy)) and bool(np.all(xy.min(axis=0) <= 0) and np.all(xy.max(axis=0) >= 0))
+
+
+def _extent_text(xy: np.ndarray) -> str:
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    return f"x {lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f}"
+
+
+def faced_shares(trees: PlotTrees, config: TreeConfig, stations: np.ndarray) -> np.ndarray:
     """Per stem (K,) faced_share of its circle over its band points, the scanners being the
-    walk's positions (trees.views within trees.view_range_m) and the reference's
-    (config.reference_scanners_xy, any range)."""
-    stations = np.asarray(config.reference_scanners_xy, dtype=np.float64).reshape(-1, 2)
+    walk's positions (trees.views within trees.view_range_m) and the reference's stations
+    (S,2) (reference_scanners, any range)."""
+    stations = np.asarray(stations, dtype=np.float64).reshape(-1, 2)
     views = np.zeros((0, 2)) if trees.views is None else np.asarray(trees.views).reshape(-1, 2)
     out = np.ones(len(trees))
     for k in range(len(trees)):
