@@ -69,6 +69,8 @@ def test_products_and_coverage(world, run, tmp_path):
     assert cov["mean_merged"] > cov["mean_tls"]
     assert cov["mean_tls"] <= 0.6  # a single station sees about half of each stem
     assert summary["frames"] == 4
+    # The reference is one scan in its station's frame: the face test takes the origin (run.yaml).
+    assert summary["reference_scanners"]["xy"] == [[0.0, 0.0]]
     # Every frame that did not join the map is listed with its reason.
     rows = (tmp_path / "unmerged.csv").read_text().splitlines()
     assert rows[0] == "stamp,has_pose,reason"
