@@ -125,15 +125,7 @@ def write_products(
     out_dir.mkdir(parents=True, exist_ok=True)
     write_tum(out_dir / "trajectory.tum", run.stamps, run.poses)
     write_cloud(out_dir / "plot.laz", run.map_points)
-    views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
-    trees = plot_trees(run.map_points, config.trees, config.features, *views)
-    scanners = reference_scanners(run.reference, config.trees, viewpoint, trees)
-    log.info(
-        "face test: reference scanners %s (%s)",
-        np.round(scanners.xy, 3).tolist() or "none",
-        scanners.source,
-    )
-    trees = fuse_with_reference(trees, run.reference, config.trees, config.features, scanners)
+    trees, scanners = _plot_trees(run, config, viewpoint)
     cov_tls = circumference_coverage(run.reference, trees, config.trees)
     cov_merged = circumference_coverage(run.map_points, trees, config.trees)
     obs = observations(trees, run.frame_centres, cov_tls > 0)
@@ -191,6 +183,21 @@ def write_products(
         "unmerged": unmerged_summary(run),
         "reference_scanners": {"xy": scanners.xy.tolist(), "source": scanners.source},
     }
+
+
+def _plot_trees(run: TlsRun, config: TlsConfig, viewpoint: np.ndarray | None):
+    """The merged map's stems fused with the reference's (trees.fuse_with_reference), and the
+    reference's scanner positions the face test used (trees.reference_scanners, logged)."""
+    views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
+    trees = plot_trees(run.map_points, config.trees, config.features, *views)
+    scanners = reference_scanners(run.reference, config.trees, viewpoint, trees)
+    log.info(
+        "face test: reference scanners %s (%s)",
+        np.round(scanners.xy, 3).tolist() or "none",
+        scanners.source,
+    )
+    trees = fuse_with_reference(trees, run.reference, config.trees, config.features, scanners)
+    return trees, scanners
 
 
 def run_tls_register(
