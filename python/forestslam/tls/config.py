@@ -204,9 +204,11 @@ class TreeConfig:
     reference_scanners_xy: Literal["auto"] | tuple[tuple[float, float], ...] = "auto"
     # auto keeps a position (viewpoint or origin) only when at least this share of the
     # reference's points on the stems' breast-height circles face it (trees.reference_faced_
-    # share). The single scans of the 4 bench plots measured: 99.7-99.8 % face their station,
-    # 48-84 % a station 10 m off; the real TreeLS pine plot (several scans), recentred: 37 %.
-    min_reference_faced_share: Fraction = 0.95
+    # share). Measured: the single scans of 4 bench plots 99.7-99.8 % (their station), 48-84 %
+    # (a station 10 m off); the tests' world 96.0 % (it models half of each stem as seen, a
+    # little more than a scanner sees); a two-station synthetic plot 61 %; the real TreeLS
+    # pine plot (several scans), recentred, 37 %.
+    min_reference_faced_share: Fraction = 0.9
     # A stem's position (breast-height circle centre) counts as measured when its circle
     # passes the face test and the 1-sigma of its centre (the largest from the fit's
     # covariance) is at most this (the stated target, Shao et al.'s stem position error). The
