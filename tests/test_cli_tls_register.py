@@ -32,7 +32,7 @@ def test_window_and_run_yaml(tmp_path, monkeypatch):
             on_frame(types.SimpleNamespace(accepted=True, virtual_rms_m=0.01))
         return "run"
 
-    def write_products(run, out_dir, config, title="", viewpoint=None):
+    def write_products(run, out_dir, config, title="", viewpoint=None, frame=None):
         (out_dir / "trajectory.tum").write_text("")
         return {
             "frames": len(seen),

@@ -397,6 +397,7 @@ def reference_scanners(
     config: TreeConfig,
     viewpoint: np.ndarray | None = None,
     trees: PlotTrees | None = None,
+    file_origin_xy: np.ndarray | None = None,
 ) -> ReferenceScanners:
     """config.reference_scanners_xy resolved for the reference (R,3): a list as given; "auto":
     the file's scanner position viewpoint (x, y[, z]) when the reader has one, else the
@@ -406,17 +407,21 @@ def reference_scanners(
     config.min_reference_faced_share of them: a single scan from there; a registered
     multi-scan plot stored in one station's frame is not). A wrong position would make the
     points the reference saw on the far sides of stems fail the face test (their stems
-    silently lose their DBH); an unknown one only leaves the reference's points unjudged."""
+    silently lose their DBH); an unknown one only leaves the reference's points unjudged.
+    The configured positions, viewpoint and origin are the reference file's; file_origin_xy:
+    where that file's origin lies in the frame `reference` is given in (tls.frame: minus the
+    local frame's offset; default the same frame). Returned positions are in that frame."""
+    origin = np.zeros(2) if file_origin_xy is None else np.asarray(file_origin_xy, np.float64)
     setting = config.reference_scanners_xy
     if setting != "auto":
-        xy = np.asarray(setting, dtype=np.float64).reshape(-1, 2)
+        xy = np.asarray(setting, dtype=np.float64).reshape(-1, 2) + origin
         return ReferenceScanners(xy, "configured" if len(xy) else "none: configured empty")
     reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
     if viewpoint is not None:
-        xy = np.asarray(viewpoint, dtype=np.float64).reshape(-1)[:2].reshape(1, 2)
+        xy = np.asarray(viewpoint, dtype=np.float64).reshape(-1)[:2].reshape(1, 2) + origin
         source = "auto: the reference file's scanner position (viewpoint)"
-    elif _origin_inside(reference[:, :2]):
-        xy, source = np.zeros((1, 2)), "auto: the reference frame's origin, inside its extent"
+    elif _inside_extent(reference[:, :2], origin):
+        xy, source = origin.reshape(1, 2), "auto: the reference frame's origin, inside its extent"
     else:
         extent = _extent_text(reference[:, :2]) if len(reference) else "empty"
         return ReferenceScanners(
@@ -459,12 +464,12 @@ def reference_faced_share(
     return faced / total if total else None
 
 
-def _origin_inside(xy: np.ndarray) -> bool:
-    """The origin lies within the xy extent (bounding box) of the points (N,2)."""
+def _inside_extent(xy: np.ndarray, point: np.ndarray) -> bool:
+    """The point (2,) lies within the xy extent (bounding box) of the points (N,2)."""
     if len(xy) == 0:
         return False
     lo, hi = _extent(xy)
-    return bool(np.all(lo <= 0) and np.all(hi >= 0))
+    return bool(np.all(lo <= point) and np.all(hi >= point))
 
 
 def _extent(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
