@@ -27,6 +27,26 @@ def test_local_frame_recentres_only_large_axes_in_whole_metres():
     np.testing.assert_allclose(frame.poses_out(frame.pose_in(T))[0], T, rtol=0, atol=1e-9)
 
 
+def test_face_test_takes_the_files_origin_and_positions_in_the_local_frame():
+    """reference_scanners on a recentred reference: the file's origin, viewpoint and configured
+    positions are the file's frame, the returned positions the local frame."""
+    from forestslam.tls.config import TreeConfig
+    from forestslam.tls.trees import reference_scanners
+
+    ref = reference_cloud(stand())
+    utm = LocalFrame.for_reference(ref + UTM)
+    local_ref = utm.points_in(ref + UTM)  # the station's frame again (offset = UTM)
+    file_origin = -utm.offset[:2]
+    none = reference_scanners(local_ref, TreeConfig(), file_origin_xy=file_origin)
+    assert len(none.xy) == 0 and "x 499989.0..500011.0" in none.source
+    assert np.array_equal(reference_scanners(local_ref, TreeConfig()).xy, [[0.0, 0.0]])
+    seen = reference_scanners(local_ref, TreeConfig(), UTM + [1.0, 2.0, 1.5], None, file_origin)
+    np.testing.assert_allclose(seen.xy, [[1.0, 2.0]], rtol=0, atol=1e-9)
+    config = TreeConfig(reference_scanners_xy=((500003.0, 6000004.0),))
+    listed = reference_scanners(local_ref, config, file_origin_xy=file_origin)
+    np.testing.assert_allclose(listed.xy, [[3.0, 4.0]], rtol=0, atol=1e-9)
+
+
 def _register(tmp_path, monkeypatch, name, shift, initial_pose=None):
     """run_tls_register on the tests' world (4 VLP-16 frames) with the reference (and the
     station, given as the face test's scanner) in a frame shifted by `shift`."""

@@ -423,7 +423,7 @@ def reference_scanners(
     elif _inside_extent(reference[:, :2], origin):
         xy, source = origin.reshape(1, 2), "auto: the reference frame's origin, inside its extent"
     else:
-        extent = _extent_text(reference[:, :2]) if len(reference) else "empty"
+        extent = _extent_text(reference[:, :2], origin) if len(reference) else "empty"
         return ReferenceScanners(
             np.zeros((0, 2)),
             f"auto: none known (the origin lies outside the reference's extent, {extent}: not "
@@ -431,9 +431,10 @@ def reference_scanners(
         )
     share = None if trees is None else reference_faced_share(reference, trees, xy, config)
     if share is not None and share < config.min_reference_faced_share:
+        where = (xy[0] - origin).tolist()  # the file's frame
         return ReferenceScanners(
             np.zeros((0, 2)),
-            f"auto: none known ({source[6:]} {xy[0].tolist()} faces only {100 * share:.0f} % of "
+            f"auto: none known ({source[6:]} {where} faces only {100 * share:.0f} % of "
             "the reference's stem points: not a single scan from there, e.g. a registered "
             "multi-scan plot; set tls.trees.reference_scanners_xy to its stations if known)",
         )
@@ -479,8 +480,10 @@ def _extent(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo, np.array([xy[:, k].max() for k in range(xy.shape[1])])
 
 
-def _extent_text(xy: np.ndarray) -> str:
+def _extent_text(xy: np.ndarray, origin: np.ndarray) -> str:
+    """The xy extent of the points (N,2) relative to origin (2,) (in the file's frame)."""
     lo, hi = _extent(xy)
+    lo, hi = lo - origin, hi - origin
     return f"x {lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f}"
 
 
