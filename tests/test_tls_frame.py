@@ -113,3 +113,36 @@ def test_initial_pose_is_given_in_the_utm_frame(tmp_path, monkeypatch):
     poses, _, summary, _ = _register(tmp_path, monkeypatch, "utm", UTM, initial_pose=given)
     assert summary["initial_pose"] == "given" and summary["accepted"] == 4
     np.testing.assert_allclose(poses[0, :3, 3] - UTM, truth[:3, 3], rtol=0, atol=0.01)
+
+
+def test_checkpoints_are_in_the_references_frame(tmp_path, monkeypatch):
+    """The trajectory a checkpoint writes mid-run is shifted back like the final one."""
+    import types
+
+    import forestslam.io
+    import forestslam.tls.runner as runner
+    from forestslam.io import Scan, read_tum
+    from forestslam.tls.config import TlsConfig
+
+    def register(scans, reference, config, initial_pose, on_frame=None):
+        assert abs(reference[:, :2]).max() < 20  # registered in the local frame
+        for scan in scans:
+            T = np.eye(4)
+            T[0, 3] = scan.stamp
+            on_frame(
+                types.SimpleNamespace(
+                    stamp=scan.stamp, T_tls_sensor=T, accepted=True, virtual_rms_m=0.0
+                )
+            )
+        raise RuntimeError("stopped after the checkpoints")
+
+    frames = [Scan(float(k), np.zeros((1, 3))) for k in range(4)]
+    monkeypatch.setattr(forestslam.io, "read_scans", lambda *a, **k: iter(frames))
+    monkeypatch.setattr(runner, "load_reference", lambda path: reference_cloud(stand()) + UTM)
+    monkeypatch.setattr(runner, "register_mls_to_tls", register)
+    out = tmp_path / "plot"
+    with pytest.raises(RuntimeError):
+        config = TlsConfig(checkpoint_every_frames=2)
+        runner.run_tls_register("walk.bag", "ref.laz", "vlp16", out, config=config)
+    _, poses = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(poses[:, :3, 3] - UTM, [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
