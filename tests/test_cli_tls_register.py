@@ -32,7 +32,7 @@ def test_window_and_run_yaml(tmp_path, monkeypatch):
             on_frame(types.SimpleNamespace(accepted=True, virtual_rms_m=0.01))
         return "run"
 
-    def write_products(run, out_dir, config, title=""):
+    def write_products(run, out_dir, config, title="", viewpoint=None, frame=None):
         (out_dir / "trajectory.tum").write_text("")
         return {
             "frames": len(seen),
@@ -106,7 +106,7 @@ def test_packets_decoded_by_the_profile_and_checkpoints_every_n_frames(tmp_path,
     monkeypatch.setattr(forestslam.io, "read_scans", read_scans)
     monkeypatch.setattr(runner, "load_reference", lambda path: np.zeros((5, 3)))
     monkeypatch.setattr(runner, "register_mls_to_tls", register)
-    monkeypatch.setattr(runner, "write_products", lambda run, out_dir, config, title="": {})
+    monkeypatch.setattr(runner, "write_products", lambda *_: {})
     config = TlsConfig(checkpoint_every_frames=3)
     runner.run_tls_register("walk.bag", "ref.laz", "vlp16", out, config=config)
     assert packets_seen == [load_profile("vlp16").packet_config()]

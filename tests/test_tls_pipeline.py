@@ -56,7 +56,7 @@ def test_products_and_coverage(world, run, tmp_path):
     for name in ("trajectory.tum", "plot.laz", "trees.csv", "coverage.json", "plot.png"):
         assert (tmp_path / name).stat().st_size > 0
     lines = (tmp_path / "trees.csv").read_text().splitlines()
-    assert lines[0] == "id,x,y,z,dbh_m,dbh_std_m,observations"
+    assert lines[0] == "id,x,y,z,dbh_m,dbh_std_m,position_measured,observations"
     rows = np.array([[float(v or "nan") for v in ln.split(",")] for ln in lines[1:]])
     # Every mapped stem is a true stem with its DBH within 1.5 cm.
     assert len(rows) >= 10
@@ -69,6 +69,8 @@ def test_products_and_coverage(world, run, tmp_path):
     assert cov["mean_merged"] > cov["mean_tls"]
     assert cov["mean_tls"] <= 0.6  # a single station sees about half of each stem
     assert summary["frames"] == 4
+    # The reference is one scan in its station's frame: the face test takes the origin (run.yaml).
+    assert summary["reference_scanners"]["xy"] == [[0.0, 0.0]]
     # Every frame that did not join the map is listed with its reason.
     rows = (tmp_path / "unmerged.csv").read_text().splitlines()
     assert rows[0] == "stamp,has_pose,reason"

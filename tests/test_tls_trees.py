@@ -4,10 +4,25 @@ scanner's range noise (VLP-16: 1.5 cm sigma) must still be found and measured.""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from tls_world import stand
 
+from forestslam.config_utils import from_dict
+from forestslam.errors import InputError
+from forestslam.io.pcd import write_pcd
 from forestslam.tls import TlsConfig
-from forestslam.tls.trees import fuse_with_reference, plot_trees
+from forestslam.tls.runner import reference_viewpoint
+from forestslam.tls.trees import (
+    PlotTrees,
+    faced_share,
+    fuse_with_reference,
+    plot_trees,
+    reference_scanners,
+    report_dbh,
+)
+
+# A georeferenced frame (UTM-like): the plot lies ~6000 km from the frame's origin.
+UTM = np.array([500000.0, 6000000.0, 0.0])
 
 
 def noisy_map(trees: np.ndarray, noise_m: float, seed: int = 2) -> np.ndarray:
@@ -48,6 +63,14 @@ def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
     )
 
 
+def unscanned_config() -> TlsConfig:
+    """The config for synthetic arcs that model no scanner position: the reference's scanners
+    are not known, so the face test (trees.faced_share) has nothing to judge."""
+    cfg = TlsConfig()
+    cfg.trees.reference_scanners_xy = ()
+    return cfg
+
+
 def flat_ground(half_m: float = 4.0, step_m: float = 0.05) -> np.ndarray:
     """A flat ground grid (N,3) at z = 0 around the origin: the stems' local ground."""
     g = np.arange(-half_m, half_m, step_m)
@@ -61,7 +84,7 @@ def test_fused_dbh_keeps_a_wide_tls_arc_and_takes_the_map_where_tls_saw_a_short_
     (the TLS arc weighs more). Stem B: the TLS saw 40 deg of it (its fit is 8 mm off), the
     map all around: the fused DBH is within 6 mm, as the map's."""
     rng = np.random.default_rng(5)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     tls_a = arc(a[:2], a[2] / 2, -np.pi / 2, np.pi / 2, 400, 0.003, rng, (0.3, 3.0))
@@ -92,7 +115,7 @@ def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumf
     determined by the points, so it keeps its position but gets no DBH (NaN), while its
     fitted circle stays in fit_dbh_m. Stem B seen on 150 deg: its DBH is reported."""
     rng = np.random.default_rng(6)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     ground = flat_ground()
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     half_a, half_b = np.radians(30), np.radians(75)
@@ -161,7 +184,7 @@ def test_a_dbh_is_reported_only_when_the_fit_resolves_the_diameter():
     the fit's covariance alone (optimistic on so few noisy points) would pass it. Stem B:
     well sampled with 5 mm noise: its DBH is reported within 1 cm."""
     rng = np.random.default_rng(3)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     a, b = (-1.5, 0.0, 0.24), (1.5, 0.0, 0.24)  # x, y, dbh
     half = np.radians(75)
     sparse = arc(a[:2], a[2] / 2, -half, half, 500, 0.02, rng, (0.3, 3.0))
@@ -182,7 +205,7 @@ def test_a_circle_held_at_the_fits_smallest_diameter_gets_no_dbh():
     stem: its noise smear is found as a stem and keeps its position but gets no DBH, since its
     circle sits at the fit's lower bound, not where its points put it; the stem keeps its DBH."""
     rng = np.random.default_rng(4)
-    cfg = TlsConfig()
+    cfg = unscanned_config()
     a, b = (-1.5, 0.0, 0.03), (1.5, 0.0, 0.24)  # x, y, dbh
     sapling = arc(a[:2], a[2] / 2, -np.pi, np.pi, 800, 0.03, rng, (0.3, 3.0))
     stem = arc(b[:2], b[2] / 2, -np.pi, np.pi, 3000, 0.005, rng, (0.3, 3.0))
@@ -195,3 +218,163 @@ def test_a_circle_held_at_the_fits_smallest_diameter_gets_no_dbh():
     assert len(small) == 1  # the smear is found as a stem...
     assert fused.fit_dbh_m[small[0]] < cfg.features.min_diameter_m + cfg.trees.max_dbh_sigma_m
     assert np.isnan(fused.dbh_m[small[0]])  # ...at the fit's bound: no DBH
+
+
+def near_face_and_mirror(rng, offset=np.zeros(2)):
+    """A 1 m stem 8 m from a station at offset, seen on 20 deg of its near face: the points,
+    and one-stem PlotTrees of its true circle and of the mirrored circle through the same
+    points (centre on the station's side, as a fit on a noise blob can bend)."""
+    centre, radius = np.array([8.0, 0.0]) + offset, 0.5
+    near = arc(centre, radius, np.pi - np.radians(10), np.pi + np.radians(10), 400, 0.002, rng)
+    chord_x = centre[0] - radius * np.cos(np.radians(10))
+    mirrored = np.array([2 * chord_x - centre[0], centre[1]])  # reflected about the chord
+    trees = [
+        PlotTrees(
+            xyz=np.array([[c[0], c[1], 1.3]]),
+            dbh_m=np.array([2 * radius]),
+            dbh_std_m=np.array([0.002]),
+            base_z=np.zeros(1),
+            band_points=[near],
+            dbh_sigma_m=np.array([0.002]),
+            circle_cov=np.diag([1e-6, 1e-6, 1e-6])[None],
+        )
+        for c in (centre, mirrored)
+    ]
+    return near, trees
+
+
+def test_a_circle_whose_centre_is_on_the_scanners_side_of_its_points_gets_no_dbh():
+    """A single scan stored in its scanner's frame (its ground around the origin): under the
+    default (auto) the origin is its station. A 1 m stem 8 m out seen on 20 deg of its near
+    face: its true circle faces the station with all its points; the mirrored circle through
+    the same points faces it with none, so it gives no DBH and no measured position."""
+    rng = np.random.default_rng(8)
+    cfg = TlsConfig()
+    cfg.trees.min_dbh_coverage = 0.0  # 20 deg: the face test alone decides here
+    near, trees = near_face_and_mirror(rng)
+    for t, expect in zip(trees, (1.0, 0.0), strict=True):
+        share = faced_share(
+            near[:, :2], t.xyz[0, :2], 0.5, [(np.zeros((1, 2)), (0.0, np.inf))], 0.03
+        )
+        assert share == expect
+    scan = np.concatenate([flat_ground(10.0, 0.25), near])  # around its scanner
+    true, bent = (report_dbh(t, scan, cfg.trees, cfg.features) for t in trees)
+    assert np.isfinite(true.dbh_m[0]) and true.position_measured[0]
+    assert np.isnan(bent.dbh_m[0]) and not bent.position_measured[0]
+
+
+def test_auto_takes_the_origin_only_inside_the_references_extent():
+    """auto: the origin for a cloud around it (a single scan in its scanner's frame), none for
+    one whose extent leaves it out (georeferenced, or a scan cropped off its station); a
+    configured list as given; the config takes auto, a list or an empty list only."""
+    cfg = TlsConfig().trees
+    scan = flat_ground(10.0, 0.25)
+    assert np.array_equal(reference_scanners(scan, cfg).xy, np.zeros((1, 2)))
+    for cloud in (scan + UTM, scan + [15.0, 0.0, 0.0]):
+        none = reference_scanners(cloud, cfg)
+        assert none.xy.shape == (0, 2) and "none" in none.source
+    cfg.reference_scanners_xy = ((3.0, 4.0), (-3.0, 4.0))
+    assert np.array_equal(reference_scanners(scan + UTM, cfg).xy, [[3, 4], [-3, 4]])
+    for value in ("auto", [[1.0, 2.0]], []):
+        assert from_dict(TlsConfig, {"trees": {"reference_scanners_xy": value}})
+    with pytest.raises(InputError, match="reference_scanners_xy"):
+        from_dict(TlsConfig, {"trees": {"reference_scanners_xy": "origin"}})
+
+
+def test_a_georeferenced_reference_keeps_its_dbhs_under_auto():
+    """A single scan whose points are stored georeferenced (its station ~6000 km from the
+    frame's origin): the stems it saw on their station's side keep their DBHs under the
+    default, as in the scanner's own frame (the origin would face the stems' sides, most
+    of their points would fail the face test and the stems lose their DBHs)."""
+    rng = np.random.default_rng(10)
+    cfg = TlsConfig()
+    a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh; the station at (0, 0)
+    half = np.radians(75)
+    tls_a = arc(a[:2], a[2] / 2, -half, half, 600, 0.003, rng, (0.3, 3.0))
+    tls_b = arc(b[:2], b[2] / 2, np.pi - half, np.pi + half, 600, 0.003, rng, (0.3, 3.0))
+    scan = np.concatenate([flat_ground(), tls_a, tls_b])
+    dbh = {}
+    for name, offset in (("local", np.zeros(3)), ("utm", UTM)):
+        reference = scan + offset
+        trees = plot_trees(reference, cfg.trees, cfg.features)
+        fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+        dbh[name] = fused.dbh_m[np.argsort(fused.xyz[:, 0])]
+    assert np.all(np.abs(dbh["local"] - [a[2], b[2]]) < 0.01)
+    assert np.allclose(dbh["utm"], dbh["local"], atol=1e-4)
+
+
+def test_a_registered_two_station_reference_keeps_its_dbhs_under_auto():
+    """Two TLS scans registered into the first station's frame (the second at (6, 0)): the
+    stems between them were seen on both sides. The origin lies inside the extent, but only
+    part of the reference's stem points face it, so auto takes no station and the stems keep
+    their DBHs (taking the origin, the points the second station saw on their far sides
+    would fail the face test and the stems lose their DBHs)."""
+    rng = np.random.default_rng(12)
+    cfg = TlsConfig()
+    stations = np.array([[0.0, 0.0], [6.0, 0.0]])
+    stems = np.array([[3.0, -1.5, 0.30], [3.0, 1.5, 0.24], [2.5, 0.0, 0.20]])  # x, y, dbh
+    parts = [flat_ground(8.0, 0.1)]
+    for x, y, dbh in stems:
+        for s in stations:
+            towards, half = np.arctan2(s[1] - y, s[0] - x), np.radians(75)
+            a0, a1 = towards - half, towards + half
+            parts.append(arc((x, y), dbh / 2, a0, a1, 500, 0.003, rng, (0.3, 3.0)))
+    reference = np.concatenate(parts)
+    trees = plot_trees(reference, cfg.trees, cfg.features)
+    scanners = reference_scanners(reference, cfg.trees, trees=trees)
+    assert scanners.xy.shape == (0, 2) and "multi-scan" in scanners.source
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    order = np.argsort(fused.xyz[:, 1])
+    assert len(fused) == 3
+    assert np.all(np.abs(fused.dbh_m[order] - stems[[0, 2, 1], 2]) < 0.01)
+    cfg.trees.reference_scanners_xy = tuple(map(tuple, stations))  # the stations, as listed
+    listed = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    assert np.array_equal(listed.dbh_m, fused.dbh_m)
+
+
+def test_a_pcd_viewpoint_is_the_station_of_a_georeferenced_scan(tmp_path):
+    """A georeferenced .pcd whose VIEWPOINT gives its station: auto takes it, so the face
+    test still judges the reference's points (the mirrored circle fails, the true passes);
+    PCL's default VIEWPOINT 0 0 0 gives none."""
+    rng = np.random.default_rng(11)
+    cfg = TlsConfig()
+    cfg.trees.min_dbh_coverage = 0.0
+    near, trees = near_face_and_mirror(rng, UTM[:2])
+    cloud = np.zeros(len(near), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    for k, name in enumerate("xyz"):
+        cloud[name] = near[:, k]
+    path = tmp_path / "station.pcd"
+    write_pcd(path, cloud)
+    assert reference_viewpoint(path) is None  # PCL's default: no information
+    blob = path.read_bytes().replace(b"VIEWPOINT 0 0 0", b"VIEWPOINT 500000 6000000 1.5", 1)
+    path.write_bytes(blob)
+    viewpoint = reference_viewpoint(path)
+    assert np.allclose(viewpoint, [500000.0, 6000000.0, 1.5])
+    scanners = reference_scanners(near, cfg.trees, viewpoint)
+    assert np.allclose(scanners.xy, [UTM[:2]]) and "viewpoint" in scanners.source
+    true, bent = (report_dbh(t, near, cfg.trees, cfg.features, scanners) for t in trees)
+    assert np.isfinite(true.dbh_m[0]) and true.position_measured[0]
+    assert np.isnan(bent.dbh_m[0]) and not bent.position_measured[0]
+
+
+def test_a_position_is_measured_only_within_the_stated_precision():
+    """The stem's circle passes the face test; its centre's 1-sigma decides whether its
+    position is a measurement: 5 mm is, 3 cm is not (the position is reported either way)."""
+    rng = np.random.default_rng(9)
+    cfg = TlsConfig()
+    centre = np.array([5.0, 0.0])
+    near = arc(centre, 0.15, np.pi / 2, 1.5 * np.pi, 400, 0.002, rng)
+    out = []
+    for sigma in (0.005, 0.03):
+        t = PlotTrees(
+            xyz=np.array([[5.0, 0.0, 1.3]]),
+            dbh_m=np.array([0.3]),
+            dbh_std_m=np.array([0.002]),
+            base_z=np.zeros(1),
+            band_points=[near],
+            dbh_sigma_m=np.array([0.002]),
+            circle_cov=np.diag([sigma**2, (sigma / 2) ** 2, 1e-6])[None],
+        )
+        out.append(report_dbh(t, np.zeros((0, 3)), cfg.trees, cfg.features))
+    assert out[0].position_measured[0] and not out[1].position_measured[0]
+    assert np.allclose(out[1].xyz[0, :2], centre)

@@ -108,8 +108,13 @@ def check_value(hint: Any, value: Any, where: str) -> Any:
         if value is None and type(None) in args:
             return None
         options = [a for a in args if a is not type(None)]
-        if len(options) != 1:
-            raise TypeError(f"{where}: unsupported field type {hint}")
+        if len(options) != 1:  # e.g. Literal["auto"] | tuple[...]: the first that takes it
+            for option in options:
+                try:
+                    return check_value(option, value, where)
+                except InputError:
+                    continue
+            raise _fail(where, value, " or ".join(_describe(o) for o in options))
         return check_value(Annotated[(options[0], *ranges)] if ranges else options[0], value, where)
     if value is None:
         raise _fail(where, value, f"{_describe(hint)} (null is not allowed)")

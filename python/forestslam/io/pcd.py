@@ -124,6 +124,19 @@ def read_pcd(path: str | Path) -> np.ndarray:
     raise InputError(f"{path}: unsupported PCD DATA {kind!r}")
 
 
+def read_pcd_viewpoint(path: str | Path) -> np.ndarray | None:
+    """The scanner position (3,) a .pcd header's VIEWPOINT gives (tx ty tz, in the cloud's
+    frame); None when it has none, or PCL's default 0 0 0 (written whatever the origin)."""
+    with Path(path).open("rb") as f:
+        blob = f.read(1 << 16)  # the header: a few hundred bytes
+    try:
+        header, _ = _parse_header(Path(path), blob)
+        t = np.array([float(v) for v in header.get("VIEWPOINT", [])[:3]])
+    except (InputError, ValueError):
+        return None
+    return t if len(t) == 3 and np.all(np.isfinite(t)) and np.any(t != 0) else None
+
+
 _PCD_TYPE = {"f": "F", "i": "I", "u": "U"}
 
 

@@ -102,6 +102,11 @@ class RegistrationConfig:
     # pose (fallback); when that fails too the frame is rejected (not merged, velocity not
     # updated) and keeps the NDT-chained (else predicted) pose.
     good_real_rms_m: Positive = 0.12
+    # A frame that does not join the map (its pose not verified) between two merged frames at
+    # most this far apart in time keeps its own orientation and takes its position from them,
+    # linear in time (tls.bridging; 0: off). A walk's position changes smoothly over half a
+    # second (5 frames of a 10 Hz scanner), its orientation not (vibration).
+    bridge_max_gap_s: NonNegative = 0.5
     max_correction_m: Positive = 1.5
     max_correction_deg: Positive = 15.0
     # Coarse alignment by stem positions (pairwise-spacing vote: placement hypotheses, see
@@ -179,6 +184,36 @@ class TreeConfig:
     # A diameter within this precision of the smallest fitted (features.min_diameter_m) is
     # held by that bound, not by the points: no DBH either.
     max_dbh_sigma_m: Positive = 0.015
+    # A stem's points are a face seen from outside: every point faces a scanner that saw it
+    # (its outward normal from the circle's centre points towards the scanner). A circle
+    # fitted on a noise blob can bend the other way, its centre on the scanners' side of the
+    # points (a 24 cm stem 27.6 m out fitted 10 cm; a 14.5 cm stem 31.8 m out fitted 28 cm,
+    # 23 cm off). A circle whose inliers face a scanner less often than this share gives its
+    # stem no DBH and no measured position (trees.faced_share).
+    min_faced_share: Fraction = 0.75
+    # Where the reference was scanned from, in its own frame (x, y), for the face test
+    # (trees.reference_scanners). "auto": the scanner position the file gives (a PCD
+    # VIEWPOINT other than PCL's default 0 0 0), else the origin of the reference's frame when
+    # it lies inside the reference's xy extent (a single TLS scan is stored in its scanner's
+    # frame and surrounds it), else not known (a georeferenced cloud, e.g. UTM, lies far from
+    # its origin); either kept only when the reference's stem points face it (below). A list:
+    # these positions (a registered multi-scan plot: its stations).
+    # Empty, or auto finding none: not known; then only the mobile walk's positions are
+    # scanners for the face test (a stem whose back only the reference saw then fails it: it
+    # loses its DBH, it is not given a wrong one). The choice is logged and in run.yaml.
+    reference_scanners_xy: Literal["auto"] | tuple[tuple[float, float], ...] = "auto"
+    # auto keeps a position (viewpoint or origin) only when at least this share of the
+    # reference's points on the stems' breast-height circles face it (trees.reference_faced_
+    # share). Measured: the single scans of 4 bench plots 99.7-99.8 % (their station), 48-84 %
+    # (a station 10 m off); the tests' world 96.0 % (it models half of each stem as seen, a
+    # little more than a scanner sees); a two-station synthetic plot 61 %; the real TreeLS
+    # pine plot (several scans), recentred, 37 %.
+    min_reference_faced_share: Fraction = 0.9
+    # A stem's position (breast-height circle centre) counts as measured when its circle
+    # passes the face test and the 1-sigma of its centre (the largest from the fit's
+    # covariance) is at most this (the stated target, Shao et al.'s stem position error). The
+    # position is always reported; trees.csv and the bench say which are measured.
+    max_position_sigma_m: Positive = 0.015
 
 
 @dataclass

@@ -40,6 +40,7 @@ from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
+from forestslam.tls.bridging import bridge_unmerged
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
     FrameFeatures,
@@ -676,7 +677,7 @@ class _Walk:
             raise ProcessingError(_unplaced_message(self.seen, self.init))
         self.gmap.flush()
         return TlsRun(
-            frames=self.frames,
+            frames=bridge_unmerged(self.frames, self.config.registration.bridge_max_gap_s),
             map_points=self.gmap.points,
             reference=self.ref,
             frame_centres=self.centres,
@@ -1017,7 +1018,7 @@ def unmerged_summary(run: TlsRun) -> dict[str, int]:
     parenthesis or colon detail, so similar reasons count together)."""
     out: dict[str, int] = {}
     for _, reason in unmerged_frames(run):
-        kind = reason.split(" (")[0].split(": ")[0] if reason else "unknown"
+        kind = reason.split("; ")[0].split(" (")[0].split(": ")[0] if reason else "unknown"
         out[kind] = out.get(kind, 0) + 1
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 

@@ -14,12 +14,14 @@ from forestslam.io import Scan, read_cloud, read_scans, write_cloud, write_trees
 from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
 from forestslam.tls.config import TlsConfig
+from forestslam.tls.frame import LocalFrame
 from forestslam.tls.pipeline import TlsRun, register_mls_to_tls, unmerged_csv, unmerged_summary
 from forestslam.tls.trees import (
     circumference_coverage,
     fuse_with_reference,
     observations,
     plot_trees,
+    reference_scanners,
 )
 
 log = logging.getLogger(__name__)
@@ -42,6 +44,16 @@ def load_reference(path: str | Path) -> np.ndarray:
     if path.suffix.lower() in (".las", ".laz"):
         return _las_xyz(path)
     return read_cloud(path).points
+
+
+def reference_viewpoint(path: str | Path) -> np.ndarray | None:
+    """The scanner position (3,) the reference file gives in its own frame, when its format
+    has one (a .pcd VIEWPOINT); None otherwise (LAS/LAZ, PLY and bags carry none)."""
+    if Path(path).suffix.lower() != ".pcd":
+        return None
+    from forestslam.io.pcd import read_pcd_viewpoint
+
+    return read_pcd_viewpoint(path)
 
 
 def _las_xyz(path: Path) -> np.ndarray:
@@ -99,29 +111,41 @@ def parse_initial_pose(text: str | None) -> np.ndarray | None:
     return planar_pose(values[0], values[1], yaw, z)
 
 
-def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "") -> dict:
+def write_products(
+    run: TlsRun,
+    out_dir: Path,
+    config: TlsConfig,
+    title: str = "",
+    viewpoint: np.ndarray | None = None,
+    frame: LocalFrame | None = None,
+) -> dict:
     """trajectory.tum, plot.laz, trees.csv, coverage.json, unmerged.csv, plot.png; returns
-    the summary."""
+    the summary. viewpoint: the scanner position the reference file gives (reference_viewpoint;
+    see trees.reference_scanners for where the face test takes the reference's scanners).
+    frame: the local frame `run` is in (tls.frame); the products are in the reference's."""
     from forestslam.tls.plotting import plot_tls_run
 
+    frame = frame or LocalFrame.identity()
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_tum(out_dir / "trajectory.tum", run.stamps, run.poses)
-    write_cloud(out_dir / "plot.laz", run.map_points)
-    views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
-    trees = plot_trees(run.map_points, config.trees, config.features, *views)
-    trees = fuse_with_reference(trees, run.reference, config.trees, config.features)
+    poses = frame.poses_out(run.poses)
+    map_points = frame.points_out(run.map_points)
+    write_tum(out_dir / "trajectory.tum", run.stamps, poses)
+    write_cloud(out_dir / "plot.laz", map_points)
+    trees, scanners = _plot_trees(run, config, viewpoint, frame)
     cov_tls = circumference_coverage(run.reference, trees, config.trees)
     cov_merged = circumference_coverage(run.map_points, trees, config.trees)
     obs = observations(trees, run.frame_centres, cov_tls > 0)
+    tree_xyz = frame.points_out(trees.xyz)
     write_trees_csv(
         out_dir / "trees.csv",
         {
             "id": np.arange(len(trees)),
-            "x": trees.xyz[:, 0],
-            "y": trees.xyz[:, 1],
-            "z": trees.xyz[:, 2],
+            "x": tree_xyz[:, 0],
+            "y": tree_xyz[:, 1],
+            "z": tree_xyz[:, 2],
             "dbh_m": trees.dbh_m,
             "dbh_std_m": trees.dbh_std_m,
+            "position_measured": trees.position_measured.astype(np.int64),
             "observations": obs,
         },
     )
@@ -139,13 +163,13 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
     atomic_write_text(out_dir / "unmerged.csv", unmerged_csv(run))
     plot_tls_run(
         out_dir / "plot.png",
-        run.map_points,
-        trees.xyz,
+        map_points,
+        tree_xyz,
         trees.dbh_m,
         cov_tls,
         cov_merged,
-        run.poses,
-        trees.base_z,
+        poses,
+        trees.base_z + frame.offset[2],
         title=title or "MLS + TLS plot",
     )
     frames = run.frames
@@ -164,7 +188,26 @@ def write_products(run: TlsRun, out_dir: Path, config: TlsConfig, title: str = "
         "initial_pose": run.initial_method,
         "without_pose": len(run.unplaced),
         "unmerged": unmerged_summary(run),
+        "reference_scanners": {"xy": frame.xy_out(scanners.xy).tolist(), "source": scanners.source},
+        "local_frame_offset": frame.offset.tolist(),
     }
+
+
+def _plot_trees(run: TlsRun, config: TlsConfig, viewpoint: np.ndarray | None, frame: LocalFrame):
+    """The merged map's stems fused with the reference's (trees.fuse_with_reference), and the
+    reference's scanner positions the face test used (trees.reference_scanners, logged), in
+    the run's local frame."""
+    views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
+    trees = plot_trees(run.map_points, config.trees, config.features, *views)
+    origin = -frame.offset[:2]
+    scanners = reference_scanners(run.reference, config.trees, viewpoint, trees, origin)
+    log.info(
+        "face test: reference scanners %s (%s)",
+        np.round(frame.xy_out(scanners.xy), 3).tolist() or "none",
+        scanners.source,
+    )
+    trees = fuse_with_reference(trees, run.reference, config.trees, config.features, scanners)
+    return trees, scanners
 
 
 def run_tls_register(
@@ -190,6 +233,9 @@ def run_tls_register(
     config = validate(config or TlsConfig(), "tls")
     profile = load_profile(sensor)
     reference = load_reference(reference_path)
+    frame = LocalFrame.for_reference(reference)  # shifted in here, products shifted back
+    reference = frame.points_in(reference)
+    viewpoint = reference_viewpoint(reference_path)
     # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
     stream, scans, count = window.open(input_path, topic, profile.packet_config())
     meta = {
@@ -204,19 +250,21 @@ def run_tls_register(
     inputs = [input_path, reference_path]
     with Job("tls-register", out_dir, meta, inputs=inputs, overwrite=overwrite) as job:
         bar = Progress(count, "frame", "tls-register", enabled=progress)
-        frame_done = _frame_done(job, config, bar, on_frame)
+        frame_done = _frame_done(job, config, bar, on_frame, frame)
+        T_init = frame.pose_in(initial_pose)
         try:
             run = register_mls_to_tls(
-                with_rings(scans, profile), reference, config, initial_pose, on_frame=frame_done
+                with_rings(scans, profile), reference, config, T_init, on_frame=frame_done
             )
         finally:
             bar.close()
-        job.summary = write_products(run, job.out, config, title=Path(input_path).name)
+        title = Path(input_path).name
+        job.summary = write_products(run, job.out, config, title, viewpoint, frame)
         job.summary["read_stats"] = stream.stats.to_dict() if hasattr(stream, "stats") else {}
     return job.summary
 
 
-def _frame_done(job, config: TlsConfig, bar, on_frame):
+def _frame_done(job, config: TlsConfig, bar, on_frame, frame: LocalFrame):
     """The per-frame callback: progress, the caller's `on_frame`, and a checkpoint every
     config.checkpoint_every_frames frames (trajectory.tum of the frames registered so far and
     run.yaml with their counts; the final outputs replace both)."""
@@ -227,7 +275,7 @@ def _frame_done(job, config: TlsConfig, bar, on_frame):
 
     def write_trajectory() -> None:
         done = sorted(records, key=lambda r: r.stamp)
-        poses = np.array([r.T_tls_sensor for r in done]).reshape(-1, 4, 4)
+        poses = frame.poses_out(np.array([r.T_tls_sensor for r in done]))
         write_tum(job.out / "trajectory.tum", np.array([r.stamp for r in done]), poses)
 
     def frame_done(record) -> None:

@@ -30,7 +30,11 @@ class PlotTrees:
     coverage, observations and drawing), dbh_sigma_m (K,) its 1-sigma from the fit's own
     covariance (2 x the radius standard deviation; NaN: not known), circle_cov (K,3,3) that
     covariance of [centre x, centre y, radius] (inf: no fit), kept so that the fusion with
-    the reference does not fit the same band points again."""
+    the reference does not fit the same band points again. views (P,2) and view_range_m: the
+    mobile scanner positions the points were seen from (see plot_trees; None: none), for the
+    face test (faced_share). position_measured (K,) bool: the position is a measurement
+    (report_dbh: the circle passes the face test and its centre's 1-sigma is within
+    TreeConfig.max_position_sigma_m); None: not judged yet."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -40,6 +44,9 @@ class PlotTrees:
     fit_dbh_m: np.ndarray | None = None
     dbh_sigma_m: np.ndarray | None = None
     circle_cov: np.ndarray | None = None
+    views: np.ndarray | None = None
+    view_range_m: tuple[float, float] = (0.0, np.inf)
+    position_measured: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.fit_dbh_m is None:
@@ -98,7 +105,7 @@ def plot_trees(
     )
     if len(stems) == 0:
         empty = np.zeros(0)
-        return PlotTrees(np.zeros((0, 3)), empty, empty, empty, [])
+        return PlotTrees(np.zeros((0, 3)), empty, empty, empty, [], views=views)
     grid = ground_grid(points, config.ground_cell_m)
     base = ground_at(grid, stems[:, :2])
     core = _core()
@@ -127,7 +134,7 @@ def plot_trees(
                     sub.append(2 * f.radius)
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * fit.radius)
-        dbh_std.append(float(np.std(sub)) if len(sub) >= 2 else float("nan"))
+        dbh_std.append(float(np.std(sub, ddof=1)) if len(sub) >= 2 else float("nan"))
         covs.append(np.asarray(fit.covariance))
         bases.append(base[s])
         bands.append(band)
@@ -139,6 +146,8 @@ def plot_trees(
         band_points=bands,
         dbh_sigma_m=np.array([_dbh_sigma(c[2, 2]) for c in covs]),
         circle_cov=np.array(covs).reshape(-1, 3, 3),
+        views=views,
+        view_range_m=view_range_m,
     )
 
 
@@ -221,18 +230,22 @@ def _circle(core, band_xy: np.ndarray, features: FeatureConfig):
     return (x, cov) if np.all(np.isfinite(cov)) else None
 
 
-def _fused(a, b) -> np.ndarray:
+def _fused(a, b) -> tuple[np.ndarray, np.ndarray]:
     """Two circle estimates (x (3,), covariance (3,3)) fused: the centre information-weighted
     over the full covariances (the other view fixes what a one-sided fit leaves open: the
     centre along the view), the radius by its marginal variances. The mobile points' fits
     shrink without the scanner positions (range noise on one-sided arcs, see breast_circle),
     a bias their covariance does not carry; through the centre-radius correlation the full
-    fusion would hand it to the TLS radius too (DBH RMSE higher on 5 of the 7 bench plots)."""
+    fusion would hand it to the TLS radius too (DBH RMSE higher on 5 of the 7 bench plots).
+    Returns x (3,) and its covariance (3,3): the information-fused one, the radius variance
+    from the marginal fusion."""
     Ia, Ib = np.linalg.pinv(a[1]), np.linalg.pinv(b[1])
-    x = np.linalg.pinv(Ia + Ib) @ (Ia @ a[0] + Ib @ b[0])
+    cov = np.linalg.pinv(Ia + Ib)
+    x = cov @ (Ia @ a[0] + Ib @ b[0])
     wa, wb = 1.0 / max(a[1][2, 2], 1e-12), 1.0 / max(b[1][2, 2], 1e-12)
     x[2] = (wa * a[0][2] + wb * b[0][2]) / (wa + wb)
-    return x
+    cov[2, 2] = 1.0 / (wa + wb)
+    return x, cov
 
 
 def fuse_with_reference(
@@ -240,6 +253,7 @@ def fuse_with_reference(
     reference: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig,
+    scanners: ReferenceScanners | None = None,
 ) -> PlotTrees:
     """The merged map's stems with each breast-height circle (centre and DBH) fused with the
     TLS reference's own circle at the same stem, weighted by the inverse covariance of each
@@ -250,10 +264,14 @@ def fuse_with_reference(
     Without a TLS fit the merged circle stands; without a merged fit the TLS one. Then a DBH
     is reported only for a circle measured along enough of its circumference (report_dbh).
     The merged circle is plot_trees' own (under range noise when it was given the walk's
-    scanner positions), not fitted again."""
-    ref = _band_slab(np.ascontiguousarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    scanner positions), not fitted again. scanners: where the reference was scanned from
+    (None: reference_scanners of the whole reference and config, checked on trees)."""
+    reference = np.ascontiguousarray(reference, dtype=np.float64).reshape(-1, 3)
+    if scanners is None:
+        scanners = reference_scanners(reference, config, trees=trees)
+    ref = _band_slab(reference, trees.base_z, config.band_m)
     fused = _fused_circles(trees, ref, config, features)
-    return report_dbh(fused, ref, config, features)
+    return report_dbh(fused, ref, config, features, scanners)
 
 
 def _fused_circles(
@@ -269,6 +287,7 @@ def _fused_circles(
     lo, hi = config.band_m
     tree2d = cKDTree(ref[:, :2])
     xyz, dbh, sigma = trees.xyz.copy(), trees.fit_dbh_m.copy(), trees.dbh_sigma_m.copy()
+    covs = trees.circle_cov.copy()
     for k in range(len(trees)):
         near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)]
         z = near[:, 2] - trees.base_z[k]
@@ -276,12 +295,21 @@ def _fused_circles(
         if tls is None:
             continue
         merged = _band_circle(trees, k)
-        x = tls[0] if merged is None else _fused(tls, merged)
+        x, covs[k] = tls if merged is None else _fused(tls, merged)
         xyz[k, :2], dbh[k] = x[:2], 2 * x[2]
-        # The radius is fused by its marginal variances (_fused): so is its variance.
-        var = [c[1][2, 2] for c in (tls, merged) if c is not None]
-        sigma[k] = _dbh_sigma(1.0 / sum(1.0 / max(v, 1e-12) for v in var))
-    return PlotTrees(xyz, dbh, trees.dbh_std_m, trees.base_z, trees.band_points, None, sigma)
+        sigma[k] = _dbh_sigma(covs[k][2, 2])
+    return PlotTrees(
+        xyz,
+        dbh,
+        trees.dbh_std_m,
+        trees.base_z,
+        trees.band_points,
+        None,
+        sigma,
+        covs,
+        trees.views,
+        trees.view_range_m,
+    )
 
 
 def _band_circle(trees: PlotTrees, k: int):
@@ -298,6 +326,7 @@ def report_dbh(
     reference: np.ndarray,
     config: TreeConfig,
     features: FeatureConfig | None = None,
+    scanners: ReferenceScanners | None = None,
 ) -> PlotTrees:
     """The stems with a DBH reported only where their breast-height circle is measured: the
     diameter is resolved (diameter_resolved: the fit's covariance and the agreement of
@@ -310,12 +339,22 @@ def report_dbh(
     trade off (the fit's covariance grows without bound) and the fit follows the noise: on the
     7 generated bench plots, stems seen on less than a quarter of their circumference were off
     by up to 14 cm (a 2 cm sapling fitted 12 cm, edge stems 30 m out with one-sided points).
-    Such a stem keeps its position; its dbh_m is NaN, its fitted circle stays in fit_dbh_m."""
+    Such a stem keeps its position; its dbh_m is NaN, its fitted circle stays in fit_dbh_m.
+    A circle that is not a face seen from outside (faced_share below config.min_faced_share)
+    gives no DBH and no measured position; nor does a centre whose 1-sigma exceeds
+    config.max_position_sigma_m (position_measured False; the position is still reported).
+    scanners: where the reference was scanned from (None: reference_scanners of reference
+    and config, without the check on the stems' points; pass them when reference is not the
+    whole reference cloud: fuse_with_reference and the runner resolve them over all stems)."""
     if len(trees) == 0:
         return trees
-    points = np.concatenate([np.vstack(trees.band_points), np.asarray(reference).reshape(-1, 3)])
+    reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    if scanners is None:  # not checked on these stems' points: a bent circle would fail it
+        scanners = reference_scanners(reference, config)
+    points = np.concatenate([np.vstack(trees.band_points), reference])
     cover = circumference_coverage(points, trees, config)
-    resolved = diameter_resolved(trees, config, features)
+    faced = faced_shares(trees, config, scanners.xy) >= config.min_faced_share
+    resolved = diameter_resolved(trees, config, features) & faced
     dbh = np.where((cover >= config.min_dbh_coverage) & resolved, trees.fit_dbh_m, np.nan)
     return PlotTrees(
         trees.xyz,
@@ -325,7 +364,177 @@ def report_dbh(
         trees.band_points,
         trees.fit_dbh_m,
         trees.dbh_sigma_m,
+        trees.circle_cov,
+        trees.views,
+        trees.view_range_m,
+        faced & (position_sigma(trees) <= config.max_position_sigma_m),
     )
+
+
+def position_sigma(trees: PlotTrees) -> np.ndarray:
+    """Per stem (K,) the 1-sigma of its breast-height centre along its worst direction (the
+    largest eigenvalue of the circle covariance's centre block; inf: not known)."""
+    centre = np.asarray(trees.circle_cov, dtype=np.float64)[:, :2, :2]
+    out = np.full(len(centre), np.inf)
+    ok = np.all(np.isfinite(centre), axis=(1, 2))
+    if np.any(ok):
+        out[ok] = np.sqrt(np.maximum(np.linalg.eigvalsh(centre[ok])[:, -1], 0.0))
+    return out
+
+
+@dataclass(frozen=True)
+class ReferenceScanners:
+    """Where the reference was scanned from, as the face test uses it: xy (S,2) in the
+    reference's frame (the frame of the trees; empty: not known) and source, why (for the
+    log and run.yaml)."""
+
+    xy: np.ndarray
+    source: str
+
+
+def reference_scanners(
+    reference: np.ndarray,
+    config: TreeConfig,
+    viewpoint: np.ndarray | None = None,
+    trees: PlotTrees | None = None,
+    file_origin_xy: np.ndarray | None = None,
+) -> ReferenceScanners:
+    """config.reference_scanners_xy resolved for the reference (R,3): a list as given; "auto":
+    the file's scanner position viewpoint (x, y[, z]) when the reader has one, else the
+    origin when it lies inside the reference's xy extent (a single scan is stored in its
+    scanner's frame and surrounds it), else none; with trees, such a position is kept only
+    when the reference's points on their breast-height circles face it (at least
+    config.min_reference_faced_share of them: a single scan from there; a registered
+    multi-scan plot stored in one station's frame is not). A wrong position would make the
+    points the reference saw on the far sides of stems fail the face test (their stems
+    silently lose their DBH); an unknown one only leaves the reference's points unjudged.
+    The configured positions, viewpoint and origin are the reference file's; file_origin_xy:
+    where that file's origin lies in the frame `reference` is given in (tls.frame: minus the
+    local frame's offset; default the same frame). Returned positions are in that frame."""
+    origin = np.zeros(2) if file_origin_xy is None else np.asarray(file_origin_xy, np.float64)
+    setting = config.reference_scanners_xy
+    if setting != "auto":
+        xy = np.asarray(setting, dtype=np.float64).reshape(-1, 2) + origin
+        return ReferenceScanners(xy, "configured" if len(xy) else "none: configured empty")
+    reference = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
+    if viewpoint is not None:
+        xy = np.asarray(viewpoint, dtype=np.float64).reshape(-1)[:2].reshape(1, 2) + origin
+        source = "auto: the reference file's scanner position (viewpoint)"
+    elif _inside_extent(reference[:, :2], origin):
+        xy, source = origin.reshape(1, 2), "auto: the reference frame's origin, inside its extent"
+    else:
+        extent = _extent_text(reference[:, :2], origin) if len(reference) else "empty"
+        return ReferenceScanners(
+            np.zeros((0, 2)),
+            f"auto: none known (the origin lies outside the reference's extent, {extent}: not "
+            "a single scan in its scanner's frame; set tls.trees.reference_scanners_xy if known)",
+        )
+    share = None if trees is None else reference_faced_share(reference, trees, xy, config)
+    if share is not None and share < config.min_reference_faced_share:
+        where = (xy[0] - origin).tolist()  # the file's frame
+        return ReferenceScanners(
+            np.zeros((0, 2)),
+            f"auto: none known ({source[6:]} {where} faces only {100 * share:.0f} % of "
+            "the reference's stem points: not a single scan from there, e.g. a registered "
+            "multi-scan plot; set tls.trees.reference_scanners_xy to its stations if known)",
+        )
+    faces = "" if share is None else f"; faces {100 * share:.1f} % of the reference's stem points"
+    return ReferenceScanners(xy, source + faces)
+
+
+def reference_faced_share(
+    reference: np.ndarray, trees: PlotTrees, xy: np.ndarray, config: TreeConfig
+) -> float | None:
+    """Share of the reference's points (R,3) on the stems' breast-height circles (at band
+    height, within coverage_tolerance_m) that face a station in xy (S,2) (see faced_share);
+    None: no such point."""
+    ref = _band_slab(np.asarray(reference, dtype=np.float64), trees.base_z, config.band_m)
+    if len(ref) == 0 or len(trees) == 0:
+        return None
+    tree2d, tol = cKDTree(ref[:, :2]), config.coverage_tolerance_m
+    faced = total = 0.0
+    for k in range(len(trees)):
+        r, c = 0.5 * trees.fit_dbh_m[k], trees.xyz[k, :2]
+        p = ref[tree2d.query_ball_point(c, r + tol)]
+        z = p[:, 2] - trees.base_z[k]
+        p = p[(z >= config.band_m[0]) & (z <= config.band_m[1])]
+        n = int(np.sum(np.abs(np.linalg.norm(p[:, :2] - c, axis=1) - r) <= tol))
+        if n:
+            faced += n * faced_share(p[:, :2], c, r, [(xy, (0.0, np.inf))], tol)
+            total += n
+    return faced / total if total else None
+
+
+def _inside_extent(xy: np.ndarray, point: np.ndarray) -> bool:
+    """The point (2,) lies within the xy extent (bounding box) of the points (N,2)."""
+    if len(xy) == 0:
+        return False
+    lo, hi = _extent(xy)
+    return bool(np.all(lo <= point) and np.all(hi >= point))
+
+
+def _extent(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis min and max (2,) of the points (N,2), column by column (numpy's axis-0
+    reduction of a narrow (N,2) array costs 10x more: 220 ms for 4 M points)."""
+    lo = np.array([xy[:, k].min() for k in range(xy.shape[1])])
+    return lo, np.array([xy[:, k].max() for k in range(xy.shape[1])])
+
+
+def _extent_text(xy: np.ndarray, origin: np.ndarray) -> str:
+    """The xy extent of the points (N,2) relative to origin (2,) (in the file's frame)."""
+    lo, hi = _extent(xy)
+    lo, hi = lo - origin, hi - origin
+    return f"x {lo[0]:.1f}..{hi[0]:.1f}, y {lo[1]:.1f}..{hi[1]:.1f}"
+
+
+def faced_shares(trees: PlotTrees, config: TreeConfig, stations: np.ndarray) -> np.ndarray:
+    """Per stem (K,) faced_share of its circle over its band points, the scanners being the
+    walk's positions (trees.views within trees.view_range_m) and the reference's stations
+    (S,2) (reference_scanners, any range)."""
+    stations = np.asarray(stations, dtype=np.float64).reshape(-1, 2)
+    views = np.zeros((0, 2)) if trees.views is None else np.asarray(trees.views).reshape(-1, 2)
+    out = np.ones(len(trees))
+    for k in range(len(trees)):
+        out[k] = faced_share(
+            trees.band_points[k][:, :2],
+            trees.xyz[k, :2],
+            0.5 * trees.fit_dbh_m[k],
+            [(views, trees.view_range_m), (stations, (0.0, np.inf))],
+            config.coverage_tolerance_m,
+        )
+    return out
+
+
+def faced_share(
+    xy: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    scanners: list[tuple[np.ndarray, tuple[float, float]]],
+    tolerance_m: float,
+) -> float:
+    """Share of the circle's inliers (points xy (M,2) within tolerance_m of it) whose outward
+    normal (from centre) points towards at least one scanner that can see them: scanners is
+    a list of (positions (P,2), range (min, max)). A scanner sees a stem's near face only, so
+    the points of a true circle face their scanners; a circle fitted on a noise blob whose
+    centre lies on the scanners' side of the points faces them with about half its inliers,
+    or none. No inlier or no scanner: 1 (nothing to judge)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    n = xy - np.asarray(centre, dtype=np.float64)
+    d = np.linalg.norm(n, axis=1)
+    inl = np.abs(d - radius) <= tolerance_m
+    n, xy = n[inl] / np.maximum(d[inl], 1e-12)[:, None], xy[inl]
+    if len(xy) == 0 or sum(len(p) for p, _ in scanners) == 0:
+        return 1.0
+    faces = np.zeros(len(xy), dtype=bool)
+    for positions, (lo, hi) in scanners:
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+        if len(positions) > 300:  # the directions need no more than a few hundred positions
+            positions = positions[:: int(np.ceil(len(positions) / 300))]
+        off = positions[None, :, :] - xy[:, None, :]
+        dist = np.linalg.norm(off, axis=2)
+        sees = (np.einsum("mk,mpk->mp", n, off) > 0) & (dist >= lo) & (dist <= hi)
+        faces |= sees.any(axis=1)
+    return float(np.mean(faces))
 
 
 def diameter_resolved(
