@@ -133,3 +133,23 @@ def test_localization_and_keypoint_results_are_typed_and_read_only():
     kp = _core.detect_dog_keypoints(np.ascontiguousarray(np.vstack([ground, trunk])))
     assert isinstance(kp, _core.DogKeypoints) and len(kp.points) == len(kp.response)
     _read_only(kp, "points")
+
+
+def test_consensus_pairs_result_is_typed_and_read_only():
+    rng = np.random.default_rng(4)
+    target = np.column_stack([rng.uniform(0, 30, (12, 2)), np.zeros(12)])
+    yaw, shift = 0.3, np.array([2.0, -1.0])
+    R = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    source = target.copy()
+    source[:, :2] = (target[:, :2] - shift) @ R  # target = R source + shift
+    pairs = np.column_stack([np.arange(12), np.arange(12)])
+    pairs[-1] = [11, 0]  # one wrong match
+    res = _core.consensus_pairs(source, target, pairs, np.eye(4), _core.ShapeRegistrationConfig())
+    assert isinstance(res, _core.ConsensusPairs)
+    np.testing.assert_allclose(np.asarray(res.T_target_source)[:2, :2], R, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(res.T_target_source)[:2, 3], shift, atol=1e-6)
+    inliers = np.asarray(res.inliers)
+    assert inliers.dtype.kind == "i"
+    np.testing.assert_array_equal(np.sort(inliers), np.arange(11))
+    for name in ("T_target_source", "inliers"):
+        _read_only(res, name)

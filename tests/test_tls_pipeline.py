@@ -235,3 +235,31 @@ def test_voxel_map_merges_only_points_in_new_voxels():
     # One point per voxel.
     keys = np.floor(cloud.points / 0.1).astype(np.int64)
     assert len(np.unique(keys, axis=0)) == len(keys)
+
+
+def test_voxel_map_side_store_gives_the_same_map_as_merging_into_the_map_at_once():
+    from forestslam import _core
+    from forestslam.tls.pipeline import _VoxelCloud
+
+    rng = np.random.default_rng(5)
+    base = rng.uniform(0, 4, (20000, 3))
+    batched, direct = _VoxelCloud(base, 0.1, _core), _VoxelCloud(base, 0.1, _core)
+    direct.SIDE_FRACTION = 0.0  # every new voxel straight into the map (the old way)
+    side_used = consolidated = False
+    for k in range(6):  # half in known voxels, half in new ones, some seen again later
+        batch = np.vstack([rng.uniform(0, 4, (3000, 3)), rng.uniform(4, 5 + k, (3000, 3))])
+        side_before = len(batched._side[0])
+        batched.merge(batch)
+        direct.merge(batch)
+        assert len(batched) == len(direct)
+        side_used |= len(batched._side[0]) > 0
+        consolidated |= side_before > 0 and len(batched._side[0]) == 0
+    assert side_used and consolidated  # both paths were taken
+    np.testing.assert_array_equal(batched.points, direct.points)
+    np.testing.assert_array_equal(batched._main[2], direct._main[2])
+    # A voxel seen by three merges holds the mean of the three merges' centroids.
+    cloud = _VoxelCloud(np.array([[10.01, 10.01, 10.01]]), 0.1, _core)
+    for p in ([10.03, 10.01, 10.01], [10.05, 10.01, 10.01]):
+        cloud.merge(np.vstack([np.array([p]), rng.uniform(0, 1, (50, 3))]))
+    at = np.flatnonzero(np.all(np.abs(cloud.points - 10.0) < 0.1, axis=1))
+    np.testing.assert_allclose(cloud.points[at], [[10.03, 10.01, 10.01]], atol=1e-12)

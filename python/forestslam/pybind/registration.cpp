@@ -104,6 +104,12 @@ void defineRegistrationTypes(py::module_ &m) {
     FS_FIELD(f, rg::FpfhConfig, icp);
 }
 
+// consensus_pairs' result: the pose and the pairs that agree with it.
+struct ConsensusPairs {
+    Pose3 T_target_source;
+    std::vector<int> inliers;
+};
+
 // Tree correspondences and the shape-to-shape registration over x, y, yaw.
 void defineTreeRegistration(py::module_ &m) {
     m.def(
@@ -136,6 +142,17 @@ void defineTreeRegistration(py::module_ &m) {
         "Shape-to-shape Gaussian registration over x, y, yaw (Eq. 3): means (K,3), covs (K,9) "
         "row-major 3x3, pairs (P,2) -> RegistrationResult.");
 
+    py::class_<ConsensusPairs>(m, "ConsensusPairs", "consensus_pairs' result (read-only).")
+        .def_readonly("T_target_source", &ConsensusPairs::T_target_source,
+                      "(4,4) planar pose with most pairs within inlier_threshold_m")
+        .def_property_readonly(
+            "inliers",
+            [](const ConsensusPairs &c) {
+                return Eigen::Map<const Eigen::VectorXi>(
+                           c.inliers.data(), static_cast<Eigen::Index>(c.inliers.size()))
+                    .eval();
+            },
+            "(I,) int indices into pairs of the inlier pairs");
     m.def(
         "consensus_pairs",
         [](const Eigen::Ref<const Points3> &source, const Eigen::Ref<const Points3> &target,
@@ -143,11 +160,11 @@ void defineTreeRegistration(py::module_ &m) {
            const registration::ShapeRegistrationConfig &config) {
             auto [T, inliers] =
                 registration::consensusPairs(source, target, toPairs(pairs), T_init, config);
-            return py::make_tuple(T, inliers);
+            return ConsensusPairs{T, std::move(inliers)};
         },
         py::arg("source"), py::arg("target"), py::arg("pairs"), py::arg("T_init"),
         py::arg("config") = registration::ShapeRegistrationConfig(),
-        "Consensus over pairs of stem matches -> ((4,4) planar pose, list of inlier pair "
+        "Consensus over pairs of stem matches (P,2) -> ConsensusPairs (planar pose, inlier pair "
         "indices).");
 }
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from forestslam.geometry import rigid_fit, yaw_of
+from forestslam.geometry import rigid_fit, rot2, yaw_of
 from forestslam.tls.bridge import keypoint_config, virtual_feature_config
 from forestslam.tls.config import FeatureConfig, RegistrationConfig
 
@@ -172,15 +172,14 @@ def coarse_stem_hypotheses(
         return []
     vs = src_xy[pj] - src_xy[pi]
     vd = dst_xy[qj] - dst_xy[qi]
-    yaw = np.arctan2(vd[:, 1], vd[:, 0]) - np.arctan2(vs[:, 1], vs[:, 0])
-    c, s = np.cos(yaw), np.sin(yaw)
+    # One planar pose (H of them) per pair of matches: the rotation turning the source pair's
+    # direction onto the reference pair's, the translation joining their midpoints.
+    R = rot2(np.arctan2(vd[:, 1], vd[:, 0]) - np.arctan2(vs[:, 1], vs[:, 0]))
     mid_s = 0.5 * (src_xy[pi] + src_xy[pj])
-    mid_d = 0.5 * (dst_xy[qi] + dst_xy[qj])
-    tx = mid_d[:, 0] - (c * mid_s[:, 0] - s * mid_s[:, 1])
-    ty = mid_d[:, 1] - (s * mid_s[:, 0] + c * mid_s[:, 1])
-    # Score every hypothesis on all source stems at once.
-    px = c[:, None] * src_xy[None, :, 0] - s[:, None] * src_xy[None, :, 1] + tx[:, None]
-    py = s[:, None] * src_xy[None, :, 0] + c[:, None] * src_xy[None, :, 1] + ty[:, None]
+    t = 0.5 * (dst_xy[qi] + dst_xy[qj]) - np.einsum("hij,hj->hi", R, mid_s)
+    # Score every hypothesis on all source stems at once: (H,S) moved positions.
+    moved_all = np.einsum("hij,sj->hsi", R, src_xy) + t[:, None, :]
+    px, py = moved_all[..., 0], moved_all[..., 1]
     tree = cKDTree(dst_xy)
     dist, _ = tree.query(np.stack([px.ravel(), py.ravel()], axis=1))
     dist = dist.reshape(px.shape)

@@ -127,7 +127,9 @@ class TlsRun:
 
 def _check_reference(reference: np.ndarray) -> np.ndarray:
     ref = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
-    ref = ref[np.isfinite(ref).all(axis=1)]
+    finite = np.isfinite(ref).all(axis=1)
+    if not finite.all():  # a plot scan holds millions of points: no copy when all are valid
+        ref = ref[finite]
     if len(ref) < 1000:
         raise InputError(
             f"the TLS reference has {len(ref)} valid points; a plot scan needs many more"
@@ -187,19 +189,33 @@ def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
 class _VoxelCloud:
     """A voxelized cloud that grows: one point per voxel, the mean of what was merged into it
     (each merge's voxel centroid counts once). Merging costs the new points only (sorted
-    voxel keys, binary search), not a re-voxelization of the whole map."""
+    voxel keys, binary search), not a re-voxelization of the whole map. New voxels wait in a
+    small sorted side store and join the main arrays only when it has grown to SIDE_FRACTION
+    of them or the points are read: each insert into the main arrays copies all of them (a
+    plot map holds millions of voxels), so a long walk copied them at every merge."""
+
+    SIDE_FRACTION = 0.25
 
     def __init__(self, points: np.ndarray, voxel_m: float, core):
         self.voxel_m = voxel_m
         self.core = core
         pts = self._down(points)
+        self._side = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
         if voxel_m <= 0:
-            self.points, self.keys, self.count = pts, np.zeros(0, np.int64), np.zeros(0)
+            self._main = (np.zeros(0, np.int64), pts, np.zeros(0))
             return
         keys = _voxel_keys(pts, voxel_m)
         order = np.argsort(keys)
-        self.points, self.keys = pts[order], keys[order]
-        self.count = np.ones(len(keys))
+        # (sorted keys, points, merge counts); each voxel lives in main or side, never both.
+        self._main = (keys[order], pts[order], np.ones(len(keys)))
+
+    @property
+    def points(self) -> np.ndarray:
+        self._consolidate()
+        return self._main[1]
+
+    def __len__(self) -> int:
+        return len(self._main[1]) + len(self._side[1])
 
     def _down(self, points: np.ndarray) -> np.ndarray:
         if self.voxel_m <= 0:
@@ -209,27 +225,54 @@ class _VoxelCloud:
     def merge(self, points: np.ndarray) -> None:
         new = self._down(points)
         if self.voxel_m <= 0:
-            self.points = np.concatenate([self.points, new])
+            self._main = (self._main[0], np.concatenate([self._main[1], new]), self._main[2])
             return
         keys = _voxel_keys(new, self.voxel_m)
-        # Sorted queries: the binary searches walk the map's keys in order (cache-friendly).
-        by_key = np.argsort(keys, kind="stable")
-        pos = np.empty(len(keys), dtype=np.int64)
-        pos[by_key] = np.searchsorted(self.keys, keys[by_key])
-        pos = np.clip(pos, 0, max(len(self.keys) - 1, 0))
-        known = self.keys[pos] == keys if len(self.keys) else np.zeros(len(keys), bool)
-        # Occupied voxels: running mean (one new point per voxel per merge).
-        j = pos[known]
-        c = self.count[j]
-        self.points[j] = (self.points[j] * c[:, None] + new[known]) / (c + 1)[:, None]
-        self.count[j] = c + 1
-        # New voxels: inserted in key order (one pass over the map, no re-sort).
+        known = _update_voxels(self._main, keys, new)
+        keys, new = keys[~known], new[~known]
+        known = _update_voxels(self._side, keys, new)
+        # New voxels: into the side store in key order.
         order = np.argsort(keys[~known])
-        fresh_keys, fresh = keys[~known][order], new[~known][order]
-        at = np.searchsorted(self.keys, fresh_keys)
-        self.keys = np.insert(self.keys, at, fresh_keys)
-        self.points = np.insert(self.points, at, fresh, axis=0)
-        self.count = np.insert(self.count, at, 1.0)
+        self._side = _insert_voxels(
+            self._side, keys[~known][order], new[~known][order], np.ones(len(order))
+        )
+        if len(self._side[0]) > self.SIDE_FRACTION * len(self._main[0]):
+            self._consolidate()
+
+    def _consolidate(self) -> None:
+        if len(self._side[0]):
+            self._main = _insert_voxels(self._main, *self._side)
+            self._side = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+
+
+def _update_voxels(store, keys: np.ndarray, new: np.ndarray) -> np.ndarray:
+    """The running mean of the store's (keys, points, counts) voxels that new points (one per
+    voxel, keys (N,)) fall in, updated in place -> which of them fell in one (N,) bool."""
+    skeys, spoints, scount = store
+    if len(skeys) == 0:
+        return np.zeros(len(keys), bool)
+    # Sorted queries: the binary searches walk the map's keys in order (cache-friendly).
+    by_key = np.argsort(keys, kind="stable")
+    pos = np.empty(len(keys), dtype=np.int64)
+    pos[by_key] = np.searchsorted(skeys, keys[by_key])
+    pos = np.clip(pos, 0, len(skeys) - 1)
+    known = skeys[pos] == keys
+    j = pos[known]
+    c = scount[j]
+    spoints[j] = (spoints[j] * c[:, None] + new[known]) / (c + 1)[:, None]
+    scount[j] = c + 1
+    return known
+
+
+def _insert_voxels(store, keys: np.ndarray, points: np.ndarray, count: np.ndarray):
+    """The store with voxels (sorted keys, not in the store) inserted in key order (one pass
+    over the store, no re-sort)."""
+    at = np.searchsorted(store[0], keys)
+    return (
+        np.insert(store[0], at, keys),
+        np.insert(store[1], at, points, axis=0),
+        np.insert(store[2], at, count),
+    )
 
 
 class _GlobalMap:
@@ -269,7 +312,7 @@ class _GlobalMap:
         new = np.concatenate(self.pending)
         self.pending.clear()
         self.fine.merge(new)
-        if len(self.fine.points) > self.config.map.max_points:
+        if len(self.fine) > self.config.map.max_points:
             raise ProcessingError(
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
@@ -292,8 +335,8 @@ class _GlobalMap:
             return self.target, False
         zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
         c = self.coarse
-        keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)
-        keep &= np.sum((c[:, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+        c = c[(c[:, 2] >= zlo) & (c[:, 2] <= zhi)]  # the height band first: fewer distances
+        keep = np.sum((c[:, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
         self.target = self.core.StemCentreTarget(np.ascontiguousarray(c[keep]))
         self.target_centre = xy
         self.target_z = (zlo, zhi)
