@@ -812,31 +812,34 @@ class LandmarkSlam:
             t.dbh.append(float(obs_dbh[i]))
             t.z.append((kf, float(obs_z[i])))
             if len(t.obs) >= cfg.tentative_min_observations:
-                lm = self.n_landmarks
-                values.insert(L(lm), gtsam.Point2(*t.xy))
-                for okf, b, r_, sb, sr in t.obs:
-                    graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
-                self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
-                self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
-                self._lm_run_obs = np.append(self._lm_run_obs, len(t.obs))
-                self._lm_last_kf = np.append(self._lm_last_kf, kf)
-                self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
-                zs = np.array([z for _, z in t.z], dtype=np.float64)
-                zs = zs[np.isfinite(zs)]
-                self._lm_zsum = np.append(self._lm_zsum, zs.sum())
-                self._lm_nz = np.append(self._lm_nz, len(zs))
-                self._lm_alias = np.append(self._lm_alias, -1)
-                self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
-                d = np.asarray(t.dbh)
-                self._lm_dbh = np.append(
-                    self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan
-                )
-                promoted[int(i)] = lm
-                for okf, *_ in t.obs:
-                    self._kf_lms[okf].add(lm)
-                if self.height is not None:
-                    for okf, z in t.z:
-                        self.height.add_observation(okf, lm, z)
+                promoted[int(i)] = self._promote(t, graph, values)
                 t.obs = []  # mark for removal
         self._tentative = [t for t in self._tentative if t.obs]
         return promoted
+
+    def _promote(self, t: _Tentative, graph, values) -> int:
+        """A tentative tree seen often enough becomes a landmark: its variable, the factors of
+        all its observations, its table entries. Returns its index."""
+        lm = self.n_landmarks
+        values.insert(L(lm), gtsam.Point2(*t.xy))
+        for okf, b, r_, sb, sr in t.obs:
+            graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
+        self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
+        self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
+        self._lm_run_obs = np.append(self._lm_run_obs, len(t.obs))
+        self._lm_last_kf = np.append(self._lm_last_kf, t.last_kf)  # this keyframe
+        self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
+        zs = np.array([z for _, z in t.z], dtype=np.float64)
+        zs = zs[np.isfinite(zs)]
+        self._lm_zsum = np.append(self._lm_zsum, zs.sum())
+        self._lm_nz = np.append(self._lm_nz, len(zs))
+        self._lm_alias = np.append(self._lm_alias, -1)
+        self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
+        d = np.asarray(t.dbh)
+        self._lm_dbh = np.append(self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan)
+        for okf, *_ in t.obs:
+            self._kf_lms[okf].add(lm)
+        if self.height is not None:
+            for okf, z in t.z:
+                self.height.add_observation(okf, lm, z)
+        return lm
