@@ -219,6 +219,7 @@ def run_table_slam(
     stats = dict(place_recognition.stats) if place_recognition is not None else {}
     stats["loop_closures"] = slam.loop_closures  # verified place recognition only
     stats["reassociation_corrections"] = slam.reassociation_corrections
+    stats["merged_duplicates"] = slam.merged_duplicates
     stats["landmarks"] = slam.n_landmarks
     return TableSlamResult(
         np.array(given),

@@ -133,3 +133,39 @@ def associate(
     good = cost[r, c] < big
     result.matches[uo[r[good]]] = ul[c[good]]
     return result
+
+
+def duplicate_pairs(
+    xy: np.ndarray,
+    sigma: np.ndarray,
+    dbh: np.ndarray,
+    candidates: np.ndarray,
+    seen_together,
+    config: SlamConfig,
+) -> np.ndarray:
+    """(P,2) pairs (older, newer) of landmarks among `candidates` (indices into xy (L,2)) that
+    look like one tree mapped twice: within the association gate of each other (squared
+    Mahalanobis distance with S = (sigma_a^2 + sigma_b^2) I below `association_chi2`),
+    compatible DBH, and never observed together (`seen_together(a, b)` False: two trees seen in
+    one scan are two trees, however close). Each landmark is in at most one pair, nearest first;
+    the older copy is the lower index."""
+    candidates = np.asarray(candidates, dtype=np.int64)
+    if len(candidates) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    reach = float(np.sqrt(config.association_chi2 * 2.0) * np.max(sigma[candidates]))
+    pairs = cKDTree(xy[candidates]).query_pairs(reach, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    a, b = candidates[pairs[:, 0]], candidates[pairs[:, 1]]
+    d2 = np.sum((xy[a] - xy[b]) ** 2, axis=1)
+    ok = d2 <= config.association_chi2 * (sigma[a] ** 2 + sigma[b] ** 2)
+    ok &= dbh_compatible(dbh[a], dbh[b], config.dbh_gate_ratio)
+    used: set[int] = set()
+    out = []
+    for i in np.flatnonzero(ok)[np.argsort(d2[ok])]:
+        lo, hi = sorted((int(a[i]), int(b[i])))
+        if lo in used or hi in used or seen_together(lo, hi):
+            continue
+        used.update((lo, hi))
+        out.append((lo, hi))
+    return np.array(out, dtype=np.int64).reshape(-1, 2)

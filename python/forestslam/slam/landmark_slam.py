@@ -30,6 +30,7 @@ from forestslam.slam.association import (
     AssociationResult,
     associate,
     dbh_compatible,
+    duplicate_pairs,
     rigid_2d,
 )
 from forestslam.slam.config import SlamConfig
@@ -133,6 +134,7 @@ class LandmarkSlam:
         self._lm_nz = np.zeros(0, dtype=np.int64)
         self._lm_alias = np.zeros(0, dtype=np.int64)  # the older copy a tree was tied to, or -1
         self._tentative: list[_Tentative] = []
+        self._kf_lms: list[set[int]] = []  # per keyframe: the trees it observed
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
         self._pose_cov = np.diag([1e-6, 1e-6, 1e-8])
@@ -141,6 +143,7 @@ class LandmarkSlam:
         # local maps per frame) it fires at most keyframes and is no evidence of a loop.
         self.loop_closures = 0
         self.reassociation_corrections = 0
+        self.merged_duplicates = 0  # tree pairs merged after closures (see _merge_duplicates)
         self.n_landmark_factors = 0
         # Tracking loss (see SlamConfig.loss_*): the first keyframe of the current lost segment,
         # None while tracking holds or once place recognition relocalized the segment.
@@ -231,6 +234,12 @@ class LandmarkSlam:
         self.loop_closures += 1
 
     def _tie(self, pairs: np.ndarray, sigma_m: float) -> None:
+        self._add_ties(pairs, sigma_m, "tying trees", self.cfg.extra_updates_on_loop)
+        self._merge_duplicates(sigma_m)
+
+    def _add_ties(self, pairs: np.ndarray, sigma_m: float, what: str, relinearize: int) -> None:
+        """Robust zero-difference factors between the trees of each pair (older, newer); the
+        newer becomes an alias of the older. `relinearize` extra iSAM2 iterations follow."""
         before = self._snapshot()
         graph = gtsam.NonlinearFactorGraph()
         noise = self._robust(gtsam.noiseModel.Isotropic.Sigma(2, sigma_m))
@@ -239,12 +248,34 @@ class LandmarkSlam:
                 gtsam.BetweenFactorPoint2(L(int(old)), L(int(new)), gtsam.Point2(0, 0), noise)
             )
             self._lm_alias[new] = old
-        self._update(graph, gtsam.Values(), before, "tying trees")
-        for _ in range(self.cfg.extra_updates_on_loop):
+        self._update(graph, gtsam.Values(), before, what)
+        for _ in range(relinearize):
             self.isam.update(force_relinearize=True)
         est = self._estimate = self.isam.calculateEstimate()
         self._kf_est = gtsam.utilities.extractPose2(est).reshape(-1, 3)
         self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
+
+    def _merge_duplicates(self, sigma_m: float) -> None:
+        """After a closure: trees the SLAM mapped twice (its prediction was off beyond the
+        association gate when it came back) that the closure brought within the gate of each
+        other, and that no keyframe observed together, are tied like place recognition's pairs
+        (the newer becomes an alias), so later scans re-find one tree, not two."""
+        roots = np.flatnonzero(self._lm_alias < 0)
+        pairs = duplicate_pairs(
+            self._lm_xy, self.landmark_sigma(), self._lm_dbh, roots, self._seen_together, self.cfg
+        )
+        if len(pairs):
+            self._add_ties(pairs, sigma_m, "merging duplicated trees", 0)
+            self.merged_duplicates += len(pairs)
+            log.info("merged %d duplicated trees after a closure", len(pairs))
+
+    def _seen_together(self, a: int, b: int) -> bool:
+        """Whether one keyframe observed both trees a and b."""
+        first = np.maximum(self._lm_first_kf[[a, b]], 0)  # a prior-map tree's is -1
+        lo, hi = int(first.max()), int(min(self._lm_last_kf[a], self._lm_last_kf[b]))
+        if hi < 0 or lo > hi:
+            return False
+        return any(a in seen and b in seen for seen in self._kf_lms[lo : hi + 1])
 
     def relocalized(self, pairs: np.ndarray, sigma_m: float) -> None:
         """Place recognition placed the lost segment in the map: its trees (newer) are tied to
@@ -561,6 +592,7 @@ class LandmarkSlam:
         ranges = np.linalg.norm(obs_s, axis=1)
         noise = self._observation_noise(ranges)
         matched = res.matches >= 0
+        self._kf_lms.append(set(res.matches[matched].tolist()))
         self._add_tree_observations(kf, res.matches, bearings, ranges, noise, obs_dbh, graph)
         ids[idx[matched]] = res.matches[matched]
         self._add_tree_heights(kf, res.matches, obs_z, first)
@@ -701,7 +733,10 @@ class LandmarkSlam:
         self.lost_since, self.losses, self.relocalizations = before["loss"]
         self._loss_kfs = [k for k in self._loss_kfs if k < before["keyframes"]]
         n = before["keyframes"]
-        del self._kf_scan[n:], self._kf_odom2[n:]
+        del self._kf_scan[n:], self._kf_odom2[n:], self._kf_lms[n:]
+        n_lm = len(self._lm_xy)
+        for seen in self._kf_lms[-self.cfg.tentative_max_age_keyframes :]:  # failed promotions
+            seen.difference_update([lm for lm in seen if lm >= n_lm])
         if self.height is not None:
             self.height.truncate(n, before["height_obs"])
 
@@ -777,29 +812,34 @@ class LandmarkSlam:
             t.dbh.append(float(obs_dbh[i]))
             t.z.append((kf, float(obs_z[i])))
             if len(t.obs) >= cfg.tentative_min_observations:
-                lm = self.n_landmarks
-                values.insert(L(lm), gtsam.Point2(*t.xy))
-                for okf, b, r_, sb, sr in t.obs:
-                    graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
-                self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
-                self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
-                self._lm_run_obs = np.append(self._lm_run_obs, len(t.obs))
-                self._lm_last_kf = np.append(self._lm_last_kf, kf)
-                self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
-                zs = np.array([z for _, z in t.z], dtype=np.float64)
-                zs = zs[np.isfinite(zs)]
-                self._lm_zsum = np.append(self._lm_zsum, zs.sum())
-                self._lm_nz = np.append(self._lm_nz, len(zs))
-                self._lm_alias = np.append(self._lm_alias, -1)
-                self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
-                d = np.asarray(t.dbh)
-                self._lm_dbh = np.append(
-                    self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan
-                )
-                promoted[int(i)] = lm
-                if self.height is not None:
-                    for okf, z in t.z:
-                        self.height.add_observation(okf, lm, z)
+                promoted[int(i)] = self._promote(t, graph, values)
                 t.obs = []  # mark for removal
         self._tentative = [t for t in self._tentative if t.obs]
         return promoted
+
+    def _promote(self, t: _Tentative, graph, values) -> int:
+        """A tentative tree seen often enough becomes a landmark: its variable, the factors of
+        all its observations, its table entries. Returns its index."""
+        lm = self.n_landmarks
+        values.insert(L(lm), gtsam.Point2(*t.xy))
+        for okf, b, r_, sb, sr in t.obs:
+            graph.add(self._landmark_factor(okf, lm, b, r_, sb, sr))
+        self._lm_xy = np.vstack([self._lm_xy, t.xy[None, :]])
+        self._lm_nobs = np.append(self._lm_nobs, len(t.obs))
+        self._lm_run_obs = np.append(self._lm_run_obs, len(t.obs))
+        self._lm_last_kf = np.append(self._lm_last_kf, t.last_kf)  # this keyframe
+        self._lm_first_kf = np.append(self._lm_first_kf, min(o[0] for o in t.obs))
+        zs = np.array([z for _, z in t.z], dtype=np.float64)
+        zs = zs[np.isfinite(zs)]
+        self._lm_zsum = np.append(self._lm_zsum, zs.sum())
+        self._lm_nz = np.append(self._lm_nz, len(zs))
+        self._lm_alias = np.append(self._lm_alias, -1)
+        self._lm_prior_sigma = np.append(self._lm_prior_sigma, np.nan)
+        d = np.asarray(t.dbh)
+        self._lm_dbh = np.append(self._lm_dbh, np.nanmedian(d) if np.isfinite(d).any() else np.nan)
+        for okf, *_ in t.obs:
+            self._kf_lms[okf].add(lm)
+        if self.height is not None:
+            for okf, z in t.z:
+                self.height.add_observation(okf, lm, z)
+        return lm
