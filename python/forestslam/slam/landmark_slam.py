@@ -496,9 +496,13 @@ class LandmarkSlam:
 
     def _tracking_lost(self, kf: int, pred: np.ndarray, n_obs: int, matches: np.ndarray) -> bool:
         """Whether the trees tracked at the previous keyframe vanished at this one (see
-        SlamConfig.loss_*): an odometry jump, not occlusion of a few."""
+        SlamConfig.loss_*): an odometry jump, not occlusion of a few. Never while already lost:
+        the segment is free of the chain already, and the trees it tracks were placed under the
+        loss's wide prior, so their association gates cannot re-find them yet; declaring a loss
+        again only cut the segment into pieces (Wild-Places V04 tree tables: losses at 5
+        consecutive keyframes 449-453, each finding 0 of 6-23 tracked trees)."""
         cfg = self.cfg
-        if cfg.loss_min_tracked == 0 or n_obs < cfg.loss_min_tracked:
+        if cfg.loss_min_tracked == 0 or n_obs < cfg.loss_min_tracked or self.lost_since is not None:
             return False
         alias = self.aliases()  # a tree tied since is tracked as its older copy
         root = np.where(alias >= 0, alias, np.arange(self.n_landmarks))
