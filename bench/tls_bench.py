@@ -413,7 +413,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         report["sequential_whole_walk"] = seq
 
     views = (run.views, (cfg.map.frame_min_range_m, merged_range_m(cfg)))
-    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views)
+    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views, ref)  # as runner
     scanners = reference_scanners(ref, cfg.trees, trees=merged)  # as write_products resolves
     merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features, scanners)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
