@@ -52,7 +52,13 @@ from forestslam.io import read_cloud, read_scans, read_tum
 from forestslam.odometry.deskew import deskew_points, se3_log
 from forestslam.tls import TlsConfig, register_mls_to_tls
 from forestslam.tls.features import frame_features
-from forestslam.tls.pipeline import _frame_points_times, _lm, _sweep_lm, registered_points
+from forestslam.tls.pipeline import (
+    _frame_points_times,
+    _lm,
+    _sweep_lm,
+    merged_range_m,
+    registered_points,
+)
 from forestslam.tls.runner import load_reference, with_rings, write_products
 from forestslam.tls.sweep import apply_sweep
 from forestslam.tls.trees import (
@@ -406,8 +412,8 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         seq["proposed"] = method_summary(te, re, *stem_deviation(parts, ref_trees, cfg))
         report["sequential_whole_walk"] = seq
 
-    views = (run.views, (cfg.map.frame_min_range_m, cfg.map.frame_max_range_m))
-    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views)
+    views = (run.views, (cfg.map.frame_min_range_m, merged_range_m(cfg)))
+    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views, ref)  # as runner
     scanners = reference_scanners(ref, cfg.trees, trees=merged)  # as write_products resolves
     merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features, scanners)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)

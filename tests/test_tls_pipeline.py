@@ -215,6 +215,29 @@ def test_moving_spinning_frames_are_deskewed(world):
     assert np.mean(off[2:]) > 2 * np.mean(on[2:]), (on, off)
 
 
+def test_only_points_within_the_merge_range_join_the_map(world, run):
+    """An angular pose error moves a point by its range times the error, so only a frame's
+    near points join the map (MapConfig.merge_max_range_m); the frame registers on all."""
+    _, ref, truth, frames = world
+    cfg = TlsConfig()
+    cfg.map.merge_max_range_m = 5.0
+    near = register_mls_to_tls(frames, ref, cfg)
+    for a, b in zip(near.frames, run.frames, strict=True):  # registration unchanged
+        assert np.allclose(a.T_tls_sensor, b.T_tls_sensor, atol=1e-9)
+    voxel = cfg.map.voxel_m
+    keys_near = {tuple(k) for k in np.floor(near.map_points / voxel).astype(np.int64)}
+    keys_all = np.floor(run.map_points / voxel).astype(np.int64)
+    only_far = np.array([k not in keys_near for k in map(tuple, keys_all)])
+    sensors = np.array([r.T_tls_mid[:3, 3] for r in run.frames if r.accepted])
+    dist = np.linalg.norm(run.map_points[only_far, None, :] - sensors[None], axis=2).min(axis=1)
+    assert only_far.sum() > 100  # the default range merges farther points
+    # Voxels are means of what was merged into them (measured: nearest 4.90 m): none well
+    # inside the range, most well beyond it.
+    assert dist.min() > 5.0 - 0.15
+    assert np.median(dist) > 6.0
+    assert len(near.map_points) < len(run.map_points)
+
+
 def test_voxel_map_merges_only_points_in_new_voxels():
     from forestslam import _core
     from forestslam.tls.pipeline import _VoxelCloud

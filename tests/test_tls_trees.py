@@ -53,6 +53,22 @@ def test_stems_of_a_noisy_merged_map_are_found_and_measured():
         assert abs(found.dbh_m[j] - trees[k, 2]) < 0.015
 
 
+def test_a_merged_map_keeps_every_stem_its_reference_shows_once():
+    """A long walk smears the merged map's stem walls (every merged frame's pose error) past
+    the layer-fit gates; the stems the reference alone shows must stay, each once."""
+    trees = stand(seed=7)
+    cfg = TlsConfig()
+    reference = noisy_map(trees, 0.005, seed=3)
+    smeared = noisy_map(trees, 0.06)
+    assert len(plot_trees(smeared, cfg.trees, cfg.features)) < len(trees) // 2  # the premise
+    for merged in (smeared, noisy_map(trees, 0.015)):
+        found = plot_trees(merged, cfg.trees, cfg.features, reference=reference)
+        assert len(found) == len(trees)
+        d = np.linalg.norm(found.xyz[:, None, :2] - trees[None, :, :2], axis=2)
+        # Every stem found, none twice (count above); the position is the smeared band's fit.
+        assert np.all(d.min(axis=0) < 0.1)
+
+
 def arc(centre, radius, a0, a1, n, noise_m, rng, z=(1.2, 1.4)) -> np.ndarray:
     """n points (n,3) of a stem's surface between angles a0 and a1 (radians) in the height band
     z, with radial noise noise_m."""

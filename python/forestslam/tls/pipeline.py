@@ -164,6 +164,12 @@ def _frame_points_times(
     return np.ascontiguousarray(pts[ok]), rings, times
 
 
+def merged_range_m(config: TlsConfig) -> float:
+    """Largest range (m) of the frame points that join the map (MapConfig.merge_max_range_m
+    within the frame's own range limit)."""
+    return min(config.map.frame_max_range_m, config.map.merge_max_range_m)
+
+
 def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.ndarray:
     """The usable points (N,3) of a registered frame in its registration frame (the sensor at
     record.t_mid_s), as the pipeline merged them: deskewed with record.deskew_twist and moved
@@ -977,7 +983,8 @@ class _Walk:
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
         if accepted:
-            self.gmap.add(transform_points(T, frame.points))
+            near = np.linalg.norm(frame.points, axis=1) <= merged_range_m(cfg)
+            self.gmap.add(transform_points(T, frame.points[near]))
             self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
             reg.good,

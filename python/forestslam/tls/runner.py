@@ -15,7 +15,13 @@ from forestslam.io.atomic import atomic_write_text
 from forestslam.sensors import load_profile
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.frame import LocalFrame
-from forestslam.tls.pipeline import TlsRun, register_mls_to_tls, unmerged_csv, unmerged_summary
+from forestslam.tls.pipeline import (
+    TlsRun,
+    merged_range_m,
+    register_mls_to_tls,
+    unmerged_csv,
+    unmerged_summary,
+)
 from forestslam.tls.trees import (
     circumference_coverage,
     fuse_with_reference,
@@ -197,8 +203,8 @@ def _plot_trees(run: TlsRun, config: TlsConfig, viewpoint: np.ndarray | None, fr
     """The merged map's stems fused with the reference's (trees.fuse_with_reference), and the
     reference's scanner positions the face test used (trees.reference_scanners, logged), in
     the run's local frame."""
-    views = (run.views, (config.map.frame_min_range_m, config.map.frame_max_range_m))
-    trees = plot_trees(run.map_points, config.trees, config.features, *views)
+    views = (run.views, (config.map.frame_min_range_m, merged_range_m(config)))
+    trees = plot_trees(run.map_points, config.trees, config.features, *views, run.reference)
     origin = -frame.offset[:2]
     scanners = reference_scanners(run.reference, config.trees, viewpoint, trees, origin)
     log.info(

@@ -91,18 +91,16 @@ def plot_trees(
     features: FeatureConfig,
     views: np.ndarray | None = None,
     view_range_m: tuple[float, float] = (0.0, np.inf),
+    reference: np.ndarray | None = None,
 ) -> PlotTrees:
     """Stems from horizontal-layer stem centres, DBH by the robust circle fit on the band
     config.band_m above the local ground (dbh_std_m from four sub-slices). views (P,2): the
     x-y positions the points were scanned from (a mobile walk's trajectory) within
-    view_range_m of them: the circle is then fitted under range noise (breast_circle)."""
+    view_range_m of them: the circle is then fitted under range noise (breast_circle).
+    reference (R,3): the TLS cloud the map was merged onto; its own stems join the
+    detections (see _stems)."""
     points = np.ascontiguousarray(points, dtype=np.float64)
-    stems, radii = reference_stems(
-        points,
-        features,
-        fit_inlier_m=config.stem_fit_inlier_m,
-        max_fit_rms_m=config.stem_max_fit_rms_m,
-    )
+    stems, radii = _stems(points, config, features, reference)
     if len(stems) == 0:
         empty = np.zeros(0)
         return PlotTrees(np.zeros((0, 3)), empty, empty, empty, [], views=views)
@@ -149,6 +147,26 @@ def plot_trees(
         views=views,
         view_range_m=view_range_m,
     )
+
+
+def _stems(
+    points: np.ndarray, config: TreeConfig, features: FeatureConfig, reference: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stem positions (S,3) and radii (S,) of the cloud, plus those of the reference whose
+    circle overlaps none of them. A merged map's stem walls carry every merged frame's pose
+    error, so over a long walk its layer fits fail the gates on stems the reference alone
+    shows clearly; the merged map must not lose them (its DBH is then still measured on the
+    merged band, and reported only when good enough, see report_dbh)."""
+    options = {"fit_inlier_m": config.stem_fit_inlier_m, "max_fit_rms_m": config.stem_max_fit_rms_m}
+    stems, radii = reference_stems(points, features, **options)
+    if reference is None or len(reference) == 0:
+        return stems, radii
+    ref_stems, ref_radii = reference_stems(reference, features, **options)
+    if len(stems) and len(ref_stems):
+        gap = np.linalg.norm(ref_stems[:, None, :2] - stems[None, :, :2], axis=2)
+        new = np.all(gap > ref_radii[:, None] + radii[None, :], axis=1)
+        ref_stems, ref_radii = ref_stems[new], ref_radii[new]
+    return np.vstack([stems, ref_stems]), np.concatenate([radii, ref_radii])
 
 
 def _dbh_sigma(radius_variance: float) -> float:
