@@ -170,6 +170,16 @@ def merged_range_m(config: TlsConfig) -> float:
     return min(config.map.frame_max_range_m, config.map.merge_max_range_m)
 
 
+def _merged_points(points: np.ndarray, config: TlsConfig) -> np.ndarray:
+    """The frame points (N,3) that join the map: all of them unless MapConfig.merge_max_range_m
+    is below the frame's own range limit. Without a cap the points are not filtered again: the
+    frame's points are deskewed, so their norms differ from the ranges the limit was applied to,
+    and a second cut at the same limit would drop a few edge points and change the map."""
+    if config.map.merge_max_range_m >= config.map.frame_max_range_m:
+        return points
+    return points[np.linalg.norm(points, axis=1) <= config.map.merge_max_range_m]
+
+
 def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.ndarray:
     """The usable points (N,3) of a registered frame in its registration frame (the sensor at
     record.t_mid_s), as the pipeline merged them: deskewed with record.deskew_twist and moved
@@ -983,8 +993,7 @@ class _Walk:
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
         if accepted:
-            near = np.linalg.norm(frame.points, axis=1) <= merged_range_m(cfg)
-            self.gmap.add(transform_points(T, frame.points[near]))
+            self.gmap.add(transform_points(T, _merged_points(frame.points, cfg)))
             self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
             reg.good,
