@@ -280,10 +280,11 @@ def print_simulated_protocol(args, has_dbh: bool) -> None:
     print(
         f"{'range m':>7} {'frames':>6} {'input':>6} {'queries':>7} {'success':>8} "
         f"{'rejected':>8} {'wrong acc':>9} {'median err m':>12} {'median deg':>10} "
-        f"{'trunks':>6} {'ms/query':>8} {'<=3 map':>7} {'success >=4 map':>15} "
+        f"{'trunks':>6} {'map':>4} {'ms/query':>8} {'<=3 map':>7} {'success >=4 map':>15} "
         f"{'4 map: right':>12} {'success >=5 map':>15} {'retried':>7}"
     )
     print(
+        "'trunks': median local trunks of the (first) view; 'map': median map trunks in it; "
         "'<=3 map': views holding at most 3 trunks of the map (within 0.5 m of one under the true "
         "pose; for '1>5' the 1-frame view): 3 points give only a triangle's shape, not testable "
         "against chance, so they are rejected by design; 'success >=4 map': success among the "
@@ -294,14 +295,14 @@ def print_simulated_protocol(args, has_dbh: bool) -> None:
 
 
 def run_simulated_range(args, xy, dbh, tree_map, has_dbh: bool) -> None:
-    """The rows of one range: 1 frame, 5 frames, and 1 frame retried with 5 when rejected (the
-    5-frame drives' last frame alone first)."""
-    for frames in (1, 5):
+    """The rows of one range: each of `args.frames` (default 1 and 5 frames), and for the most
+    frames 1 frame retried with them when rejected (those drives' last frame alone first)."""
+    for frames in args.frames:
         rng = np.random.default_rng(args.seed + frames)
         args.dbh_rng = np.random.default_rng(args.seed + 50 + frames)
         drives = [simulate_drive(xy, dbh, rng, frames, args) for _ in range(args.queries)]
         attempts = {str(frames): [[aggregate_view(d, args)] for d in drives]}
-        if frames > 1:
+        if frames > 1 and frames == max(args.frames):
             attempts[f"1>{frames}"] = [
                 [aggregate_view(d, args, 1), aggregate_view(d, args)] for d in drives
             ]
@@ -336,7 +337,8 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str) -> 
             c0 = time.process_time()
             loc = localize(tree_map, local, local_dbh_m=local_dbh if with_dbh else None)
             times.append(1e3 * (time.process_time() - c0))
-            trunks.append(len(local))
+            if attempt == 0:
+                trunks.append(len(local))
             retried += attempt > 0
             if loc.accepted:
                 break
@@ -362,7 +364,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str) -> 
         f"{ok / n:>8.1%} {rej / n:>8.1%} {wrong / n:>9.1%} "
         f"{np.median(errs) if errs else float('nan'):>12.3f} "
         f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
-        f"{np.mean(times):>8.2f} {(seen <= 3).sum():>7} {rate(seen >= 4):>15} "
+        f"{np.median(seen):>4.0f} {np.mean(times):>8.2f} {(seen <= 3).sum():>7} {rate(seen >= 4):>15} "
         f"{f'{right[seen == 4].sum()}/{(seen == 4).sum()}':>12} {rate(seen >= 5):>15} {retried:>7}"
     )
 
@@ -994,6 +996,12 @@ def main() -> int:
     parser.add_argument("--speed-queries", type=int, default=200)
     parser.add_argument(
         "--ranges", type=lambda v: [float(x) for x in v.split(",")], default=[20.0, 18.0, 15.0]
+    )
+    parser.add_argument(
+        "--frames",
+        type=lambda v: sorted({int(x) for x in v.split(",")}),
+        default=[1, 5],
+        help="frames per simulated query (comma list); the most also gives the retry row",
     )
     parser.add_argument("--range", type=float, default=20.0, help="for the speed part")
     parser.add_argument("--dropout", type=float, default=0.15)

@@ -236,3 +236,69 @@ TEST(Acceptance, LeaveOneOutRadiiOfChanceLandingsAreConservative) {
     EXPECT_LT(chance.mean, 1.0 + 0.03);
     EXPECT_LT(chance.above3, std::exp(-3.0) + 0.005);
 }
+
+TEST(Acceptance, SeedEvidenceInTheSearchedCubeIsExponentialAndSharper) {
+    // The triangle search finds every map shape whose sides are each within the tolerance h (a
+    // cube of side 2h): a chance match's differences are uniform in it, so the ball's volume
+    // over the cube's is the exact p-value, -ln of it Exp(1); sharper than the inscribed ball's
+    // (d / h)^m by m ln 2 - ln V_m(1) (0.65 nats for a triangle).
+    using forestslam::localization::seedEvidence;
+    using forestslam::localization::seedEvidenceCube;
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> u(-0.35, 0.35);
+    double sum = 0;
+    int above2 = 0;
+    const int n = 20000;
+    for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3d diff(u(rng), u(rng), u(rng));
+        const double v = seedEvidenceCube(diff.norm(), 0.35, 3, 0.0);
+        sum += v;
+        above2 += v > 2;
+    }
+    // Corners beyond the ball of radius h score 0 (conservative): mean and tail at most Exp(1)'s.
+    EXPECT_LT(sum / n, 1.0 + 0.02);
+    EXPECT_GT(sum / n, 0.8);
+    EXPECT_LT(double(above2) / n, std::exp(-2.0) + 0.006);
+    EXPECT_GT(double(above2) / n, std::exp(-2.0) - 0.01);
+    const double sharper = 3 * std::log(2.0) - std::log(4.0 / 3.0 * M_PI);
+    EXPECT_NEAR(seedEvidenceCube(0.05, 0.35, 3, 0.0) - seedEvidence(0.05, 0.35, 3, 0.0), sharper,
+                1e-12);
+    EXPECT_EQ(seedEvidenceCube(0.6, 0.35, 3, 0.0), 0.0);
+}
+
+namespace {
+// The seed triangle (0,0), (1,0), (0,1) exact, a fourth trunk at p moved by e on the map side:
+// its radius under the seeds' fit (the identity).
+double seedFitRadius(const Eigen::Vector2d &p, const Eigen::Vector2d &e) {
+    forestslam::Points2 local(4, 2), map(4, 2);
+    local << 0, 0, 1, 0, 0, 1, p.x(), p.y();
+    map = local;
+    map.row(3) += e.transpose();
+    const std::vector<std::pair<int, int>> pairs = {{0, 0}, {1, 1}, {2, 2}, {3, 3}};
+    const auto radii = forestslam::localization::seedFitRadii(local, map, pairs, {0, 1, 2},
+                                                              Eigen::Vector3d::Zero());
+    EXPECT_EQ(radii[0], -1.0);  // seeds carry no closeness
+    return radii[3];
+}
+}  // namespace
+
+TEST(Acceptance, SeedFitRadiiScoreOnlyTheNonSeedTrunks) {
+    // At the seeds' centroid no lever arm: the radius is the plain residual; far along the arc
+    // it is discounted, towards the seeds not.
+    const Eigen::Vector2d centroid(1.0 / 3, 1.0 / 3);
+    EXPECT_NEAR(seedFitRadius(centroid, {0.1, 0}), 0.1, 1e-9);
+    const Eigen::Vector2d far(20, 0);
+    EXPECT_LT(seedFitRadius(far, {0, 0.2}), 0.2 / 3);
+    EXPECT_GT(seedFitRadius(far, {0.2, 0}), 0.2);
+}
+
+TEST(Acceptance, SeedFitRadiiOfChanceLandingsAreConservative) {
+    // A chance landing is independent of the seeds' fit: its closeness is at most Exp(1).
+    for (const Eigen::Vector2d p : {Eigen::Vector2d(15, 3), Eigen::Vector2d(0.3, 0.4)}) {
+        const ClosenessStats chance = chanceCloseness(7, 0.02, 0.5, [&](double r, double a) {
+            return seedFitRadius(p, {r * std::cos(a), r * std::sin(a)});
+        });
+        EXPECT_LT(chance.mean, 1.0 + 0.03);
+        EXPECT_LT(chance.above3, std::exp(-3.0) + 0.005);
+    }
+}
