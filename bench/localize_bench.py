@@ -364,7 +364,8 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str) -> 
         f"{ok / n:>8.1%} {rej / n:>8.1%} {wrong / n:>9.1%} "
         f"{np.median(errs) if errs else float('nan'):>12.3f} "
         f"{np.median(degs) if degs else float('nan'):>10.2f} {np.median(trunks):>6.0f} "
-        f"{np.median(seen):>4.0f} {np.mean(times):>8.2f} {(seen <= 3).sum():>7} {rate(seen >= 4):>15} "
+        f"{np.median(seen):>4.0f} {np.mean(times):>8.2f} {(seen <= 3).sum():>7} "
+        f"{rate(seen >= 4):>15} "
         f"{f'{right[seen == 4].sum()}/{(seen == 4).sum()}':>12} {rate(seen >= 5):>15} {retried:>7}"
     )
 
