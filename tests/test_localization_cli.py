@@ -155,7 +155,8 @@ def test_packets_decoded_by_the_profile_and_a_checkpoint_after_every_query(
 
     monkeypatch.setattr(forestslam.io, "read_scans", read_scans)
     monkeypatch.setattr(forestslam.perception, "detect", detect_and_look)
-    run = run_localization("seq.bag", TreeMap(doubles), "vlp16", out, every=2)
+    # No retry: one frame per query, so only query scans are detected (no odometry).
+    run = run_localization("seq.bag", TreeMap(doubles), "vlp16", out, every=2, retry_frames=0)
     assert packets_seen == [load_profile("vlp16").packet_config()]
     assert len(run.queries) == 3  # scans 0, 2, 4
     assert [s.get("queries") for s in summaries] == [None, 1, 2]
@@ -193,10 +194,34 @@ def test_a_rejected_query_is_retried_on_more_frames(doubles, tmp_path):
         assert np.hypot(q["x"] - truth[0, 3], q["y"] - truth[1, 3]) < 0.1
     # Without the retry the same queries are all rejected (the 1-frame answer is not relabelled).
     plain = run_localization(
-        "seq.bag", TreeMap(doubles), "vlp16", tmp_path / "plain", config_path=config
+        "seq.bag", TreeMap(doubles), "vlp16", tmp_path / "plain", config_path=config, retry_frames=0
     )
     assert plain.accepted == 0
     assert all(q["frames"] == 1 and q["first_reason"] == "" for q in plain.queries)
+    assert not any(q["retried"] for q in plain.queries)
+
+
+def test_sequence_queries_are_retried_by_default(doubles, tmp_path):
+    """localization.retry_frames (5) is on by default for scans: the rejected 1-frame queries
+    are retried on up to 5 frames at least retry_keyframe_distance_m apart; the records and
+    run.yaml's summary say which; with --frames 5 (no more frames to add) it is off."""
+    import yaml
+
+    config = tmp_path / "config.yaml"
+    config.write_text("localization:\n  min_inliers: 20\n  retry_keyframe_distance_m: 1.0\n")
+    out = tmp_path / "out"
+    run = run_localization("seq.bag", TreeMap(doubles), "vlp16", out, config_path=config)
+    doc = yaml.safe_load((out / "run.yaml").read_text())
+    assert doc["retry_frames"] == 5
+    retried = [q for q in run.queries if q["retried"]]
+    assert len(retried) == len(run.queries) - 1  # the first scan has nothing to add
+    assert doc["summary"]["retried"] == len(retried)
+    assert all(2 <= q["frames"] <= 5 and q["first_reason"] for q in retried)
+    assert sum(q["accepted"] for q in retried) >= 3
+    wide = run_localization(
+        "seq.bag", TreeMap(doubles), "vlp16", tmp_path / "wide", frames=5, config_path=config
+    )
+    assert not any(q["retried"] for q in wide.queries)
 
 
 def test_retry_frames_must_exceed_frames(doubles, tmp_path):

@@ -37,12 +37,14 @@ def register(app: typer.Typer) -> None:
         ),
         out: OutDir = ...,
         frames: int = typer.Option(1, "--frames", help="Scans aggregated per query (N)."),
-        retry_frames: int = typer.Option(
-            0,
+        retry_frames: int | None = typer.Option(
+            None,
             "--retry-frames",
             help="When a query is rejected, retry it once on up to this many of the last "
-            "frames (> N), aggregated by odometry; each query records the frames of its "
-            "answer (0: no retry).",
+            "frames (> N), at least localization.retry_keyframe_distance_m (3 m) apart, "
+            "aggregated by odometry; each query records `retried` and the frames of its "
+            "answer. Default: localization.retry_frames (5; off when N >= 5); 0: no retry. "
+            "Scans only: a tree table's frames are queried one by one.",
         ),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
         keyframe_distance: float | None = typer.Option(
@@ -103,7 +105,7 @@ def _ignored_sensor(sensor: str | None, input_path: Path) -> None:
         )
 
 
-def _ignored_retry(retry_frames: int, input_path: Path) -> None:
+def _ignored_retry(retry_frames: int | None, input_path: Path) -> None:
     if retry_frames:
         import logging
 
@@ -123,10 +125,11 @@ def _localize_scans(input_path: Path, tree_map, sensor: str | None, out: Path, *
     from forestslam.localization.runner import run_localization
 
     r = run_localization(input_path, tree_map, sensor, out, **options)
-    retried = [q for q in r.queries if q["first_reason"]]
+    retried = [q for q in r.queries if q["retried"]]
     retry = (
-        f" ({sum(q['accepted'] for q in retried)} of them on a retry with more frames)"
-        if options.get("retry_frames")
+        f" ({sum(q['accepted'] for q in retried)} of them on a retry with more frames; "
+        f"{len(retried)} retried)"
+        if retried
         else ""
     )
     print(

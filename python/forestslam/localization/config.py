@@ -78,6 +78,11 @@ class LocalizationConfig:
     # frames of a query this far apart; 0 = consecutive scans
     keyframe_distance_m: NonNegative = 0.0
     min_observations: PositiveInt = 1  # with >= 3 frames, trunks seen fewer times are dropped
+    # Sequence input (`forestslam localize BAG`): a rejected query is retried once on up to this
+    # many of the last frames, aggregated by odometry (the trunks already driven past; a view
+    # of at most 3 map trunks is always rejected). 0 or at most the query's frames: off.
+    retry_frames: NonNegativeInt = 5
+    retry_keyframe_distance_m: NonNegative = 3.0  # the retry's frames at least this far apart
     max_range_m: Positive = 25.0  # detections further from their sensor are dropped
 
     @property

@@ -100,6 +100,8 @@ _NOT_IN_CORE = (
     "max_range_m",
     "distinct_yaw_deg",
     "matcher",
+    "retry_frames",
+    "retry_keyframe_distance_m",
 )
 
 

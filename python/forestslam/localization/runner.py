@@ -9,11 +9,12 @@ leaves valid files up to its last query.
 With ``keyframe_distance_m`` > 0 the N frames of a query are the current scan and the N-1 latest
 earlier scans at least that far apart (a wider view); 0 means the last N scans.
 
-With ``retry_frames`` R > N, a rejected query is tried once more on the last R frames (as many as
-the sequence has given so far), aggregated by odometry like N: the machine told "rejected" waits
-for more trunks, and these are the trunks it has already driven past. The record says which
-answer it is: ``frames`` (the frames of the answer) and ``first_reason`` (why the N-frame query
-was rejected; "" when not retried).
+With ``retry_frames`` R > N (``localization.retry_frames``, 5 by default), a rejected query is
+tried once more on the last R frames at least ``retry_keyframe_distance_m`` (3 m) apart (as many
+as the sequence has given so far), aggregated by odometry like N: the machine told "rejected"
+waits for more trunks, and these are the trunks it has already driven past. The record says
+which answer it is: ``retried``, ``frames`` (the frames of the answer) and ``first_reason`` (why
+the N-frame query was rejected; "" when not retried); run.yaml's summary counts the retried.
 """
 
 from __future__ import annotations
@@ -56,12 +57,19 @@ class LocalizationRun:
 
 
 def _query_record(
-    stamp: float, scan: int, trunks: int, loc: Localization, frames: int = 1, first_reason: str = ""
+    stamp: float,
+    scan: int,
+    trunks: int,
+    loc: Localization,
+    frames: int = 1,
+    first_reason: str = "",
+    retried: bool = False,
 ) -> dict:
     return {
         "stamp": float(stamp),
         "scan": int(scan),
         "frames": int(frames),
+        "retried": bool(retried),
         "first_reason": first_reason,
         "accepted": loc.accepted,
         "x": float(loc.x),
@@ -144,6 +152,7 @@ def run_localize_job(
                 "scans": run.scans,
                 "queries": len(run.queries),
                 "accepted": run.accepted,
+                "retried": sum(bool(q.get("retried")) for q in run.queries),
                 "wall_s": round(run.wall_s, 3),
             }
 
@@ -175,13 +184,14 @@ def run_localization(
     progress: bool = False,
     keyframe_distance_m: float | None = None,
     overwrite: bool = False,
-    retry_frames: int = 0,
+    retry_frames: int | None = None,
 ) -> LocalizationRun:
     """Localize along the scans of ``input_path`` in the map; writes the two output files.
 
     The local frame of a query is the sensor frame of its last scan; the pose written is that
     sensor's planar pose (x, y, yaw; z, roll and pitch zero) in the map frame. ``retry_frames``
-    > ``frames``: a rejected query is retried once on up to that many frames (0: never).
+    > ``frames``: a rejected query is retried once on up to that many frames (0: never; None:
+    ``localization.retry_frames`` of the config, off when not above ``frames``).
     """
     from forestslam.config_utils import to_dict
     from forestslam.job import Progress, ScanWindow
@@ -189,12 +199,14 @@ def run_localization(
 
     if frames < 1 or every < 1:
         raise InputError(f"--frames and --every must be >= 1 (got {frames}, {every})")
-    if retry_frames != 0 and retry_frames <= frames:
+    if retry_frames is not None and retry_frames != 0 and retry_frames <= frames:
         raise InputError(
             f"--retry-frames must be 0 (off) or more than --frames (got {retry_frames}, {frames})"
         )
     window = ScanWindow(start, max_scans)
     root, cfg = _load_config(config_path, keyframe_distance_m)
+    if retry_frames is None:  # the config's, off when it asks for no more than a query has
+        retry_frames = cfg.retry_frames if cfg.retry_frames > frames else 0
     profile = load_profile(sensor)
     tree_map = _open_map(map_path)
     # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
@@ -205,6 +217,7 @@ def run_localization(
         "sensor": profile.name,
         "frames": frames,
         "retry_frames": retry_frames,
+        "retry_keyframe_distance_m": cfg.retry_keyframe_distance_m,
         "every": every,
         "keyframe_distance_m": cfg.keyframe_distance_m,
         **window.meta(),
@@ -238,20 +251,37 @@ class _QuerySetup:
     retry_frames: int = 0  # > frames: a rejected query is retried on up to this many frames
 
     @property
-    def window_frames(self) -> int:
-        """Frames kept for a query: the current scan and window_frames - 1 earlier ones."""
-        return max(self.frames, self.retry_frames)
+    def needs_odometry(self) -> bool:
+        """Frames aggregated: a query of several frames, or a retry."""
+        return max(self.frames, self.retry_frames) > 1
+
+
+class _Keyframes:
+    """The last `size` earlier frames (stems (K,2), T_world_sensor (4,4)), each at least
+    `distance_m` from the one before."""
+
+    def __init__(self, size: int, distance_m: float) -> None:
+        self.frames: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(size, 0))
+        self.distance_m = distance_m
+
+    def offer(self, xy: np.ndarray, T: np.ndarray) -> None:
+        if self.frames.maxlen and (
+            not self.frames
+            or np.linalg.norm(T[:2, 3] - self.frames[-1][1][:2, 3]) >= self.distance_m
+        ):
+            self.frames.append((xy, T))
 
 
 def _make_odometry(q: _QuerySetup):
     """Odometry for aggregated queries (frames or retry_frames > 1), else None."""
-    if q.window_frames <= 1:
+    if not q.needs_odometry:
         return None
     try:
         from forestslam.odometry import Odometry
     except ImportError as exc:
         raise ProcessingError(
-            f"{q.window_frames} frames per query need odometry, not available: {exc}"
+            f"{max(q.frames, q.retry_frames)} frames per query need odometry, not available: "
+            f"{exc}"
         ) from exc
     return Odometry(
         q.profile, getattr(q.root, "odometry", None), getattr(q.root, "perception", None)
@@ -263,9 +293,10 @@ def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar
     from forestslam.perception import detect
 
     odometry = _make_odometry(q)
-    # Earlier frames (keyframes at least keyframe_distance_m apart); the current scan is always
-    # the last frame of a query.
-    window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=q.window_frames - 1)
+    # Earlier frames (keyframes at least keyframe_distance_m apart, the retry's at least
+    # retry_keyframe_distance_m); the current scan is always the last frame of a query.
+    window = _Keyframes(q.frames - 1, q.cfg.keyframe_distance_m)
+    retry_window = _Keyframes(q.retry_frames - 1, q.cfg.retry_keyframe_distance_m)
     for i, scan in enumerate(scans, start=first):
         run.scans += 1
         bar.update(1, queries=len(run.queries), accepted=run.accepted)
@@ -280,32 +311,31 @@ def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar
             continue
         xy = np.zeros((0, 2)) if stems is None else np.asarray(stems.xy, dtype=np.float64)
         record = None
-        if due and len(window) >= q.frames - 1:
-            record = _query(q, list(window), xy, T, scan.stamp, i)
-        if q.window_frames > 1 and (
-            not window
-            or np.linalg.norm(T[:2, 3] - window[-1][1][:2, 3]) >= q.cfg.keyframe_distance_m
-        ):
-            window.append((xy, T))
+        if due and len(window.frames) >= q.frames - 1:
+            record = _query(q, list(window.frames), list(retry_window.frames), xy, T, scan, i)
+        window.offer(xy, T)
+        retry_window.offer(xy, T)
         if record is None:
             continue
         run.queries.append(record)
         run.query_done()
 
 
-def _query(q: _QuerySetup, earlier: list, xy: np.ndarray, T: np.ndarray, stamp, scan) -> dict:
-    """The record of one query: the current scan and the last frames - 1 earlier frames; when
-    rejected and retry_frames asks for more than that, once more on up to retry_frames."""
+def _query(
+    q: _QuerySetup, earlier: list, retry_earlier: list, xy: np.ndarray, T: np.ndarray, scan, i
+) -> dict:
+    """The record of one query (scan `scan`, number i): the current scan and the last frames - 1
+    earlier frames; when rejected and the retry's frames hold more than that, once more on the
+    current scan and up to retry_frames - 1 earlier ones."""
 
-    def attempt(n: int) -> tuple[Localization, int, int]:
-        frames = earlier[len(earlier) - (n - 1) :] if n > 1 else []
+    def attempt(frames: list) -> tuple[Localization, int, int]:
         local = aggregate_stems([f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg)
         return localize(q.tree_map, local, q.cfg), len(local), len(frames) + 1
 
-    loc, trunks, used = attempt(q.frames)
-    first_reason = ""
-    if loc.rejected and q.retry_frames > q.frames and len(earlier) >= q.frames:
-        first_reason = loc.reason
-        loc, trunks, used = attempt(min(q.retry_frames, len(earlier) + 1))
-        log.debug("scan %d: rejected (%s), retried on %d frames", scan, first_reason, used)
-    return _query_record(stamp, scan, trunks, loc, used, first_reason)
+    loc, trunks, used = attempt(earlier[len(earlier) - (q.frames - 1) :] if q.frames > 1 else [])
+    first_reason, retried = "", False
+    if loc.rejected and len(retry_earlier) >= q.frames:
+        first_reason, retried = loc.reason, True
+        loc, trunks, used = attempt(retry_earlier)
+        log.debug("scan %d: rejected (%s), retried on %d frames", i, first_reason, used)
+    return _query_record(scan.stamp, i, trunks, loc, used, first_reason, retried)
