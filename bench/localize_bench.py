@@ -524,14 +524,54 @@ def in_polygons(xy: np.ndarray, polygons) -> np.ndarray:
     return inside
 
 
+def treeloc_retry_view(table, k: int, args, config):
+    """The query of frame k retried as `forestslam localize --retry-frames R` would: frame k
+    and up to R - 1 earlier frames at least config.retry_keyframe_distance_m apart, each
+    levelled by its stems, aggregated in frame k's levelled frame by the table's reference
+    poses (standing in for odometry: no drift)."""
+    from forestslam.geometry import planar_pose
+    from forestslam.localization import aggregate_stems
+    from forestslam.localization.tables import query_trees, true_planar_pose
+
+    frames = [int(f) for f in table.frames if f <= k][::-1]  # k first, then earlier
+    chosen, last = [], None
+    for j in frames:
+        pos = table.poses[j][:2, 3]
+        if last is None or np.linalg.norm(pos - last) >= config.retry_keyframe_distance_m:
+            chosen.append(j)
+            last = pos
+        if len(chosen) >= args.treeloc_retry:
+            break
+    xys, poses = [], []
+    for j in chosen[::-1]:
+        xy, _dbh, R = query_trees(table, j, args.treeloc_gravity, config.max_range_m)
+        xys.append(xy)
+        poses.append(planar_pose(*true_planar_pose(table, j, R)))
+    return aggregate_stems(xys, poses, config)
+
+
+def treeloc_localize(tree_map, table, k: int, args, config):
+    """(answer, levelling of frame k, trunks, retried) of frame k's query; retried on more
+    frames when rejected and --treeloc-retry asks for it."""
+    from forestslam.localization import localize
+    from forestslam.localization.tables import query_trees
+
+    local, local_dbh, R = query_trees(table, int(k), args.treeloc_gravity, config.max_range_m)
+    loc = localize(tree_map, local, config, local_dbh if args.treeloc_dbh else None)
+    if loc.rejected and args.treeloc_retry > 1:
+        local = treeloc_retry_view(table, int(k), args, config)
+        return localize(tree_map, local, config), R, len(local), True
+    return loc, R, len(local), False
+
+
 def run_treeloc(args) -> None:
     """Wild-Places Venman V03/V04 tree tables (RealtimeTrees, as shipped with TreeLoc++): each
     session's frames as queries in a map built from the other session's frames."""
     from scipy.spatial import cKDTree
 
     from forestslam.io.tree_tables import read_tree_table
-    from forestslam.localization import LocalizationConfig, build_map, localize
-    from forestslam.localization.tables import query_trees, table_map_xy, true_planar_pose
+    from forestslam.localization import LocalizationConfig, build_map
+    from forestslam.localization.tables import table_map_xy, true_planar_pose
 
     root = DATA / "treeloc"
     if not (root / "wild_v03").is_dir():
@@ -570,11 +610,8 @@ def run_treeloc(args) -> None:
         rows = []
         for kind, ks in (("test", test), ("absent", absent)):
             for k in ks:
-                local, local_dbh, R = query_trees(
-                    qt, int(k), args.treeloc_gravity, config.max_range_m
-                )
                 c0 = time.process_time()
-                loc = localize(tree_map, local, config, local_dbh if args.treeloc_dbh else None)
+                loc, R, n_local, retried = treeloc_localize(tree_map, qt, int(k), args, config)
                 ms = 1e3 * (time.process_time() - c0)
                 tx, ty, tyaw = true_planar_pose(qt, int(k), R)
                 rows.append(
@@ -585,8 +622,9 @@ def run_treeloc(args) -> None:
                         loc.y - ty,
                         math.remainder(loc.yaw - tyaw, 2 * math.pi),
                         ms,
-                        len(local),
+                        n_local,
                         loc.stage,
+                        retried,
                     )
                 )
         test_rows = [r for r in rows if r[0] == "test"]
@@ -610,7 +648,9 @@ def run_treeloc(args) -> None:
         )
         print(
             f"  accepted {len(acc)}/{n} = {len(acc) / max(n, 1):.1%}, "
-            f"triangle stage {sum(r[7] == 'triangle' for r in acc)}"
+            f"triangle stage {sum(r[7] == 'triangle' for r in acc)}; retried "
+            f"{sum(r[8] for r in test_rows)} (on up to {args.treeloc_retry} frames), accepted "
+            f"on the retry {sum(r[8] for r in acc)}"
         )
         print(
             f"  within 0.5 m / 5 deg of the reference: {ok_raw.sum()}/{n} = "
@@ -645,9 +685,7 @@ def run_treeloc(args) -> None:
         away = frames[cKDTree(map_xy[west]).query(q_pos[frames])[0] > reach]
         half_acc = 0
         for k in away:
-            local, local_dbh, _R = query_trees(qt, int(k), args.treeloc_gravity, config.max_range_m)
-            loc = localize(half, local, config, local_dbh if args.treeloc_dbh else None)
-            half_acc += loc.accepted
+            half_acc += treeloc_localize(half, qt, int(k), args, config)[0].accepted
         print(
             f"  absent places in the map's western half ({west.sum()} trees; queries > "
             f"{reach:.0f} m from all of them): accepted {half_acc}/{len(away)} = "
@@ -1038,6 +1076,12 @@ def main() -> int:
     )
     parser.add_argument(
         "--treeloc-range", type=float, default=None, help="query range (default: the config's)"
+    )
+    parser.add_argument(
+        "--treeloc-retry",
+        type=int,
+        default=0,
+        help="retry a rejected tree-table query on up to this many frames (0: no retry)",
     )
     parser.add_argument(
         "--sequences",

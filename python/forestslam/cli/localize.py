@@ -12,6 +12,14 @@ from forestslam.cli.options import ConfigFile, MaxScans, NoProgress, OutDir, Ove
 Gravity = Literal["stems", "reference", "none"]  # how a tree table's frames are levelled
 
 
+_RETRY_HELP = (
+    "When a query is rejected, retry it once on up to this many of the last frames (> N), at "
+    "least localization.retry_keyframe_distance_m (3 m) apart, aggregated by odometry; each "
+    "query records `retried` and the frames of its answer. Default: localization.retry_frames "
+    "(5; off when N >= 5); 0: no retry. Scans only: a tree table's frames are queried one by one."
+)
+
+
 def register(app: typer.Typer) -> None:
     @app.command(
         "localize",
@@ -40,11 +48,7 @@ def register(app: typer.Typer) -> None:
         retry_frames: int | None = typer.Option(
             None,
             "--retry-frames",
-            help="When a query is rejected, retry it once on up to this many of the last "
-            "frames (> N), at least localization.retry_keyframe_distance_m (3 m) apart, "
-            "aggregated by odometry; each query records `retried` and the frames of its "
-            "answer. Default: localization.retry_frames (5; off when N >= 5); 0: no retry. "
-            "Scans only: a tree table's frames are queried one by one.",
+            help=_RETRY_HELP,
         ),
         every: int = typer.Option(1, "--every", help="A query every K scans."),
         keyframe_distance: float | None = typer.Option(
