@@ -428,7 +428,8 @@ def run_simulated_absent(args) -> None:
        (poses >= range + 5 m from the boundary, so no view reaches the mapped half);
     b) spruces (a denser, different stand) queried in the whole longleaf map;
     c) synthetic stands (uniform, 1 m minimum spacing, densities 0.01-0.05 /m^2) in longleaf;
-    d) the bei-density clustered stand split in halves, and longleaf queried in it."""
+    d) the bei-density clustered stand split in halves, and longleaf queried in it;
+    e) every other `--stand` (a CSV, e.g. bei) split in halves."""
     from forestslam.localization import build_map
 
     args.range = args.ranges[0]
@@ -462,6 +463,9 @@ def run_simulated_absent(args) -> None:
             drive = partial(simulate_drive, oxy, odbh, rng, frames, args, lo, hi)
             count_absent(name, frames, whole, drive, args, totals)
     run_clustered_absent(args, xy, dbh, totals)
+    for name in args.stand:
+        if name not in ("longleaf", "clustered"):
+            run_stand_absent(args, name, totals)
     total, total_retry = max(totals[0], 1), max(totals[3], 1)
     print(
         f"absent places accepted: xy {totals[1]}/{total} = {totals[1] / total:.2%}, with DBH "
@@ -487,6 +491,21 @@ def run_clustered_absent(args, ll_xy, ll_dbh, totals) -> None:
     for frames in (1, 5):
         drive = partial(simulate_drive, ll_xy, ll_dbh, rng, frames, args)
         count_absent("longleaf in clustered", frames, whole, drive, args, totals)
+
+
+def run_stand_absent(args, name: str, totals) -> None:
+    """Absent places of another `--stand` (e.g. bei): its halves (own random stream)."""
+    from forestslam.localization import build_map
+
+    rng = np.random.default_rng(args.seed + 140)
+    label, xy, dbh = stand_by_name(name)
+    has_dbh = bool(np.isfinite(dbh).any())
+    short = Path(label).stem
+    for case, (in_map, (xlo, xhi)) in halves(short, xy, args).items():
+        tree_map = build_map(xy[in_map], dbh[in_map] if has_dbh else None)
+        for frames in (1, 5):
+            drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
+            count_absent(case, frames, tree_map, drive, args, totals)
 
 
 def simulate_drive_x(xy, dbh, rng, frames, args, xlo, xhi) -> Drive:

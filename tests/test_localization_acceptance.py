@@ -178,20 +178,15 @@ def test_seed_match_closeness_is_evidence_in_a_sparse_view():
         "seed_evidence", 20, (6, 4), view, closeness_evidence=False
     )
     assert alone[True] > alone[False]
-    # Beside the closeness of every non-seed trunk (under the seeds' own fit, 11 views without
-    # the seed term; 6 when the closeness left the seeds' share out by dropping the closest
-    # inliers) the seed term adds fewer views than it did (+7 then).
     found = _views_found_with_and_without("seed_evidence", 20, (6, 4), view)
-    assert found[True] >= found[False] + 2
+    assert found[True] >= found[False] + 4
 
 
 def test_views_of_exactly_four_trunks_are_found_and_absent_ones_stay_rejected():
     """A sparse stand (0.01 /m^2), 12 m views holding exactly 4 map trunks and one false trunk:
-    a triangle and one trunk more. Its closeness under the seed triangle's own fit and the
-    triangle's shape agreement against the whole searched cube of side differences find 90 of
-    the 96 views, none wrong (71 when the closeness was that of the least close of the 4
-    inliers and the shape was tested against the cube's inscribed ball); the same poses in
-    another stand stay rejected (fixed seeds)."""
+    a triangle and one trunk more. The triangle's shape agreement tested against the whole
+    searched cube of side differences finds 84 of the 96 views, none wrong (71 against the
+    cube's inscribed ball); the same poses in another stand stay rejected (fixed seeds)."""
     xy = stand(400, 200.0, seed=3, spacing=4.0)
     other = stand(400, 200.0, seed=33, spacing=4.0)
     tree_map = build_map(xy)
@@ -208,7 +203,7 @@ def test_views_of_exactly_four_trunks_are_found_and_absent_ones_stay_rejected():
             found += 1
         assert localize(tree_map, observe(other, truth, 12.0, 0.05, 0.0, 1, seed=q)).rejected
     assert views == 96
-    assert found >= 85
+    assert found >= 80
 
 
 def _view_with_dbh(trees, dbh, truth, seed, dbh_noise):

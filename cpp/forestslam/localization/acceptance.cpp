@@ -15,15 +15,6 @@ Eigen::Vector2d rotate(double yaw, const Eigen::Vector2d &p) {
     const double c = std::cos(yaw), s = std::sin(yaw);
     return {c * p.x() - s * p.y(), s * p.x() + c * p.y()};
 }
-
-// Radius of the circle with the area of the error ellipse through residual e, for a trunk
-// predicted by a rigid fit to m points: covariance proportional to a I + v v^T, a = 1 + 1/m,
-// v the lever arm's perpendicular (map frame) over sqrt(spread) (see leaveOneOutRadii).
-double ellipseRadius(const Eigen::Vector2d &e, const Eigen::Vector2d &v, double a) {
-    const double vv = v.squaredNorm(), ve = v.dot(e);
-    const double mahalanobis2 = (e.squaredNorm() - ve * ve / (a + vv)) / a;
-    return std::sqrt(std::max(0.0, mahalanobis2) * std::sqrt(a * (a + vv)));
-}
 }  // namespace
 
 DensityGrid::DensityGrid(const Eigen::Ref<const Points2> &xy, double cell_m, int half_window)
@@ -209,37 +200,9 @@ std::vector<double> leaveOneOutRadii(const Points2 &local, const Points2 &map,
         // The lever arm's perpendicular in the map frame, scaled by 1 / sqrt(S).
         const Eigen::Vector2d r = p - lc;
         const Eigen::Vector2d v = rotate(yaw, Eigen::Vector2d(-r.y(), r.x())) / std::sqrt(spread);
-        out[k] = ellipseRadius(e, v, a);
-    }
-    return out;
-}
-
-std::vector<double> seedFitRadii(const Points2 &local, const Points2 &map,
-                                 const std::vector<std::pair<int, int>> &pairs,
-                                 const std::vector<int> &seed_rows, const Eigen::Vector3d &pose) {
-    std::vector<double> out(pairs.size(), -1.0);
-    if (seed_rows.empty()) return out;
-    Eigen::Vector2d lc = Eigen::Vector2d::Zero();
-    for (int r : seed_rows) lc += local.row(r).transpose();
-    const double m = double(seed_rows.size());
-    lc /= m;
-    double spread = 0;
-    for (int r : seed_rows) spread += (local.row(r).transpose() - lc).squaredNorm();
-    const double a = 1.0 + 1.0 / m;
-    for (size_t k = 0; k < pairs.size(); ++k) {
-        const int row = pairs[k].first;
-        if (std::find(seed_rows.begin(), seed_rows.end(), row) != seed_rows.end()) continue;
-        const Eigen::Vector2d p = local.row(row).transpose();
-        const Eigen::Vector2d e =
-            rotate(pose[2], p) + pose.head<2>() - map.row(pairs[k].second).transpose();
-        if (!(spread > 0)) {
-            out[k] = e.norm();
-            continue;
-        }
-        const Eigen::Vector2d r = p - lc;
-        const Eigen::Vector2d v =
-            rotate(pose[2], Eigen::Vector2d(-r.y(), r.x())) / std::sqrt(spread);
-        out[k] = ellipseRadius(e, v, a);
+        const double vv = v.squaredNorm(), ve = v.dot(e);
+        const double mahalanobis2 = (e.squaredNorm() - ve * ve / (a + vv)) / a;
+        out[k] = std::sqrt(std::max(0.0, mahalanobis2) * std::sqrt(a * (a + vv)));
     }
     return out;
 }

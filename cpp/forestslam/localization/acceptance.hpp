@@ -91,17 +91,6 @@ double seedEvidence(double deviation_m, double radius_m, int m, double floor_m);
 // for a triangle's 3 sides) and as exact: the density of map shapes is flat in the cube too.
 double seedEvidenceCube(double deviation_m, double half_width_m, int m, double floor_m);
 
-// Each non-seed pair's residual under the rigid fit to the seed pairs alone (the hypothesis'
-// pose `pose`, x y yaw of T_map_local, fitted to the local rows `seed_rows`), as the radius of
-// the circle with the area of its prediction's error ellipse (see leaveOneOutRadii below); -1
-// for the pairs whose local row is a seed. Under a chance pose each non-seed trunk lands
-// independently of the seeds' fit, so every radius is a fair draw (no other chance inlier
-// pulls the fit towards its own map trunk, as in the leave-one-out fit), and none has to be
-// dropped: a true pose's non-seed trunks all count.
-std::vector<double> seedFitRadii(const Points2 &local, const Points2 &map,
-                                 const std::vector<std::pair<int, int>> &pairs,
-                                 const std::vector<int> &seed_rows, const Eigen::Vector3d &pose);
-
 // Each pair's residual under the rigid fit to all the other pairs (leave-one-out, closed form;
 // local and map rows paired by `pairs`), as the radius of the circle with the area of the
 // error ellipse through it; empty when fewer than 4 pairs.

@@ -417,9 +417,8 @@ struct TreeMap::Hypotheses {
     int verified = 0;  // every verified correspondence, duplicates included (time budget)
     std::vector<Eigen::Vector3d> matches;  // the pose of every verified correspondence
 
-    // seeds: the local rows pose was fitted to (3 or 6).
     void add(const Eigen::Vector3d &pose, const Points2 &local, const PointGrid &grid, double gate,
-             LocalizationStage stage, double seed_evidence, const std::vector<int> &seeds) {
+             LocalizationStage stage, double seed_evidence) {
         ++verified;
         matches.push_back(pose);
         const auto qx = static_cast<int64_t>(std::floor(pose[0] / 0.25));
@@ -427,10 +426,7 @@ struct TreeMap::Hypotheses {
         const auto qa = static_cast<int64_t>(std::floor(wrapAngle(pose[2]) / 0.01));
         const uint64_t h = cellKey3(qx, qy, qa);
         if (!seen.insert(h).second) return;
-        Hypothesis hyp{pose, consensus(local, pose, grid, gate), stage, seed_evidence};
-        hyp.seed_count = static_cast<int>(std::min<size_t>(seeds.size(), hyp.seed_rows.size()));
-        std::copy_n(seeds.begin(), hyp.seed_count, hyp.seed_rows.begin());
-        list.push_back(hyp);
+        list.push_back({pose, consensus(local, pose, grid, gate), stage, seed_evidence});
         best = std::max(best, list.back().score);
     }
 };
@@ -451,8 +447,6 @@ struct TreeMap::Query {
         if (cfg.max_query_trunks > 0 && int(near_rows.size()) > cfg.max_query_trunks)
             near_rows.resize(cfg.max_query_trunks);
         scoring = rowsOf(input, near_rows);
-        scoring_row.assign(input.rows(), -1);
-        for (size_t k = 0; k < near_rows.size(); ++k) scoring_row[near_rows[k]] = int(k);
         if (!with_dbh) return;
         scoring_dbh.resize(near_rows.size());
         for (size_t k = 0; k < near_rows.size(); ++k) scoring_dbh[k] = local_dbh[near_rows[k]];
@@ -463,7 +457,6 @@ struct TreeMap::Query {
     Points2 usable;                   // finite, de-duplicated trunks (the rows tri kept)
     std::vector<int> near_rows;       // rows of input nearest the origin (max_query_trunks)
     Points2 scoring;                  // those rows: the hypotheses are scored on them
-    std::vector<int> scoring_row;     // per input row its row of scoring (-1: not scoring)
     Eigen::VectorXd scoring_dbh;      // their diameters; empty unless with_dbh
 };
 
@@ -547,7 +540,6 @@ void TreeMap::matchStar(const Query &q, const Star &star, const GlobalLocalizerC
     // longer spread over the whole tolerance; their edges are not tested for it.
     const bool saturated = int(idx.size()) >= cfg.candidates_per_star;
     std::vector<Eigen::Vector2d> lp(6), mp(6);
-    const std::vector<int> seeds(star.vertices.begin(), star.vertices.end());
     Eigen::Vector3d pose;
     for (int m : idx) {
         const Star &ms = stars_.stars[m];
@@ -562,8 +554,7 @@ void TreeMap::matchStar(const Query &q, const Star &star, const GlobalLocalizerC
                 ? seedEvidence(deviation, cfg.edge_tolerance_m, 9, 2 * cfg.min_sigma_m)
                 : 0.0;
         if (fitConsistent(lp, mp, cfg.edge_tolerance_m, pose))
-            hyps.add(pose, q.scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star, seed,
-                     seeds);
+            hyps.add(pose, q.scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Star, seed);
     }
 }
 
@@ -606,19 +597,17 @@ void TreeMap::matchTriangle(const Query &q, const std::array<int, 3> &t,
             return saturated ? seedEvidence(deviation, radius, 3, 2 * cfg.min_sigma_m)
                              : seedEvidenceCube(deviation, tol, 3, 2 * cfg.min_sigma_m);
         };
-        std::vector<int> seeds(3);
         for (int m : idx) {
             const auto &mt = triplets_[m];
             const Eigen::Vector3d diff = triangleSides(xy_, mt) - e;
             if (diff.cwiseAbs().maxCoeff() > tol) continue;
             for (int k = 0; k < 3; ++k) {
-                seeds[k] = t[(r + k) % 3];
-                lp[k] = q.input.row(seeds[k]).transpose();
+                lp[k] = q.input.row(t[(r + k) % 3]).transpose();
                 mp[k] = xy_.row(mt[k]).transpose();
             }
             if (fitConsistent(lp, mp, tol, pose))
                 hyps.add(pose, q.scoring, grid_, cfg.inlier_gate_m, LocalizationStage::Triangle,
-                         seedOf(diff.norm()), seeds);
+                         seedOf(diff.norm()));
         }
     }
 }
@@ -701,66 +690,52 @@ int TreeMap::agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalL
     return n;
 }
 
-ChanceEvidence TreeMap::evidence(const Query &q, const Hypothesis &h, int seeds, int searched,
-                                 const GlobalLocalizerConfig &cfg) const {
+ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
+                                 const Eigen::Vector3d &pose, int seeds, int searched,
+                                 double seed_evidence, const GlobalLocalizerConfig &cfg) const {
     // Inliers one-to-one (two detections of a split stem near one map trunk are one).
     std::vector<double> d2s;
-    const auto pairs = associate(q.scoring, h.pose, grid_, cfg.inlier_gate_m, &d2s);
-    const double closeness_sum =
-        cfg.closeness_evidence ? closenessSum(q, h, seeds, pairs, d2s, cfg) : -1.0;
+    const auto pairs = associate(scoring, pose, grid_, cfg.inlier_gate_m, &d2s);
+    double closeness_sum = -1.0;
+    if (cfg.closeness_evidence) {
+        // Each inlier's distance under the pose fitted to the other inliers (leave-one-out):
+        // independent of where it landed by chance, and free of the seed pose's lever-arm
+        // error on far trunks (measured by the area of its error ellipse, acceptance.hpp).
+        const std::vector<double> loo = leaveOneOutRadii(scoring, xy_, pairs);
+        std::vector<double> close;
+        close.reserve(pairs.size());
+        for (size_t k = 0; k < pairs.size(); ++k) {
+            const Eigen::Vector2d q = apply(pose, scoring.row(pairs[k].first).transpose());
+            const double d = loo.empty() ? std::sqrt(d2s[k]) : loo[k];
+            close.push_back(
+                closeness(density_.at(q.x(), q.y()), d, cfg.inlier_gate_m, cfg.min_sigma_m));
+        }
+        // The seeds lie close by construction: the `seeds` closest inliers carry no evidence
+        // (not the seed trunks themselves: under a chance pose their residuals from the other
+        // inliers' fit need not be the smallest, and dropping the closest stays conservative
+        // where real maps are not Poisson; Wild-Places absent places 8/2959 accepted with the
+        // seed trunks left out, 1/2959 with the closest).
+        std::sort(close.begin(), close.end(), std::greater<>());
+        closeness_sum = 0.0;
+        for (size_t k = std::min<size_t>(std::max(0, seeds), close.size()); k < close.size(); ++k)
+            closeness_sum += close[k];
+    }
     // DBH agreement of every inlier pair, seeds included (they were chosen by position only).
     double dbh_sum = 0.0;
     int dbh_pairs = 0;
-    for (size_t k = 0; q.scoring_dbh.size() != 0 && k < pairs.size(); ++k) {
+    for (size_t k = 0; scoring_dbh.size() != 0 && k < pairs.size(); ++k) {
         const double a =
-            dbhAgreement(pairs[k].second, q.scoring_dbh[pairs[k].first], cfg.dbh_resolution_m);
+            dbhAgreement(pairs[k].second, scoring_dbh[pairs[k].first], cfg.dbh_resolution_m);
         if (a < 0) continue;
         dbh_sum += a;
         ++dbh_pairs;
     }
     ChanceEvidence e =
-        chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(q.scoring.rows()),
-                       expectedChance(q.scoring, h.pose, cfg.inlier_gate_m), seeds, searched,
-                       closeness_sum, h.seed_evidence, dbhEvidence(dbh_pairs, dbh_sum));
+        chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
+                       expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
+                       closeness_sum, seed_evidence, dbhEvidence(dbh_pairs, dbh_sum));
     e.dbh_pairs = dbh_pairs;
     return e;
-}
-
-double TreeMap::closenessSum(const Query &q, const Hypothesis &h, int seeds,
-                             const std::vector<std::pair<int, int>> &pairs,
-                             const std::vector<double> &d2s,
-                             const GlobalLocalizerConfig &cfg) const {
-    std::vector<int> seed_rows;  // rows of q.scoring
-    for (int k = 0; k < h.seed_count; ++k)
-        if (q.scoring_row[h.seed_rows[k]] >= 0) seed_rows.push_back(q.scoring_row[h.seed_rows[k]]);
-    const bool by_seeds = h.seed_count >= 3 && int(seed_rows.size()) == h.seed_count;
-    // By the seeds' fit (h's own pose): only the non-seed inliers, each independent of the fit
-    // under a chance pose. Otherwise each inlier's distance under the pose fitted to the other
-    // inliers (leave-one-out), then the `seeds` closest dropped (the seeds are not known, and
-    // under a chance pose the chance inliers pull that fit towards their own map trunks).
-    // Both measure the area of the prediction's error ellipse (lever arms, acceptance.hpp).
-    const std::vector<double> radii = by_seeds
-                                          ? seedFitRadii(q.scoring, xy_, pairs, seed_rows, h.pose)
-                                          : leaveOneOutRadii(q.scoring, xy_, pairs);
-    std::vector<double> close;
-    close.reserve(pairs.size());
-    for (size_t k = 0; k < pairs.size(); ++k) {
-        if (by_seeds && radii[k] < 0) continue;  // a seed
-        const Eigen::Vector2d p = apply(h.pose, q.scoring.row(pairs[k].first).transpose());
-        const double d = radii.empty() ? std::sqrt(d2s[k]) : radii[k];
-        close.push_back(
-            closeness(density_.at(p.x(), p.y()), d, cfg.inlier_gate_m, cfg.min_sigma_m));
-    }
-    // The chance test counts inliers beyond min(seeds, inliers): keep that many terms, the
-    // least close (a seed that is no inlier leaves one more non-seed inlier than counted).
-    const size_t counted =
-        pairs.size() -
-        std::min<size_t>({size_t(std::max(0, seeds)), pairs.size(), size_t(q.scoring.rows())});
-    std::sort(close.begin(), close.end(), std::greater<>());
-    double sum = 0.0;
-    for (size_t k = close.size() > counted ? close.size() - counted : 0; k < close.size(); ++k)
-        sum += close[k];
-    return sum;
 }
 
 double TreeMap::expectedChance(const Points2 &local, const Eigen::Vector3d &pose,
@@ -793,7 +768,8 @@ TreeMap::Selection TreeMap::select(std::vector<Hypothesis> &hyps, int searched, 
     // the most significant distinct one of them, else the best-scoring distinct hypothesis.
     auto seeds = [](LocalizationStage s) { return s == LocalizationStage::Star ? 6 : 3; };
     auto evidenceOf = [&](const Hypothesis &h) {
-        return evidence(q, h, seeds(h.stage), searched, cfg);
+        return evidence(q.scoring, q.scoring_dbh, h.pose, seeds(h.stage), searched, h.seed_evidence,
+                        cfg);
     };
     std::vector<ChanceEvidence> top;
     const size_t evaluated =

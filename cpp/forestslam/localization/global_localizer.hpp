@@ -71,9 +71,6 @@ struct Hypothesis {
     int score = 0;         // consensus: local trunks within the gate of a map trunk
     LocalizationStage stage = LocalizationStage::Star;
     double seed_evidence = 0.0;  // of the seed match's shape agreement, nats (acceptance.hpp)
-    // The local (input) rows the pose was fitted to; seed_count 0: not known (paper bins).
-    std::array<int, 6> seed_rows{};
-    int seed_count = 0;
 };
 
 // The best hypothesis distinct from the answer (further than distinct_translation_m or
@@ -181,16 +178,12 @@ class TreeMap {
     // Verified matches whose pose agrees with the answer (within the distinct thresholds).
     int agreeing(const std::vector<Eigen::Vector3d> &matches, const GlobalLocalization &res,
                  const GlobalLocalizerConfig &cfg) const;
-    // The acceptance test's evidence for hypothesis h on the query's scoring trunks, fitted to
-    // `seeds` points, the best of `searched`.
-    ChanceEvidence evidence(const Query &q, const Hypothesis &h, int seeds, int searched,
-                            const GlobalLocalizerConfig &cfg) const;
-    // Sum of closeness() over the non-seed inliers `pairs` (scoring row, map row) of h: their
-    // residuals under the seeds' fit when h knows its seeds, else under the fit to the other
-    // inliers with the `seeds` closest left out (acceptance.hpp); d2s their squared distances.
-    double closenessSum(const Query &q, const Hypothesis &h, int seeds,
-                        const std::vector<std::pair<int, int>> &pairs,
-                        const std::vector<double> &d2s, const GlobalLocalizerConfig &cfg) const;
+    // The acceptance test's evidence for `pose` on the scoring trunks, fitted to `seeds` points,
+    // the best of `searched`, its seed match's own evidence seed_evidence (nats).
+    // scoring_dbh: the scoring trunks' diameters (empty: none).
+    ChanceEvidence evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
+                            const Eigen::Vector3d &pose, int seeds, int searched,
+                            double seed_evidence, const GlobalLocalizerConfig &cfg) const;
     // -ln p of one pair's DBH agreement against map trunk j's neighbourhood (acceptance.hpp).
     // -1 when either side has no DBH.
     double dbhAgreement(int j, double local_dbh, double resolution) const;
