@@ -26,6 +26,8 @@ ONLY_PYTHON = {
         "keyframe_distance_m",
         "min_observations",
         "max_range_m",
+        "retry_frames",
+        "retry_keyframe_distance_m",
     },
 }
 ONLY_CPP = {
