@@ -252,11 +252,12 @@ def run_simulated(args) -> None:
     print(
         "targets (issue 16): 1-frame views >= 99 % right, 0 wrong. The issue's 189/200 = 94.5 % "
         "was measured on a 3,604-tree stand (not in ../shared/data; probably spatstat's bei); "
-        "run `--stand FILE.csv` (x,y[,dbh_m]) on it. 1 frame is `forestslam localize`'s "
-        "default (--frames 1 --every 1: every scan one query, nothing aggregated); the 5-frame "
-        "rows correspond to --frames 5 --keyframe-distance-m 3; the '1>5' rows to "
-        "--retry-frames 5 --keyframe-distance-m 3 (a rejected 1-frame query is retried once "
-        "with the last 5 frames aggregated by odometry: the 1-frame rows are not relabelled)"
+        "run `--stand FILE.csv` (x,y[,dbh_m]) on it. The '1>5' rows are `forestslam "
+        "localize`'s default for scans (--frames 1, localization.retry_frames 5, "
+        "retry_keyframe_distance_m 3: a rejected 1-frame query is retried once with the last "
+        "5 frames >= 3 m apart aggregated by odometry); the 1-frame rows are --retry-frames 0 "
+        "(the 1-frame rows are not relabelled); the 5-frame rows --frames 5 "
+        "--keyframe-distance-m 3"
     )
 
 
