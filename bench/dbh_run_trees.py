@@ -1,8 +1,9 @@
 """Per-tree DBH of a `forestslam run` against simulator truth (after `forestslam evaluate`):
 bias, MAE, RMSE, share of mapped trees with a DBH (all mapped trees, and those matched to the
 truth stems `forestslam evaluate` scores: DBH >= 10 cm, within 15 m of the path), dbh_std_m
-calibration (share of trees within +-1 sigma of the truth) and the worst trees; then one table
-of the issue-15 targets, figures vs targets.
+calibration (share of trees within +-1 sigma of the truth), the worst trees and what the
+trees without a DBH are (truth saplings under the smallest DBH a fit accepts, other truth
+stems, or no truth stem); then one table of the issue-15 targets, figures vs targets.
 Usage: python bench/dbh_run_trees.py RUN TRUTH [RUN TRUTH ...] (pairs of run and truth
 folders; the sensor, for the MAE target, from the run's run.yaml)."""
 
@@ -65,12 +66,36 @@ def report(run: Path, truth: Path) -> dict:
         )
         for i in worst
     ]
+    out["without_dbh"] = without_dbh(est, tru, m, alignment)
     run_yaml = yaml.safe_load((run / "run.yaml").read_text())
     out["sensor"] = str(run_yaml.get("sensor", "?"))
     return out
 
 
 MAE_TARGET_CM = {"vlp16": 1.5, "hdl32": 1.2}
+
+# The smallest DBH any per-scan or map fit accepts (2 x DiameterConfig.min_radius_m).
+MIN_FIT_DBH_M = 0.05
+
+
+def without_dbh(est: dict, tru: dict, match: np.ndarray, alignment: np.ndarray) -> dict:
+    """What the mapped trees without a DBH are: matched (0.5 m gate) to a truth stem under the
+    smallest DBH a fit accepts, of 5-10 cm, of >= 10 cm; or matched to none, with the distance
+    to the nearest truth stem (aligned positions)."""
+    no = ~np.isfinite(est["dbh_m"])
+    j = match[no]
+    truth_dbh = np.where(j >= 0, tru["dbh_m"][np.maximum(j, 0)], np.nan)
+    xy = np.c_[est["x"], est["y"], np.zeros(len(no)), np.ones(len(no))][no] @ alignment.T
+    d = np.hypot(*(xy[:, None, :2] - np.c_[tru["x"], tru["y"]][None]).transpose(2, 0, 1))
+    nearest = d.min(1) if d.size else np.zeros(0)
+    return {
+        "count": int(no.sum()),
+        "under_min": int((truth_dbh < MIN_FIT_DBH_M).sum()),
+        "5_10cm": int(((truth_dbh >= MIN_FIT_DBH_M) & (truth_dbh < 0.1)).sum()),
+        "10cm_up": int((truth_dbh >= 0.1).sum()),
+        "unmatched_near": int(((j < 0) & (nearest <= 1.0)).sum()),
+        "unmatched_far": int(((j < 0) & (nearest > 1.0)).sum()),
+    }
 
 
 def target_table(rows: list[tuple[str, dict]]) -> None:
@@ -111,5 +136,12 @@ if __name__ == "__main__":
             f"{r['median_abs_cm']:.2f}, RMSE {r['rmse_cm']:.2f}; within 1 sigma "
             f"{r['within_1sigma']:.2f} of {r['with_sigma']}; worst (id, err, sigma, obs) "
             f"{r['worst']}"
+        )
+        w = r["without_dbh"]
+        print(
+            f"{run}: without DBH {w['count']}: truth stem < {100 * MIN_FIT_DBH_M:.0f} cm "
+            f"{w['under_min']}, 5-10 cm {w['5_10cm']}, >= 10 cm {w['10cm_up']}; no truth stem "
+            f"within 0.5 m {w['unmatched_near'] + w['unmatched_far']} (nearest > 1 m: "
+            f"{w['unmatched_far']})"
         )
     target_table(rows)

@@ -225,3 +225,24 @@ def test_silhouette_cut_by_a_nearer_stem_is_not_taken():
         assert np.linalg.norm(stems.xy[j] - [10.0, y]) < 0.4
         err = abs(stems.dbh[j] - far.dbh)
         assert err < 0.045 and err < 2 * stems.dbh_std[j]
+
+
+@pytest.mark.parametrize("distance", [8.0, 12.0])
+def test_cluster_of_two_stems_gives_no_merged_dbh(distance):
+    """A 20 cm and a 34 cm stem side by side, 40 cm apart across a VLP-16's view, which the
+    segmentation merges into one cluster: every scan line spans both, and the silhouette gave
+    a 68 cm DBH (on the simulator's loops such clusters made 40-80 cm silhouettes and most of
+    the per-scan MAE on VLP-16 style b). The returns between them lie behind the front of the
+    stem that width implies, so that cluster now has no DBH in this scan; each stem seen
+    alone keeps its own."""
+    from forestslam.perception.synthetic_stems import make_stem
+
+    rng = np.random.default_rng(int(distance))
+    pair = [make_stem(distance, -0.2, 0.20, ROUND, rng), make_stem(distance, 0.2, 0.34, ROUND, rng)]
+    for seed in range(4):
+        stems = detect(scan_stems(pair, np.zeros(2), ROUND, noise_m=0.03, seed=seed), "vlp16")
+        assert len(stems) >= 1
+        assert not np.any(stems.dbh > 0.45)  # no DBH wider than the larger stem (+ 11 cm)
+    for stem in pair:
+        alone = detect(scan_stems([stem], np.zeros(2), ROUND, noise_m=0.03, seed=1), "vlp16")
+        assert len(alone) == 1 and abs(alone.dbh[0] - stem.dbh) < 0.03

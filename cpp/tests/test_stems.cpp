@@ -161,3 +161,98 @@ TEST(Stems, SingleScanCircleWiderThanTheSeenSectionIsNotItsDbh) {
         estimateDiameter(pts, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
     EXPECT_EQ(hidden.method, 1);
 }
+
+namespace {
+
+// One spinning-LiDAR scan of round stems (x, y, r) from the origin: lines at `elevations`,
+// beams every `step` rad within +-0.1 rad of +x, first hit with range noise; beams that miss
+// every stem return from a wall at x = 20 m (background). `stem` gets the stem returns,
+// `raw` every return.
+struct CircleStem {
+    double x, y, r;
+};
+
+void scanStems(const std::vector<CircleStem> &stems, const std::vector<double> &elevations,
+               double step, double noise, Points3 &stem, Points3 &raw) {
+    std::mt19937 rng(7);
+    std::normal_distribution<double> n(0, noise);
+    std::vector<Eigen::Vector3d> s, all;
+    for (double el : elevations)
+        for (double a = -0.1; a <= 0.1; a += step) {
+            const Eigen::Vector2d u(std::cos(a), std::sin(a));
+            double t = 20.0 / u.x();
+            bool hit = false;
+            for (const CircleStem &c : stems) {
+                const double b = u.dot(Eigen::Vector2d(c.x, c.y));
+                const double q = b * b - (c.x * c.x + c.y * c.y - c.r * c.r);
+                if (q > 0 && b - std::sqrt(q) < t) t = b - std::sqrt(q), hit = true;
+            }
+            t += n(rng);
+            const Eigen::Vector3d p(t * u.x(), t * u.y(), t * std::tan(el));
+            all.push_back(p);
+            if (hit) s.push_back(p);
+        }
+    auto toPoints = [](const std::vector<Eigen::Vector3d> &v) {
+        Points3 out(static_cast<Eigen::Index>(v.size()), 3);
+        for (size_t i = 0; i < v.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = v[i];
+        return out;
+    };
+    stem = toPoints(s);
+    raw = toPoints(all);
+}
+
+SilhouetteView vlp16View(const std::vector<double> &elevations, double step) {
+    SilhouetteView view;
+    view.sensor.azimuth_step_rad = step;
+    view.sensor.vertical_angles_rad = elevations;
+    return view;
+}
+
+}  // namespace
+
+TEST(Stems, SilhouetteAcrossTwoStemsGivesNoDbh) {
+    // A 20 cm stem 25 cm behind a 34 cm one, 47 cm apart across the view at 10 m, merged into
+    // one cluster (VLP-16 loops: silhouettes of 40-80 cm). Each scan line spans both; the
+    // nearer stem cuts no edge of the farther one, so the occlusion test does not see it, but
+    // the farther stem's returns and the wall seen between them lie behind the front of the
+    // 60 cm stem the width implies. Before: a 60 cm DBH from the silhouette.
+    const std::vector<double> el = {0.035, 0.07, 0.105, 0.14, 0.175};  // z 0.35-1.77 m at 10 m
+    const double step = 0.0035;
+    Points3 stem, raw;
+    scanStems({{10.25, -0.235, 0.10}, {10.0, 0.235, 0.17}}, el, step, 0.03, stem, raw);
+    SilhouetteView view = vlp16View(el, step);
+    view.points = stem;
+    view.beyond = raw;
+    const StemDiameter d =
+        estimateDiameter(stem, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
+    EXPECT_FALSE(d.silhouette.valid);
+    EXPECT_GE(d.silhouette.multi_object_lines, 3);
+    EXPECT_TRUE(std::isnan(d.dbh));  // nor the band circle of both
+    // Without the raw returns the stem's own returns show it too.
+    view.beyond = Points3(0, 3);
+    EXPECT_TRUE(std::isnan(
+        estimateDiameter(stem, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view).dbh));
+}
+
+TEST(Stems, SilhouetteOfOneStemKeepsItsLinesWhateverTheFilterRemoved) {
+    // One 34 cm stem at 10 m: its width stands even when the intensity filter removed the
+    // bright returns facing the sensor (the middle of every line) and only the raw returns
+    // fill the gap, and with the wall behind it (returns beyond its edges).
+    const std::vector<double> el = {0.035, 0.07, 0.105, 0.14, 0.175};
+    const double step = 0.0035;
+    Points3 stem, raw;
+    scanStems({{10.0, 0.0, 0.17}}, el, step, 0.03, stem, raw);
+    std::vector<int> dim;  // the returns the filter keeps: off the facing middle
+    for (Eigen::Index i = 0; i < stem.rows(); ++i)
+        if (std::abs(stem(i, 1)) > 0.08) dim.push_back(static_cast<int>(i));
+    const Points3 kept = selectRows(stem, dim);
+    SilhouetteView view = vlp16View(el, step);
+    view.points = kept;
+    view.beyond = raw;
+    const StemDiameter d =
+        estimateDiameter(kept, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
+    ASSERT_TRUE(d.silhouette.valid);
+    EXPECT_EQ(d.silhouette.multi_object_lines, 0);
+    EXPECT_EQ(d.method, 3);
+    EXPECT_NEAR(d.dbh, 0.34, 0.03);
+}

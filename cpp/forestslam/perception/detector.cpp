@@ -314,9 +314,8 @@ std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegment
 }
 
 // Non-ground returns of a scan by azimuth column (one sensor step wide): where the occluders
-// of a stem's silhouette are looked up. Only returns nearer than `far2` (squared horizontal
-// range) are kept: nothing farther than every stem's farthest return can stand in front of
-// one. Rows of column c: rows[start[c] .. start[c + 1]), ascending.
+// of a stem's silhouette and the returns seen through it are looked up. Rows of column c:
+// rows[start[c] .. start[c + 1]), ascending.
 struct AzimuthColumns {
     double step = 0;
     std::vector<int> start, rows;
@@ -327,8 +326,8 @@ struct AzimuthColumns {
     }
 };
 
-AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, double step,
-                              double far2) {
+// `skip` (may be null): rows flagged there are left out.
+AzimuthColumns azimuthColumns(const Points3 &pts, const std::vector<char> *skip, double step) {
     AzimuthColumns c;
     if (!(step > 0)) return c;
     c.step = step;
@@ -336,8 +335,7 @@ AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, 
     c.start.assign(n + 1, 0);
     std::vector<int> near, col;  // counting sort by column keeps each column's rows ascending
     for (Eigen::Index i = 0; i < pts.rows(); ++i) {
-        if (gs.is_ground[static_cast<size_t>(i)]) continue;
-        if (!(pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) <= far2)) continue;
+        if (skip != nullptr && (*skip)[static_cast<size_t>(i)]) continue;
         near.push_back(static_cast<int>(i));
         col.push_back(c.of(std::atan2(pts(i, 1), pts(i, 0))));
         ++c.start[static_cast<size_t>(col.back()) + 1];
@@ -350,26 +348,14 @@ AzimuthColumns azimuthColumns(const Points3 &pts, const GroundSegmentation &gs, 
     return c;
 }
 
-// Largest squared horizontal range of the returns each stem is seen by (its full-resolution
-// returns, else its own points), with a relative margin: a bound, compared with `<` after.
-double farthestStem2(const std::vector<Points3> &seen, const Points3 &filtered,
-                     const Clusters &stems) {
-    double far2 = 0;
-    for (size_t k = 0; k < stems.size(); ++k) {
-        if (seen[k].rows() > 0) {
-            far2 = std::max(far2, seen[k].leftCols<2>().rowwise().squaredNorm().maxCoeff());
-        } else {
-            for (int r : stems[k]) far2 = std::max(far2, filtered.row(r).head<2>().squaredNorm());
-        }
-    }
-    return far2 * (1.0 + 1e-9);
-}
-
 // The returns within two azimuth steps of the bearings the stem `seen` covers and nearer than
-// its farthest return (what may stand in front of it; the rest cannot occlude it).
-Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols) {
+// its farthest return (what may stand in front of it; the rest cannot occlude it); with
+// `beyond`, those farther than its nearest return instead (what may be seen through it).
+Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols,
+                      bool beyond = false) {
     if (seen.rows() == 0 || cols.count() == 0) return Points3(0, 3);
-    const double far2 = seen.leftCols<2>().rowwise().squaredNorm().maxCoeff();
+    const Eigen::VectorXd d2_seen = seen.leftCols<2>().rowwise().squaredNorm();
+    const double far2 = beyond ? d2_seen.minCoeff() : d2_seen.maxCoeff();
     const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     double lo = 0, hi = 0;
@@ -386,7 +372,8 @@ Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColu
         const size_t c = static_cast<size_t>(((first + k) % n + n) % n);
         for (int j = cols.start[c]; j < cols.start[c + 1]; ++j) {
             const int i = cols.rows[static_cast<size_t>(j)];
-            if (pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1) < far2) rows.push_back(i);
+            const double d2 = pts(i, 0) * pts(i, 0) + pts(i, 1) * pts(i, 1);
+            if (beyond ? d2 > far2 : d2 < far2) rows.push_back(i);
         }
     }
     return selectRows(pts, rows);
@@ -407,10 +394,12 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
     const std::vector<Points3> seen =
         use_silhouette ? fullResolutionStems(pts, gs, nf, stems, opt.filter.voxel_m)
                        : std::vector<Points3>(stems.size());
-    const AzimuthColumns columns = use_silhouette
-                                       ? azimuthColumns(pts, gs, silhouette.sensor.azimuth_step_rad,
-                                                        farthestStem2(seen, filtered, stems))
-                                       : AzimuthColumns{};
+    const double step = silhouette.sensor.azimuth_step_rad;
+    const AzimuthColumns columns =
+        use_silhouette ? azimuthColumns(pts, &gs.is_ground, step) : AzimuthColumns{};
+    // The thinned ground too: beams passing between two stems of a cluster often end there.
+    const AzimuthColumns ground_columns =
+        use_silhouette ? azimuthColumns(det.ground, nullptr, step) : AzimuthColumns{};
     const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
     for (size_t k = 0; k < stems.size(); ++k) {
         const std::vector<int> &rows = stems[k];
@@ -434,8 +423,12 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
         }
         st.base_z = base;
         silhouette.points = seen[k];
-        silhouette.occluders =
-            returnsAround(seen[k].rows() > 0 ? seen[k] : st.points, pts, columns);
+        const Points3 &view = seen[k].rows() > 0 ? seen[k] : st.points;
+        silhouette.occluders = returnsAround(view, pts, columns);
+        const Points3 beyond = returnsAround(view, pts, columns, true),
+                      beyond_ground = returnsAround(view, det.ground, ground_columns, true);
+        silhouette.beyond.resize(beyond.rows() + beyond_ground.rows(), 3);
+        silhouette.beyond << beyond, beyond_ground;
         st.diameter = estimateDiameter(st.points, st.normals, base, det.up, dopt,
                                        use_silhouette ? &silhouette : nullptr,
                                        scan_centred ? &sensor_origin : nullptr);

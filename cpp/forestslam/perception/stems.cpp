@@ -283,23 +283,70 @@ std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
     return out;
 }
 
+// Rows of `p` on the scan lines first..last (by elevation, half a line spacing of margin):
+// the returns that can lie on a silhouette's lines, found before any atan2 (speed).
+Points3 onLines(const Eigen::Ref<const Points3> &p, const std::vector<double> &va, int first,
+                int last) {
+    const size_t f = static_cast<size_t>(first), l = static_cast<size_t>(last);
+    const double lo = std::tan(f > 0 ? 0.5 * (va[f - 1] + va[f]) : va[f] - 0.1);
+    const double hi = std::tan(l + 1 < va.size() ? 0.5 * (va[l] + va[l + 1]) : va[l] + 0.1);
+    std::vector<int> rows;
+    for (Eigen::Index i = 0; i < p.rows(); ++i) {
+        const double rho = std::hypot(p(i, 0), p(i, 1));
+        if (p(i, 2) >= lo * rho && p(i, 2) <= hi * rho) rows.push_back(static_cast<int>(i));
+    }
+    return selectRows(p, rows);
+}
+
+// A return this much nearer or farther than a surface is not on it (several range sigmas of a
+// VLP-16 / HDL-32, 2-3 cm, plus bark relief).
+constexpr double kBehindFrontM = 0.15;
+
 // True when one of `occluders` on scan line `line` lies within 1.5 azimuth steps beyond either
 // edge of `sl` and more than 0.15 m (several range sigmas) nearer than its front.
 bool edgeOccluded(const SilhouetteLine &sl, int line, const std::vector<NearbyReturn> &occluders,
                   double step) {
     const double lo = sl.mid - 0.5 * (sl.width - step), hi = sl.mid + 0.5 * (sl.width - step);
     for (const NearbyReturn &o : occluders) {
-        if (o.line != line || !(o.rho < sl.front - 0.15)) continue;
+        if (o.line != line || !(o.rho < sl.front - kBehindFrontM)) continue;
         if ((o.a < lo && o.a >= lo - 1.5 * step) || (o.a > hi && o.a <= hi + 1.5 * step))
             return true;
     }
     return false;
 }
 
+// Returns of one scan line that lie behind the front surface of the stem its width implies.
+// A single stem of radius r (r = front sin(w/2) / (1 - sin(w/2)), its centre r beyond the front
+// on the middle bearing) stops every beam that meets it: no return of its own lies behind that
+// surface. A line across two stems (a cluster that merged neighbours) spans both, and the
+// farther stem's returns lie 10-50 cm behind the surface of the wide circle (VLP-16 loops:
+// silhouettes of 40-80 cm on 20 + 34 cm stems). Each return is compared at its bearing moved
+// half an azimuth step toward the edge (where the surface is steepest, the edge's true bearing
+// is unknown within a step), so edge returns and their mixed ranges are never counted; the
+// depth test is independent of which returns the intensity filter removed.
+int returnsBehindFront(const std::vector<NearbyReturn> &returns, int line, const SilhouetteLine &sl,
+                       double step) {
+    const double s = std::sin(0.5 * sl.width);
+    const double r = sl.front * s / (1.0 - s), centre = sl.front + r;
+    int behind = 0;
+    for (const NearbyReturn &o : returns) {
+        if (o.line != line) continue;
+        const double a = o.a - sl.mid;
+        const double off = std::abs(std::atan2(std::sin(a), std::cos(a))) + 0.5 * step;
+        const double lateral = centre * std::sin(off);
+        if (!(lateral < r)) continue;
+        const double surface = centre * std::cos(off) - std::sqrt(r * r - lateral * lateral);
+        if (o.rho > surface + kBehindFrontM) ++behind;
+    }
+    return behind;
+}
+
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter); lines cut
-// by something in front of the stem (`occluders`) are left out.
+// by something in front of the stem (`occluders`) and lines across more than one object (two
+// or more returns behind the front of the stem their width implies) are left out.
 DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
-                          const Eigen::Ref<const Points3> &occluders, double mid_z,
+                          const Eigen::Ref<const Points3> &occluders,
+                          const Eigen::Ref<const Points3> &beyond, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
     DiameterFit f;
     const auto &va = sensor.vertical_angles_rad;
@@ -312,6 +359,11 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     for (Eigen::Index i = 0; i < p.rows(); ++i)
         lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
     const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, va, bearing);
+    const std::vector<NearbyReturn> seen_through =
+        beyond.rows() > 0
+            ? nearbyReturns(onLines(beyond, va, lines.begin()->first, lines.rbegin()->first), va,
+                            bearing)
+            : nearbyReturns(p, va, bearing);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
         if (rows.size() < 2) continue;
@@ -319,11 +371,18 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
         const double s = std::sin(0.5 * sl.width);
         if (!(s > 0 && s < 0.9)) continue;
         if (edgeOccluded(sl, line, nearby, sensor.azimuth_step_rad)) continue;
+        if (returnsBehindFront(seen_through, line, sl, sensor.azimuth_step_rad) >= 2) {
+            ++f.multi_object_lines;
+            continue;
+        }
         radii.push_back(sl.front * s / (1.0 - s));
         mids.push_back(sl.mid);
         dists.push_back(sl.front);
     }
-    if (radii.size() < 2) return f;
+    // Most lines across several objects: a cluster of neighbouring stems, whose remaining
+    // lines are no one stem's width either.
+    f.inliers = static_cast<int>(radii.size());
+    if (radii.size() < 2 || f.multi_object_lines >= static_cast<int>(radii.size())) return f;
     const double r = median(radii);
     std::vector<double> dev;
     for (double x : radii) dev.push_back(std::abs(x - r));
@@ -332,7 +391,6 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     const double d = centreDistance(pl, az, r, median(dists) + r);
     f.radius = r;
     f.centre = Eigen::Vector3d(d * std::cos(az), d * std::sin(az), mid_z);
-    f.inliers = static_cast<int>(radii.size());
     f.rms_m = spread;
     f.arc_coverage = 0.0;
     f.score = static_cast<double>(radii.size()) / std::max(spread, 0.005);
@@ -483,7 +541,7 @@ double seenWidth(const Eigen::Ref<const Points3> &p, const Eigen::Ref<const Poin
     for (size_t i = 0; i < po.az.size(); ++i) {
         const double a = offset(po.az[i]);
         const bool at_edge = (a < lo && a >= lo - 1.5 * step) || (a > hi && a <= hi + 1.5 * step);
-        if (at_edge && po.rho[i] < range - 0.15) return kNoBound;
+        if (at_edge && po.rho[i] < range - kBehindFrontM) return kNoBound;
     }
     return 2.0 * range * std::sin(0.5 * std::min(hi - lo + step, M_PI));
 }
@@ -504,6 +562,10 @@ bool plausible(const DiameterFit &f, double seen_width, const DiameterConfig &op
 void chooseDiameter(StemDiameter &out, bool single_scan, double seen_width,
                     const DiameterConfig &opt) {
     const DiameterFit *best = nullptr;
+    // A view across several objects (see silhouetteFit) has no one stem's DBH: every estimate
+    // spans them all (band circles as wide as the silhouette). Its centre still places the tree.
+    const bool several = !out.silhouette.valid && out.silhouette.multi_object_lines > 0 &&
+                         out.silhouette.multi_object_lines >= out.silhouette.inliers;
     if (plausible(out.circle, seen_width, opt))
         best = &out.circle, out.method = 1;
     else if (plausible(out.cylinder, seen_width, opt))
@@ -511,7 +573,7 @@ void chooseDiameter(StemDiameter &out, bool single_scan, double seen_width,
     if (out.silhouette.valid) best = &out.silhouette, out.method = 3;
     if (best) {
         out.centre = best->centre;
-        if (single_scan && out.method == 2) return;
+        if ((single_scan && out.method == 2) || several) return;
         out.dbh = 2.0 * best->radius;
         out.dbh_std = 2.0 * best->radius_std;
     }
@@ -537,7 +599,8 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         const Points3 sec = silhouette->points.rows() > 0 ? rowsBetween(silhouette->points, lo, hi)
                                                           : rowsBetween(points, lo, hi);
         const Points3 occluders = rowsBetween(silhouette->occluders, lo, hi);
-        out.silhouette = silhouetteFit(sec, occluders, mid, silhouette->sensor, opt);
+        out.silhouette =
+            silhouetteFit(sec, occluders, silhouette->beyond, mid, silhouette->sensor, opt);
         seen_width =
             seenWidth(sec.rows() >= 2 ? sec : band, occluders, silhouette->sensor.azimuth_step_rad);
     }

@@ -46,6 +46,9 @@ struct DiameterFit {
     double arc_coverage = 0;
     double score = 0;          // inlier ratio * arc coverage / max(rms, 5 mm): larger is better
     double radius_std = kNaN;  // expected error of the radius (see StemDiameter::dbh_std)
+    // Silhouette only: scan lines left out because they span more than one object (returns
+    // behind the front of the stem their width implies: a cluster of neighbouring stems).
+    int multi_object_lines = 0;
 };
 
 // What the silhouette estimate needs: the points are seen from the origin (a single scan) by
@@ -61,11 +64,15 @@ struct SilhouetteSensor {
 // voxel); an empty `points` means the stem's own points. `occluders`: other returns of the
 // scan around the stem's bearing (any range); a scan line whose edge return has one of them
 // in the next beam and nearer than the stem is cut by what stands in front, not by the stem's
-// edge, and is left out of the silhouette.
+// edge, and is left out of the silhouette. `beyond`: the other returns of the scan around the
+// stem's bearing farther than its nearest return (any range); a scan line with returns behind
+// the front of the stem its width implies sees through it, so it spans more than one object
+// and is left out (empty: the stem's own returns are tested).
 struct SilhouetteView {
     SilhouetteSensor sensor;
     Points3 points = Points3(0, 3);
     Points3 occluders = Points3(0, 3);
+    Points3 beyond = Points3(0, 3);
 };
 
 struct StemDiameter {

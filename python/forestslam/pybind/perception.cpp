@@ -172,7 +172,9 @@ void defineDiameterResults(py::module_ &m) {
         .def_readonly("score", &pc::DiameterFit::score,
                       "inlier ratio * arc coverage / max(rms, 5 mm): larger is better")
         .def_readonly("radius_std", &pc::DiameterFit::radius_std,
-                      "expected error (1 sigma) of the radius, m; NaN when unknown");
+                      "expected error (1 sigma) of the radius, m; NaN when unknown")
+        .def_readonly("multi_object_lines", &pc::DiameterFit::multi_object_lines,
+                      "silhouette: scan lines left out as spanning more than one object");
 
     py::class_<pc::StemDiameter>(
         m, "StemDiameter",
