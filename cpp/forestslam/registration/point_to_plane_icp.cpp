@@ -26,7 +26,7 @@ struct PlaneTarget::Impl {
     Points3 normals;  // rows valid once state[row] == kDone
     KdTree3 all;
     int k = 3;
-    std::unique_ptr<std::atomic<unsigned char>[]> state;
+    std::vector<std::atomic<unsigned char>> state;
 
     // PCA normal of row i's k nearest (NaN when the neighbourhood is not planar enough).
     Eigen::Vector3d computeNormal(Eigen::Index i) const {
@@ -71,7 +71,7 @@ PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_
     impl_->points = finiteRows(points_in);
     const Eigen::Index m = impl_->points.rows();
     impl_->normals = Points3::Constant(m, 3, kNaN);
-    impl_->state = std::make_unique<std::atomic<unsigned char>[]>(static_cast<size_t>(m));
+    impl_->state = std::vector<std::atomic<unsigned char>>(static_cast<size_t>(m));
     const unsigned char initial = m < 3 ? Impl::kDone : Impl::kPending;  // < 3: no normals
     for (Eigen::Index i = 0; i < m; ++i) impl_->state[static_cast<size_t>(i)] = initial;
     if (m == 0) return;
@@ -135,20 +135,36 @@ struct NormalEquations {
     double sse = 0.0;
 };
 
+// Search radius for source point p's nearest target point: its previous nearest `last` (-1:
+// none) is at most this far, so the search can be bounded there and still finds the same point
+// (the k-d tree keeps the last of equally near points in a fixed visiting order, and every
+// subtree that can hold one of them is still visited). Slightly enlarged against rounding.
+double warmRadius(const Points3 &tp, int last, const Eigen::Vector3d &q, double max_d) {
+    if (last < 0) return max_d;
+    const double dx = q.x() - tp(last, 0), dy = q.y() - tp(last, 1), dz = q.z() - tp(last, 2);
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    return std::min(max_d, std::sqrt(d2) * (1.0 + 1e-9) + 1e-12);
+}
+
+// `last` holds each source point's nearest target point of the previous iteration (-1: none)
+// and is updated; the nearest points found are those of an unbounded search.
 NormalEquations linearise(const PlaneTarget &target, const Points3 &source, const Pose3 &T,
-                          double max_d, const IcpConfig &config) {
+                          double max_d, const IcpConfig &config, std::vector<int> &last) {
     const Points3 &tp = target.points();
     const double max_d2 = max_d * max_d;
     NormalEquations eq;
     Eigen::Matrix<double, 1, 6> J;
     for (Eigen::Index i = 0; i < source.rows(); ++i) {
         const Eigen::Vector3d p = source.row(i).transpose();
+        const Eigen::Vector3d q = T * p;
         double d2 = 0.0;
-        const int j = target.nearest(T * p, max_d, d2);
-        if (j < 0 || d2 > max_d2) continue;
-        const Eigen::Vector3d n = target.normal(j);
+        int &j = last[static_cast<size_t>(i)];
+        const int found = target.nearest(q, warmRadius(tp, j, q, max_d), d2);
+        if (found >= 0) j = found;  // else the previous one stays the best bound known
+        if (found < 0 || d2 > max_d2) continue;
+        const Eigen::Vector3d n = target.normal(found);
         if (std::isnan(n.x())) continue;
-        const double r = pointToPlaneResidual(T, p, tp.row(j).transpose(), n, &J);
+        const double r = pointToPlaneResidual(T, p, tp.row(found).transpose(), n, &J);
         const double a = std::abs(r);
         const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
         eq.H.noalias() += w * J.transpose() * J;
@@ -229,10 +245,11 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     double max_d = std::max(config.max_correspondence_m, config.final_correspondence_m);
     const double shrink = shrinkFactor(config, max_d);
     NormalEquations eq;
+    std::vector<int> last(static_cast<size_t>(source.rows()), -1);
     bool converged = false;
     int it = 0;
     for (; it < config.max_iterations; ++it) {
-        eq = linearise(target, source, T, max_d, config);
+        eq = linearise(target, source, T, max_d, config, last);
         if (eq.used < config.min_correspondences) break;
         const Vector6d delta = solveStep(eq, T, prior_information, T_prior);
         if (!delta.allFinite()) break;
