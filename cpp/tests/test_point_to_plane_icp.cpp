@@ -200,7 +200,7 @@ TEST(PointToPlaneIcp, LazyNormalsMatchWholeTargetFromAnyOrderAndThreads) {
         const Eigen::Vector3d again = lazy.normal(i);
         EXPECT_TRUE(std::isnan(want.x()) ? std::isnan(again.x()) : again == want) << i;
     }
-    for (int i = 0; i < 1000; i += 50) EXPECT_GT(std::abs(all(i, 2)), 0.99) << i;  // ground: z
+    for (int i = 0; i < 1000; i += 50) EXPECT_GT(std::abs(all(i, 2)), 0.99) << i;     // ground: z
     for (int i = 1000; i < 1400; i += 50) EXPECT_LT(std::abs(all(i, 2)), 0.05) << i;  // stem
     for (int i = 1410; i < 1490; ++i) EXPECT_TRUE(std::isnan(all(i, 0))) << i;  // a line: none
     EXPECT_THROW(lazy.normal(-1), std::out_of_range);

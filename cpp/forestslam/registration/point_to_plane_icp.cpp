@@ -8,6 +8,7 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "forestslam/common/kdtree.hpp"
@@ -87,7 +88,12 @@ PlaneTarget &PlaneTarget::operator=(PlaneTarget &&) noexcept = default;
 
 const Points3 &PlaneTarget::points() const { return impl_->points; }
 const Points3 &PlaneTarget::normals() const {
-    for (Eigen::Index i = 0; i < impl_->points.rows(); ++i) impl_->normal(i);
+    for (Eigen::Index i = 0; i < impl_->points.rows(); ++i) {
+        impl_->normal(i);
+        // A row another thread is storing at this moment is complete only once it says so.
+        while (impl_->state[static_cast<size_t>(i)].load(std::memory_order_acquire) != Impl::kDone)
+            std::this_thread::yield();
+    }
     return impl_->normals;
 }
 

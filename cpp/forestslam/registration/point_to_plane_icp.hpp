@@ -1,6 +1,7 @@
 // Point-to-plane ICP over 6 DoF (Gauss-Newton, Huber weights) against a target with normals.
 // The target (KD-tree + normals from its own neighbourhoods) is built once and reused, so a
-// local map serves many scans; each normal is computed the first time a query needs it. The k-d tree is our own (exact, double precision, gated queries).
+// local map serves many scans; each normal is computed the first time a query needs it. The k-d
+// tree is our own (exact, double precision, gated queries).
 #pragma once
 
 #include <memory>
