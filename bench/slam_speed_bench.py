@@ -10,8 +10,9 @@ thread per library. The child measures the process CPU time (time.process_time) 
 job and splits it into stages: the C++ odometry's own per-stage CPU clocks (deskew,
 perception and its sub-stages, match, shape, icp, local map), and CPU clocks around the Python
 stages (SLAM back end, tree map, cloud map, checkpoint and final outputs; the rest is reading,
-decoding, imports and the job). Accuracy of the same run is printed beside the speed: ATE of
-the SLAM trajectory and of the odometry alone, tree recall / precision, DBH MAE and bias. Target:
+decoding, imports and the job). Accuracy of the same run is printed beside the speed: ATE and
+RPE (10 m segments) of the SLAM trajectory and of the odometry alone, tree recall / precision,
+DBH MAE and bias. Target:
 >= 60 VLP-16 scans per CPU second with accuracy unchanged or better.
 
     python bench/slam_speed_bench.py [--scenarios sample,vlp16-loop:600,...]
@@ -152,6 +153,10 @@ def child(seq: Path, out: Path) -> dict:
         "stages_s": dict(stages),
         "ate_slam_m": t["ate_rmse_m"],
         "ate_odometry_m": o.get("ate_rmse_m"),
+        "rpe_slam_percent": t.get("rpe_percent_10m"),
+        "rpe_slam_deg": t.get("rpe_deg_10m"),
+        "rpe_odometry_percent": o.get("rpe_percent_10m"),
+        "rpe_odometry_deg": o.get("rpe_deg_10m"),
         "recall": tr.get("recall"),
         "precision": tr.get("precision"),
         "dbh_mae_m": tr.get("dbh_mae_m"),
@@ -232,6 +237,10 @@ def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
     for label, key in (
         ("ATE SLAM [m]", "ate_slam_m"),
         ("ATE odometry [m]", "ate_odometry_m"),
+        ("RPE SLAM [% over 10 m]", "rpe_slam_percent"),
+        ("RPE SLAM [deg over 10 m]", "rpe_slam_deg"),
+        ("RPE odometry [% over 10 m]", "rpe_odometry_percent"),
+        ("RPE odometry [deg over 10 m]", "rpe_odometry_deg"),
         ("tree recall", "recall"),
         ("tree precision", "precision"),
         ("DBH MAE [m]", "dbh_mae_m"),
@@ -239,6 +248,16 @@ def print_side_by_side(name: str, after: dict, before: dict | None) -> None:
     ):
         row(label, after.get(key), before and before.get(key), 4, ratio=False)
     sys.stdout.flush()
+
+
+def identical_outputs(out: Path) -> str:
+    """Which of the run's main outputs are byte-identical between the two sides."""
+    names = ("trajectory.tum", "odometry.tum", "trees.csv")
+    same = [
+        n for n in names if (out / "after" / n).read_bytes() == (out / "before" / n).read_bytes()
+    ]
+    differ = [n for n in names if n not in same]
+    return "all of " + ", ".join(names) if not differ else "no: " + ", ".join(differ) + " differ"
 
 
 def main() -> int:
@@ -260,6 +279,8 @@ def main() -> int:
         out = CACHE / "bench-speed" / REPO.name / seq.name  # per worktree: the cache is shared
         after, before = run_pair(seq, out, base, args.repeat)
         print_side_by_side(f"{spec} ({seq.name})", after, before)
+        if before:
+            print(f"  outputs byte-identical to the baseline's: {identical_outputs(out)}")
         results[spec] = {"after": after, "before": before}
         ok &= after["scans_per_cpu_s"] >= 60.0
         ok &= after["ate_slam_m"] <= after["ate_odometry_m"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from rosbags.typesys import Stores, get_typestore
 
 from forestslam.errors import InputError
 from forestslam.io import Scan, open_source, read_scans, write_scans
@@ -91,12 +92,27 @@ def write_topics(path, topics: dict[str, list[Scan]]):
             for k, scan in enumerate(scans):
                 ns, msg = _message(store, True, scan, k, "x")
                 writer.write(conn, ns, store.serialize_ros1(msg, POINTCLOUD2))
-        imu = writer.add_connection("/imu", "std_msgs/msg/String", typestore=store)
+        std = get_typestore(Stores.ROS1_NOETIC)  # a topic of another type
+        imu = writer.add_connection("/imu", "std_msgs/msg/String", typestore=std)
         writer.write(
             imu,
             1,
-            store.serialize_ros1(store.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"),
+            std.serialize_ros1(std.types["std_msgs/msg/String"]("hi"), "std_msgs/msg/String"),
         )
+
+
+@pytest.mark.parametrize("ros1", [True, False])
+def test_scan_types_match_the_standard_store(ros1):
+    """The reader's small type store defines the scan messages exactly as rosbags' standard
+    store of that ROS version (fields, constants and, for ROS1 bags, the md5 written)."""
+    full = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store = _typestore(ros1)
+    for name in (POINTCLOUD2, "sensor_msgs/msg/PointField", "std_msgs/msg/Header"):
+        assert store.fielddefs[name] == full.fielddefs[name], name
+        version = 1 if ros1 else 2
+        assert store.generate_msgdef(name, ros_version=version) == full.generate_msgdef(
+            name, ros_version=version
+        ), name
 
 
 def test_topic_choice(tmp_path):

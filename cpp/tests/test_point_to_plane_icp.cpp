@@ -1,8 +1,13 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <limits>
+#include <numeric>
 #include <random>
 #include <stdexcept>
+#include <thread>
+#include <vector>
 
 #include "forestslam/registration/point_to_plane_icp.hpp"
 #include "registration_fixtures.hpp"
@@ -151,4 +156,53 @@ TEST(PointToPlaneIcp, NearestMatchesBruteForceAndRespectsGate) {
     const registration::PlaneTarget pt(plane, 10);
     const Eigen::Vector3d n = Eigen::Vector3d(-0.5, 0.0, 1.0).normalized();
     EXPECT_NEAR(std::abs(pt.normals().row(210).dot(n)), 1.0, 1e-9);
+}
+
+// Normals are computed on first use: any order of single-row queries, from several threads at
+// once, gives bitwise the normals of the whole-target accessor, and they are the PCA normals.
+TEST(PointToPlaneIcp, LazyNormalsMatchWholeTargetFromAnyOrderAndThreads) {
+    std::mt19937 rng(7);
+    std::normal_distribution<double> noise(0.0, 0.005);
+    std::uniform_real_distribution<double> u(-3.0, 3.0);
+    Points3 pts(1500, 3);
+    for (int i = 0; i < 1000; ++i) pts.row(i) << u(rng), u(rng), noise(rng);  // ground
+    for (int i = 1000; i < 1400; ++i) {  // a stem of radius 0.2 m: 20 rings of 20 points
+        const double a = 2.0 * M_PI * (i % 20) / 20.0;
+        pts.row(i) << 1.0 + 0.2 * std::cos(a), 0.5 + 0.2 * std::sin(a),
+            0.5 + 0.1 * ((i - 1000) / 20);
+    }
+    for (int i = 1400; i < 1500; ++i) pts.row(i) << -10.0 + 0.05 * (i - 1400), -10.0, 2.0;  // line
+    const registration::PlaneTarget whole(pts, 10);
+    const Points3 all = whole.normals();
+    const registration::PlaneTarget lazy(pts, 10);
+    std::vector<int> order(1500);
+    std::iota(order.begin(), order.end(), 0);
+    std::shuffle(order.begin(), order.end(), rng);
+    // Two threads per half of the rows: each row is asked for by two threads at about once.
+    std::vector<std::vector<Eigen::Vector3d>> got(
+        4, std::vector<Eigen::Vector3d>(1500, Eigen::Vector3d::Zero()));
+    std::vector<std::thread> threads;
+    for (int t = 0; t < 4; ++t)
+        threads.emplace_back([&, t] {
+            for (int k = t % 2; k < 1500; k += 2) got[t][order[k]] = lazy.normal(order[k]);
+        });
+    for (auto &th : threads) th.join();
+    for (int i = 0; i < 1500; ++i) {
+        const Eigen::Vector3d want = all.row(i).transpose();
+        for (const auto &g : got) {
+            const Eigen::Vector3d &n = g[static_cast<size_t>(i)];
+            if (n.isZero()) continue;  // a row this thread did not ask for
+            if (std::isnan(want.x()))
+                EXPECT_TRUE(std::isnan(n.x())) << i;
+            else
+                EXPECT_EQ(n, want) << i;  // bitwise: the same computation
+        }
+        const Eigen::Vector3d again = lazy.normal(i);
+        EXPECT_TRUE(std::isnan(want.x()) ? std::isnan(again.x()) : again == want) << i;
+    }
+    for (int i = 0; i < 1000; i += 50) EXPECT_GT(std::abs(all(i, 2)), 0.99) << i;     // ground: z
+    for (int i = 1000; i < 1400; i += 50) EXPECT_LT(std::abs(all(i, 2)), 0.05) << i;  // stem
+    for (int i = 1410; i < 1490; ++i) EXPECT_TRUE(std::isnan(all(i, 0))) << i;  // a line: none
+    EXPECT_THROW(lazy.normal(-1), std::out_of_range);
+    EXPECT_THROW(lazy.normal(1500), std::out_of_range);
 }

@@ -2,54 +2,84 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
+#include <string>
+#include <thread>
 #include <vector>
 
 #include "forestslam/common/kdtree.hpp"
 
 namespace forestslam::registration {
+namespace {
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+}  // namespace
 
+// Normals are computed on first use: ICP touches only the map points near its source (about a
+// third of a local map between two keyframes), and a normal depends on the point's
+// neighbourhood alone, so results are the same as computing all of them up front.
 struct PlaneTarget::Impl {
+    enum : unsigned char { kPending = 0, kWriting = 1, kDone = 2 };
     Points3 points;
-    Points3 normals;
+    Points3 normals;  // rows valid once state[row] == kDone
     KdTree3 all;
-};
+    int k = 3;
+    std::vector<std::atomic<unsigned char>> state;
 
-PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_k)
-    : impl_(std::make_unique<Impl>()) {
-    impl_->points = finiteRows(points_in);
-    const Eigen::Index m = impl_->points.rows();
-    impl_->normals = Points3::Constant(m, 3, std::numeric_limits<double>::quiet_NaN());
-    if (m == 0) return;
-    std::vector<int> rows(static_cast<size_t>(m));
-    std::iota(rows.begin(), rows.end(), 0);
-    impl_->all.build(impl_->points, rows);
-    if (m < 3) return;
-    const int k = std::max(3, std::min<int>(normal_k, static_cast<int>(m)));
-    std::vector<std::pair<double, int>> nn;
-    nn.reserve(2 * static_cast<size_t>(k));
-    const double inf = std::numeric_limits<double>::infinity();
-    for (Eigen::Index i = 0; i < m; ++i) {
-        const int found = impl_->all.knn(impl_->points.row(i).transpose(), k, inf, nn);
-        if (found < 3) continue;
+    // PCA normal of row i's k nearest (NaN when the neighbourhood is not planar enough).
+    Eigen::Vector3d computeNormal(Eigen::Index i) const {
+        thread_local std::vector<std::pair<double, int>> nn;
+        const double inf = std::numeric_limits<double>::infinity();
+        const Eigen::Vector3d nan = Eigen::Vector3d::Constant(kNaN);
+        const int found = all.knn(points.row(i).transpose(), k, inf, nn);
+        if (found < 3) return nan;
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (const auto &[d2, j] : nn) mean += impl_->points.row(j).transpose();
+        for (const auto &[d2, j] : nn) mean += points.row(j).transpose();
         mean /= found;
         Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
         for (const auto &[d2, j] : nn) {
-            const Eigen::Vector3d d = impl_->points.row(j).transpose() - mean;
+            const Eigen::Vector3d d = points.row(j).transpose() - mean;
             cov.noalias() += d * d.transpose();
         }
         Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
         const Eigen::Vector3d ev = eig.eigenvalues();
         // Reject lines (a single scan ring) and blobs: the middle spread must be a fair share of
         // the largest and well above the normal direction's.
-        if (!(ev(1) > 3.0 * ev(0)) || !(ev(1) > 0.02 * ev(2)) || !(ev(1) > 1e-8)) continue;
-        impl_->normals.row(i) = eig.eigenvectors().col(0).transpose();
+        if (!(ev(1) > 3.0 * ev(0)) || !(ev(1) > 0.02 * ev(2)) || !(ev(1) > 1e-8)) return nan;
+        return eig.eigenvectors().col(0);
     }
+
+    // Thread-safe: the first caller to claim a row stores it; a concurrent caller that finds it
+    // being written uses its own (identical) result without storing it.
+    Eigen::Vector3d normal(Eigen::Index i) {
+        std::atomic<unsigned char> &s = state[static_cast<size_t>(i)];
+        if (s.load(std::memory_order_acquire) == kDone) return normals.row(i).transpose();
+        const Eigen::Vector3d n = computeNormal(i);
+        unsigned char expected = kPending;
+        if (s.compare_exchange_strong(expected, kWriting, std::memory_order_acq_rel)) {
+            normals.row(i) = n.transpose();
+            s.store(kDone, std::memory_order_release);
+        }
+        return n;
+    }
+};
+
+PlaneTarget::PlaneTarget(const Eigen::Ref<const Points3> &points_in, int normal_k)
+    : impl_(std::make_unique<Impl>()) {
+    impl_->points = finiteRows(points_in);
+    const Eigen::Index m = impl_->points.rows();
+    impl_->normals = Points3::Constant(m, 3, kNaN);
+    impl_->state = std::vector<std::atomic<unsigned char>>(static_cast<size_t>(m));
+    const unsigned char initial = m < 3 ? Impl::kDone : Impl::kPending;  // < 3: no normals
+    for (Eigen::Index i = 0; i < m; ++i) impl_->state[static_cast<size_t>(i)] = initial;
+    if (m == 0) return;
+    std::vector<int> rows(static_cast<size_t>(m));
+    std::iota(rows.begin(), rows.end(), 0);
+    impl_->all.build(impl_->points, rows);
+    impl_->k = std::max(3, std::min<int>(normal_k, static_cast<int>(m)));
 }
 
 PlaneTarget::~PlaneTarget() = default;
@@ -57,7 +87,23 @@ PlaneTarget::PlaneTarget(PlaneTarget &&) noexcept = default;
 PlaneTarget &PlaneTarget::operator=(PlaneTarget &&) noexcept = default;
 
 const Points3 &PlaneTarget::points() const { return impl_->points; }
-const Points3 &PlaneTarget::normals() const { return impl_->normals; }
+const Points3 &PlaneTarget::normals() const {
+    for (Eigen::Index i = 0; i < impl_->points.rows(); ++i) {
+        impl_->normal(i);
+        // A row another thread is storing at this moment is complete only once it says so.
+        while (impl_->state[static_cast<size_t>(i)].load(std::memory_order_acquire) != Impl::kDone)
+            std::this_thread::yield();
+    }
+    return impl_->normals;
+}
+
+Eigen::Vector3d PlaneTarget::normal(int row) const {
+    if (row < 0 || row >= impl_->points.rows())
+        throw std::out_of_range("PlaneTarget::normal: row " + std::to_string(row) +
+                                " outside the target's " + std::to_string(impl_->points.rows()) +
+                                " points");
+    return impl_->normal(row);
+}
 Eigen::Index PlaneTarget::size() const { return impl_->points.rows(); }
 
 int PlaneTarget::nearest(const Eigen::Vector3d &query, double &squared_distance) const {
@@ -95,20 +141,36 @@ struct NormalEquations {
     double sse = 0.0;
 };
 
+// Search radius for source point p's nearest target point: its previous nearest `last` (-1:
+// none) is at most this far, so the search can be bounded there and still finds the same point
+// (the k-d tree keeps the last of equally near points in a fixed visiting order, and every
+// subtree that can hold one of them is still visited). Slightly enlarged against rounding.
+double warmRadius(const Points3 &tp, int last, const Eigen::Vector3d &q, double max_d) {
+    if (last < 0) return max_d;
+    const double dx = q.x() - tp(last, 0), dy = q.y() - tp(last, 1), dz = q.z() - tp(last, 2);
+    const double d2 = dx * dx + dy * dy + dz * dz;
+    return std::min(max_d, std::sqrt(d2) * (1.0 + 1e-9) + 1e-12);
+}
+
+// `last` holds each source point's nearest target point of the previous iteration (-1: none)
+// and is updated; the nearest points found are those of an unbounded search.
 NormalEquations linearise(const PlaneTarget &target, const Points3 &source, const Pose3 &T,
-                          double max_d, const IcpConfig &config) {
+                          double max_d, const IcpConfig &config, std::vector<int> &last) {
     const Points3 &tp = target.points();
-    const Points3 &tn = target.normals();
     const double max_d2 = max_d * max_d;
     NormalEquations eq;
     Eigen::Matrix<double, 1, 6> J;
     for (Eigen::Index i = 0; i < source.rows(); ++i) {
         const Eigen::Vector3d p = source.row(i).transpose();
+        const Eigen::Vector3d q = T * p;
         double d2 = 0.0;
-        const int j = target.nearest(T * p, max_d, d2);
-        if (j < 0 || d2 > max_d2 || std::isnan(tn(j, 0))) continue;
-        const double r =
-            pointToPlaneResidual(T, p, tp.row(j).transpose(), tn.row(j).transpose(), &J);
+        int &j = last[static_cast<size_t>(i)];
+        const int found = target.nearest(q, warmRadius(tp, j, q, max_d), d2);
+        if (found >= 0) j = found;  // else the previous one stays the best bound known
+        if (found < 0 || d2 > max_d2) continue;
+        const Eigen::Vector3d n = target.normal(found);
+        if (std::isnan(n.x())) continue;
+        const double r = pointToPlaneResidual(T, p, tp.row(found).transpose(), n, &J);
         const double a = std::abs(r);
         const double w = a <= config.huber_m ? 1.0 : config.huber_m / a;
         eq.H.noalias() += w * J.transpose() * J;
@@ -189,10 +251,11 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     double max_d = std::max(config.max_correspondence_m, config.final_correspondence_m);
     const double shrink = shrinkFactor(config, max_d);
     NormalEquations eq;
+    std::vector<int> last(static_cast<size_t>(source.rows()), -1);
     bool converged = false;
     int it = 0;
     for (; it < config.max_iterations; ++it) {
-        eq = linearise(target, source, T, max_d, config);
+        eq = linearise(target, source, T, max_d, config, last);
         if (eq.used < config.min_correspondences) break;
         const Vector6d delta = solveStep(eq, T, prior_information, T_prior);
         if (!delta.allFinite()) break;

@@ -1,6 +1,7 @@
 // Point-to-plane ICP over 6 DoF (Gauss-Newton, Huber weights) against a target with normals.
 // The target (KD-tree + normals from its own neighbourhoods) is built once and reused, so a
-// local map serves many scans. The k-d tree is our own (exact, double precision, gated queries).
+// local map serves many scans; each normal is computed the first time a query needs it. The k-d
+// tree is our own (exact, double precision, gated queries).
 #pragma once
 
 #include <memory>
@@ -19,7 +20,11 @@ class PlaneTarget {
     PlaneTarget &operator=(PlaneTarget &&) noexcept;
 
     const Points3 &points() const;
-    const Points3 &normals() const;  // (M,3), NaN rows where no normal
+    // (M,3), NaN rows where no normal. Normals are computed on first use (all of them here).
+    const Points3 &normals() const;
+    // The normal of one row (NaN where none), computed on first use and kept; safe to call
+    // from several threads at once. std::out_of_range outside [0, size()).
+    Eigen::Vector3d normal(int row) const;
     Eigen::Index size() const;
     // Index and squared distance of the nearest target point (-1 if the target is empty).
     int nearest(const Eigen::Vector3d &query, double &squared_distance) const;

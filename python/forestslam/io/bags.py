@@ -43,14 +43,30 @@ _VELODYNE_MSGS = {
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
+# The few standard messages a scan needs (sensor_msgs and std_msgs .msg files): a store of these
+# takes ~15 ms to build where the whole ROS1/ROS2 standard store took ~150 ms CPU of every run.
+# tests/test_io_bags.py checks them field for field (and the ROS1 md5) against rosbags' stores.
+_SCAN_MSGS = {
+    "std_msgs/msg/Header": "{seq}{time} stamp\nstring frame_id",
+    "sensor_msgs/msg/PointField": "uint8 INT8=1\nuint8 UINT8=2\nuint8 INT16=3\nuint8 UINT16=4\n"
+    "uint8 INT32=5\nuint8 UINT32=6\nuint8 FLOAT32=7\nuint8 FLOAT64=8\n"
+    "string name\nuint32 offset\nuint8 datatype\nuint32 count",
+    POINTCLOUD2: "std_msgs/Header header\nuint32 height\nuint32 width\n"
+    "sensor_msgs/PointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\n"
+    "uint8[] data\nbool is_dense",
+}
+
+
 @functools.lru_cache(maxsize=2)
 def _typestore(ros1: bool):
-    """rosbags type store (cached: building one takes a few hundred ms)."""
+    """rosbags type store of the scan messages (cached), in ROS1 or ROS2 flavour (the Header's
+    seq and the stamp's type differ)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    for name, text in _VELODYNE_MSGS.items():
-        text = text.format(time="time" if ros1 else "builtin_interfaces/Time")
+    store = get_typestore(Stores.EMPTY)  # builtin_interfaces Time and Duration only
+    time = "time" if ros1 else "builtin_interfaces/Time"
+    for name, text in (*_SCAN_MSGS.items(), *_VELODYNE_MSGS.items()):
+        text = text.format(time=time, seq="uint32 seq\n" if ros1 else "")
         store.register(get_types_from_msg(text, name))
     return store
 
