@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from treeloc_slam_bench import DATA, planar_ate
+from treeloc_slam_bench import DATA, planar_ate, sim2_ate
 
 RANGE_M = 20.0
 REVISIT_M, REVISIT_GAP = 3.0, 200
@@ -180,19 +180,36 @@ def radial(table, kf, xy, of, centres, labels) -> None:
     )
 
 
-def sim2_ate(est: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
-    """Planar ATE after a similarity alignment, and its scale (Umeyama)."""
-    ce, cr = est.mean(axis=0), ref.mean(axis=0)
-    A, B = est - ce, ref - cr
-    U, S, Vt = np.linalg.svd(B.T @ A)
-    D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = float(np.trace(np.diag(S) @ D) / np.sum(A**2))
-    moved = s * A @ R.T + cr
-    return float(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1)))), s
+def bound_figures(table) -> tuple[float, float, float]:
+    """The landmark-graph bound of the whole session (section 4): ATE with SE(2) alignment,
+    with Sim(2) alignment, and the Sim(2) scale."""
+    kf, _, of, _, labels = clusters(table, world_trees(table))
+    xy, ref = landmark_graph(table, kf, of, labels)
+    sim, scale = sim2_ate(xy, ref)
+    return planar_ate(xy, ref), sim, scale
 
 
 def landmark_bound(table, kf, of, labels) -> None:
+    xy, ref_xy = landmark_graph(table, kf, of, labels)
+    sim, scale = sim2_ate(xy, ref_xy)
+    se2 = planar_ate(xy, ref_xy)
+    print(
+        f"4. landmark graph, perfect association, {len(kf)} keyframes: ATE {se2:.3f} m "
+        f"(SE(2)); {sim:.3f} m (Sim(2); the trees' map is {100 * (1 / scale - 1):+.3f} % "
+        "against the reference)"
+    )
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.maximum(
+        np.linalg.norm(np.diff(ref_xy, axis=0), axis=1), 1e-9
+    )
+    parts = np.array_split(seg, 8)
+    print(
+        "   step length ratio graph / reference, by eighths of the route: "
+        + " ".join(f"{100 * (np.median(q) - 1):+.2f}%" for q in parts)
+    )
+
+
+def landmark_graph(table, kf, of, labels) -> tuple[np.ndarray, np.ndarray]:
+    """The batch landmark graph of section 4: keyframe positions (N,2) and reference (N,2)."""
     import gtsam
 
     from forestslam.localization.tables import query_xy
@@ -236,21 +253,7 @@ def landmark_bound(table, kf, of, labels) -> None:
                 )
     est = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     xy = np.array([est.atPose2(i).translation() for i in range(len(frames))])
-    sim, scale = sim2_ate(xy, ref[:, :2, 2])
-    se2 = planar_ate(xy, ref[:, :2, 2])
-    print(
-        f"4. landmark graph, perfect association, {len(frames)} keyframes: ATE {se2:.3f} m "
-        f"(SE(2)); {sim:.3f} m (Sim(2); the trees' map is {100 * (1 / scale - 1):+.3f} % "
-        "against the reference)"
-    )
-    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.maximum(
-        np.linalg.norm(np.diff(ref[:, :2, 2], axis=0), axis=1), 1e-9
-    )
-    parts = np.array_split(seg, 8)
-    print(
-        "   step length ratio graph / reference, by eighths of the route: "
-        + " ".join(f"{100 * (np.median(q) - 1):+.2f}%" for q in parts)
-    )
+    return xy, ref[:, :2, 2]
 
 
 def main() -> int:

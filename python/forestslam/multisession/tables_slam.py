@@ -220,6 +220,8 @@ def run_table_slam(
     stats["loop_closures"] = slam.loop_closures  # verified place recognition only
     stats["reassociation_corrections"] = slam.reassociation_corrections
     stats["merged_duplicates"] = slam.merged_duplicates
+    stats["losses"] = slam.losses
+    stats["relocalizations"] = slam.relocalizations
     stats["landmarks"] = slam.n_landmarks
     return TableSlamResult(
         np.array(given),
