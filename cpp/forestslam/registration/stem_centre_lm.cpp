@@ -1,19 +1,19 @@
 #include "forestslam/registration/stem_centre_lm.hpp"
 
 #include <ceres/ceres.h>
-#include <pcl/kdtree/kdtree_flann.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <numeric>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
-#include "forestslam/common/pcl_adapter.hpp"
+#include "forestslam/common/kdtree.hpp"
 
 namespace forestslam::registration {
 
@@ -23,35 +23,75 @@ std::int64_t cellIndex(double v) { return static_cast<std::int64_t>(std::floor(v
 std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
     return ((ix & 0x7FFFFFFF) << 32) | (iy & 0x7FFFFFFF);
 }
-// The target points of one x-y column sorted by height: a height window is one binary search.
+// The target points of the x-y columns, each column's sorted by height (a height window is one
+// binary search), stored one column after another in two flat arrays: one allocation instead of
+// one per column.
 struct Column {
+    int begin = 0, end = 0;  // its range in Columns::z / Columns::index
+};
+struct Columns {
+    std::unordered_map<std::int64_t, Column> at;
     std::vector<double> z;
     std::vector<int> index;
 };
+
+// Counting sort of the points by column (ascending point index within a column), then each
+// column sorted by height with the same comparisons as a per-column std::sort of its indices.
+Columns buildColumns(const Points3 &pts) {
+    Columns c;
+    const auto n = static_cast<std::size_t>(pts.rows());
+    std::vector<int> column_of(n);
+    std::vector<int> counts;
+    std::vector<std::int64_t> keys;
+    for (std::size_t i = 0; i < n; ++i) {
+        const auto key = cellKey(cellIndex(pts(static_cast<Eigen::Index>(i), 0)),
+                                 cellIndex(pts(static_cast<Eigen::Index>(i), 1)));
+        const auto [it, added] = c.at.try_emplace(key, Column{static_cast<int>(keys.size()), 0});
+        if (added) {
+            keys.push_back(key);
+            counts.push_back(0);
+        }
+        column_of[i] = it->second.begin;  // the column's ordinal until the ranges are set
+        ++counts[static_cast<std::size_t>(it->second.begin)];
+    }
+    std::vector<int> start(keys.size() + 1, 0);
+    for (std::size_t k = 0; k < keys.size(); ++k) start[k + 1] = start[k] + counts[k];
+    for (std::size_t k = 0; k < keys.size(); ++k) c.at[keys[k]] = Column{start[k], start[k + 1]};
+    struct Entry {
+        double z;
+        int index;
+    };
+    std::vector<Entry> entries(n);
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i)
+        entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(column_of[i])]++)] = {
+            pts(static_cast<Eigen::Index>(i), 2), static_cast<int>(i)};
+    for (std::size_t k = 0; k < keys.size(); ++k)
+        std::sort(entries.begin() + start[k], entries.begin() + start[k + 1],
+                  [](const Entry &a, const Entry &b) { return a.z < b.z; });
+    c.z.resize(n);
+    c.index.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        c.z[i] = entries[i].z;
+        c.index[i] = entries[i].index;
+    }
+    return c;
+}
 }  // namespace
 
 struct StemCentreTarget::Impl {
     Points3 points;
-    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
-    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
-    std::unordered_map<std::int64_t, Column> columns;
+    KdTree3 tree;  // exact k-nearest in double precision, no per-query OpenMP region (FLANN)
+    Columns columns;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
     impl_->points = finiteRows(points);
-    impl_->cloud = detail::toPcl(impl_->points);
-    if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
-    const Points3 &pts = impl_->points;
-    for (Eigen::Index i = 0; i < pts.rows(); ++i)
-        impl_->columns[cellKey(cellIndex(pts(i, 0)), cellIndex(pts(i, 1)))].index.push_back(
-            static_cast<int>(i));
-    for (auto &[key, column] : impl_->columns) {
-        auto &idx = column.index;
-        std::sort(idx.begin(), idx.end(), [&pts](int a, int b) { return pts(a, 2) < pts(b, 2); });
-        column.z.resize(idx.size());
-        for (std::size_t k = 0; k < idx.size(); ++k) column.z[k] = pts(idx[k], 2);
-    }
+    std::vector<int> rows(static_cast<std::size_t>(impl_->points.rows()));
+    std::iota(rows.begin(), rows.end(), 0);
+    impl_->tree.build(impl_->points, std::move(rows));
+    impl_->columns = buildColumns(impl_->points);
 }
 
 StemCentreTarget::~StemCentreTarget() = default;
@@ -318,13 +358,16 @@ struct VirtualCandidates {
         const double reach2 = reach * reach;
         for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
             for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
-                const auto it = target.columns.find(cellKey(ix, iy));
-                if (it == target.columns.end()) continue;
-                const auto &z = it->second.z;
-                const auto lo = std::lower_bound(z.begin(), z.end(), q.z() - window);
-                const auto hi = std::upper_bound(lo, z.end(), q.z() + window);
-                for (auto k = lo - z.begin(); k < hi - z.begin(); ++k) {
-                    const int j = it->second.index[static_cast<std::size_t>(k)];
+                const auto it = target.columns.at.find(cellKey(ix, iy));
+                if (it == target.columns.at.end()) continue;
+                const auto z0 = target.columns.z.begin() + it->second.begin;
+                const auto z1 = target.columns.z.begin() + it->second.end;
+                const auto lo = std::lower_bound(z0, z1, q.z() - window);
+                const auto hi = std::upper_bound(lo, z1, q.z() + window);
+                for (auto k = lo; k < hi; ++k) {
+                    const int j =
+                        target.columns
+                            .index[static_cast<std::size_t>(k - target.columns.z.begin())];
                     const double dx = target.points(j, 0) - q.x(), dy = target.points(j, 1) - q.y();
                     if (dx * dx + dy * dy <= reach2)
                         out.push_back(
@@ -347,15 +390,95 @@ struct VirtualCandidates {
     }
 };
 
-// Features in the source frame with their current positions qc / qr in the target frame.
-void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
-               const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
-               const Points3 &qr, const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
-               std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
+// The kNearest nearest target points of each real feature, from a cached neighbourhood: the
+// points within `complete` of where the feature was when gathered (all within kReach, or the
+// nearest kMaxMembers when more lie there, `complete` then the farthest one's distance). Exact
+// while the moved feature q stays within delta of there with d_k + 2 delta < complete (d_k the
+// k-th nearest distance when gathered): the k nearest of q lie within d_k(q) + delta <=
+// d_k + 2 delta of the old position. A round then scans a few dozen points instead of
+// descending the k-d tree (a quarter of the LM's time); ties order by (distance, row).
+struct RealCandidates {
+    static constexpr int kNearest = 10;  // the kPlaneCandidates
+    static constexpr int kMaxMembers = 48;
+    static constexpr double kReach = 0.3;  // gathered within this radius
+    static constexpr double kWholeTarget = std::numeric_limits<double>::infinity();
+    struct Member {
+        double x, y, z;
+        int index;
+    };
+    std::vector<Eigen::Vector3d> at;
+    std::vector<double> room;  // complete - d_k: the old position's allowance (2 delta < room)
+    std::vector<std::vector<Member>> members;
+    std::vector<char> valid;
+    std::vector<std::pair<double, int>> scratch;
+
+    void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q) {
+        auto &out = members[i];
+        out.clear();
+        at[i] = q;
+        valid[i] = 1;
+        const int n = target.tree.knn(q, kMaxMembers, kReach * kReach, scratch);
+        if (n >= kNearest) {
+            for (const auto &[dd, row] : scratch) out.push_back(member(target, row));
+            std::nth_element(scratch.begin(), scratch.begin() + (kNearest - 1), scratch.end());
+            const double dk = std::sqrt(scratch[kNearest - 1].first);
+            double complete = kReach;
+            if (n == kMaxMembers) {  // every point nearer than the farthest kept one is kept
+                double far2 = 0.0;
+                for (const auto &item : scratch) far2 = std::max(far2, item.first);
+                complete = std::sqrt(far2);
+            }
+            room[i] = complete - dk - 1e-9;  // margin for the rounding of the distances
+            return;
+        }
+        // Sparse here: the k nearest reach beyond kReach; exact, but gathered again next time
+        // unless they are the whole target.
+        const auto found = static_cast<std::size_t>(
+            target.tree.knn(q, kNearest, std::numeric_limits<double>::infinity(), scratch));
+        for (const auto &[dd, row] : scratch) out.push_back(member(target, row));
+        room[i] = found < static_cast<std::size_t>(kNearest) ? kWholeTarget : -1.0;
+    }
+
+    static Member member(const StemCentreTarget::Impl &target, int row) {
+        return {target.points(row, 0), target.points(row, 1), target.points(row, 2), row};
+    }
+
+    // The (up to) kNearest nearest target points of q as (squared distance, row), nearest
+    // first: the k-d tree's distances (point - q, summed x, y, z) over the cached members.
+    const std::vector<std::pair<double, int>> &nearest(const StemCentreTarget::Impl &target,
+                                                       std::size_t i, const Eigen::Vector3d &q) {
+        if (members.size() <= i) {
+            at.resize(i + 1);
+            room.resize(i + 1);
+            members.resize(i + 1);
+            valid.resize(i + 1, 0);
+        }
+        if (!valid[i] || !(2.0 * (q - at[i]).norm() < room[i])) gather(target, i, q);
+        scratch.clear();
+        for (const auto &m : members[i]) {
+            const double dx = m.x - q.x(), dy = m.y - q.y(), dz = m.z - q.z();
+            scratch.emplace_back(dx * dx + dy * dy + dz * dz, m.index);
+        }
+        const auto k = std::min<std::size_t>(kNearest, scratch.size());
+        std::partial_sort(scratch.begin(), scratch.begin() + static_cast<long>(k), scratch.end());
+        scratch.resize(k);
+        return scratch;
+    }
+};
+
+// The candidates of both feature kinds, shared by all rounds of a registration.
+struct PairCandidates {
+    VirtualCandidates centres;
+    RealCandidates real;
+};
+
+// Stem-centre pairs: per virtual feature (source frame, current position qc in the target
+// frame) the target point nearest to its circle in each angular sector.
+void findVirtualPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
+                      const Eigen::VectorXd &radii, const Points3 &qc,
+                      const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
+                      std::vector<VirtualPair> &vpairs) {
     vpairs.clear();
-    ppairs.clear();
-    std::vector<int> idx;
-    std::vector<float> d2;
     const int sectors = std::max(1, cfg.virtual_sectors);
     const double gate = std::min(cfg.virtual_gate_m, cfg.virtual_max_gate_m);
     std::vector<int> best(static_cast<std::size_t>(sectors));
@@ -394,14 +517,23 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
             }
         }
     }
-    constexpr int kPlaneCandidates = 10;
+}
+
+// Point-to-plane pairs: per real feature (source frame, current position qr in the target
+// frame) the plane through its nearest non-collinear target points.
+void findPlanePairs(const StemCentreTarget::Impl &target, const Points3 &real, const Points3 &qr,
+                    const StemCentreLmConfig &cfg, RealCandidates &candidates,
+                    std::vector<PlanePair> &ppairs) {
+    ppairs.clear();
+    std::vector<int> idx;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
         const Eigen::Vector3d q = qr.row(i).transpose();
-        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
-                            static_cast<float>(q.z()));
-        if (target.tree.nearestKSearch(query, kPlaneCandidates, idx, d2) < 3) continue;
-        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
+        const auto &near = candidates.nearest(target, static_cast<std::size_t>(i), q);
+        if (near.size() < 3) continue;
+        if (std::sqrt(near[0].first) > cfg.real_gate_m) continue;
+        idx.clear();
+        for (const auto &[dd, row] : near) idx.push_back(row);
         const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
         const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
         // Third point: the nearest that makes a non-degenerate triangle with the first two.
@@ -416,6 +548,15 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
             break;
         }
     }
+}
+
+// Features in the source frame with their current positions qc / qr in the target frame.
+void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
+               const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
+               const Points3 &qr, const StemCentreLmConfig &cfg, PairCandidates &candidates,
+               std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
+    findVirtualPairs(target, centres, radii, qc, cfg, candidates.centres, vpairs);
+    findPlanePairs(target, real, qr, cfg, candidates.real, ppairs);
 }
 
 // The usable features (finite, centres with a positive radius, finite times when the in-sweep
@@ -578,7 +719,7 @@ bool applyStep(const std::vector<double> &delta, const StemCentreLmConfig &confi
 // Correspondence rounds (pairs renewed, then one LM solve) until converged at the fine
 // gates, too few pairs, or max_rounds.
 void iterateRounds(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                   const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                   const StemCentreLmConfig &config, PairCandidates &candidates, LmState &s,
                    StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -690,7 +831,7 @@ void covarianceAndDegeneracy(const std::vector<PairAtSolution> &pairs,
 
 // Statistics and covariance at the solution, with pairs renewed at the fine gates.
 void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                    const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                    const StemCentreLmConfig &config, PairCandidates &candidates, LmState &s,
                     StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -730,7 +871,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     const LmFeatures features =
         usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
     LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
-    VirtualCandidates candidates;  // target points near each centre, shared by all rounds
+    PairCandidates candidates;  // target points near each feature, shared by all rounds
     iterateRounds(target.impl(), features, config, candidates, state, result);
     state.T = orthonormalised(state.T);  // the left updates accumulate rounding
     result.T_target_source = Pose3(state.T);
