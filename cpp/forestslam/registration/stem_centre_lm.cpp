@@ -1,19 +1,20 @@
 #include "forestslam/registration/stem_centre_lm.hpp"
 
 #include <ceres/ceres.h>
+#include <pcl/kdtree/kdtree_flann.h>
 
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <numeric>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
-#include "forestslam/common/kdtree.hpp"
+#include "forestslam/common/pcl_adapter.hpp"
 
 namespace forestslam::registration {
 
@@ -79,18 +80,75 @@ Columns buildColumns(const Points3 &pts) {
 }
 }  // namespace
 
+// The target's points, their x-y columns (the stem-centre pairs' disc and height window; the
+// real features' cached neighbourhoods) and PCL's k-d tree (FLANN, single precision), built on
+// first use: the real features' nearest points are FLANN's answers, which the neighbourhoods
+// reproduce exactly wherever they can (RealCandidates), so most targets never build the tree
+// (its build was most of a target's cost, and the LM's map target is rebuilt often).
 struct StemCentreTarget::Impl {
     Points3 points;
-    KdTree3 tree;  // exact k-nearest in double precision, no per-query OpenMP region (FLANN)
     Columns columns;
+
+    // The k nearest points of q as FLANN answers them: rows and single-precision squared
+    // distances, nearest first, ties in the tree's order.
+    int nearestK(const Eigen::Vector3d &q, int k, std::vector<int> &rows,
+                 std::vector<float> &d2) const {
+        std::call_once(tree_once_, [this] {
+            cloud_ = detail::toPcl(points);
+            if (!cloud_->empty()) tree_.setInputCloud(cloud_);
+        });
+        if (cloud_->empty()) {
+            rows.clear();
+            d2.clear();
+            return 0;
+        }
+        const pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                                  static_cast<float>(q.z()));
+        return tree_.nearestKSearch(query, k, rows, d2);
+    }
+
+    // Appends (squared distance, row) of every point within radius of q: per column that the
+    // ball reaches, the height window the ball leaves at the column's nearest x-y point.
+    void withinRadius(const Eigen::Vector3d &q, double radius,
+                      std::vector<std::pair<double, int>> &out) const {
+        const double r2 = radius * radius;
+        const auto gap = [](double v, std::int64_t cell) {  // distance from v to the cell's span
+            const double lo = static_cast<double>(cell) * kCell, hi = lo + kCell;
+            return v < lo ? lo - v : (v > hi ? v - hi : 0.0);
+        };
+        for (auto ix = cellIndex(q.x() - radius); ix <= cellIndex(q.x() + radius); ++ix) {
+            const double gx = gap(q.x(), ix);
+            for (auto iy = cellIndex(q.y() - radius); iy <= cellIndex(q.y() + radius); ++iy) {
+                const double gy = gap(q.y(), iy);
+                const double h2 = r2 - gx * gx - gy * gy;
+                if (h2 < -1e-9) continue;
+                const auto it = columns.at.find(cellKey(ix, iy));
+                if (it == columns.at.end()) continue;
+                // Slightly wider than the exact window: the distance test below decides.
+                const double h = std::sqrt(std::max(h2, 0.0)) + 1e-6;
+                const auto z0 = columns.z.begin() + it->second.begin;
+                const auto z1 = columns.z.begin() + it->second.end;
+                const auto hi = std::upper_bound(z0, z1, q.z() + h);
+                for (auto k = std::lower_bound(z0, hi, q.z() - h); k < hi; ++k) {
+                    const int j = columns.index[static_cast<std::size_t>(k - columns.z.begin())];
+                    const double dx = points(j, 0) - q.x(), dy = points(j, 1) - q.y(),
+                                 dz = points(j, 2) - q.z();
+                    const double d2 = dx * dx + dy * dy + dz * dz;
+                    if (d2 <= r2) out.emplace_back(d2, j);
+                }
+            }
+        }
+    }
+
+  private:
+    mutable std::once_flag tree_once_;
+    mutable pcl::PointCloud<pcl::PointXYZ>::Ptr cloud_;
+    mutable pcl::KdTreeFLANN<pcl::PointXYZ> tree_;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
     impl_->points = finiteRows(points);
-    std::vector<int> rows(static_cast<std::size_t>(impl_->points.rows()));
-    std::iota(rows.begin(), rows.end(), 0);
-    impl_->tree.build(impl_->points, std::move(rows));
     impl_->columns = buildColumns(impl_->points);
 }
 
@@ -390,79 +448,146 @@ struct VirtualCandidates {
     }
 };
 
-// The kNearest nearest target points of each real feature, from a cached neighbourhood: the
-// points within `complete` of where the feature was when gathered (all within kReach, or the
-// nearest kMaxMembers when more lie there, `complete` then the farthest one's distance). Exact
-// while the moved feature q stays within delta of there with d_k + 2 delta < complete (d_k the
-// k-th nearest distance when gathered): the k nearest of q lie within d_k(q) + delta <=
-// d_k + 2 delta of the old position. A round then scans a few dozen points instead of
-// descending the k-d tree (a quarter of the LM's time); ties order by (distance, row).
+// The kNearest nearest target points of each real feature exactly as the k-d tree (FLANN, single
+// precision) finds them, mostly without it: from a cached neighbourhood, the points within
+// `complete` of where the feature was when gathered (all within kReach, or the nearest
+// kMaxMembers when more lie there, `complete` then the farthest one's distance). The k nearest
+// of the moved feature q lie among them while it is within delta of there with
+// d_k + 2 delta + 2 eps < complete (d_k the k-th nearest distance when gathered, eps the
+// difference of single- and double-precision distances): they lie within
+// d_k(q) + delta + 2 eps <= d_k + 2 delta + 2 eps of the old position. Their distances are
+// computed as FLANN computes them (floats, (q - p) squared and summed over x, y, z), so without
+// a tie they give its answer and order; a tie in the first k + 1 and a neighbourhood too sparse
+// for a ball of kMaxSparseReach to hold the k + 1 nearest ask the tree. A feature with no point
+// within the gate (plus a margin) has no pair either way. A round then scans a few dozen points
+// instead of descending the tree (a quarter of the LM's time), and the tree is built only when
+// asked.
 struct RealCandidates {
     static constexpr int kNearest = 10;  // the kPlaneCandidates
     static constexpr int kMaxMembers = 48;
     static constexpr double kReach = 0.3;  // gathered within this radius
-    static constexpr double kWholeTarget = std::numeric_limits<double>::infinity();
+    static constexpr double kMaxSparseReach = 2.4;
+    enum class Mode : char { kMembers, kTree, kNoPair };
     struct Member {
-        double x, y, z;
+        float x, y, z;
         int index;
     };
     std::vector<Eigen::Vector3d> at;
-    std::vector<double> room;  // complete - d_k: the old position's allowance (2 delta < room)
+    std::vector<double> room;  // complete - d_k - 2 eps: reused while 2 delta < room
+    std::vector<Mode> mode;
     std::vector<std::vector<Member>> members;
     std::vector<char> valid;
     std::vector<std::pair<double, int>> scratch;
+    std::vector<std::pair<float, int>> sorted;
 
-    void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q) {
+    static double singlePrecisionSlack(const Eigen::Vector3d &q, double reach) {
+        return 1e-6 * (q.cwiseAbs().maxCoeff() + reach + 1.0);
+    }
+
+    void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate) {
         auto &out = members[i];
         out.clear();
         at[i] = q;
         valid[i] = 1;
-        const int n = target.tree.knn(q, kMaxMembers, kReach * kReach, scratch);
-        if (n >= kNearest) {
-            for (const auto &[dd, row] : scratch) out.push_back(member(target, row));
-            std::nth_element(scratch.begin(), scratch.begin() + (kNearest - 1), scratch.end());
-            const double dk = std::sqrt(scratch[kNearest - 1].first);
-            double complete = kReach;
-            if (n == kMaxMembers) {  // every point nearer than the farthest kept one is kept
-                double far2 = 0.0;
-                for (const auto &item : scratch) far2 = std::max(far2, item.first);
-                complete = std::sqrt(far2);
-            }
-            room[i] = complete - dk - 1e-9;  // margin for the rounding of the distances
+        room[i] = -1.0;  // asked again next round unless set below
+        scratch.clear();
+        target.withinRadius(q, kReach, scratch);
+        if (scratch.size() < static_cast<std::size_t>(kNearest)) {
+            sparse(target, i, q, gate);
             return;
         }
-        // Sparse here: the k nearest reach beyond kReach; exact, but gathered again next time
-        // unless they are the whole target.
-        const auto found = static_cast<std::size_t>(
-            target.tree.knn(q, kNearest, std::numeric_limits<double>::infinity(), scratch));
+        double complete = kReach;
+        if (scratch.size() > static_cast<std::size_t>(kMaxMembers)) {
+            // The kMaxMembers nearest: every point nearer than the farthest kept one.
+            std::nth_element(scratch.begin(), scratch.begin() + (kMaxMembers - 1), scratch.end());
+            scratch.resize(kMaxMembers);
+            complete = std::sqrt(scratch.back().first);
+        }
         for (const auto &[dd, row] : scratch) out.push_back(member(target, row));
-        room[i] = found < static_cast<std::size_t>(kNearest) ? kWholeTarget : -1.0;
+        std::nth_element(scratch.begin(), scratch.begin() + (kNearest - 1), scratch.end());
+        const double dk = std::sqrt(scratch[kNearest - 1].first);
+        mode[i] = Mode::kMembers;
+        room[i] = complete - dk - 2.0 * singlePrecisionSlack(q, kReach);
+    }
+
+    // Fewer than k points within kReach: a ball grown (doubling, up to kMaxSparseReach) until
+    // it surely holds the k + 1 nearest in single precision, all its points the members (not
+    // reused); none within the gate (plus a margin): no pair; else the tree.
+    void sparse(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate) {
+        const double eps = singlePrecisionSlack(q, kMaxSparseReach);
+        const auto want = static_cast<std::size_t>(kNearest + 1);
+        mode[i] = Mode::kTree;
+        for (double radius = 2.0 * kReach; radius <= kMaxSparseReach; radius *= 2.0) {
+            scratch.clear();
+            target.withinRadius(q, radius, scratch);
+            if (scratch.empty() && radius >= gate + 1e-4) {
+                mode[i] = Mode::kNoPair;
+                return;
+            }
+            if (scratch.size() < want) continue;
+            std::nth_element(scratch.begin(), scratch.begin() + (want - 1), scratch.end());
+            if (std::sqrt(scratch[want - 1].first) + 2.0 * eps > radius) continue;
+            for (const auto &[dd, row] : scratch) members[i].push_back(member(target, row));
+            mode[i] = Mode::kMembers;
+            return;
+        }
     }
 
     static Member member(const StemCentreTarget::Impl &target, int row) {
-        return {target.points(row, 0), target.points(row, 1), target.points(row, 2), row};
+        return {static_cast<float>(target.points(row, 0)),
+                static_cast<float>(target.points(row, 1)),
+                static_cast<float>(target.points(row, 2)), row};
     }
 
-    // The (up to) kNearest nearest target points of q as (squared distance, row), nearest
-    // first: the k-d tree's distances (point - q, summed x, y, z) over the cached members.
-    const std::vector<std::pair<double, int>> &nearest(const StemCentreTarget::Impl &target,
-                                                       std::size_t i, const Eigen::Vector3d &q) {
+    // The (up to) kNearest nearest target points of q as FLANN's nearestKSearch answers them
+    // (rows, single-precision squared distances, nearest first); how many.
+    int nearest(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate, std::vector<int> &rows, std::vector<float> &d2) {
         if (members.size() <= i) {
             at.resize(i + 1);
             room.resize(i + 1);
+            mode.resize(i + 1);
             members.resize(i + 1);
             valid.resize(i + 1, 0);
         }
-        if (!valid[i] || !(2.0 * (q - at[i]).norm() < room[i])) gather(target, i, q);
-        scratch.clear();
-        for (const auto &m : members[i]) {
-            const double dx = m.x - q.x(), dy = m.y - q.y(), dz = m.z - q.z();
-            scratch.emplace_back(dx * dx + dy * dy + dz * dz, m.index);
+        if (!valid[i] || !(2.0 * (q - at[i]).norm() < room[i])) gather(target, i, q, gate);
+        rows.clear();
+        d2.clear();
+        if (mode[i] == Mode::kNoPair) return 0;
+        if (mode[i] == Mode::kTree || !fromMembers(members[i], q, rows, d2))
+            return target.nearestK(q, kNearest, rows, d2);
+        return static_cast<int>(rows.size());
+    }
+
+    // FLANN's answer from the members; false on a tie among the k + 1 nearest (its order
+    // there is the tree's).
+    bool fromMembers(const std::vector<Member> &ms, const Eigen::Vector3d &q,
+                     std::vector<int> &rows, std::vector<float> &d2) {
+        const float qx = static_cast<float>(q.x()), qy = static_cast<float>(q.y()),
+                    qz = static_cast<float>(q.z());
+        sorted.clear();
+        for (const auto &m : ms) {
+            float r = 0.0f, d = qx - m.x;
+            r += d * d;
+            d = qy - m.y;
+            r += d * d;
+            d = qz - m.z;
+            r += d * d;
+            sorted.emplace_back(r, m.index);
         }
-        const auto k = std::min<std::size_t>(kNearest, scratch.size());
-        std::partial_sort(scratch.begin(), scratch.begin() + static_cast<long>(k), scratch.end());
-        scratch.resize(k);
-        return scratch;
+        const std::size_t n = sorted.size(), k = std::min<std::size_t>(kNearest, n);
+        const std::size_t check = std::min(k + 1, n);
+        std::partial_sort(sorted.begin(), sorted.begin() + static_cast<long>(check), sorted.end(),
+                          [](const auto &a, const auto &b) { return a.first < b.first; });
+        for (std::size_t j = 0; j + 1 < check; ++j)
+            if (!(sorted[j].first < sorted[j + 1].first)) return false;
+        for (std::size_t j = 0; j < k; ++j) {
+            rows.push_back(sorted[j].second);
+            d2.push_back(sorted[j].first);
+        }
+        return true;
     }
 };
 
@@ -526,14 +651,14 @@ void findPlanePairs(const StemCentreTarget::Impl &target, const Points3 &real, c
                     std::vector<PlanePair> &ppairs) {
     ppairs.clear();
     std::vector<int> idx;
+    std::vector<float> d2;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
         const Eigen::Vector3d q = qr.row(i).transpose();
-        const auto &near = candidates.nearest(target, static_cast<std::size_t>(i), q);
-        if (near.size() < 3) continue;
-        if (std::sqrt(near[0].first) > cfg.real_gate_m) continue;
-        idx.clear();
-        for (const auto &[dd, row] : near) idx.push_back(row);
+        if (candidates.nearest(target, static_cast<std::size_t>(i), q, cfg.real_gate_m, idx, d2) <
+            3)
+            continue;
+        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
         const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
         const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
         // Third point: the nearest that makes a non-degenerate triangle with the first two.
