@@ -466,8 +466,9 @@ struct RealCandidates {
     static constexpr int kNearest = 10;  // the kPlaneCandidates
     static constexpr int kMaxMembers = 48;
     static constexpr double kReach = 0.3;  // gathered within this radius
-    static constexpr double kMaxSparseReach = 2.4;
+    static constexpr double kMaxSparseReach = 4.8;
     enum class Mode : char { kMembers, kTree, kNoPair };
+    static constexpr std::size_t kNoTie = std::numeric_limits<std::size_t>::max();
     struct Member {
         float x, y, z;
         int index;
@@ -542,9 +543,10 @@ struct RealCandidates {
     }
 
     // The (up to) kNearest nearest target points of q as FLANN's nearestKSearch answers them
-    // (rows, single-precision squared distances, nearest first); how many.
+    // (rows, single-precision squared distances, nearest first); how many. From position `tie`
+    // on FLANN's order may differ (see fromMembers): the caller asks the tree when it looks there.
     int nearest(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
-                double gate, std::vector<int> &rows, std::vector<float> &d2) {
+                double gate, std::vector<int> &rows, std::vector<float> &d2, std::size_t &tie) {
         if (members.size() <= i) {
             at.resize(i + 1);
             room.resize(i + 1);
@@ -555,16 +557,18 @@ struct RealCandidates {
         if (!valid[i] || !(2.0 * (q - at[i]).norm() < room[i])) gather(target, i, q, gate);
         rows.clear();
         d2.clear();
+        tie = kNoTie;
         if (mode[i] == Mode::kNoPair) return 0;
-        if (mode[i] == Mode::kTree || !fromMembers(members[i], q, rows, d2))
-            return target.nearestK(q, kNearest, rows, d2);
+        if (mode[i] == Mode::kTree) return target.nearestK(q, kNearest, rows, d2);
+        tie = fromMembers(members[i], q, rows, d2);
         return static_cast<int>(rows.size());
     }
 
-    // FLANN's answer from the members; false on a tie among the k + 1 nearest (its order
-    // there is the tree's).
-    bool fromMembers(const std::vector<Member> &ms, const Eigen::Vector3d &q,
-                     std::vector<int> &rows, std::vector<float> &d2) {
+    // FLANN's answer from the members, up to the first tie among the k + 1 nearest (FLANN
+    // orders tied points as its tree meets them) -> the position of the first of the tied
+    // pair (kNoTie without one): positions from there on may differ from FLANN's.
+    std::size_t fromMembers(const std::vector<Member> &ms, const Eigen::Vector3d &q,
+                            std::vector<int> &rows, std::vector<float> &d2) {
         const float qx = static_cast<float>(q.x()), qy = static_cast<float>(q.y()),
                     qz = static_cast<float>(q.z());
         sorted.clear();
@@ -581,13 +585,14 @@ struct RealCandidates {
         const std::size_t check = std::min(k + 1, n);
         std::partial_sort(sorted.begin(), sorted.begin() + static_cast<long>(check), sorted.end(),
                           [](const auto &a, const auto &b) { return a.first < b.first; });
-        for (std::size_t j = 0; j + 1 < check; ++j)
-            if (!(sorted[j].first < sorted[j + 1].first)) return false;
+        std::size_t tie = kNoTie;
+        for (std::size_t j = 0; j + 1 < check && tie == kNoTie; ++j)
+            if (!(sorted[j].first < sorted[j + 1].first)) tie = j;
         for (std::size_t j = 0; j < k; ++j) {
             rows.push_back(sorted[j].second);
             d2.push_back(sorted[j].first);
         }
-        return true;
+        return tie;
     }
 };
 
@@ -644,34 +649,52 @@ void findVirtualPairs(const StemCentreTarget::Impl &target, const Points3 &centr
     }
 }
 
+// The plane of a real feature at q through its nearest target points (rows idx, nearest first):
+// the first two and the nearest that makes a non-degenerate triangle with them; true (and the
+// pair) when q lies within the plane gate. `examined`: the last position looked at.
+bool planeThrough(const StemCentreTarget::Impl &target, const std::vector<int> &idx,
+                  const Eigen::Vector3d &s, const Eigen::Vector3d &q, Eigen::Index i,
+                  const StemCentreLmConfig &cfg, PlanePair &pair, std::size_t &examined) {
+    const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
+    const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
+    examined = idx.size() - 1;
+    for (std::size_t k = 2; k < idx.size(); ++k) {
+        const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
+        const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
+        const double longest =
+            std::max({(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
+        if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
+        examined = k;
+        const Eigen::Vector3d n = cross.normalized();
+        pair = {s, p0, n, i};
+        return std::abs(n.dot(q - p0)) <= cfg.plane_gate_m;
+    }
+    return false;
+}
+
 // Point-to-plane pairs: per real feature (source frame, current position qr in the target
-// frame) the plane through its nearest non-collinear target points.
+// frame) the plane through its nearest non-collinear target points (FLANN's nearest: asked of
+// the tree again when a tie among the cached ones reaches the positions the plane used).
 void findPlanePairs(const StemCentreTarget::Impl &target, const Points3 &real, const Points3 &qr,
                     const StemCentreLmConfig &cfg, RealCandidates &candidates,
                     std::vector<PlanePair> &ppairs) {
     ppairs.clear();
     std::vector<int> idx;
     std::vector<float> d2;
+    std::size_t tie = RealCandidates::kNoTie, examined = 0;
+    PlanePair pair;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
         const Eigen::Vector3d q = qr.row(i).transpose();
-        if (candidates.nearest(target, static_cast<std::size_t>(i), q, cfg.real_gate_m, idx, d2) <
-            3)
-            continue;
-        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
-        const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
-        const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
-        // Third point: the nearest that makes a non-degenerate triangle with the first two.
-        for (std::size_t k = 2; k < idx.size(); ++k) {
-            const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
-            const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
-            const double longest = std::max(
-                {(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
-            if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
-            const Eigen::Vector3d n = cross.normalized();
-            if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n, i});
-            break;
+        const auto at = static_cast<std::size_t>(i);
+        if (candidates.nearest(target, at, q, cfg.real_gate_m, idx, d2, tie) < 3) continue;
+        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;  // d2[0] is FLANN's even on a tie
+        bool found = planeThrough(target, idx, s, q, i, cfg, pair, examined);
+        if (tie <= examined) {
+            target.nearestK(q, RealCandidates::kNearest, idx, d2);
+            found = planeThrough(target, idx, s, q, i, cfg, pair, examined);
         }
+        if (found) ppairs.push_back(pair);
     }
 }
 
