@@ -457,8 +457,9 @@ struct VirtualCandidates {
 // difference of single- and double-precision distances): they lie within
 // d_k(q) + delta + 2 eps <= d_k + 2 delta + 2 eps of the old position. Their distances are
 // computed as FLANN computes them (floats, (q - p) squared and summed over x, y, z), so without
-// a tie they give its answer and order; a tie in the first k + 1 and a neighbourhood too sparse
-// for a ball of kMaxSparseReach to hold the k + 1 nearest ask the tree. A feature with no point
+// a tie they give its answer and order; a tie in the first k + 1 that reaches the positions a
+// plane uses (findPlanePairs) and a neighbourhood too sparse for a ball of kMaxSparseReach to
+// hold the k + 1 nearest ask the tree. A feature with no point
 // within the gate (plus a margin) has no pair either way. A round then scans a few dozen points
 // instead of descending the tree (a quarter of the LM's time), and the tree is built only when
 // asked.
