@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -23,35 +24,132 @@ std::int64_t cellIndex(double v) { return static_cast<std::int64_t>(std::floor(v
 std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
     return ((ix & 0x7FFFFFFF) << 32) | (iy & 0x7FFFFFFF);
 }
-// The target points of one x-y column sorted by height: a height window is one binary search.
+// The target points of the x-y columns, each column's sorted by height (a height window is one
+// binary search), stored one column after another in two flat arrays: one allocation instead of
+// one per column.
 struct Column {
+    int begin = 0, end = 0;  // its range in Columns::z / Columns::index
+};
+struct Columns {
+    std::unordered_map<std::int64_t, Column> at;
     std::vector<double> z;
     std::vector<int> index;
 };
+
+// Counting sort of the points by column (ascending point index within a column), then each
+// column sorted by height with the same comparisons as a per-column std::sort of its indices.
+Columns buildColumns(const Points3 &pts) {
+    Columns c;
+    const auto n = static_cast<std::size_t>(pts.rows());
+    std::vector<int> column_of(n);
+    std::vector<int> counts;
+    std::vector<std::int64_t> keys;
+    for (std::size_t i = 0; i < n; ++i) {
+        const auto key = cellKey(cellIndex(pts(static_cast<Eigen::Index>(i), 0)),
+                                 cellIndex(pts(static_cast<Eigen::Index>(i), 1)));
+        const auto [it, added] = c.at.try_emplace(key, Column{static_cast<int>(keys.size()), 0});
+        if (added) {
+            keys.push_back(key);
+            counts.push_back(0);
+        }
+        column_of[i] = it->second.begin;  // the column's ordinal until the ranges are set
+        ++counts[static_cast<std::size_t>(it->second.begin)];
+    }
+    std::vector<int> start(keys.size() + 1, 0);
+    for (std::size_t k = 0; k < keys.size(); ++k) start[k + 1] = start[k] + counts[k];
+    for (std::size_t k = 0; k < keys.size(); ++k) c.at[keys[k]] = Column{start[k], start[k + 1]};
+    struct Entry {
+        double z;
+        int index;
+    };
+    std::vector<Entry> entries(n);
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i)
+        entries[static_cast<std::size_t>(fill[static_cast<std::size_t>(column_of[i])]++)] = {
+            pts(static_cast<Eigen::Index>(i), 2), static_cast<int>(i)};
+    for (std::size_t k = 0; k < keys.size(); ++k)
+        std::sort(entries.begin() + start[k], entries.begin() + start[k + 1],
+                  [](const Entry &a, const Entry &b) { return a.z < b.z; });
+    c.z.resize(n);
+    c.index.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        c.z[i] = entries[i].z;
+        c.index[i] = entries[i].index;
+    }
+    return c;
+}
 }  // namespace
 
+// The target's points, their x-y columns (the stem-centre pairs' disc and height window; the
+// real features' cached neighbourhoods) and PCL's k-d tree (FLANN, single precision), built on
+// first use: the real features' nearest points are FLANN's answers, which the neighbourhoods
+// reproduce exactly wherever they can (RealCandidates), so most targets never build the tree
+// (its build was most of a target's cost, and the LM's map target is rebuilt often).
 struct StemCentreTarget::Impl {
     Points3 points;
-    pcl::PointCloud<pcl::PointXYZ>::Ptr cloud;
-    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
-    std::unordered_map<std::int64_t, Column> columns;
+    Columns columns;
+
+    // The k nearest points of q as FLANN answers them: rows and single-precision squared
+    // distances, nearest first, ties in the tree's order.
+    int nearestK(const Eigen::Vector3d &q, int k, std::vector<int> &rows,
+                 std::vector<float> &d2) const {
+        std::call_once(tree_once_, [this] {
+            cloud_ = detail::toPcl(points);
+            if (!cloud_->empty()) tree_.setInputCloud(cloud_);
+        });
+        if (cloud_->empty()) {
+            rows.clear();
+            d2.clear();
+            return 0;
+        }
+        const pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                                  static_cast<float>(q.z()));
+        return tree_.nearestKSearch(query, k, rows, d2);
+    }
+
+    // Appends (squared distance, row) of every point within radius of q: per column that the
+    // ball reaches, the height window the ball leaves at the column's nearest x-y point.
+    void withinRadius(const Eigen::Vector3d &q, double radius,
+                      std::vector<std::pair<double, int>> &out) const {
+        const double r2 = radius * radius;
+        const auto gap = [](double v, std::int64_t cell) {  // distance from v to the cell's span
+            const double lo = static_cast<double>(cell) * kCell, hi = lo + kCell;
+            return v < lo ? lo - v : (v > hi ? v - hi : 0.0);
+        };
+        for (auto ix = cellIndex(q.x() - radius); ix <= cellIndex(q.x() + radius); ++ix) {
+            const double gx = gap(q.x(), ix);
+            for (auto iy = cellIndex(q.y() - radius); iy <= cellIndex(q.y() + radius); ++iy) {
+                const double gy = gap(q.y(), iy);
+                const double h2 = r2 - gx * gx - gy * gy;
+                if (h2 < -1e-9) continue;
+                const auto it = columns.at.find(cellKey(ix, iy));
+                if (it == columns.at.end()) continue;
+                // Slightly wider than the exact window: the distance test below decides.
+                const double h = std::sqrt(std::max(h2, 0.0)) + 1e-6;
+                const auto z0 = columns.z.begin() + it->second.begin;
+                const auto z1 = columns.z.begin() + it->second.end;
+                const auto hi = std::upper_bound(z0, z1, q.z() + h);
+                for (auto k = std::lower_bound(z0, hi, q.z() - h); k < hi; ++k) {
+                    const int j = columns.index[static_cast<std::size_t>(k - columns.z.begin())];
+                    const double dx = points(j, 0) - q.x(), dy = points(j, 1) - q.y(),
+                                 dz = points(j, 2) - q.z();
+                    const double d2 = dx * dx + dy * dy + dz * dz;
+                    if (d2 <= r2) out.emplace_back(d2, j);
+                }
+            }
+        }
+    }
+
+  private:
+    mutable std::once_flag tree_once_;
+    mutable pcl::PointCloud<pcl::PointXYZ>::Ptr cloud_;
+    mutable pcl::KdTreeFLANN<pcl::PointXYZ> tree_;
 };
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
     impl_->points = finiteRows(points);
-    impl_->cloud = detail::toPcl(impl_->points);
-    if (!impl_->cloud->empty()) impl_->tree.setInputCloud(impl_->cloud);
-    const Points3 &pts = impl_->points;
-    for (Eigen::Index i = 0; i < pts.rows(); ++i)
-        impl_->columns[cellKey(cellIndex(pts(i, 0)), cellIndex(pts(i, 1)))].index.push_back(
-            static_cast<int>(i));
-    for (auto &[key, column] : impl_->columns) {
-        auto &idx = column.index;
-        std::sort(idx.begin(), idx.end(), [&pts](int a, int b) { return pts(a, 2) < pts(b, 2); });
-        column.z.resize(idx.size());
-        for (std::size_t k = 0; k < idx.size(); ++k) column.z[k] = pts(idx[k], 2);
-    }
+    impl_->columns = buildColumns(impl_->points);
 }
 
 StemCentreTarget::~StemCentreTarget() = default;
@@ -318,13 +416,16 @@ struct VirtualCandidates {
         const double reach2 = reach * reach;
         for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
             for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
-                const auto it = target.columns.find(cellKey(ix, iy));
-                if (it == target.columns.end()) continue;
-                const auto &z = it->second.z;
-                const auto lo = std::lower_bound(z.begin(), z.end(), q.z() - window);
-                const auto hi = std::upper_bound(lo, z.end(), q.z() + window);
-                for (auto k = lo - z.begin(); k < hi - z.begin(); ++k) {
-                    const int j = it->second.index[static_cast<std::size_t>(k)];
+                const auto it = target.columns.at.find(cellKey(ix, iy));
+                if (it == target.columns.at.end()) continue;
+                const auto z0 = target.columns.z.begin() + it->second.begin;
+                const auto z1 = target.columns.z.begin() + it->second.end;
+                const auto lo = std::lower_bound(z0, z1, q.z() - window);
+                const auto hi = std::upper_bound(lo, z1, q.z() + window);
+                for (auto k = lo; k < hi; ++k) {
+                    const int j =
+                        target.columns
+                            .index[static_cast<std::size_t>(k - target.columns.z.begin())];
                     const double dx = target.points(j, 0) - q.x(), dy = target.points(j, 1) - q.y();
                     if (dx * dx + dy * dy <= reach2)
                         out.push_back(
@@ -347,15 +448,168 @@ struct VirtualCandidates {
     }
 };
 
-// Features in the source frame with their current positions qc / qr in the target frame.
-void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
-               const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
-               const Points3 &qr, const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
-               std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
+// The kNearest nearest target points of each real feature exactly as the k-d tree (FLANN, single
+// precision) finds them, mostly without it: from a cached neighbourhood, the points within
+// `complete` of where the feature was when gathered (all within kReach, or the nearest
+// kMaxMembers when more lie there, `complete` then the farthest one's distance). The k nearest
+// of the moved feature q lie among them while it is within delta of there with
+// d_k + 2 delta + 2 eps < complete (d_k the k-th nearest distance when gathered, eps the
+// difference of single- and double-precision distances): they lie within
+// d_k(q) + delta + 2 eps <= d_k + 2 delta + 2 eps of the old position. Their distances are
+// computed as FLANN computes them (floats, (q - p) squared and summed over x, y, z), so without
+// a tie they give its answer and order; a tie in the first k + 1 that reaches the positions a
+// plane uses (findPlanePairs) and a neighbourhood too sparse for a ball of kMaxSparseReach to
+// hold the k + 1 nearest ask the tree. A feature with no point
+// within the gate (plus a margin) has no pair either way. A round then scans a few dozen points
+// instead of descending the tree (a quarter of the LM's time), and the tree is built only when
+// asked.
+struct RealCandidates {
+    static constexpr int kNearest = 10;  // the kPlaneCandidates
+    static constexpr int kMaxMembers = 48;
+    static constexpr double kReach = 0.3;  // gathered within this radius
+    static constexpr double kMaxSparseReach = 4.8;
+    enum class Mode : char { kMembers, kTree, kNoPair };
+    static constexpr std::size_t kNoTie = std::numeric_limits<std::size_t>::max();
+    struct Member {
+        float x, y, z;
+        int index;
+    };
+    std::vector<Eigen::Vector3d> at;
+    std::vector<double> room;  // complete - d_k - 2 eps: reused while 2 delta < room
+    std::vector<Mode> mode;
+    std::vector<std::vector<Member>> members;
+    std::vector<char> valid;
+    std::vector<std::pair<double, int>> scratch;
+    std::vector<std::pair<float, int>> sorted;
+
+    static double singlePrecisionSlack(const Eigen::Vector3d &q, double reach) {
+        return 1e-6 * (q.cwiseAbs().maxCoeff() + reach + 1.0);
+    }
+
+    void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate) {
+        auto &out = members[i];
+        out.clear();
+        at[i] = q;
+        valid[i] = 1;
+        room[i] = -1.0;  // asked again next round unless set below
+        scratch.clear();
+        target.withinRadius(q, kReach, scratch);
+        if (scratch.size() < static_cast<std::size_t>(kNearest)) {
+            sparse(target, i, q, gate);
+            return;
+        }
+        double complete = kReach;
+        if (scratch.size() > static_cast<std::size_t>(kMaxMembers)) {
+            // The kMaxMembers nearest: every point nearer than the farthest kept one.
+            std::nth_element(scratch.begin(), scratch.begin() + (kMaxMembers - 1), scratch.end());
+            scratch.resize(kMaxMembers);
+            complete = std::sqrt(scratch.back().first);
+        }
+        for (const auto &[dd, row] : scratch) out.push_back(member(target, row));
+        std::nth_element(scratch.begin(), scratch.begin() + (kNearest - 1), scratch.end());
+        const double dk = std::sqrt(scratch[kNearest - 1].first);
+        mode[i] = Mode::kMembers;
+        room[i] = complete - dk - 2.0 * singlePrecisionSlack(q, kReach);
+    }
+
+    // Fewer than k points within kReach: a ball grown (doubling, up to kMaxSparseReach) until
+    // it surely holds the k + 1 nearest in single precision, all its points the members (not
+    // reused); none within the gate (plus a margin): no pair; else the tree.
+    void sparse(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate) {
+        const double eps = singlePrecisionSlack(q, kMaxSparseReach);
+        const auto want = static_cast<std::size_t>(kNearest + 1);
+        mode[i] = Mode::kTree;
+        for (double radius = 2.0 * kReach; radius <= kMaxSparseReach; radius *= 2.0) {
+            scratch.clear();
+            target.withinRadius(q, radius, scratch);
+            if (scratch.empty() && radius >= gate + 1e-4) {
+                mode[i] = Mode::kNoPair;
+                return;
+            }
+            if (scratch.size() < want) continue;
+            std::nth_element(scratch.begin(), scratch.begin() + (want - 1), scratch.end());
+            if (std::sqrt(scratch[want - 1].first) + 2.0 * eps > radius) continue;
+            for (const auto &[dd, row] : scratch) members[i].push_back(member(target, row));
+            mode[i] = Mode::kMembers;
+            return;
+        }
+    }
+
+    static Member member(const StemCentreTarget::Impl &target, int row) {
+        return {static_cast<float>(target.points(row, 0)),
+                static_cast<float>(target.points(row, 1)),
+                static_cast<float>(target.points(row, 2)), row};
+    }
+
+    // The (up to) kNearest nearest target points of q as FLANN's nearestKSearch answers them
+    // (rows, single-precision squared distances, nearest first); how many. From position `tie`
+    // on FLANN's order may differ (see fromMembers): the caller asks the tree when it looks there.
+    int nearest(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
+                double gate, std::vector<int> &rows, std::vector<float> &d2, std::size_t &tie) {
+        if (members.size() <= i) {
+            at.resize(i + 1);
+            room.resize(i + 1);
+            mode.resize(i + 1);
+            members.resize(i + 1);
+            valid.resize(i + 1, 0);
+        }
+        if (!valid[i] || !(2.0 * (q - at[i]).norm() < room[i])) gather(target, i, q, gate);
+        rows.clear();
+        d2.clear();
+        tie = kNoTie;
+        if (mode[i] == Mode::kNoPair) return 0;
+        if (mode[i] == Mode::kTree) return target.nearestK(q, kNearest, rows, d2);
+        tie = fromMembers(members[i], q, rows, d2);
+        return static_cast<int>(rows.size());
+    }
+
+    // FLANN's answer from the members, up to the first tie among the k + 1 nearest (FLANN
+    // orders tied points as its tree meets them) -> the position of the first of the tied
+    // pair (kNoTie without one): positions from there on may differ from FLANN's.
+    std::size_t fromMembers(const std::vector<Member> &ms, const Eigen::Vector3d &q,
+                            std::vector<int> &rows, std::vector<float> &d2) {
+        const float qx = static_cast<float>(q.x()), qy = static_cast<float>(q.y()),
+                    qz = static_cast<float>(q.z());
+        sorted.clear();
+        for (const auto &m : ms) {
+            float r = 0.0f, d = qx - m.x;
+            r += d * d;
+            d = qy - m.y;
+            r += d * d;
+            d = qz - m.z;
+            r += d * d;
+            sorted.emplace_back(r, m.index);
+        }
+        const std::size_t n = sorted.size(), k = std::min<std::size_t>(kNearest, n);
+        const std::size_t check = std::min(k + 1, n);
+        std::partial_sort(sorted.begin(), sorted.begin() + static_cast<long>(check), sorted.end(),
+                          [](const auto &a, const auto &b) { return a.first < b.first; });
+        std::size_t tie = kNoTie;
+        for (std::size_t j = 0; j + 1 < check && tie == kNoTie; ++j)
+            if (!(sorted[j].first < sorted[j + 1].first)) tie = j;
+        for (std::size_t j = 0; j < k; ++j) {
+            rows.push_back(sorted[j].second);
+            d2.push_back(sorted[j].first);
+        }
+        return tie;
+    }
+};
+
+// The candidates of both feature kinds, shared by all rounds of a registration.
+struct PairCandidates {
+    VirtualCandidates centres;
+    RealCandidates real;
+};
+
+// Stem-centre pairs: per virtual feature (source frame, current position qc in the target
+// frame) the target point nearest to its circle in each angular sector.
+void findVirtualPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
+                      const Eigen::VectorXd &radii, const Points3 &qc,
+                      const StemCentreLmConfig &cfg, VirtualCandidates &candidates,
+                      std::vector<VirtualPair> &vpairs) {
     vpairs.clear();
-    ppairs.clear();
-    std::vector<int> idx;
-    std::vector<float> d2;
     const int sectors = std::max(1, cfg.virtual_sectors);
     const double gate = std::min(cfg.virtual_gate_m, cfg.virtual_max_gate_m);
     std::vector<int> best(static_cast<std::size_t>(sectors));
@@ -394,28 +648,64 @@ void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
             }
         }
     }
-    constexpr int kPlaneCandidates = 10;
+}
+
+// The plane of a real feature at q through its nearest target points (rows idx, nearest first):
+// the first two and the nearest that makes a non-degenerate triangle with them; true (and the
+// pair) when q lies within the plane gate. `examined`: the last position looked at.
+bool planeThrough(const StemCentreTarget::Impl &target, const std::vector<int> &idx,
+                  const Eigen::Vector3d &s, const Eigen::Vector3d &q, Eigen::Index i,
+                  const StemCentreLmConfig &cfg, PlanePair &pair, std::size_t &examined) {
+    const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
+    const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
+    examined = idx.size() - 1;
+    for (std::size_t k = 2; k < idx.size(); ++k) {
+        const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
+        const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
+        const double longest =
+            std::max({(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
+        if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
+        examined = k;
+        const Eigen::Vector3d n = cross.normalized();
+        pair = {s, p0, n, i};
+        return std::abs(n.dot(q - p0)) <= cfg.plane_gate_m;
+    }
+    return false;
+}
+
+// Point-to-plane pairs: per real feature (source frame, current position qr in the target
+// frame) the plane through its nearest non-collinear target points (FLANN's nearest: asked of
+// the tree again when a tie among the cached ones reaches the positions the plane used).
+void findPlanePairs(const StemCentreTarget::Impl &target, const Points3 &real, const Points3 &qr,
+                    const StemCentreLmConfig &cfg, RealCandidates &candidates,
+                    std::vector<PlanePair> &ppairs) {
+    ppairs.clear();
+    std::vector<int> idx;
+    std::vector<float> d2;
+    std::size_t tie = RealCandidates::kNoTie, examined = 0;
+    PlanePair pair;
     for (Eigen::Index i = 0; i < real.rows(); ++i) {
         const Eigen::Vector3d s = real.row(i).transpose();
         const Eigen::Vector3d q = qr.row(i).transpose();
-        pcl::PointXYZ query(static_cast<float>(q.x()), static_cast<float>(q.y()),
-                            static_cast<float>(q.z()));
-        if (target.tree.nearestKSearch(query, kPlaneCandidates, idx, d2) < 3) continue;
-        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;
-        const Eigen::Vector3d p0 = target.points.row(idx[0]).transpose();
-        const Eigen::Vector3d p1 = target.points.row(idx[1]).transpose();
-        // Third point: the nearest that makes a non-degenerate triangle with the first two.
-        for (std::size_t k = 2; k < idx.size(); ++k) {
-            const Eigen::Vector3d p2 = target.points.row(idx[k]).transpose();
-            const Eigen::Vector3d cross = (p1 - p0).cross(p2 - p0);
-            const double longest = std::max(
-                {(p1 - p0).squaredNorm(), (p2 - p0).squaredNorm(), (p2 - p1).squaredNorm()});
-            if (longest <= 0.0 || cross.norm() / longest < cfg.min_triangle_ratio) continue;
-            const Eigen::Vector3d n = cross.normalized();
-            if (std::abs(n.dot(q - p0)) <= cfg.plane_gate_m) ppairs.push_back({s, p0, n, i});
-            break;
+        const auto at = static_cast<std::size_t>(i);
+        if (candidates.nearest(target, at, q, cfg.real_gate_m, idx, d2, tie) < 3) continue;
+        if (std::sqrt(d2[0]) > cfg.real_gate_m) continue;  // d2[0] is FLANN's even on a tie
+        bool found = planeThrough(target, idx, s, q, i, cfg, pair, examined);
+        if (tie <= examined) {
+            target.nearestK(q, RealCandidates::kNearest, idx, d2);
+            found = planeThrough(target, idx, s, q, i, cfg, pair, examined);
         }
+        if (found) ppairs.push_back(pair);
     }
+}
+
+// Features in the source frame with their current positions qc / qr in the target frame.
+void findPairs(const StemCentreTarget::Impl &target, const Points3 &centres,
+               const Eigen::VectorXd &radii, const Points3 &real, const Points3 &qc,
+               const Points3 &qr, const StemCentreLmConfig &cfg, PairCandidates &candidates,
+               std::vector<VirtualPair> &vpairs, std::vector<PlanePair> &ppairs) {
+    findVirtualPairs(target, centres, radii, qc, cfg, candidates.centres, vpairs);
+    findPlanePairs(target, real, qr, cfg, candidates.real, ppairs);
 }
 
 // The usable features (finite, centres with a positive radius, finite times when the in-sweep
@@ -578,7 +868,7 @@ bool applyStep(const std::vector<double> &delta, const StemCentreLmConfig &confi
 // Correspondence rounds (pairs renewed, then one LM solve) until converged at the fine
 // gates, too few pairs, or max_rounds.
 void iterateRounds(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                   const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                   const StemCentreLmConfig &config, PairCandidates &candidates, LmState &s,
                    StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -690,7 +980,7 @@ void covarianceAndDegeneracy(const std::vector<PairAtSolution> &pairs,
 
 // Statistics and covariance at the solution, with pairs renewed at the fine gates.
 void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
-                    const StemCentreLmConfig &config, VirtualCandidates &candidates, LmState &s,
+                    const StemCentreLmConfig &config, PairCandidates &candidates, LmState &s,
                     StemCentreLmResult &result) {
     std::vector<VirtualPair> vpairs;
     std::vector<PlanePair> ppairs;
@@ -730,7 +1020,7 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     const LmFeatures features =
         usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
     LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
-    VirtualCandidates candidates;  // target points near each centre, shared by all rounds
+    PairCandidates candidates;  // target points near each feature, shared by all rounds
     iterateRounds(target.impl(), features, config, candidates, state, result);
     state.T = orthonormalised(state.T);  // the left updates accumulate rounding
     result.T_target_source = Pose3(state.T);
