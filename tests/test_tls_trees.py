@@ -410,7 +410,13 @@ def test_dbh_of_a_voxel_map_merged_from_many_frames_counts_the_returns_behind_ea
 
     rng = np.random.default_rng(4)
     trees = np.array(
-        [[-2.0, 1.0, 0.30], [0.5, -1.5, 0.22], [2.0, 2.0, 0.40], [-1.0, -3.0, 0.18], [3.0, -2.0, 0.26]]
+        [
+            [-2.0, 1.0, 0.30],
+            [0.5, -1.5, 0.22],
+            [2.0, 2.0, 0.40],
+            [-1.0, -3.0, 0.18],
+            [3.0, -2.0, 0.26],
+        ]
     )
     a = np.linspace(0, 2 * np.pi, 96, endpoint=False)
     views = np.column_stack([7 * np.cos(a), 7 * np.sin(a)])  # a walk around the group
@@ -418,7 +424,9 @@ def test_dbh_of_a_voxel_map_merged_from_many_frames_counts_the_returns_behind_ea
     gx, gy = np.meshgrid(g, g)
     cloud = _VoxelCloud(np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)]), 0.03, _core)
     for k in range(0, len(views), 4):  # batches of 4 frames, as the pipeline merges them
-        batch = [scanned_map(trees, views[j : j + 1], 0.02, rng, 1000, False) for j in range(k, k + 4)]
+        batch = [
+            scanned_map(trees, views[j : j + 1], 0.02, rng, 1000, False) for j in range(k, k + 4)
+        ]
         cloud.merge(np.concatenate([_core.voxel_downsample(f, 0.03) for f in batch]))
     cfg = TlsConfig()
     errors = {}
