@@ -413,7 +413,7 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         report["sequential_whole_walk"] = seq
 
     views = (run.views, (cfg.map.frame_min_range_m, merged_range_m(cfg)))
-    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views, ref)  # as runner
+    merged = plot_trees(run.map_points, cfg.trees, cfg.features, *views, ref, run.map_counts)
     scanners = reference_scanners(ref, cfg.trees, trees=merged)  # as write_products resolves
     merged = fuse_with_reference(merged, ref, cfg.trees, cfg.features, scanners)
     truth_xy_tls = transform_xy(T_tls_world, truth_xy_world)
@@ -811,8 +811,10 @@ def _start_offset(path: str, heading: float) -> np.ndarray:
     return rot2(heading) @ local
 
 
-def plot_scenarios(plot: dict, folder: Path, frames: int) -> tuple[Path, Path]:
-    """Write the plot's TLS and MLS scenario YAML files -> (tls.yaml, mls.yaml)."""
+def plot_scenarios(plot: dict, folder: Path, frames: int, style: str = "a") -> tuple[Path, Path]:
+    """Write the plot's TLS and MLS scenario YAML files -> (tls.yaml, mls.yaml), both in the
+    simulator's world style (forestslam.sim.styles: a, or b's polygonal, bark-noisy, oval,
+    flared stems and other crowns and intensities)."""
     import yaml
 
     station = np.asarray(plot["station"], dtype=float)
@@ -823,6 +825,7 @@ def plot_scenarios(plot: dict, folder: Path, frames: int) -> tuple[Path, Path]:
     centre = start - _start_offset(plot["path"], heading)
     common = {
         "seed": plot["seed"],
+        "style": style,
         "stand": plot["stand"],
         "terrain": {"relief_m": 0.4, "relief_wavelength_m": 40.0, "roughness_m": 0.02},
     }
@@ -866,17 +869,19 @@ def plot_scenarios(plot: dict, folder: Path, frames: int) -> tuple[Path, Path]:
     return tls_yaml, mls_yaml
 
 
-def simulate_plot(plot: dict, frames: int) -> tuple[Path, Path]:
-    """Simulated TLS reference and MLS walk of a plot (cached) -> (tls dir, mls dir)."""
+def simulate_plot(plot: dict, frames: int, style: str = "a") -> tuple[Path, Path]:
+    """Simulated TLS reference and MLS walk of a plot in a world style (cached) -> (tls dir,
+    mls dir). Style a keeps the cache names it always had."""
     from forestslam.sim import simulate
 
-    folder = CACHE / "plots" / f"{plot['name']}-{model_tag()}-{frames}"
+    tag = "" if style == "a" else f"-{style}"
+    folder = CACHE / "plots" / f"{plot['name']}{tag}-{model_tag()}-{frames}"
     missing = [s for s in ("tls", "mls") if not (folder / s / "truth" / "trajectory.tum").is_file()]
     # The scenario files (which name each other by absolute path) are written only to simulate:
     # a cached plot is shared by every checkout and must not be rewritten with this one's paths
     # (truth_world finds the sibling scenario wherever the plot was simulated).
     if missing:
-        tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames)
+        tls_yaml, mls_yaml = plot_scenarios(plot, folder, frames, style)
         for sub in missing:
             simulate(tls_yaml if sub == "tls" else mls_yaml, folder / sub)
     return folder / "tls", folder / "mls"
@@ -953,8 +958,8 @@ def wrong_references(args) -> dict:
     for plot, other in zip(plots, plots[1:] + plots[:1], strict=True):
         if plot is other:
             continue
-        _, mls_dir = simulate_plot(plot, args.plot_frames)
-        ref_dir, _ = simulate_plot(other, args.plot_frames)
+        _, mls_dir = simulate_plot(plot, args.plot_frames, args.style)
+        ref_dir, _ = simulate_plot(other, args.plot_frames, args.style)
         scans = list(with_rings(read_scans(mls_dir / "sequence.bag"), "vlp16"))
         key = f"{plot['name']} on {other['name']}"
         try:
@@ -972,8 +977,9 @@ def run_plots(args) -> dict:
     for plot in PLOTS:
         if names is not None and plot["name"] not in names:
             continue
-        tls_dir, mls_dir = simulate_plot(plot, args.plot_frames)
-        reports[plot["name"]] = run_pair(args, args.out, plot["name"], tls_dir, mls_dir)
+        tls_dir, mls_dir = simulate_plot(plot, args.plot_frames, args.style)
+        name = plot["name"] + ("" if args.style == "a" else f"-{args.style}")
+        reports[name] = run_pair(args, args.out, name, tls_dir, mls_dir)
     plots_table(reports)
     return reports
 
@@ -1013,6 +1019,13 @@ def main() -> None:
     )
     parser.add_argument(
         "--plot-frames", type=int, default=200, help="MLS frames simulated per plot"
+    )
+    parser.add_argument(
+        "--style",
+        choices=["a", "b"],
+        default="a",
+        help="with --plots: the simulator's world style the plots are built in (forestslam.sim."
+        "styles; b: polygonal stems with bark noise, ovality and root flare, other crowns)",
     )
     parser.add_argument(
         "--wrong-reference",

@@ -48,6 +48,9 @@ def test_poses_recovered_without_initial_guess(world, run):
     assert all(r.reason.startswith("before the walk was placed") for r in run.frames[:n_before])
     assert all(r.accepted and not r.reason for r in run.frames[n_before:])
     assert len(run.map_points) > len(run.reference) // 4  # voxelized but not lost
+    # Each map point carries how many merges fell in its voxel: frames add to the reference's.
+    assert run.map_counts.shape == (len(run.map_points),)
+    assert run.map_counts.min() >= 1 and run.map_counts.max() > 1
 
 
 def test_products_and_coverage(world, run, tmp_path):
@@ -286,3 +289,8 @@ def test_voxel_map_side_store_gives_the_same_map_as_merging_into_the_map_at_once
         cloud.merge(np.vstack([np.array([p]), rng.uniform(0, 1, (50, 3))]))
     at = np.flatnonzero(np.all(np.abs(cloud.points - 10.0) < 0.1, axis=1))
     np.testing.assert_allclose(cloud.points[at], [[10.03, 10.01, 10.01]], atol=1e-12)
+    # ... and counts them: three merges, while voxels seen once count 1 (aligned with points).
+    assert len(cloud.counts) == len(cloud.points)
+    assert cloud.counts[at].tolist() == [3.0]
+    assert np.all(cloud.counts >= 1)
+    np.testing.assert_array_equal(batched.counts, direct.counts)

@@ -147,14 +147,17 @@ def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumf
     assert abs(fused.dbh_m[k_b] - b[2]) < 0.01
 
 
-def scanned_map(trees: np.ndarray, views: np.ndarray, noise_m: float, rng) -> np.ndarray:
-    """Flat ground and the stems as a mobile scanner sees them from views (P,2): per view,
-    beams across each stem's silhouette hit its near side, with range noise noise_m along
-    the beam (a VLP-16: 3 cm), at heights 0-4 m."""
-    g = np.arange(-6.0, 6.0, 0.05)
-    gx, gy = np.meshgrid(g, g)
-    parts = [np.column_stack([gx.ravel(), gy.ravel(), rng.normal(0, 0.01, gx.size)])]
-    n = 6000
+def scanned_map(
+    trees: np.ndarray, views: np.ndarray, noise_m: float, rng, n: int = 6000, ground: bool = True
+) -> np.ndarray:
+    """Flat ground (unless not ground) and the stems as a mobile scanner sees them from views
+    (P,2): per view, n beams across each stem's silhouette hit its near side, with range
+    noise noise_m along the beam (a VLP-16: 3 cm), at heights 0-4 m."""
+    parts = []
+    if ground:
+        g = np.arange(-6.0, 6.0, 0.05)
+        gx, gy = np.meshgrid(g, g)
+        parts.append(np.column_stack([gx.ravel(), gy.ravel(), rng.normal(0, 0.01, gx.size)]))
     for x, y, dbh in trees:
         for o in views:
             v = np.array([x, y]) - o
@@ -394,3 +397,52 @@ def test_a_position_is_measured_only_within_the_stated_precision():
         out.append(report_dbh(t, np.zeros((0, 3)), cfg.trees, cfg.features))
     assert out[0].position_measured[0] and not out[1].position_measured[0]
     assert np.allclose(out[1].xyz[0, :2], centre)
+
+
+def test_dbh_of_a_voxel_map_merged_from_many_frames_counts_the_returns_behind_each_point():
+    # A voxel map is a union: a voxel any frame's return fell in holds one point. The more
+    # frames, the further the tails of the range noise fill voxels on both sides of each stem
+    # wall (a thick ring of evenly spaced points), and the robust circle fit prefers the outer,
+    # longer circles: the whole-walk DBH bias (+1.3 cm over 1,320 frames on spruce-lawn-3m).
+    # Counted by the merges behind them (TlsRun.map_counts), the points are dense at the wall.
+    from forestslam import _core
+    from forestslam.tls.pipeline import _VoxelCloud
+
+    rng = np.random.default_rng(4)
+    trees = np.array(
+        [
+            [-2.0, 1.0, 0.30],
+            [0.5, -1.5, 0.22],
+            [2.0, 2.0, 0.40],
+            [-1.0, -3.0, 0.18],
+            [3.0, -2.0, 0.26],
+        ]
+    )
+    a = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+    views = np.column_stack([7 * np.cos(a), 7 * np.sin(a)])  # a walk around the group
+    g = np.arange(-8.0, 8.0, 0.05)
+    gx, gy = np.meshgrid(g, g)
+    cloud = _VoxelCloud(np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)]), 0.03, _core)
+    for k in range(0, len(views), 4):  # batches of 4 frames, as the pipeline merges them
+        batch = [
+            scanned_map(trees, views[j : j + 1], 0.02, rng, 1000, False) for j in range(k, k + 4)
+        ]
+        cloud.merge(np.concatenate([_core.voxel_downsample(f, 0.03) for f in batch]))
+    cfg = TlsConfig()
+    errors = {}
+    for label, counts in (("union", None), ("counted", cloud.counts)):
+        found = plot_trees(cloud.points, cfg.trees, cfg.features, views, (1.0, 25.0), None, counts)
+        d = np.linalg.norm(found.xyz[:, None, :2] - trees[None, :, :2], axis=2)
+        j = np.argmin(d, axis=0)
+        assert np.all(d[j, np.arange(len(trees))] < 0.01)
+        errors[label] = found.fit_dbh_m[j] - trees[:, 2]
+    assert np.mean(errors["union"]) > 0.008  # the bias the counts remove
+    assert abs(np.mean(errors["counted"])) < 0.004
+    assert np.max(np.abs(errors["counted"])) < 0.005
+
+
+def test_plot_trees_rejects_weights_that_do_not_match_the_points():
+    cfg = TlsConfig()
+    cloud = noisy_map(stand(seed=7), 0.01)
+    with pytest.raises(ValueError, match="weights"):
+        plot_trees(cloud, cfg.trees, cfg.features, weights=np.ones(len(cloud) - 1))

@@ -106,6 +106,10 @@ class TlsRun:
     map_points: np.ndarray
     reference: np.ndarray
     frame_centres: list[np.ndarray] = field(default_factory=list)
+    # Per map point (M,) the merges that fell in its voxel (the reference and each batch of
+    # MapConfig.rebuild_every_frames frames count once); None: not known (all 1). Stems are
+    # measured with each point counted that often (trees.plot_trees' weights).
+    map_counts: np.ndarray | None = None
     initial_method: str = ""
     # Frames that got no pose: (stamp, reason).
     unplaced: list[tuple[float, str]] = field(default_factory=list)
@@ -230,6 +234,13 @@ class _VoxelCloud:
         self._consolidate()
         return self._main[1]
 
+    @property
+    def counts(self) -> np.ndarray:
+        """Per point of `points` (N,) how many merges fell in its voxel (the first cloud and
+        each merged batch count once; all 1 without voxels): how often it was observed."""
+        self._consolidate()
+        return self._main[2] if self.voxel_m > 0 else np.ones(len(self._main[1]))
+
     def __len__(self) -> int:
         return len(self._main[1]) + len(self._side[1])
 
@@ -312,6 +323,10 @@ class _GlobalMap:
     @property
     def points(self) -> np.ndarray:
         return self.fine.points
+
+    @property
+    def counts(self) -> np.ndarray:
+        return self.fine.counts
 
     @property
     def coarse(self) -> np.ndarray:
@@ -739,6 +754,7 @@ class _Walk:
             frames=bridge_unmerged(self.frames, self.config.registration.bridge_max_gap_s),
             map_points=self.gmap.points,
             reference=self.ref,
+            map_counts=self.gmap.counts,
             frame_centres=self.centres,
             initial_method=self.method,
             unplaced=self.unplaced,

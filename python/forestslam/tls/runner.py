@@ -204,7 +204,9 @@ def _plot_trees(run: TlsRun, config: TlsConfig, viewpoint: np.ndarray | None, fr
     reference's scanner positions the face test used (trees.reference_scanners, logged), in
     the run's local frame."""
     views = (run.views, (config.map.frame_min_range_m, merged_range_m(config)))
-    trees = plot_trees(run.map_points, config.trees, config.features, *views, run.reference)
+    trees = plot_trees(
+        run.map_points, config.trees, config.features, *views, run.reference, run.map_counts
+    )
     origin = -frame.offset[:2]
     scanners = reference_scanners(run.reference, config.trees, viewpoint, trees, origin)
     log.info(
