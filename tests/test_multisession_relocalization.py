@@ -7,21 +7,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from tree_stands import spaced_forest
 
 from forestslam.evaluation import trajectory_errors
 from forestslam.geometry import planar_pose
 from forestslam.multisession.loops import PlaceRecognition, PlaceRecognitionConfig
 from forestslam.slam import LandmarkSlam, SlamConfig
-
-
-def _forest(rng, lo, hi, n):
-    """Up to n trees in the square [lo, hi]^2, at least 3 m apart."""
-    xy = rng.uniform(lo, hi, size=(n * 4, 2))
-    keep = [0]
-    for i in range(1, len(xy)):
-        if np.min(np.linalg.norm(xy[keep] - xy[i], axis=1)) > 3.0:
-            keep.append(i)
-    return xy[keep][:n]
 
 
 def _walk(trees_before, trees_after, jump_at, place_recognition, n=400, step=0.1):
@@ -48,7 +39,7 @@ def _walk(trees_before, trees_after, jump_at, place_recognition, n=400, step=0.1
 
 def test_a_jump_breaks_the_chain_and_the_segment_is_relocalized():
     rng = np.random.default_rng(3)
-    stand = _forest(rng, -12.0, 52.0, 120)
+    stand = spaced_forest(rng, -12.0, 52.0, 120)
     slam, loops, ate = _walk(stand, stand, jump_at=150, place_recognition=True)
     assert slam.losses == 1 and slam.relocalizations == 1 and slam.lost_since is None
     assert loops.stats["relocalizations"] == 1
@@ -64,8 +55,9 @@ def test_a_jump_breaks_the_chain_and_the_segment_is_relocalized():
 
 def test_a_segment_in_a_place_the_map_does_not_hold_stays_lost_and_ties_nothing():
     rng = np.random.default_rng(5)
-    stand = _forest(rng, -12.0, 52.0, 120)
-    elsewhere = _forest(np.random.default_rng(6), -12.0, 52.0, 120)  # another stand, same layout
+    stand = spaced_forest(rng, -12.0, 52.0, 120)
+    # another stand, same layout
+    elsewhere = spaced_forest(np.random.default_rng(6), -12.0, 52.0, 120)
     slam, loops, _ = _walk(stand, elsewhere, jump_at=150, place_recognition=True)
     assert slam.losses == 1 and slam.lost_since is not None
     assert loops.stats["relocalization_queries"] > 5 and loops.stats["relocalizations"] == 0

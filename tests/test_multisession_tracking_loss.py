@@ -6,19 +6,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from tree_stands import spaced_forest
 
 from forestslam.geometry import planar_pose
 from forestslam.slam import LandmarkSlam, SlamConfig
-
-
-def _forest(rng, lo, hi, n):
-    """Up to n trees in the square [lo, hi]^2, at least 3 m apart."""
-    xy = rng.uniform(lo, hi, size=(n * 4, 2))
-    keep = [0]
-    for i in range(1, len(xy)):
-        if np.min(np.linalg.norm(xy[keep] - xy[i], axis=1)) > 3.0:
-            keep.append(i)
-    return xy[keep][:n]
 
 
 def _walk(stand, jump_at=150, gap=None, n=300, step=0.1, seed=0):
@@ -47,7 +38,7 @@ def test_a_gap_while_lost_does_not_cut_the_segment():
     stems missed for half a metre, clutter seen instead) is no second loss. The old rule
     declared one (2 losses), which left the first segment's trees unusable behind it: 30 % of
     the last scans' stems matched, against 89 %."""
-    stand = _forest(np.random.default_rng(3), -12.0, 52.0, 120)
+    stand = spaced_forest(np.random.default_rng(3), -12.0, 52.0, 120)
     slam, per_scan = _walk(stand, jump_at=150, gap=range(200, 206))
     lost_at = slam.lost_since
     assert slam.losses == 1 and lost_at is not None
@@ -61,7 +52,7 @@ def test_a_gap_while_lost_does_not_cut_the_segment():
 def test_while_lost_the_association_gate_is_relative_to_the_segment():
     """The loss's nearly free factor (10 m) makes the pose's marginal 10 m wide, but inside the
     segment the pose is known relative to the segment's trees to centimetres: that gates."""
-    stand = _forest(np.random.default_rng(3), -12.0, 52.0, 120)
+    stand = spaced_forest(np.random.default_rng(3), -12.0, 52.0, 120)
     slam, per_scan = _walk(stand, jump_at=150, n=250)
     assert slam.losses == 1 and slam.lost_since is not None
     kf = slam.n_keyframes - 1
