@@ -232,8 +232,10 @@ def main() -> int:
     if not args.no_bound:
         print_bound(table, args.frames is None)
     met = worst <= 0.3
-    print(f"target <= 0.3 m (SE(2) ATE) with place recognition, no false closure: "
-          f"{'met' if met else 'MISSED'}")
+    print(
+        f"target <= 0.3 m (SE(2) ATE) with place recognition, no false closure: "
+        f"{'met' if met else 'MISSED'}"
+    )
     return 0 if met else 1
 
 

@@ -280,8 +280,7 @@ def _make_odometry(q: _QuerySetup):
         from forestslam.odometry import Odometry
     except ImportError as exc:
         raise ProcessingError(
-            f"{max(q.frames, q.retry_frames)} frames per query need odometry, not available: "
-            f"{exc}"
+            f"{max(q.frames, q.retry_frames)} frames per query need odometry, not available: {exc}"
         ) from exc
     return Odometry(
         q.profile, getattr(q.root, "odometry", None), getattr(q.root, "perception", None)
