@@ -208,6 +208,18 @@ SilhouetteView vlp16View(const std::vector<double> &elevations, double step) {
     return view;
 }
 
+// Five VLP-16 lines across `stems` near 10 m (z 0.35-1.77 m), 3 cm range noise: the view sees
+// the stem returns (`stem`) and every return beyond them (`raw`, the wall included).
+SilhouetteView viewAtTenMetres(const std::vector<CircleStem> &stems, Points3 &stem, Points3 &raw) {
+    const std::vector<double> el = {0.035, 0.07, 0.105, 0.14, 0.175};
+    const double step = 0.0035;
+    scanStems(stems, el, step, 0.03, stem, raw);
+    SilhouetteView view = vlp16View(el, step);
+    view.points = stem;
+    view.beyond = raw;
+    return view;
+}
+
 }  // namespace
 
 TEST(Stems, SilhouetteAcrossTwoStemsGivesNoDbh) {
@@ -216,13 +228,8 @@ TEST(Stems, SilhouetteAcrossTwoStemsGivesNoDbh) {
     // nearer stem cuts no edge of the farther one, so the occlusion test does not see it, but
     // the farther stem's returns and the wall seen between them lie behind the front of the
     // 60 cm stem the width implies. Before: a 60 cm DBH from the silhouette.
-    const std::vector<double> el = {0.035, 0.07, 0.105, 0.14, 0.175};  // z 0.35-1.77 m at 10 m
-    const double step = 0.0035;
     Points3 stem, raw;
-    scanStems({{10.25, -0.235, 0.10}, {10.0, 0.235, 0.17}}, el, step, 0.03, stem, raw);
-    SilhouetteView view = vlp16View(el, step);
-    view.points = stem;
-    view.beyond = raw;
+    SilhouetteView view = viewAtTenMetres({{10.25, -0.235, 0.10}, {10.0, 0.235, 0.17}}, stem, raw);
     const StemDiameter d =
         estimateDiameter(stem, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
     EXPECT_FALSE(d.silhouette.valid);
@@ -238,17 +245,13 @@ TEST(Stems, SilhouetteOfOneStemKeepsItsLinesWhateverTheFilterRemoved) {
     // One 34 cm stem at 10 m: its width stands even when the intensity filter removed the
     // bright returns facing the sensor (the middle of every line) and only the raw returns
     // fill the gap, and with the wall behind it (returns beyond its edges).
-    const std::vector<double> el = {0.035, 0.07, 0.105, 0.14, 0.175};
-    const double step = 0.0035;
     Points3 stem, raw;
-    scanStems({{10.0, 0.0, 0.17}}, el, step, 0.03, stem, raw);
+    SilhouetteView view = viewAtTenMetres({{10.0, 0.0, 0.17}}, stem, raw);
     std::vector<int> dim;  // the returns the filter keeps: off the facing middle
     for (Eigen::Index i = 0; i < stem.rows(); ++i)
         if (std::abs(stem(i, 1)) > 0.08) dim.push_back(static_cast<int>(i));
     const Points3 kept = selectRows(stem, dim);
-    SilhouetteView view = vlp16View(el, step);
     view.points = kept;
-    view.beyond = raw;
     const StemDiameter d =
         estimateDiameter(kept, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view);
     ASSERT_TRUE(d.silhouette.valid);
