@@ -129,3 +129,12 @@ def test_parse_yaw_reads_degrees_takes_units_and_warns_when_radians_are_likely(c
     for bad in ("", "north", "nan", "1e999rad"):
         with pytest.raises(ValueError):
             parse_yaw(bad, "--georef")
+
+
+def test_column_bounds_equal_numpy_exactly_and_are_zero_for_no_points():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(1000, 3)) * [100.0, 1e-3, 5e5] + [4e5, -7.0, 6e6]
+    lo, hi = g.column_bounds(pts)
+    assert np.array_equal(lo, pts.min(axis=0)) and np.array_equal(hi, pts.max(axis=0))
+    lo, hi = g.column_bounds(np.empty((0, 3)))
+    assert lo.shape == hi.shape == (3,) and not lo.any() and not hi.any()

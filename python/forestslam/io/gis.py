@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from forestslam.errors import InputError
+from forestslam.geometry import column_bounds
 
 GROUND, UNCLASSIFIED = 2, 1  # ASPRS classes
 SCALE_M = 0.001
@@ -71,8 +72,7 @@ def write_map_laz(
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.add_extra_dim(laspy.ExtraBytesParams(name="tree_id", type=np.uint32))
     header.scales = np.full(3, SCALE_M)
-    # the minimum column by column: min(axis=0) over an (N,3) array's rows takes 25x the CPU
-    header.offsets = np.floor([pts[:, k].min() for k in range(3)]) if n else np.zeros(3)
+    header.offsets = np.floor(column_bounds(pts)[0]) if n else np.zeros(3)
     if crs is not None:
         header.add_crs(crs)
     times, adjusted = las_gps_time(np.asarray(gps_time, dtype=np.float64))
