@@ -66,6 +66,24 @@ def test_while_lost_the_association_gate_is_relative_to_the_segment():
     assert np.mean([np.mean(ids >= 0) for ids in tail if len(ids)]) > 0.8
 
 
+def test_a_singular_segment_covariance_keeps_the_last_gate(monkeypatch):
+    """The segment-relative gate solves with the joint marginal; if that is singular (numpy
+    raises LinAlgError, not gtsam's RuntimeError) the run keeps the last gate and goes on."""
+    from forestslam.slam.landmark_slam import LandmarkSlam as Slam
+
+    def singular(self, kf):
+        if self.lost_since is not None and kf > self.lost_since:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return original(self, kf)
+
+    original = Slam._gate_covariance
+    monkeypatch.setattr(Slam, "_gate_covariance", singular)
+    stand = spaced_forest(np.random.default_rng(3), -12.0, 52.0, 120)
+    slam, _ = _walk(stand, jump_at=150, n=200)
+    assert slam.losses == 1 and slam.lost_since is not None
+    assert np.array_equal(slam._pose_cov, np.zeros((3, 3)))  # the segment start's, kept
+
+
 def kf_key(kf: int) -> int:
     from forestslam.slam.landmark_slam import X
 

@@ -702,7 +702,7 @@ class LandmarkSlam:
             self._lm_xy = gtsam.utilities.extractPoint2(est).reshape(-1, 2)
         try:
             self._pose_cov = self._gate_covariance(kf)
-        except RuntimeError:  # numerically singular: keep the previous one
+        except (RuntimeError, np.linalg.LinAlgError):  # numerically singular: keep the last one
             log.debug("marginal covariance of keyframe %d unavailable", kf)
         self._cov_acc = np.zeros((3, 3))
         self._dist_acc = 0.0
