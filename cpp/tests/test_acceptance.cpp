@@ -175,18 +175,34 @@ TEST(Acceptance, SeedEvidenceJoinsTheTailAsOneMoreTerm) {
     EXPECT_LT(chanceEvidence(5, 8, 0.08, 3, 10, 4.0, 1.0).significance, plain.significance + 0.3);
 }
 
-TEST(Acceptance, DbhEvidenceIsTheGammaTail) {
-    using forestslam::localization::dbhEvidence;
+TEST(Acceptance, GammaTail) {
     using forestslam::localization::gammaTailLn;
     // P(Gamma(1) >= x) = e^-x; P(Gamma(2) >= x) = e^-x (1 + x); P(Gamma(3) >= x) adds x^2 / 2.
     EXPECT_NEAR(gammaTailLn(1, 3.0), -3.0, 1e-12);
     EXPECT_NEAR(gammaTailLn(2, 3.0), -3.0 + std::log(4.0), 1e-12);
     EXPECT_NEAR(gammaTailLn(3, 5.0), -5.0 + std::log(1 + 5.0 + 12.5), 1e-12);
     EXPECT_EQ(gammaTailLn(3, 0.0), 0.0);
-    // n chance agreements sum to about n nats: no evidence; 4 pairs of 2.5 nats each: some.
-    EXPECT_LT(dbhEvidence(4, 4.0), 1.0);
-    EXPECT_NEAR(dbhEvidence(4, 10.0), 10.0 - std::log(1 + 10.0 + 50.0 + 1000.0 / 6), 1e-9);
-    EXPECT_EQ(dbhEvidence(0, 10.0), 0.0);
+}
+
+TEST(Acceptance, DbhLikelihoodRatioIsAnEValue) {
+    using forestslam::localization::dbhEvidence;
+    using forestslam::localization::dbhLogRatio;
+    // A chance match's map trunk is any of its neighbourhood: the ratio's mean over them is
+    // exactly 1 whatever the query's DBH (calibrated), and a matching DBH gains.
+    const std::vector<float> nb = {0.12f, 0.18f, 0.2f, 0.25f, 0.31f, 0.33f, 0.4f, 0.52f};
+    for (double d : {0.05, 0.2, 0.32, 0.45, 0.9}) {
+        double mean = 0;
+        for (float m : nb) mean += std::exp(dbhLogRatio(d, m, nb, 0.03, 0.1)) / nb.size();
+        EXPECT_NEAR(mean, 1.0, 1e-9) << d;
+    }
+    EXPECT_GT(dbhLogRatio(0.52, 0.52, nb, 0.03, 0.1), std::log(4.0));          // an isolated DBH
+    EXPECT_NEAR(dbhLogRatio(0.12, 0.52, nb, 0.03, 0.1), std::log(0.1), 1e-6);  // gross: eps
+    EXPECT_EQ(dbhLogRatio(0.3, 0.3, {}, 0.03, 0.1), 0.0);
+    // The whole query's evidence: half the product and half 1, so useless DBHs cost <= ln 2.
+    EXPECT_NEAR(dbhEvidence(0.0), 0.0, 1e-12);
+    EXPECT_NEAR(dbhEvidence(-50.0), -std::log(2.0), 1e-12);
+    EXPECT_NEAR(dbhEvidence(std::log(9.0)), std::log(5.0), 1e-12);
+    EXPECT_NEAR(dbhEvidence(800.0), 800.0 - std::log(2.0), 1e-9);
 }
 
 namespace {

@@ -69,8 +69,25 @@ double gammaTailLn(int n, double x) {
     return std::min(0.0, log_mode + std::log(sum));
 }
 
-double dbhEvidence(int n, double sum_nats) {
-    return n > 0 ? std::max(0.0, -gammaTailLn(n, sum_nats)) : 0.0;
+double dbhLogRatio(double local_dbh, double map_dbh, const std::vector<float> &neighbourhood,
+                   double sigma_m, double outlier_fraction) {
+    if (neighbourhood.empty() || !(sigma_m > 0)) return 0.0;
+    const double eps = std::clamp(outlier_fraction, 0.0, 1.0);
+    // phi up to its constant factor, which cancels in the ratio.
+    auto phi = [&](double diff) { return std::exp(-0.5 * std::pow(diff / sigma_m, 2)); };
+    double f = 0.0;
+    for (float d : neighbourhood) f += phi(local_dbh - d);
+    f /= double(neighbourhood.size());
+    const double own = phi(local_dbh - map_dbh);
+    // f >= own / |N| > 0 when map_dbh is in the neighbourhood; far from every DBH both vanish.
+    const double ratio = f > 1e-300 ? own / f : 1.0;
+    return std::log((1 - eps) * ratio + eps);
+}
+
+double dbhEvidence(double sum_ln_ratio) {
+    // ln((e^s + 1) / 2) = s + ln(1 + e^-s) - ln 2, stable for large s.
+    const double s = sum_ln_ratio;
+    return (s > 0 ? s + std::log1p(std::exp(-s)) : std::log1p(std::exp(s))) - std::log(2.0);
 }
 
 double poissonTailLog10(double mu, int k) {
@@ -150,17 +167,18 @@ ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed
     e.closeness = closeness_sum;
     const double c = per_trunk > 0 ? -std::log(std::min(1.0, per_trunk)) : 0.0;
     e.seed = std::max(0.0, seed);
-    e.dbh = std::max(0.0, dbh);
-    const int extra = (e.seed > 0) + (e.dbh > 0);  // Exp(1) terms beside the inliers'
+    e.dbh = std::isfinite(dbh) ? dbh : 0.0;
+    const int extra = e.seed > 0;  // Exp(1) terms beside the inliers'
     double tail = 0.0;
     if (closeness_sum < 0 || per_trunk <= 0) {
         tail = poissonTailLog10(e.expected, k);
         // Fisher: -ln of the product of 1 + extra independent p-values is Gamma(1 + extra).
-        if (extra > 0) tail = -gammaTailLn(1 + extra, tail * kLn10 + e.seed + e.dbh) / kLn10;
+        if (extra > 0) tail = -gammaTailLn(1 + extra, tail * kLn10 + e.seed) / kLn10;
     } else {
-        tail = truncatedProductTailLog10(e.expected, c, k, closeness_sum + e.seed + e.dbh, extra);
+        tail = truncatedProductTailLog10(e.expected, c, k, closeness_sum + e.seed, extra);
     }
-    e.significance = tail - std::log10(std::max(1, hypotheses));
+    // The DBH likelihood ratio (an e-value under a chance pose) divides the p-value.
+    e.significance = tail + e.dbh / kLn10 - std::log10(std::max(1, hypotheses));
     return e;
 }
 

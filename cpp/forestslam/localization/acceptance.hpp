@@ -27,11 +27,18 @@
 // Exp(1) term of the sum above (as in Fisher's method: the search pays for both).
 //
 // Optional: stem diameters, when both the map and the query have them. A chance inlier's map
-// trunk is any trunk of the neighbourhood, so its DBH is a draw from the neighbourhood's DBHs:
-// the fraction of them within the observed difference of the query's DBH (at least the DBH
-// resolution) is the p-value of that pair's agreement. The pairs' -ln p sum to a Gamma(n, 1)
-// under the null, whose tail is one more Exp(1) term. A DBH that is biased or noisy agrees no
-// better than chance and only costs that one term.
+// trunk j is any trunk of its neighbourhood N (DBH does not depend on position at that scale),
+// so the query DBH d is weighed by the likelihood ratio
+//   LR = (1 - eps) phi(d - d_j) / f(d) + eps,   f(d) = mean over k in N of phi(d - d_k),
+// phi the N(0, sigma) density of a DBH difference, eps the fraction of gross DBH errors. Its
+// mean over j drawn from N is exactly 1 whatever d is, so under a chance pose E[prod LR] = 1 and
+// P(p / prod LR <= a) <= a for the geometric p-value p (Markov: the ratio is an e-value): the
+// significance gains log10 of the product and stays a probability of chance. A DBH that agrees
+// adds up to ln(1 / (f sqrt(2 pi) sigma)) per pair (about 1 nat in a stand whose DBH spread is
+// 3 sigma); one that is grossly wrong costs at most ln(1 / eps). A query whose DBHs are useless
+// as a whole (biased, another mapper's definition of the diameter) would lose that on every
+// pair, so the evidence is the half-half mixture of the product and 1 (an average of e-values is
+// one): it costs at most ln 2 nats (0.3 decades) and gains the product's ln less ln 2.
 #pragma once
 
 #include <cstdint>
@@ -65,8 +72,14 @@ class DensityGrid {
 // ln P(Gamma(n, 1) >= x) for integer n >= 1 (0 when x <= 0).
 double gammaTailLn(int n, double x);
 
-// -ln p of n DBH agreements whose -ln p sum to sum_nats: -ln P(Gamma(n, 1) >= sum_nats).
-double dbhEvidence(int n, double sum_nats);
+// ln LR of a query DBH against map trunk DBH map_dbh whose neighbourhood's DBHs (map_dbh among
+// them) are `neighbourhood` (see above); 0 when the neighbourhood is empty.
+double dbhLogRatio(double local_dbh, double map_dbh, const std::vector<float> &neighbourhood,
+                   double sigma_m, double outlier_fraction);
+
+// The DBH evidence of pairs whose ln LR sum to sum_ln_ratio: ln((prod LR + 1) / 2), nats (see
+// above); in [-ln 2, sum_ln_ratio).
+double dbhEvidence(double sum_ln_ratio);
 
 // -log10 P(X >= k) for X ~ Poisson(mu); 0 when k <= 0.
 double poissonTailLog10(double mu, int k);
@@ -125,7 +138,7 @@ struct ChanceEvidence {
     int trials = 0;             // local trunks tested
     double closeness = -1.0;    // sum of -ln(U_i / p_i) over the non-seed inliers; < 0: unknown
     double seed = 0.0;          // the seed match's evidence (seedEvidence), nats
-    double dbh = 0.0;           // the inliers' DBH agreement (dbhEvidence), nats; 0: none
+    double dbh = 0.0;           // the inliers' DBH agreement, sum of ln LR (nats); 0: none
     int dbh_pairs = 0;          // inlier pairs with a DBH on both sides
     double significance = 0.0;  // -log10(hypotheses * P(chance inliers >= inliers - seeds))
 };
@@ -134,8 +147,8 @@ struct ChanceEvidence {
 // best of `hypotheses` searched, fitted to `seed_points`. With `closeness` >= 0 (the sum of
 // closeness() over the inliers that are not seeds: the seed_points closest inliers left out)
 // the truncated-product tail, otherwise the count's Poisson tail; with seed > 0 (nats) the seed
-// match's evidence joins it, and so does dbh > 0 (one more Exp(1) term each, Fisher's
-// combination for the Poisson tail).
+// match's evidence joins it (one more Exp(1) term, Fisher's combination for the Poisson tail).
+// dbh: the inliers' summed ln LR of their DBHs (nats, any sign), which divides the p-value.
 ChanceEvidence chanceEvidence(int inliers, int trials, double expected, int seed_points,
                               int hypotheses, double closeness = -1.0, double seed = 0.0,
                               double dbh = 0.0);

@@ -394,18 +394,13 @@ void TreeMap::buildDbhNeighbourhoods(const Eigen::VectorXd &dbh) {
     }
 }
 
-double TreeMap::dbhAgreement(int j, double local_dbh, double resolution) const {
-    if (!hasDbh() || !std::isfinite(local_dbh) || local_dbh <= 0) return -1.0;
+double TreeMap::dbhAgreement(int j, double local_dbh, const GlobalLocalizerConfig &cfg) const {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    if (!hasDbh() || !std::isfinite(local_dbh) || local_dbh <= 0) return nan;
     const auto &nb = dbh_neighbours_[j];
-    if (nb.empty()) return -1.0;  // this map trunk has no DBH
-    const double e = std::max(std::abs(local_dbh - dbh_[j]), resolution);
-    const auto lo = std::lower_bound(nb.begin(), nb.end(), static_cast<float>(local_dbh - e));
-    const auto hi = std::upper_bound(nb.begin(), nb.end(), static_cast<float>(local_dbh + e));
-    // The fraction of the neighbourhood as close: the permutation p-value of the pair (under a
-    // chance match map trunk j is any of its neighbourhood, which holds j itself, so j's own DBH
-    // is counted and p >= 1 / size; floored at that for float rounding at the window's edge).
-    const double p = double(std::max<std::ptrdiff_t>(hi - lo, 1)) / double(nb.size());
-    return std::max(0.0, -std::log(std::min(1.0, p)));
+    if (nb.empty()) return nan;  // this map trunk has no DBH
+    // Under a chance match map trunk j is any of its neighbourhood (which holds j itself).
+    return dbhLogRatio(local_dbh, dbh_[j], nb, cfg.dbh_sigma_m, cfg.dbh_outlier_fraction);
 }
 
 // Verified hypotheses; poses that fall in the same small cell are verified once.
@@ -724,16 +719,15 @@ ChanceEvidence TreeMap::evidence(const Points2 &scoring, const Eigen::VectorXd &
     double dbh_sum = 0.0;
     int dbh_pairs = 0;
     for (size_t k = 0; scoring_dbh.size() != 0 && k < pairs.size(); ++k) {
-        const double a =
-            dbhAgreement(pairs[k].second, scoring_dbh[pairs[k].first], cfg.dbh_resolution_m);
-        if (a < 0) continue;
+        const double a = dbhAgreement(pairs[k].second, scoring_dbh[pairs[k].first], cfg);
+        if (std::isnan(a)) continue;
         dbh_sum += a;
         ++dbh_pairs;
     }
     ChanceEvidence e =
         chanceEvidence(static_cast<int>(pairs.size()), static_cast<int>(scoring.rows()),
                        expectedChance(scoring, pose, cfg.inlier_gate_m), seeds, searched,
-                       closeness_sum, seed_evidence, dbhEvidence(dbh_pairs, dbh_sum));
+                       closeness_sum, seed_evidence, dbh_pairs > 0 ? dbhEvidence(dbh_sum) : 0.0);
     e.dbh_pairs = dbh_pairs;
     return e;
 }

@@ -39,11 +39,13 @@ struct GlobalLocalizerConfig {
     // a chance match anywhere within edge_tolerance_m, a true one within the noise (see
     // acceptance.hpp); edge differences below 2 min_sigma_m count as 2 min_sigma_m.
     bool seed_evidence = true;
-    // When the map and the query both have stem diameters: test how well the inliers' DBHs
-    // agree against the neighbourhood's DBHs (acceptance.hpp); differences below
-    // dbh_resolution_m count as dbh_resolution_m.
+    // When the map and the query both have stem diameters: weigh each inlier's DBH agreement
+    // by its likelihood ratio against the DBHs of the map trunk's neighbourhood
+    // (acceptance.hpp): dbh_sigma_m the sigma of a true pair's DBH difference (query and map
+    // errors), dbh_outlier_fraction the share of grossly wrong DBHs.
     bool dbh_evidence = true;
-    double dbh_resolution_m = 0.02;
+    double dbh_sigma_m = 0.03;
+    double dbh_outlier_fraction = 0.1;
     double distinct_translation_m = 1.0;  // hypotheses further apart than this are distinct
     double distinct_yaw_rad = 0.0873;     // 5 deg
     int refine_iterations = 5;
@@ -184,9 +186,9 @@ class TreeMap {
     ChanceEvidence evidence(const Points2 &scoring, const Eigen::VectorXd &scoring_dbh,
                             const Eigen::Vector3d &pose, int seeds, int searched,
                             double seed_evidence, const GlobalLocalizerConfig &cfg) const;
-    // -ln p of one pair's DBH agreement against map trunk j's neighbourhood (acceptance.hpp).
-    // -1 when either side has no DBH.
-    double dbhAgreement(int j, double local_dbh, double resolution) const;
+    // ln LR of one pair's DBH agreement against map trunk j's neighbourhood (acceptance.hpp);
+    // NaN when either side has no DBH.
+    double dbhAgreement(int j, double local_dbh, const GlobalLocalizerConfig &cfg) const;
     void buildDbhNeighbourhoods(const Eigen::VectorXd &dbh);
     // Sum of the chance rates of local trunks mapped by pose (see acceptance.hpp).
     double expectedChance(const Points2 &local, const Eigen::Vector3d &pose, double gate) const;

@@ -48,12 +48,14 @@ class LocalizationConfig:
     # shape too: a chance match lies anywhere within edge_tolerance_m, a true one within the
     # noise; edge differences below 2 min_sigma_m count as 2 min_sigma_m.
     seed_evidence: bool = True
-    # When the map and the query both carry stem diameters (localize(..., local_dbh_m=)): test
-    # how well the inliers' DBHs agree, against the DBHs of the map trunk's 30 neighbours (a
-    # biased or noisy DBH agrees no better than chance and costs little); differences below
-    # dbh_resolution_m count as dbh_resolution_m.
+    # When the map and the query both carry stem diameters (localize(..., local_dbh_m=)): weigh
+    # each inlier's DBH by its likelihood ratio, a match (difference ~ N(0, dbh_sigma_m): query
+    # and map errors) against the DBHs of the map trunk's 30 neighbours, with a share
+    # dbh_outlier_fraction of gross errors. Calibrated whatever the stand (its mean under a
+    # chance pose is 1); a wrong sigma only costs power, a gross DBH at most ln(1 / fraction).
     dbh_evidence: bool = True
-    dbh_resolution_m: Positive = 0.02
+    dbh_sigma_m: Positive = 0.03
+    dbh_outlier_fraction: Fraction = 0.1
     distinct_translation_m: NonNegative = 1.0  # poses further apart than this are distinct
     distinct_yaw_deg: NonNegative = 5.0
     refine_iterations: NonNegativeInt = 5  # least-squares refinement rounds over all inliers

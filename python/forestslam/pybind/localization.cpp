@@ -114,7 +114,8 @@ void defineLocalizerConfig(py::module_ &m) {
     FS_FIELD(c, lc::GlobalLocalizerConfig, closeness_evidence);
     FS_FIELD(c, lc::GlobalLocalizerConfig, seed_evidence);
     FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_evidence);
-    FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_resolution_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_sigma_m);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, dbh_outlier_fraction);
     FS_FIELD(c, lc::GlobalLocalizerConfig, distinct_translation_m);
     FS_FIELD(c, lc::GlobalLocalizerConfig, distinct_yaw_rad);
     FS_FIELD(c, lc::GlobalLocalizerConfig, refine_iterations);
