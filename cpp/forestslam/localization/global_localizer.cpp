@@ -287,7 +287,9 @@ void applyVerdict(const ChanceEvidence &best, double runner_fraction,
     AcceptanceConfig acfg;
     acfg.min_significance = cfg.min_significance;
     acfg.ambiguity_ratio = cfg.ambiguity_ratio;
-    acfg.min_inliers = cfg.min_inliers;
+    const bool all_dbh = best.dbh_pairs >= best.inliers;
+    acfg.min_inliers =
+        all_dbh ? std::min(cfg.min_inliers, cfg.min_inliers_with_dbh) : cfg.min_inliers;
     const AcceptanceVerdict verdict = judge(best, runner_fraction, acfg);
     res.rejected = !verdict.accepted;
     res.reason = verdict.reason;

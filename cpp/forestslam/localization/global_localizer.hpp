@@ -28,6 +28,9 @@ struct GlobalLocalizerConfig {
     double edge_tolerance_m = 0.35;    // |local - map| for the nine star edges
     double inlier_gate_m = 0.5;        // local trunk within this of a map trunk: consensus
     int min_inliers = 4;               // fewer: rejected (the significance test decides)
+    // The floor when every inlier has a DBH on both sides: a triangle's shape and three DBH
+    // agreements can be significant (the test decides), three positions alone cannot.
+    int min_inliers_with_dbh = 3;
     double min_inlier_fraction = 0.25;  // of the local trunks
     // Rejected when a distinct runner-up's significance reaches this fraction of the best's.
     double ambiguity_ratio = 0.8;

@@ -32,6 +32,9 @@ class LocalizationConfig:
     edge_tolerance_m: Positive = 0.35  # edge-length agreement of corresponding triangles
     inlier_gate_m: Positive = 0.5  # local trunk this close to a map trunk counts as consensus
     min_inliers: Annotated[int, Range(ge=3)] = 4  # fewer: rejected (the significance test decides)
+    # The floor when every inlier has a DBH on both sides (a triangle's shape and 3 DBH
+    # agreements can be significant; the test decides).
+    min_inliers_with_dbh: Annotated[int, Range(ge=3)] = 3
     min_inlier_fraction: Fraction = 0.25  # of the local trunks; fewer: rejected
     # rejected when the second-best distinct pose scores this much
     ambiguity_ratio: NonNegative = 0.8

@@ -108,6 +108,7 @@ void defineLocalizerConfig(py::module_ &m) {
     FS_FIELD(c, lc::GlobalLocalizerConfig, edge_tolerance_m);
     FS_FIELD(c, lc::GlobalLocalizerConfig, inlier_gate_m);
     FS_FIELD(c, lc::GlobalLocalizerConfig, min_inliers);
+    FS_FIELD(c, lc::GlobalLocalizerConfig, min_inliers_with_dbh);
     FS_FIELD(c, lc::GlobalLocalizerConfig, min_inlier_fraction);
     FS_FIELD(c, lc::GlobalLocalizerConfig, ambiguity_ratio);
     FS_FIELD(c, lc::GlobalLocalizerConfig, min_significance);
