@@ -536,7 +536,7 @@ def run_stand_absent(args, name: str, totals) -> None:
     rng = np.random.default_rng(args.seed + 140)
     label, xy, dbh = stand_by_name(name)
     has_dbh = bool(np.isfinite(dbh).any())
-    short = Path(label).stem
+    short = Path(label).stem if Path(name).is_file() else name
     for case, (in_map, (xlo, xhi)) in halves(short, xy, args).items():
         tree_map = build_map(xy[in_map], dbh[in_map] if has_dbh else None)
         for frames in (1, 5):
