@@ -265,7 +265,7 @@ def test_dbh_likelihood_ratio_finds_four_trunk_views_and_costs_little_when_usele
     """Views of exactly 4 trunks (a triangle and one more) in a sparse stand with DBHs on both
     sides (2 cm noise): each inlier's DBH weighed by its likelihood ratio against its map
     neighbourhood's DBHs finds all 76 views (positions alone 62; the earlier rank test 73),
-    none wrong; random query DBHs (useless as a whole) lose at most a fifth of the views (14;
+    none wrong; random query DBHs (useless as a whole) lose at most a tenth of the views (6;
     the rank test lost 20); views of another stand with their DBHs stay rejected."""
     xy = stand(400, 200.0, seed=3, spacing=4.0)
     other = stand(400, 200.0, seed=33, spacing=4.0)
@@ -292,23 +292,21 @@ def test_dbh_likelihood_ratio_finds_four_trunk_views_and_costs_little_when_usele
         assert localize(tree_map, absent, local_dbh_m=absent_dbh).rejected
     assert views == 76
     assert found["dbh"] == views > found["xy"]
-    assert found["random"] >= found["xy"] - views / 5
+    assert found["random"] >= found["xy"] - views / 10
 
 
 def test_three_trunk_views_with_dbh_can_be_significant():
     """Views of exactly 3 trunks (and one false trunk) in a sparse stand: three positions give
     only a triangle's shape and are always rejected; with their DBHs (2 cm noise) the shape and
-    three DBH agreements are significant for most views (53 of 71; min_inliers_with_dbh 3),
-    none wrong.
-    Views of another stand with their DBHs: at most one of them accepted (the test's level is
-    0.5 %; measured: 1 of 1,417 views of 10-15 m of that stand, 0 of them without DBHs)."""
+    three DBH agreements are significant for most views (43 of 71; min_inliers_with_dbh 3),
+    none wrong; views of another stand with their DBHs stay rejected (fixed seeds)."""
     xy = stand(400, 200.0, seed=3, spacing=4.0)
     other = stand(400, 200.0, seed=33, spacing=4.0)
     rng = np.random.default_rng(4)
     dbh, other_dbh = rng.uniform(0.08, 0.6, len(xy)), rng.uniform(0.08, 0.6, len(other))
     tree_map = build_map(xy, dbh)
     poses = np.random.default_rng(5)
-    views, found, absent_accepted = 0, {"xy": 0, "dbh": 0}, 0
+    views, found = 0, {"xy": 0, "dbh": 0}
     for q in range(400):
         truth = (poses.uniform(30, 170), poses.uniform(30, 170), poses.uniform(-3, 3))
         if (np.hypot(*(xy - truth[:2]).T) <= 12.0).sum() != 3:
@@ -323,7 +321,6 @@ def test_three_trunk_views_with_dbh_can_be_significant():
                 found[key] += 1
         absent = observe(other, truth, 12.0, 0.05, 0.0, 1, seed=q)
         _, absent_dbh = _view_with_dbh(other, other_dbh, truth, q, 0.02, local=absent)
-        absent_accepted += localize(tree_map, absent, local_dbh_m=absent_dbh).accepted
+        assert localize(tree_map, absent, local_dbh_m=absent_dbh).rejected
     assert found["xy"] == 0
-    assert absent_accepted <= 1
-    assert found["dbh"] >= 0.7 * views
+    assert found["dbh"] >= 0.55 * views

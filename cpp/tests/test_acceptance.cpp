@@ -198,11 +198,13 @@ TEST(Acceptance, DbhLikelihoodRatioIsAnEValue) {
     EXPECT_GT(dbhLogRatio(0.52, 0.52, nb, 0.03, 0.1), std::log(4.0));          // an isolated DBH
     EXPECT_NEAR(dbhLogRatio(0.12, 0.52, nb, 0.03, 0.1), std::log(0.1), 1e-6);  // gross: eps
     EXPECT_EQ(dbhLogRatio(0.3, 0.3, {}, 0.03, 0.1), 0.0);
-    // The whole query's evidence: half the product and half 1, so useless DBHs cost <= ln 2.
+    // The whole query's evidence: a quarter of the product and 3/4 of 1, so useless DBHs cost
+    // at most ln(4/3).
     EXPECT_NEAR(dbhEvidence(0.0), 0.0, 1e-12);
-    EXPECT_NEAR(dbhEvidence(-50.0), -std::log(2.0), 1e-12);
-    EXPECT_NEAR(dbhEvidence(std::log(9.0)), std::log(5.0), 1e-12);
-    EXPECT_NEAR(dbhEvidence(800.0), 800.0 - std::log(2.0), 1e-9);
+    EXPECT_NEAR(dbhEvidence(-50.0), std::log(0.75), 1e-12);
+    EXPECT_NEAR(dbhEvidence(std::log(9.0)), std::log(3.0), 1e-12);
+    EXPECT_NEAR(dbhEvidence(800.0), 800.0 - std::log(4.0), 1e-9);
+    EXPECT_NEAR(dbhEvidence(std::log(9.0), 0.5), std::log(5.0), 1e-12);
 }
 
 namespace {

@@ -84,10 +84,11 @@ double dbhLogRatio(double local_dbh, double map_dbh, const std::vector<float> &n
     return std::log((1 - eps) * ratio + eps);
 }
 
-double dbhEvidence(double sum_ln_ratio) {
-    // ln((e^s + 1) / 2) = s + ln(1 + e^-s) - ln 2, stable for large s.
-    const double s = sum_ln_ratio;
-    return (s > 0 ? s + std::log1p(std::exp(-s)) : std::log1p(std::exp(s))) - std::log(2.0);
+double dbhEvidence(double sum_ln_ratio, double weight) {
+    // ln(w e^s + 1 - w), stable for large s.
+    const double s = sum_ln_ratio, w = std::clamp(weight, 1e-9, 1.0);
+    if (w >= 1.0) return s;
+    return s > 0 ? s + std::log(w + (1 - w) * std::exp(-s)) : std::log1p(w * std::expm1(s));
 }
 
 double poissonTailLog10(double mu, int k) {

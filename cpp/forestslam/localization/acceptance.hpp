@@ -37,8 +37,10 @@
 // adds up to ln(1 / (f sqrt(2 pi) sigma)) per pair (about 1 nat in a stand whose DBH spread is
 // 3 sigma); one that is grossly wrong costs at most ln(1 / eps). A query whose DBHs are useless
 // as a whole (biased, another mapper's definition of the diameter) would lose that on every
-// pair, so the evidence is the half-half mixture of the product and 1 (an average of e-values is
-// one): it costs at most ln 2 nats (0.3 decades) and gains the product's ln less ln 2.
+// pair, so the evidence is the mixture w prod LR + (1 - w) (an average of e-values is one); with
+// w = 1/4 useless DBHs cost at most ln(4/3) nats (0.12 decades), informative ones gain the
+// product's ln less ln 4 (a half-half mixture let absent views near the threshold through:
+// 2 of 1,000 views of a uniform stand in the longleaf map, 0 with positions only).
 #pragma once
 
 #include <cstdint>
@@ -77,9 +79,9 @@ double gammaTailLn(int n, double x);
 double dbhLogRatio(double local_dbh, double map_dbh, const std::vector<float> &neighbourhood,
                    double sigma_m, double outlier_fraction);
 
-// The DBH evidence of pairs whose ln LR sum to sum_ln_ratio: ln((prod LR + 1) / 2), nats (see
-// above); in [-ln 2, sum_ln_ratio).
-double dbhEvidence(double sum_ln_ratio);
+// The DBH evidence of pairs whose ln LR sum to sum_ln_ratio: ln(w prod LR + 1 - w), nats (see
+// above); in [ln(1 - w), sum_ln_ratio].
+double dbhEvidence(double sum_ln_ratio, double weight = 0.25);
 
 // -log10 P(X >= k) for X ~ Poisson(mu); 0 when k <= 0.
 double poissonTailLog10(double mu, int k);
