@@ -3,8 +3,10 @@
 Stem worlds from forestslam.perception.synthetic_stems (not forestslam.sim): two styles, `round`
 (analytic cylinders, flat intensity: what the project's simulator showed) and `rough` (7-14-gons
 with 5 mm bark noise, 0-10 % ovality, a Lambertian intensity model whose unknown gain lets the
-profile's threshold cut into the bark). A sensor drives a 40 m lane at 1 m/s, 10 Hz, with
-perfect poses (so only DBH is measured); each scan goes through `forestslam.perception.detect`.
+profile's threshold cut into the bark), plus `rough-m`: the rough stems under a second intensity
+model not derived from the threshold (per-material log-normal, see synthetic_stems). A sensor
+drives a 40 m lane at 1 m/s, 10 Hz, with perfect poses (so only DBH is measured); each scan
+goes through `forestslam.perception.detect`.
 
 1. Per scan, each DBH stage against truth (stems within 15 m): silhouette, band circle (the
    orthogonal fit, and the range-model fit the chain now uses), SAC cylinder, the chosen DBH;
@@ -34,6 +36,7 @@ from forestslam.mapping.tree_map import TreeMap, fit_band_circle
 from forestslam.perception import PerceptionConfig, detect, estimate_diameter
 from forestslam.perception.synthetic_stems import (
     ROUGH,
+    ROUGH_MATERIAL,
     ROUND,
     StemStyle,
     make_world,
@@ -242,7 +245,7 @@ def main() -> None:
     config = PerceptionConfig()
     config.diameter.fit_all = True
     runs = {}
-    for style in (ROUND, ROUGH):
+    for style in (ROUND, ROUGH, ROUGH_MATERIAL):
         for noise in noises:
             runs[style.name, noise] = [drive(style, noise, s, args.sensor, config) for s in seeds]
     print(
@@ -255,7 +258,7 @@ def main() -> None:
     for (name, noise), rs in runs.items():
         for stage, e in scan_stage_errors(rs).items():
             print(f"{name:6} {100 * noise:4.0f}c {stage:13} {stats(e)}")
-    for style in (ROUND, ROUGH):
+    for style in (ROUND, ROUGH, ROUGH_MATERIAL):
         off = dataclasses.replace(config, intensity_filter=False)
         rs = [drive(style, noises[-1], s, args.sensor, off, step_m=1.0) for s in seeds]
         e = scan_stage_errors(rs)
