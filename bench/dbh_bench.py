@@ -75,7 +75,9 @@ class Run:
         return np.array([s.dbh for s in self.world])
 
 
-def drive(style, noise, seed, sensor, config, step_m=0.1, one_sided=False) -> Run:
+def drive(
+    style, noise, seed, sensor, config, step_m=0.1, one_sided=False, footprint_rad=0.0
+) -> Run:
     world = make_world(style, seed)
     if one_sided:  # trees on one side of the lane only: each is seen from one side
         world = [s for s in world if s.y > 0]
@@ -85,7 +87,14 @@ def drive(style, noise, seed, sensor, config, step_m=0.1, one_sided=False) -> Ru
     for i, x in enumerate(np.arange(0.0, LANE_M, step_m)):
         sxy = np.array([x, 0.0])
         scan = scan_stems(
-            world, sxy, style, sensor, noise_m=noise, seed=seed * 10000 + i, gain=gain
+            world,
+            sxy,
+            style,
+            sensor,
+            noise_m=noise,
+            seed=seed * 10000 + i,
+            gain=gain,
+            footprint_rad=footprint_rad,
         )
         stems = detect(scan, sensor, config)
         idx = np.full(len(stems), -1)
@@ -266,6 +275,17 @@ def main() -> None:
             f"{style.name:6} {100 * noises[-1]:4.0f}c {'chosen, no intensity filter':28} "
             f"{stats(e['chosen'])}"
         )
+    # Beam footprint: a VLP-16 beam diverges ~3 mrad; returns from partly hit edges widen a
+    # silhouette by up to range x divergence (worst case: any part of the footprint returns).
+    for style in (ROUND, ROUGH_MATERIAL):
+        rs = [
+            drive(style, noises[-1], s, args.sensor, config, step_m=1.0, footprint_rad=1.5e-3)
+            for s in seeds
+        ]
+        e = scan_stage_errors(rs)
+        for stage in ("silhouette", "chosen"):
+            label = f"{stage}, 3 mrad footprint"
+            print(f"{style.name:6} {100 * noises[-1]:4.0f}c {label:28} {stats(e[stage])}")
 
     print("\n## 2. Map DBH (perfect poses), TreeMap windows")
     print(f"{'style':6} {'noise':>5} {'variant':30} {HEADER}")

@@ -132,8 +132,12 @@ def scan_stems(
     noise_m: float | None = None,
     seed: int = 0,
     gain: float = 1.0,
+    footprint_rad: float = 0.0,
 ) -> Scan:
-    """One scan from sensor_xy (sensor frame = world shifted, no rotation)."""
+    """One scan from sensor_xy (sensor frame = world shifted, no rotation). `footprint_rad`:
+    half the beam divergence; a beam returns from a stem when any part of its footprint meets
+    it (the worst case of a real beam's partly hit edges, which widen a silhouette by up to
+    range x divergence), at the range of the nearest part met."""
     profile = load_profile(sensor)
     rng = np.random.default_rng(seed)
     noise = profile.range_noise_m if noise_m is None else noise_m
@@ -158,13 +162,18 @@ def scan_stems(
         d = np.hypot(*c)
         if d - st.r_max > 40 or d <= st.r_max:
             continue
-        half = np.arcsin(min(1.0, st.r_max / d)) + 1e-3
+        half = np.arcsin(min(1.0, st.r_max / d)) + 1e-3 + footprint_rad
         da = np.angle(np.exp(1j * (az - np.arctan2(c[1], c[0]))))
         cols = np.nonzero(np.abs(da) <= half)[0]
         if len(cols) == 0:
             continue
         rows = (np.arange(len(el))[:, None] * n_az + cols[None, :]).ravel()
         t, k, edges = _ray_polygon(-c, u[rows], st.polygon)
+        for side in (-footprint_rad, footprint_rad) if footprint_rad > 0 else ():
+            rot = np.array([[np.cos(side), -np.sin(side)], [np.sin(side), np.cos(side)]])
+            t2, k2, _ = _ray_polygon(-c, u[rows] @ rot.T, st.polygon)
+            nearer = t2 < t
+            t, k = np.where(nearer, t2, t), np.where(nearer, k2, k)
         z = t * np.tan(e[rows])
         hit = np.isfinite(t) & (t < t_xy[rows]) & (z > -sensor_height_m) & (z < 15.0)
         rows, t, k = rows[hit], t[hit], k[hit]
