@@ -3,8 +3,10 @@
 Stem worlds from forestslam.perception.synthetic_stems (not forestslam.sim): two styles, `round`
 (analytic cylinders, flat intensity: what the project's simulator showed) and `rough` (7-14-gons
 with 5 mm bark noise, 0-10 % ovality, a Lambertian intensity model whose unknown gain lets the
-profile's threshold cut into the bark). A sensor drives a 40 m lane at 1 m/s, 10 Hz, with
-perfect poses (so only DBH is measured); each scan goes through `forestslam.perception.detect`.
+profile's threshold cut into the bark), plus `rough-m`: the rough stems under a second intensity
+model not derived from the threshold (per-material log-normal, see synthetic_stems). A sensor
+drives a 40 m lane at 1 m/s, 10 Hz, with perfect poses (so only DBH is measured); each scan
+goes through `forestslam.perception.detect`.
 
 1. Per scan, each DBH stage against truth (stems within 15 m): silhouette, band circle (the
    orthogonal fit, and the range-model fit the chain now uses), SAC cylinder, the chosen DBH;
@@ -34,6 +36,7 @@ from forestslam.mapping.tree_map import TreeMap, fit_band_circle
 from forestslam.perception import PerceptionConfig, detect, estimate_diameter
 from forestslam.perception.synthetic_stems import (
     ROUGH,
+    ROUGH_MATERIAL,
     ROUND,
     StemStyle,
     make_world,
@@ -72,7 +75,9 @@ class Run:
         return np.array([s.dbh for s in self.world])
 
 
-def drive(style, noise, seed, sensor, config, step_m=0.1, one_sided=False) -> Run:
+def drive(
+    style, noise, seed, sensor, config, step_m=0.1, one_sided=False, footprint_rad=0.0
+) -> Run:
     world = make_world(style, seed)
     if one_sided:  # trees on one side of the lane only: each is seen from one side
         world = [s for s in world if s.y > 0]
@@ -82,7 +87,14 @@ def drive(style, noise, seed, sensor, config, step_m=0.1, one_sided=False) -> Ru
     for i, x in enumerate(np.arange(0.0, LANE_M, step_m)):
         sxy = np.array([x, 0.0])
         scan = scan_stems(
-            world, sxy, style, sensor, noise_m=noise, seed=seed * 10000 + i, gain=gain
+            world,
+            sxy,
+            style,
+            sensor,
+            noise_m=noise,
+            seed=seed * 10000 + i,
+            gain=gain,
+            footprint_rad=footprint_rad,
         )
         stems = detect(scan, sensor, config)
         idx = np.full(len(stems), -1)
@@ -242,7 +254,7 @@ def main() -> None:
     config = PerceptionConfig()
     config.diameter.fit_all = True
     runs = {}
-    for style in (ROUND, ROUGH):
+    for style in (ROUND, ROUGH, ROUGH_MATERIAL):
         for noise in noises:
             runs[style.name, noise] = [drive(style, noise, s, args.sensor, config) for s in seeds]
     print(
@@ -255,7 +267,7 @@ def main() -> None:
     for (name, noise), rs in runs.items():
         for stage, e in scan_stage_errors(rs).items():
             print(f"{name:6} {100 * noise:4.0f}c {stage:13} {stats(e)}")
-    for style in (ROUND, ROUGH):
+    for style in (ROUND, ROUGH, ROUGH_MATERIAL):
         off = dataclasses.replace(config, intensity_filter=False)
         rs = [drive(style, noises[-1], s, args.sensor, off, step_m=1.0) for s in seeds]
         e = scan_stage_errors(rs)
@@ -263,6 +275,17 @@ def main() -> None:
             f"{style.name:6} {100 * noises[-1]:4.0f}c {'chosen, no intensity filter':28} "
             f"{stats(e['chosen'])}"
         )
+    # Beam footprint: a VLP-16 beam diverges ~3 mrad; returns from partly hit edges widen a
+    # silhouette by up to range x divergence (worst case: any part of the footprint returns).
+    for style in (ROUND, ROUGH_MATERIAL):
+        rs = [
+            drive(style, noises[-1], s, args.sensor, config, step_m=1.0, footprint_rad=1.5e-3)
+            for s in seeds
+        ]
+        e = scan_stage_errors(rs)
+        for stage in ("silhouette", "chosen"):
+            label = f"{stage}, 3 mrad footprint"
+            print(f"{style.name:6} {100 * noises[-1]:4.0f}c {label:28} {stats(e[stage])}")
 
     print("\n## 2. Map DBH (perfect poses), TreeMap windows")
     print(f"{'style':6} {'noise':>5} {'variant':30} {HEADER}")

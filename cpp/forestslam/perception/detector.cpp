@@ -129,12 +129,14 @@ namespace {
 struct Input {
     Points3 pts;
     Eigen::RowVector3d origin = Eigen::RowVector3d::Zero();
-    Eigen::VectorXi ring;  // per row of pts; empty when the input has no rings
+    Eigen::VectorXi ring;            // per row of pts; empty when the input has no rings
+    Points3 bright = Points3(0, 3);  // finite rows the intensity filter left out
 };
 
-// 1. Finite rows within the intensity threshold. Map clouds come in projected coordinates
-// (UTM: 3.8e6 m): PCL works in float, so work relative to a local origin and add it back to
-// the outputs.
+// 1. Finite rows within the intensity threshold (and apart, those above it: the diameter stage
+// gives back the ones on a stem's surface, see onStemSurface). Map clouds come in projected
+// coordinates (UTM: 3.8e6 m): PCL works in float, so work relative to a local origin and add it
+// back to the outputs.
 Input selectInput(const Eigen::Ref<const Points3> &points,
                   const Eigen::Ref<const Eigen::VectorXd> &intensity,
                   const Eigen::Ref<const Eigen::VectorXi> &ring, bool scan_centred,
@@ -148,9 +150,22 @@ Input selectInput(const Eigen::Ref<const Points3> &points,
     det.finite_points = static_cast<int>(finite.size());
     Input in;
     in.pts = selectRows(points, finite);
+    if (keep.size() < static_cast<size_t>(points.rows())) {
+        std::vector<int> bright;
+        size_t k = 0;
+        for (Eigen::Index i = 0; i < points.rows(); ++i) {
+            if (k < keep.size() && keep[k] == i) {
+                ++k;
+            } else if (points.row(i).allFinite()) {
+                bright.push_back(static_cast<int>(i));
+            }
+        }
+        in.bright = selectRows(points, bright);
+    }
     if (!scan_centred && in.pts.rows() > 0) {
         in.origin = in.pts.colwise().minCoeff().array().floor().matrix();
         in.pts.rowwise() -= in.origin;
+        in.bright.rowwise() -= in.origin;
     }
     if (ring.size() == points.rows()) {
         in.ring.resize(static_cast<Eigen::Index>(finite.size()));
@@ -249,6 +264,14 @@ SilhouetteSensor silhouetteSensor(const SensorGeometry &sensor) {
             ? sensor.azimuth_step_rad
             : (sensor.image_cols > 0 ? sensor.horizontal_fov_rad / sensor.image_cols : 0.0);
     return silhouette;
+}
+
+// Rows of `p` with lo <= z <= hi.
+Points3 rowsAtHeights(const Points3 &p, double lo, double hi) {
+    std::vector<int> rows;
+    for (Eigen::Index i = 0; i < p.rows(); ++i)
+        if (p(i, 2) >= lo && p(i, 2) <= hi) rows.push_back(static_cast<int>(i));
+    return selectRows(p, rows);
 }
 
 // True when some of `p` lie within `half` of height z.
@@ -351,11 +374,13 @@ AzimuthColumns azimuthColumns(const Points3 &pts, const std::vector<char> *skip,
 // The returns within two azimuth steps of the bearings the stem `seen` covers and nearer than
 // its farthest return (what may stand in front of it; the rest cannot occlude it); with
 // `beyond`, those farther than its nearest return instead (what may be seen through it).
+// `slack` (m) moves the farthest range out.
 Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColumns &cols,
-                      bool beyond = false) {
+                      bool beyond = false, double slack = 0.0) {
     if (seen.rows() == 0 || cols.count() == 0) return Points3(0, 3);
     const Eigen::VectorXd d2_seen = seen.leftCols<2>().rowwise().squaredNorm();
-    const double far2 = beyond ? d2_seen.minCoeff() : d2_seen.maxCoeff();
+    double far2 = beyond ? d2_seen.minCoeff() : d2_seen.maxCoeff();
+    if (slack > 0) far2 = std::pow(std::sqrt(far2) + slack, 2);
     const Eigen::Vector2d m = seen.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     double lo = 0, hi = 0;
@@ -379,10 +404,55 @@ Points3 returnsAround(const Points3 &seen, const Points3 &pts, const AzimuthColu
     return selectRows(pts, rows);
 }
 
+// Rows of `p` with lo <= z <= hi within `margin` of the x-y box of `box` (cheap: spares most
+// stems the bearings of their returns).
+Points3 rowsNearBox(const Points3 &p, const Points3 &box, double lo, double hi, double margin) {
+    if (p.rows() == 0 || box.rows() == 0) return Points3(0, 3);
+    const Eigen::Array2d mn = box.leftCols<2>().colwise().minCoeff().array() - margin,
+                         mx = box.leftCols<2>().colwise().maxCoeff().array() + margin;
+    std::vector<int> rows;
+    for (Eigen::Index i = 0; i < p.rows(); ++i)
+        if (p(i, 2) >= lo && p(i, 2) <= hi && p(i, 0) >= mn(0) && p(i, 0) <= mx(0) &&
+            p(i, 1) >= mn(1) && p(i, 1) <= mx(1))
+            rows.push_back(static_cast<int>(i));
+    return selectRows(p, rows);
+}
+
+// A stem's view with, near breast height (`lo`..`hi`), every non-ground return of the scan on
+// its surface (see onStemSurface) instead of its own when the intensity filter removed some
+// there (`bright`): the filter may have taken most of a bright stem, and the clustering then
+// the rest of its section. The span is the section's when it holds >= 4 of the stem's returns,
+// else the whole stem's.
+Points3 withReturnsOnSurface(const Points3 &view, const Points3 &pts, const AzimuthColumns &columns,
+                             const Points3 &bright, const SilhouetteSensor &sensor, double lo,
+                             double hi) {
+    if (view.rows() < 2) return view;
+    const Points3 b = rowsNearBox(bright, view, lo, hi, 0.15);
+    if (b.rows() == 0) return view;
+    std::vector<int> in_section, outside;
+    for (Eigen::Index i = 0; i < view.rows(); ++i)
+        (view(i, 2) >= lo && view(i, 2) <= hi ? in_section : outside)
+            .push_back(static_cast<int>(i));
+    const Points3 section = selectRows(view, in_section);
+    const Points3 &span = section.rows() >= 4 ? section : view;
+    // Fewer than 2 returns the filter removed lie on the stem (no scan line's worth): its view is
+    // whole, and most stems cost no more.
+    if (onStemSurface(span, b, sensor).size() < 2) return view;
+    const Points3 o = rowsAtHeights(returnsAround(span, pts, columns, false, 0.15), lo, hi);
+    Points3 cand(b.rows() + o.rows(), 3);
+    cand << b, o;
+    const std::vector<int> on = onStemSurface(span, cand, sensor);
+    if (on.size() < in_section.size()) return view;
+    Points3 out(static_cast<Eigen::Index>(outside.size() + on.size()), 3);
+    out << selectRows(view, outside), selectRows(cand, on);
+    return out;
+}
+
 // 6. Per stem: shape, local ground, breast-height centre and diameter.
-void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilterResult &nf,
-                  const Clusters &stems, const GroundSegmentation &gs, const SensorGeometry &sensor,
-                  bool scan_centred, const PerceptionConfig &opt, Detection &det) {
+void measureStems(const Points3 &pts, const Points3 &bright, const Points3 &filtered,
+                  const NormalFilterResult &nf, const Clusters &stems, const GroundSegmentation &gs,
+                  const SensorGeometry &sensor, bool scan_centred, const PerceptionConfig &opt,
+                  Detection &det) {
     const SegmentationConfig &so = opt.segmentation;
     SilhouetteView silhouette;
     silhouette.sensor = silhouetteSensor(sensor);
@@ -422,8 +492,11 @@ void measureStems(const Points3 &pts, const Points3 &filtered, const NormalFilte
             st.breast_source = BreastHeightSource::LowestPoint;
         }
         st.base_z = base;
-        silhouette.points = seen[k];
         const Points3 &view = seen[k].rows() > 0 ? seen[k] : st.points;
+        const double mid = base + bandMiddle(opt.diameter);
+        silhouette.points = withReturnsOnSurface(view, pts, columns, bright, silhouette.sensor,
+                                                 mid - opt.diameter.band_max_half_m,
+                                                 mid + opt.diameter.band_max_half_m);
         silhouette.occluders = returnsAround(view, pts, columns);
         const Points3 beyond = returnsAround(view, pts, columns, true),
                       beyond_ground = returnsAround(view, det.ground, ground_columns, true);
@@ -492,7 +565,7 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     const Clusters stems =
         classifyStems(filtered, coarse, sensor, scan_centred, opt.segmentation, det);
     clock.lap(det, "classification");
-    measureStems(in.pts, filtered, nf, stems, gs, sensor, scan_centred, opt, det);
+    measureStems(in.pts, in.bright, filtered, nf, stems, gs, sensor, scan_centred, opt, det);
     if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(in.pts, opt);
     toInputFrame(in.origin, det);
     clock.lap(det, "diameter");

@@ -341,6 +341,48 @@ int returnsBehindFront(const std::vector<NearbyReturn> &returns, int line, const
     return behind;
 }
 
+// Extent of a stem's returns on one scan line: bearings (relative to the stem's) and ranges.
+struct LineSpan {
+    int count = 0;
+    double lo = 1e9, hi = -1e9, near = 1e9, far = -1e9;
+    void add(double a, double rho) {
+        ++count;
+        lo = std::min(lo, a), hi = std::max(hi, a);
+        near = std::min(near, rho), far = std::max(far, rho);
+    }
+    void add(const LineSpan &o) {
+        count += o.count;
+        lo = std::min(lo, o.lo), hi = std::max(hi, o.hi);
+        near = std::min(near, o.near), far = std::max(far, o.far);
+    }
+    bool holds(double a, double rho) const {
+        return count >= 2 && a >= lo && a <= hi && rho >= near - kBehindFrontM &&
+               rho <= far + kBehindFrontM;
+    }
+};
+
+}  // namespace
+
+std::vector<int> onStemSurface(const Eigen::Ref<const Points3> &stem,
+                               const Eigen::Ref<const Points3> &candidates,
+                               const SilhouetteSensor &sensor) {
+    std::vector<int> out;
+    const auto &va = sensor.vertical_angles_rad;
+    if (stem.rows() < 2 || va.empty()) return out;
+    const Eigen::Vector2d m = stem.leftCols<2>().colwise().mean().transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    LineSpan span;
+    for (const NearbyReturn &r : nearbyReturns(stem, va, bearing)) span.add(r.a, r.rho);
+    // Each edge lies up to one azimuth step beyond the outermost returns seen.
+    span.lo -= sensor.azimuth_step_rad, span.hi += sensor.azimuth_step_rad;
+    const std::vector<NearbyReturn> c = nearbyReturns(candidates, va, bearing);
+    for (size_t i = 0; i < c.size(); ++i)
+        if (span.holds(c[i].a, c[i].rho)) out.push_back(static_cast<int>(i));
+    return out;
+}
+
+namespace {
+
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter); lines cut
 // by something in front of the stem (`occluders`) and lines across more than one object (two
 // or more returns behind the front of the stem their width implies) are left out.

@@ -75,6 +75,16 @@ struct SilhouetteView {
     Points3 beyond = Points3(0, 3);
 };
 
+// Rows of `candidates` (returns of the same scan, seen from the origin) on the surface of the stem
+// whose returns are `stem`: within the bearings the stem's returns span and at their depth (no
+// nearer than the nearest, no farther than the farthest, 0.15 m of margin: what stands in front
+// is nearer, what lies behind is hidden inside the span). Whatever their intensity: a Lambertian
+// bark is brightest where it faces the sensor, and no intensity threshold separates it from
+// foliage under every sensor gain and intensity model; geometry does.
+std::vector<int> onStemSurface(const Eigen::Ref<const Points3> &stem,
+                               const Eigen::Ref<const Points3> &candidates,
+                               const SilhouetteSensor &sensor);
+
 struct StemDiameter {
     // circle: robust fit of the breast-height band; cylinder: PCL SAC cylinder; silhouette: the
     // stem's angular width per scan line seen from the sensor, r = d sin(w/2) / (1 - sin(w/2))

@@ -9,7 +9,10 @@ stems) and a flat ground. Range noise, dropout and one of two intensity models:
   - "lambert": reflectance x cos(incidence)^0.7 with a range fall-off and 15 % speckle; bark
     and foliage distributions overlap a little, and scaled by an unknown sensor gain, so the
     profile's threshold cuts into the bark returns facing the sensor (bright) and keeps the
-    grazing ones (dark).
+    grazing ones (dark). Its reflectance was chosen against the threshold (100);
+  - "material": independent of the threshold: per-material log-normal reflectance (bark median
+    70, ground 40: no sensor units in common with the filter), one draw per stem (sigma 0.35)
+    and one per return (sigma 0.3), cos(incidence) and a (8 m / range)^0.5 fall-off beyond 8 m.
 Truth DBH = perimeter / pi (the girth tape; for a convex section also its mean caliper width).
 """
 
@@ -36,6 +39,10 @@ class StemStyle:
 ROUND = StemStyle("round")
 ROUGH = StemStyle(
     "rough", sides=(7, 14), bark_m=0.005, ovality=(0.0, 0.10), intensity="lambert", gain=(1.0, 1.6)
+)
+# The rough stems under the second intensity model (see the module's docstring).
+ROUGH_MATERIAL = StemStyle(
+    "rough-m", sides=(7, 14), bark_m=0.005, ovality=(0.0, 0.10), intensity="material"
 )
 
 
@@ -125,8 +132,12 @@ def scan_stems(
     noise_m: float | None = None,
     seed: int = 0,
     gain: float = 1.0,
+    footprint_rad: float = 0.0,
 ) -> Scan:
-    """One scan from sensor_xy (sensor frame = world shifted, no rotation)."""
+    """One scan from sensor_xy (sensor frame = world shifted, no rotation). `footprint_rad`:
+    half the beam divergence; a beam returns from a stem when any part of its footprint meets
+    it (the worst case of a real beam's partly hit edges, which widen a silhouette by up to
+    range x divergence), at the range of the nearest part met."""
     profile = load_profile(sensor)
     rng = np.random.default_rng(seed)
     noise = profile.range_noise_m if noise_m is None else noise_m
@@ -138,28 +149,37 @@ def scan_stems(
     u = np.c_[np.cos(a), np.sin(a)]
     t_xy = np.full(len(a), np.inf)  # horizontal distance of the first hit
     kind = np.zeros(len(a), np.int8)  # 1 ground, 2 stem
+    obj = np.full(len(a), 1.0)  # per-object reflectance factor (material model)
     cos_inc = np.ones(len(a))
     down = e < 0
     t_xy[down] = sensor_height_m / np.tan(-e[down])
     kind[down] = 1
     cos_inc[down] = np.sin(-e[down])
     for st in stems:
+        key = [int(abs(st.x) * 1e3), int(abs(st.y) * 1e3)]  # one draw per stem, every scan
+        factor = np.random.default_rng(key).lognormal(0.0, 0.35)
         c = np.array([st.x, st.y]) - sensor_xy
         d = np.hypot(*c)
         if d - st.r_max > 40 or d <= st.r_max:
             continue
-        half = np.arcsin(min(1.0, st.r_max / d)) + 1e-3
+        half = np.arcsin(min(1.0, st.r_max / d)) + 1e-3 + footprint_rad
         da = np.angle(np.exp(1j * (az - np.arctan2(c[1], c[0]))))
         cols = np.nonzero(np.abs(da) <= half)[0]
         if len(cols) == 0:
             continue
         rows = (np.arange(len(el))[:, None] * n_az + cols[None, :]).ravel()
         t, k, edges = _ray_polygon(-c, u[rows], st.polygon)
+        for side in (-footprint_rad, footprint_rad) if footprint_rad > 0 else ():
+            rot = np.array([[np.cos(side), -np.sin(side)], [np.sin(side), np.cos(side)]])
+            t2, k2, _ = _ray_polygon(-c, u[rows] @ rot.T, st.polygon)
+            nearer = t2 < t
+            t, k = np.where(nearer, t2, t), np.where(nearer, k2, k)
         z = t * np.tan(e[rows])
         hit = np.isfinite(t) & (t < t_xy[rows]) & (z > -sensor_height_m) & (z < 15.0)
         rows, t, k = rows[hit], t[hit], k[hit]
         t_xy[rows] = t
         kind[rows] = 2
+        obj[rows] = factor
         nrm = np.c_[edges[k, 1], -edges[k, 0]] / np.linalg.norm(edges[k], axis=1)[:, None]
         cos_inc[rows] = np.abs(np.sum(nrm * u[rows], axis=1)) * np.cos(e[rows])
     rng_m = t_xy / np.cos(e)
@@ -171,6 +191,10 @@ def scan_stems(
     kk, ci = kind[keep], cos_inc[keep]
     if style.intensity == "flat":
         intensity = np.where(kk == 2, 40.0, 20.0)
+    elif style.intensity == "material":
+        median = np.where(kk == 2, 70.0 * obj[keep], 40.0)
+        falloff = np.minimum(1.0, np.sqrt(8.0 / np.maximum(r, 1e-3)))
+        intensity = median * ci * falloff * rng.lognormal(0, 0.3, len(r))
     else:
         refl = np.where(kk == 2, 95.0, 60.0)
         falloff = 1.0 / (1.0 + (r / 40.0) ** 2)
