@@ -40,6 +40,7 @@ from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
+from forestslam.tls.acceptance import VirtualResidualGate
 from forestslam.tls.bridging import bridge_unmerged
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
@@ -708,6 +709,7 @@ class _Walk:
         # target of the acceptance test and the ground heights of the placement.
         self.ref_coarse = self.gmap.coarse.copy()
         self.check_reference = _ReferenceCheck(self.ref_coarse, config)
+        self.residual_gate = VirtualResidualGate(config.map)
         self.initial_pose = initial_pose
         self.on_frame = on_frame
         self.method = "given" if initial_pose is not None else "stems"
@@ -992,10 +994,7 @@ class _Walk:
         per-point times, only a frame whose in-sweep motion was estimated joins: a rigid frame
         of a vibrating scanner is distorted by centimetres (its ground above all)."""
         cfg, lm = self.config, reg.lm
-        stems_agree = (
-            lm.virtual_inliers >= cfg.map.accept_min_virtual_inliers
-            and lm.virtual_rms_m <= cfg.map.accept_virtual_rms_m
-        )
+        stems_agree = self.residual_gate.passes(lm.virtual_inliers, lm.virtual_rms_m)
         on_reference = (
             reg.good and stems_agree and _stems_on_reference(frame.feats, T, self.ref_stems, cfg)
         )
@@ -1009,6 +1008,7 @@ class _Walk:
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
         if accepted:
+            self.residual_gate.add(lm.virtual_rms_m)
             self.gmap.add(transform_points(T, _merged_points(frame.points, cfg)))
             self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
