@@ -45,11 +45,11 @@ class MapConfig:
     # target's stem walls are not circles (polygonal, oval, barked sections) and a frame's
     # ring circles are one-sided fits, so its size depends on the stems, not only the pose
     # (bench/tls_bench.py --style b: 1.2-4.5 cm RMS for frames within 2 cm of the truth).
-    # The gate is therefore learnt from the frames this walk has verified on the reference
-    # (tls.acceptance.VirtualResidualGate): once accept_virtual_rms_min_frames of them are
-    # known, a frame passes when its RMS is within accept_virtual_rms_sigmas robust standard
-    # deviations (1.4826 MAD) above their median; never below accept_virtual_rms_m (the gate
-    # before that, and the floor).
+    # The gate is therefore learnt from this walk's trusted frames (tls.acceptance.
+    # VirtualResidualGate): once accept_virtual_rms_min_frames of them are known, a frame
+    # passes when its RMS is within accept_virtual_rms_sigmas robust standard deviations
+    # (1.4826 MAD) above their median; never below accept_virtual_rms_m (the gate before
+    # that, and the floor). It only selects the frames tested on the reference.
     accept_virtual_rms_m: Positive = 0.03
     accept_virtual_rms_sigmas: Positive = 3.0
     accept_virtual_rms_min_frames: PositiveInt = 10

@@ -1007,8 +1007,9 @@ class _Walk:
             frame.ms["lm"] += (time.process_time() - t0) * 1e3
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
+        if reg.good:
+            self.residual_gate.add(lm.virtual_inliers, lm.virtual_rms_m)
         if accepted:
-            self.residual_gate.add(lm.virtual_rms_m)
             self.gmap.add(transform_points(T, _merged_points(frame.points, cfg)))
             self.centres.append(transform_points(T, frame.feats.centres))
         reason = _unmerged_reason(
