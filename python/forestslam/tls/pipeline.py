@@ -39,8 +39,8 @@ from forestslam.errors import InputError, ProcessingError
 from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
-from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.acceptance import VirtualResidualGate
+from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.bridging import bridge_unmerged
 from forestslam.tls.config import TlsConfig
 from forestslam.tls.features import (
