@@ -150,9 +150,9 @@ struct NormalSums {
 };
 
 // Weighted cost of (c, r) under the weights `w_old` (returned), and the linearization there.
-double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts,
-                          const std::vector<double> &pt_w, double tukey_c, const Eigen::Vector2d &c,
-                          double r, const std::vector<double> *w_old, GeoLinearization &lin) {
+double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, const std::vector<double> &pt_w,
+                          double tukey_c, const Eigen::Vector2d &c, double r,
+                          const std::vector<double> *w_old, GeoLinearization &lin) {
     // Sums in locals: stores through lin.w would otherwise alias them.
     NormalSums sums;
     double wsum = 0, cost = 0, old_cost = 0;
@@ -187,7 +187,7 @@ void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int>
                          Eigen::Vector3d::Zero(), 0, 0};
     GeoLinearization trial = cur;
     std::vector<Eigen::Vector2d> pts(rows.size());  // the rows, contiguous
-    std::vector<double> pt_w(rows.size());  // their weights
+    std::vector<double> pt_w(rows.size());          // their weights
     for (size_t k = 0; k < rows.size(); ++k) {
         pts[k] = xy.row(rows[k]).transpose();
         pt_w[k] = weightOf(weights, rows[k]);
@@ -291,10 +291,10 @@ void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, Cir
     const double total = weightSum(fit.inlier_indices, weights);
     fit.rms_m = total > 0 ? std::sqrt(ss / total) : 0.0;
     fit.arc_coverage = arcCoverage(xy, fit.inlier_indices, fit.centre, opt.arc_sectors);
-    fit.covariance = weights == nullptr
-                         ? circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius)
-                         : weightedCircleCovariance(xy, fit.inlier_indices, weights, fit.centre,
-                                                    fit.radius);
+    fit.covariance =
+        weights == nullptr
+            ? circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius)
+            : weightedCircleCovariance(xy, fit.inlier_indices, weights, fit.centre, fit.radius);
 }
 
 }  // namespace
@@ -382,8 +382,8 @@ struct Sampler {
         if (cumulative.empty()) return draw;
         const double at = (draw + 0.5) * total / units;
         const auto k = std::upper_bound(cumulative.begin(), cumulative.end(), at);
-        return static_cast<int>(std::min<std::ptrdiff_t>(k - cumulative.begin(),
-                                                         static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
+        return static_cast<int>(std::min<std::ptrdiff_t>(
+            k - cumulative.begin(), static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
     }
 };
 
