@@ -554,8 +554,10 @@ def _unmerged_reason(
     accepted: bool,
     ref_dt: float,
     ref_dr: float,
+    rms_gate_m: float,
 ) -> str:
-    """Why a registered frame did not join the map ("" when it did)."""
+    """Why a registered frame did not join the map ("" when it did); rms_gate_m: the
+    virtual residual gate the frame was judged by (acceptance.VirtualResidualGate)."""
     if accepted:
         return ""
     if not good:
@@ -563,7 +565,7 @@ def _unmerged_reason(
     if not stems_agree:
         return (
             f"stem pairs too few or loose ({lm.virtual_inliers} pairs, "
-            f"{100 * lm.virtual_rms_m:.1f} cm RMS)"
+            f"{100 * lm.virtual_rms_m:.1f} cm RMS, gate {100 * rms_gate_m:.1f} cm)"
         )
     if not on_reference:
         return "its stems are not on the reference's stems"
@@ -994,6 +996,7 @@ class _Walk:
         per-point times, only a frame whose in-sweep motion was estimated joins: a rigid frame
         of a vibrating scanner is distorted by centimetres (its ground above all)."""
         cfg, lm = self.config, reg.lm
+        rms_gate = self.residual_gate.limit()
         stems_agree = self.residual_gate.passes(lm.virtual_inliers, lm.virtual_rms_m)
         on_reference = (
             reg.good and stems_agree and _stems_on_reference(frame.feats, T, self.ref_stems, cfg)
@@ -1023,6 +1026,7 @@ class _Walk:
             accepted,
             ref_dt,
             ref_dr,
+            rms_gate,
         )
         return accepted, reason, ref_dt, ref_dr
 
