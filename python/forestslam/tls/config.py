@@ -39,20 +39,9 @@ class MapConfig:
     """Global incremental map: TLS reference plus accepted MLS frames, voxelized."""
 
     voxel_m: Positive = 0.03
-    # A frame joins the map when its stem-centre (virtual) residual RMS is consistent with
-    # the walk's and it has enough virtual pairs; frames without stems still get a pose but
-    # never join the map. The residual of a correct pose is not the range noise alone: the
-    # target's stem walls are not circles (polygonal, oval, barked sections) and a frame's
-    # ring circles are one-sided fits, so its size depends on the stems, not only the pose
-    # (bench/tls_bench.py --style b: 1.2-4.5 cm RMS for frames within 2 cm of the truth).
-    # The gate is therefore learnt from this walk's trusted frames (tls.acceptance.
-    # VirtualResidualGate): once accept_virtual_rms_min_frames of them are known, a frame
-    # passes when its RMS is within accept_virtual_rms_sigmas robust standard deviations
-    # (1.4826 MAD) above their median; never below accept_virtual_rms_m (the gate before
-    # that, and the floor). It only selects the frames tested on the reference.
+    # A frame joins the map when its stem-centre (virtual) residual RMS is below this and it
+    # has enough virtual pairs; frames without stems still get a pose but never join the map.
     accept_virtual_rms_m: Positive = 0.03
-    accept_virtual_rms_sigmas: Positive = 3.0
-    accept_virtual_rms_min_frames: PositiveInt = 10
     accept_min_virtual_inliers: NonNegativeInt = 24
     # ... and when it also sits on the TLS reference itself, not only on the growing map (which
     # may hold frames with small errors): the LM of the frame against the reference alone,

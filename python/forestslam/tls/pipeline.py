@@ -39,7 +39,6 @@ from forestslam.errors import InputError, ProcessingError
 from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
-from forestslam.tls.acceptance import VirtualResidualGate
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.bridging import bridge_unmerged
 from forestslam.tls.config import TlsConfig
@@ -554,10 +553,8 @@ def _unmerged_reason(
     accepted: bool,
     ref_dt: float,
     ref_dr: float,
-    rms_gate_m: float,
 ) -> str:
-    """Why a registered frame did not join the map ("" when it did); rms_gate_m: the
-    virtual residual gate the frame was judged by (acceptance.VirtualResidualGate)."""
+    """Why a registered frame did not join the map ("" when it did)."""
     if accepted:
         return ""
     if not good:
@@ -565,7 +562,7 @@ def _unmerged_reason(
     if not stems_agree:
         return (
             f"stem pairs too few or loose ({lm.virtual_inliers} pairs, "
-            f"{100 * lm.virtual_rms_m:.1f} cm RMS, gate {100 * rms_gate_m:.1f} cm)"
+            f"{100 * lm.virtual_rms_m:.1f} cm RMS)"
         )
     if not on_reference:
         return "its stems are not on the reference's stems"
@@ -711,7 +708,6 @@ class _Walk:
         # target of the acceptance test and the ground heights of the placement.
         self.ref_coarse = self.gmap.coarse.copy()
         self.check_reference = _ReferenceCheck(self.ref_coarse, config)
-        self.residual_gate = VirtualResidualGate(config.map)
         self.initial_pose = initial_pose
         self.on_frame = on_frame
         self.method = "given" if initial_pose is not None else "stems"
@@ -996,8 +992,10 @@ class _Walk:
         per-point times, only a frame whose in-sweep motion was estimated joins: a rigid frame
         of a vibrating scanner is distorted by centimetres (its ground above all)."""
         cfg, lm = self.config, reg.lm
-        rms_gate = self.residual_gate.limit()
-        stems_agree = self.residual_gate.passes(lm.virtual_inliers, lm.virtual_rms_m)
+        stems_agree = (
+            lm.virtual_inliers >= cfg.map.accept_min_virtual_inliers
+            and lm.virtual_rms_m <= cfg.map.accept_virtual_rms_m
+        )
         on_reference = (
             reg.good and stems_agree and _stems_on_reference(frame.feats, T, self.ref_stems, cfg)
         )
@@ -1010,8 +1008,6 @@ class _Walk:
             frame.ms["lm"] += (time.process_time() - t0) * 1e3
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
-        if reg.good:
-            self.residual_gate.add(lm.virtual_inliers, lm.virtual_rms_m)
         if accepted:
             self.gmap.add(transform_points(T, _merged_points(frame.points, cfg)))
             self.centres.append(transform_points(T, frame.feats.centres))
@@ -1026,7 +1022,6 @@ class _Walk:
             accepted,
             ref_dt,
             ref_dr,
-            rms_gate,
         )
         return accepted, reason, ref_dt, ref_dr
 
