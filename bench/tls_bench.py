@@ -395,6 +395,8 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
         "accepted_over_3cm": int(np.sum(ta > ACCEPTED_DEFECT_M)),
     }
 
+    if getattr(args, "keep_runs", False):
+        keep_run(out / name / "run.pkl", run, te, re, T_tls_world, truth_xy_world, trees_csv)
     ref_trees = plot_trees(ref, cfg.trees, cfg.features)
     report = {"tracking": tracking}
     report["ground_floor_true_poses_mean_abs_m"] = ground_floor(scans, world, t_start, cfg)
@@ -507,6 +509,26 @@ def run_pair(args, out: Path, name: str, tls_dir: Path, mls_dir: Path) -> dict:
     report["fallback_frames"] = int(sum(f.fallback for f in run.frames))
     print_simulated(name, report)
     return report
+
+
+def keep_run(path: Path, run, te, re, T_tls_world, truth_xy_world, trees_csv) -> None:
+    """What the tree stage and the acceptance need, for offline study (--keep-runs): the
+    merged map, its counts and views, the per-frame records with their true pose errors."""
+    import pickle
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    keep = {
+        "map_points": run.map_points,
+        "map_counts": run.map_counts,
+        "views": run.views,
+        "frames": run.frames,
+        "trans_err_m": te,
+        "rot_err_deg": re,
+        "T_tls_world": T_tls_world,
+        "truth_xy_world": truth_xy_world,
+        "truth_dbh_m": np.asarray(trees_csv["dbh_m"]),
+    }
+    path.write_bytes(pickle.dumps(keep, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 def _cm(v) -> str:
@@ -1037,6 +1059,11 @@ def main() -> None:
         choices=["ndt", "velocity"],
         default=None,
         help="tls.registration.initial_pose (default: the config's)",
+    )
+    parser.add_argument(
+        "--keep-runs",
+        action="store_true",
+        help="pickle each plot's merged map and frame records (OUT/plot/run.pkl)",
     )
     parser.add_argument("--skip-sim", action="store_true")
     parser.add_argument("--skip-real", action="store_true")

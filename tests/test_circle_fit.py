@@ -119,3 +119,20 @@ def test_radius_std_grows_as_the_arc_shrinks_and_matches_the_scatter_of_fits():
     assert sigmas[1] > 5 * sigmas[0]  # a quarter circle vs the full one
     for s, spread in zip(sigmas, spreads, strict=True):
         assert 0.6 * spread < s < 1.6 * spread  # the predicted spread is the fits' spread
+
+
+def test_weights_fit_as_the_points_repeated_and_must_match_the_points():
+    xy = arc(1.0, 2.0, 0.2, -1.0, 1.5, 60, 0.01, 7)
+    counts = np.random.default_rng(2).integers(1, 5, len(xy))
+    weighted = _core.fit_circle(xy, weights=counts.astype(float))
+    repeated = _core.fit_circle(np.repeat(xy, counts, axis=0))
+    assert weighted.radius == pytest.approx(repeated.radius, abs=1e-9)
+    np.testing.assert_allclose(weighted.centre, repeated.centre, atol=1e-9)
+    origins = np.tile([-3.0, 2.0], (len(xy), 1))
+    rays = _core.fit_circle_rays(xy, origins, weights=counts.astype(float))
+    rays_rep = _core.fit_circle_rays(np.repeat(xy, counts, axis=0), np.repeat(origins, counts, 0))
+    assert rays.radius == pytest.approx(rays_rep.radius, abs=1e-9)
+    with pytest.raises(ValueError, match="weights"):
+        _core.fit_circle(xy, weights=np.ones(3))
+    with pytest.raises(ValueError, match="weight"):
+        _core.fit_circle(xy, weights=-np.ones(len(xy)))

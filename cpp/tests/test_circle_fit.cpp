@@ -222,3 +222,70 @@ TEST(CircleFit, CovarianceNeedsMoreRowsThanFittedParameters) {
     EXPECT_NEAR(evaluated, fitted * (4.0 - 3.0) / 4.0, 1e-12 * fitted);
     EXPECT_TRUE(std::isinf(forestslam::fitCircle(arc(0, 0, 0.2, 0, 1, 2, 0, 1)).radiusStd()));
 }
+
+namespace {
+
+// Rows of xy repeated by integer counts.
+Points2 repeated(const Points2 &xy, const Eigen::VectorXd &counts) {
+    Points2 out(static_cast<Eigen::Index>(counts.sum()), 2);
+    Eigen::Index k = 0;
+    for (Eigen::Index i = 0; i < xy.rows(); ++i)
+        for (int c = 0; c < static_cast<int>(counts(i)); ++c) out.row(k++) = xy.row(i);
+    return out;
+}
+
+}  // namespace
+
+// Integer weights give the fit of the rows repeated that often (RANSAC draw for draw, the
+// same circle, rms and covariance), without the copies; a zero weight drops a row.
+TEST(CircleFit, IntegerWeightsFitAsTheRowsRepeated) {
+    std::mt19937 rng(9);
+    std::uniform_int_distribution<int> count(1, 6);
+    Points2 xy = arc(2.0, 1.0, 0.18, -1.2, 1.6, 70, 0.01, 4);
+    xy.row(5) << 2.4, 1.3;  // an outlier
+    Eigen::VectorXd w(xy.rows());
+    for (Eigen::Index i = 0; i < w.size(); ++i) w(i) = count(rng);
+    const Points2 rep = repeated(xy, w);
+    const CircleFit a = forestslam::fitCircleWeighted(xy, w), b = forestslam::fitCircle(rep);
+    ASSERT_TRUE(a.valid && b.valid);
+    EXPECT_NEAR(a.radius, b.radius, 1e-9);
+    EXPECT_NEAR((a.centre - b.centre).norm(), 0.0, 1e-9);
+    EXPECT_NEAR(a.rms_m, b.rms_m, 1e-9);
+    EXPECT_LT((a.covariance - b.covariance).cwiseAbs().maxCoeff(), 1e-9 * b.covariance.norm());
+    // Seen from one side under range noise: the range model agrees as well.
+    const Points2 o = Eigen::RowVector2d(-4.0, 0.5).replicate(xy.rows(), 1);
+    const CircleFit ra = forestslam::fitCircleRaysWeighted(xy, o, w);
+    const CircleFit rb = forestslam::fitCircleRays(rep, repeated(o, w));
+    ASSERT_TRUE(ra.valid && rb.valid);
+    EXPECT_NEAR(ra.radius, rb.radius, 1e-9);
+    EXPECT_NEAR((ra.centre - rb.centre).norm(), 0.0, 1e-9);
+    // Unit weights are the unweighted fit.
+    const CircleFit u = forestslam::fitCircleWeighted(xy, Eigen::VectorXd::Ones(xy.rows()));
+    EXPECT_NEAR(u.radius, forestslam::fitCircle(xy).radius, 1e-12);
+}
+
+// Weights pull the circle to the rows observed most: two concentric rings of points, the inner
+// one observed ten times as often, give the inner circle (unweighted: the ring in between).
+TEST(CircleFit, WeightsPullTheCircleToTheRowsObservedMost) {
+    const Points2 inner = arc(0.0, 0.0, 0.15, 0.0, 2 * M_PI * 0.98, 60, 0.0, 1);
+    const Points2 outer = arc(0.0, 0.0, 0.17, 0.05, 2 * M_PI * 0.98 + 0.05, 60, 0.0, 1);
+    Points2 both(120, 2);
+    both << inner, outer;
+    Eigen::VectorXd w(120);
+    w << Eigen::VectorXd::Constant(60, 10.0), Eigen::VectorXd::Ones(60);
+    CircleFitConfig o;
+    o.inlier_threshold_m = 0.03;  // both rings are inliers of either circle
+    const CircleFit plain = forestslam::fitCircle(both, o);
+    const CircleFit weighted = forestslam::fitCircleWeighted(both, w, o);
+    ASSERT_TRUE(plain.valid && weighted.valid);
+    EXPECT_NEAR(plain.radius, 0.16, 0.002);
+    EXPECT_NEAR(weighted.radius, 0.15 + 0.02 / 11.0, 0.002);
+    // Non-integer weights (e.g. square roots of counts) work the same way.
+    const CircleFit root = forestslam::fitCircleWeighted(both, w.cwiseSqrt(), o);
+    ASSERT_TRUE(root.valid);
+    EXPECT_NEAR(root.radius, 0.15 + 0.02 / (1.0 + std::sqrt(10.0)), 0.002);
+    EXPECT_THROW(forestslam::fitCircleWeighted(both, Eigen::VectorXd::Ones(3)),
+                 std::invalid_argument);
+    w(0) = -1.0;
+    EXPECT_THROW(forestslam::fitCircleWeighted(both, w, o), std::invalid_argument);
+}

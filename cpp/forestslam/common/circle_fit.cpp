@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <numeric>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -11,6 +12,10 @@ namespace forestslam {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+
+// Per-row weight: 1 without weights (the unweighted fit's expressions stay bit-identical, a
+// product with 1.0 being exact).
+inline double weightOf(const double *w, int row) { return w == nullptr ? 1.0 : w[row]; }
 
 std::vector<int> finiteIndices(const Eigen::Ref<const Points2> &xy) {
     std::vector<int> rows;
@@ -24,25 +29,31 @@ std::vector<int> finiteIndices(const Eigen::Ref<const Points2> &xy) {
 // Taubin fit (Newton on the characteristic polynomial, as in Chernov's formulation) of the
 // given rows. Centred on the mean for numerical stability.
 bool taubin(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows, Eigen::Vector2d &c,
-            double &r) {
+            double &r, const double *weights = nullptr) {
     const size_t n = rows.size();
     if (n < 3) return false;
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-    for (int i : rows) mean += xy.row(i).transpose();
-    mean /= static_cast<double>(n);
+    double total = 0;
+    for (int i : rows) {
+        mean += weightOf(weights, i) * xy.row(i).transpose();
+        total += weightOf(weights, i);
+    }
+    if (!(total > 0)) return false;
+    mean /= weights == nullptr ? static_cast<double>(n) : total;
     double mxx = 0, myy = 0, mxy = 0, mxz = 0, myz = 0, mzz = 0;
     double extent = 0;
     for (int i : rows) {
         const double x = xy(i, 0) - mean.x(), y = xy(i, 1) - mean.y(), z = x * x + y * y;
-        mxx += x * x;
-        myy += y * y;
-        mxy += x * y;
-        mxz += x * z;
-        myz += y * z;
-        mzz += z * z;
+        const double w = weightOf(weights, i);
+        mxx += w * (x * x);
+        myy += w * (y * y);
+        mxy += w * (x * y);
+        mxz += w * (x * z);
+        myz += w * (y * z);
+        mzz += w * (z * z);
         extent = std::max(extent, z);
     }
-    const double inv = 1.0 / static_cast<double>(n);
+    const double inv = 1.0 / (weights == nullptr ? static_cast<double>(n) : total);
     mxx *= inv, myy *= inv, mxy *= inv, mxz *= inv, myz *= inv, mzz *= inv;
     extent = std::sqrt(extent);
     if (!(extent > 0)) return false;
@@ -139,9 +150,9 @@ struct NormalSums {
 };
 
 // Weighted cost of (c, r) under the weights `w_old` (returned), and the linearization there.
-double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, double tukey_c,
-                          const Eigen::Vector2d &c, double r, const std::vector<double> *w_old,
-                          GeoLinearization &lin) {
+double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, const std::vector<double> &pt_w,
+                          double tukey_c, const Eigen::Vector2d &c, double r,
+                          const std::vector<double> *w_old, GeoLinearization &lin) {
     // Sums in locals: stores through lin.w would otherwise alias them.
     NormalSums sums;
     double wsum = 0, cost = 0, old_cost = 0;
@@ -151,7 +162,7 @@ double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, double tukey_
         const double dist = dvec.norm();
         const double e = dist - r;
         if (w_old != nullptr) old_cost += (*w_old)[k] * e * e;
-        const double w = w_new[k] = tukeyWeight(e, tukey_c);
+        const double w = w_new[k] = pt_w[k] * tukeyWeight(e, tukey_c);
         wsum += w;
         cost += w * e * e;
         if (w == 0.0 || dist == 0.0) continue;
@@ -169,14 +180,19 @@ double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, double tukey_
 // weights) and the linearization at it come from one pass: an accepted step is the next
 // iteration's starting point.
 void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
-                     double tukey_c, int iterations, Eigen::Vector2d &c, double &r) {
+                     double tukey_c, int iterations, Eigen::Vector2d &c, double &r,
+                     const double *weights = nullptr) {
     double lambda = 1e-3;
     GeoLinearization cur{std::vector<double>(rows.size()), Eigen::Matrix3d::Zero(),
                          Eigen::Vector3d::Zero(), 0, 0};
     GeoLinearization trial = cur;
     std::vector<Eigen::Vector2d> pts(rows.size());  // the rows, contiguous
-    for (size_t k = 0; k < rows.size(); ++k) pts[k] = xy.row(rows[k]).transpose();
-    linearizeGeometric(pts, tukey_c, c, r, nullptr, cur);
+    std::vector<double> pt_w(rows.size());          // their weights
+    for (size_t k = 0; k < rows.size(); ++k) {
+        pts[k] = xy.row(rows[k]).transpose();
+        pt_w[k] = weightOf(weights, rows[k]);
+    }
+    linearizeGeometric(pts, pt_w, tukey_c, c, r, nullptr, cur);
     for (int it = 0; it < iterations; ++it) {
         if (cur.wsum < 3.0) return;
         const double before = cur.cost;
@@ -188,7 +204,7 @@ void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int>
             if (!step.allFinite()) return;
             const Eigen::Vector2d cn = c + step.head<2>();
             const double rn = r + step(2);
-            if (rn > 0 && linearizeGeometric(pts, tukey_c, cn, rn, &cur.w, trial) <= before) {
+            if (rn > 0 && linearizeGeometric(pts, pt_w, tukey_c, cn, rn, &cur.w, trial) <= before) {
                 c = cn;
                 r = rn;
                 std::swap(cur, trial);
@@ -219,16 +235,66 @@ size_t inlierCount(const Eigen::Ref<const Points2> &xy, const std::vector<int> &
     return count;
 }
 
-void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, CircleFit &fit) {
+// The summed weight of `rows` (their number without weights).
+double weightSum(const std::vector<int> &rows, const double *weights) {
+    if (weights == nullptr) return static_cast<double>(rows.size());
+    double sum = 0;
+    for (int i : rows) sum += weights[i];
+    return sum;
+}
+
+double inlierWeight(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                    const Eigen::Vector2d &c, double r, double threshold, const double *weights) {
+    if (weights == nullptr) return static_cast<double>(inlierCount(xy, rows, c, r, threshold));
+    double sum = 0;
+    for (int i : rows)
+        if (std::abs((xy.row(i).transpose() - c).norm() - r) <= threshold) sum += weights[i];
+    return sum;
+}
+
+// circleCovariance of a weighted fit: each row counts its weight times (sigma^2 from the
+// weighted residuals over (summed weight - 3)), so integer weights give the covariance of the
+// rows repeated that often.
+Eigen::Matrix3d weightedCircleCovariance(const Eigen::Ref<const Points2> &xy,
+                                         const std::vector<int> &rows, const double *weights,
+                                         const Eigen::Vector2d &centre, double radius) {
+    const Eigen::Matrix3d unknown =
+        Eigen::Matrix3d::Constant(std::numeric_limits<double>::infinity());
+    const double total = weightSum(rows, weights);
+    if (rows.size() < 3 || total <= 3.0) return unknown;
+    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
+    double ss = 0;
+    for (int i : rows) {
+        const Eigen::Vector2d v = xy.row(i).transpose() - centre;
+        const double d = v.norm(), w = weights[i];
+        ss += w * (d - radius) * (d - radius);
+        if (!(d > 0)) continue;
+        const Eigen::Vector3d J(-v.x() / d, -v.y() / d, -1.0);
+        JtJ += w * J * J.transpose();
+    }
+    Eigen::Matrix3d inverse;
+    double det = 0;
+    bool invertible = false;
+    JtJ.computeInverseAndDetWithCheck(inverse, det, invertible, 1e-12);
+    if (!invertible) return unknown;
+    return std::max(ss / (total - 3.0), 1e-12) * inverse;
+}
+
+void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, CircleFit &fit,
+            const double *weights = nullptr) {
     double ss = 0;
     for (int i : fit.inlier_indices) {
         const double e = (xy.row(i).transpose() - fit.centre).norm() - fit.radius;
-        ss += e * e;
+        ss += weightOf(weights, i) * (e * e);
     }
     fit.inliers = static_cast<int>(fit.inlier_indices.size());
-    fit.rms_m = fit.inliers > 0 ? std::sqrt(ss / fit.inliers) : 0.0;
+    const double total = weightSum(fit.inlier_indices, weights);
+    fit.rms_m = total > 0 ? std::sqrt(ss / total) : 0.0;
     fit.arc_coverage = arcCoverage(xy, fit.inlier_indices, fit.centre, opt.arc_sectors);
-    fit.covariance = circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius);
+    fit.covariance =
+        weights == nullptr
+            ? circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius)
+            : weightedCircleCovariance(xy, fit.inlier_indices, weights, fit.centre, fit.radius);
 }
 
 }  // namespace
@@ -294,33 +360,66 @@ CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {
 namespace {
 
 // fitCircle without its quality figures (finish): fitCircleRays replaces them when it refines.
-CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
+// Weighted RANSAC sampling: a draw j of [0, units) (units = the summed weight, rounded up)
+// picks the finite row whose cumulative weight first exceeds j + 1/2 (scaled to the summed
+// weight), so a row of integer weight w is drawn as often as w copies of it would be (the
+// fit of the rows repeated by their weights, sample for sample); identity without weights.
+struct Sampler {
+    std::vector<double> cumulative;  // over the finite rows; empty without weights
+    double total = 0;
+    int units = 0;
+
+    Sampler(const std::vector<int> &rows, const double *weights) {
+        if (weights == nullptr) {
+            units = static_cast<int>(rows.size());
+            total = units;
+            return;
+        }
+        for (int i : rows) cumulative.push_back(total += weights[i]);
+        units = static_cast<int>(std::min(std::ceil(total), 2e9));
+    }
+    int row(int draw) const {  // index into the finite rows
+        if (cumulative.empty()) return draw;
+        const double at = (draw + 0.5) * total / units;
+        const auto k = std::upper_bound(cumulative.begin(), cumulative.end(), at);
+        return static_cast<int>(std::min<std::ptrdiff_t>(
+            k - cumulative.begin(), static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
+    }
+};
+
+CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt,
+                    const double *weights = nullptr) {
     CircleFit fit;
     const std::vector<int> rows = finiteIndices(xy);
     const int n = static_cast<int>(rows.size());
     if (n < 3 || !(opt.inlier_threshold_m > 0)) return fit;
     const double thr = opt.inlier_threshold_m;
     auto inBounds = [&](double r) { return r >= opt.min_radius_m && r <= opt.max_radius_m; };
+    const Sampler sampler(rows, weights);
+    if (!(sampler.total > 0) || sampler.units < 1) return fit;
 
     // 1. Consensus: RANSAC over 3-point circles, adaptive number of trials.
     std::mt19937 rng(opt.seed);
-    std::uniform_int_distribution<int> pick(0, n - 1);
+    std::uniform_int_distribution<int> pick(0, sampler.units - 1);
     std::vector<int> best;
+    double best_weight = 0;
     int trials = opt.max_ransac_iterations;
     for (int it = 0; it < trials; ++it) {
         const int a = pick(rng), b = pick(rng), s = pick(rng);
         if (a == b || b == s || a == s) continue;
         Eigen::Vector2d c;
         double r;
-        if (!circleFrom3(xy.row(rows[a]).transpose(), xy.row(rows[b]).transpose(),
-                         xy.row(rows[s]).transpose(), c, r) ||
+        if (!circleFrom3(xy.row(rows[sampler.row(a)]).transpose(),
+                         xy.row(rows[sampler.row(b)]).transpose(),
+                         xy.row(rows[sampler.row(s)]).transpose(), c, r) ||
             !inBounds(r))
             continue;
         // Count first: most candidates lose, and only a winner's rows are kept.
-        if (inlierCount(xy, rows, c, r, thr) <= best.size()) continue;
+        if (inlierWeight(xy, rows, c, r, thr, weights) <= best_weight) continue;
         {
             best = inliersOf(xy, rows, c, r, thr);
-            const double w = static_cast<double>(best.size()) / n;
+            best_weight = weightSum(best, weights);
+            const double w = best_weight / sampler.total;
             const double p_fail = 1.0 - w * w * w;
             if (p_fail <= 1e-12) break;
             const int need = static_cast<int>(std::ceil(std::log(0.01) / std::log(p_fail)));
@@ -328,14 +427,14 @@ CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
         }
     }
     // No minimal sample in bounds (or all collinear): try the algebraic fit of everything.
-    const std::vector<int> &seed_rows = best.size() >= 3 ? best : rows;
+    const std::vector<int> &seed_rows = best_weight >= 3 ? best : rows;
 
     // 2. Algebraic fit of the consensus set; 3. robust geometric refinement on all points.
     Eigen::Vector2d c;
     double r;
-    if (!taubin(xy, seed_rows, c, r)) return fit;
+    if (!taubin(xy, seed_rows, c, r, weights)) return fit;
     for (int round = 0; round < 3; ++round) {
-        refineGeometric(xy, rows, 2.5 * thr, opt.refine_iterations, c, r);
+        refineGeometric(xy, rows, 2.5 * thr, opt.refine_iterations, c, r, weights);
     }
     fit.inlier_indices = inliersOf(xy, rows, c, r, thr);
     if (fit.inlier_indices.size() < 3 || !std::isfinite(r) || !inBounds(r)) {
@@ -343,7 +442,7 @@ CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
         return fit;
     }
     // Final least-squares polish on the inliers only (plain weights within the threshold).
-    refineGeometric(xy, fit.inlier_indices, 1e6, opt.refine_iterations, c, r);
+    refineGeometric(xy, fit.inlier_indices, 1e6, opt.refine_iterations, c, r, weights);
     if (!inBounds(r)) return CircleFit{};
     fit.valid = true;
     fit.centre = c;
@@ -357,6 +456,33 @@ CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
 CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt) {
     CircleFit fit = robustFit(xy, opt);
     if (fit.valid) finish(xy, opt, fit);
+    return fit;
+}
+
+namespace {
+
+// The weights of a weighted fit: one finite, non-negative value per row.
+const double *checkedWeights(const Eigen::Ref<const Points2> &xy,
+                             const Eigen::Ref<const Eigen::VectorXd> &weights, const char *who) {
+    if (weights.size() != xy.rows())
+        throw std::invalid_argument(std::string(who) + ": " + std::to_string(weights.size()) +
+                                    " weights for " + std::to_string(xy.rows()) + " points");
+    for (Eigen::Index i = 0; i < weights.size(); ++i) {
+        if (!std::isfinite(weights(i)) || weights(i) < 0)
+            throw std::invalid_argument(std::string(who) + ": weight " + std::to_string(i) +
+                                        " is negative or not finite");
+    }
+    return weights.data();
+}
+
+}  // namespace
+
+CircleFit fitCircleWeighted(const Eigen::Ref<const Points2> &xy,
+                            const Eigen::Ref<const Eigen::VectorXd> &weights,
+                            const CircleFitConfig &opt) {
+    const double *w = checkedWeights(xy, weights, "fitCircleWeighted");
+    CircleFit fit = robustFit(xy, opt, w);
+    if (fit.valid) finish(xy, opt, fit, w);
     return fit;
 }
 
@@ -408,8 +534,8 @@ struct RayLinearization {
     double cost;
 };
 
-double linearizeRays(const std::vector<RayPoint> &pts, double sr, double st,
-                     const Eigen::Vector3d &x, const std::vector<double> *w_old,
+double linearizeRays(const std::vector<RayPoint> &pts, const std::vector<double> &pt_w, double sr,
+                     double st, const Eigen::Vector3d &x, const std::vector<double> *w_old,
                      RayLinearization &lin) {
     NormalSums sums;
     double cost = 0, old_cost = 0;
@@ -419,7 +545,7 @@ double linearizeRays(const std::vector<RayPoint> &pts, double sr, double st,
         const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st, &J);
         const double e2 = e.squaredNorm();
         if (w_old != nullptr) old_cost += (*w_old)[k] * e2;
-        const double w = w_new[k] = cauchyWeight(e2);
+        const double w = w_new[k] = pt_w[k] * cauchyWeight(e2);
         cost += w * e2;
         sums.addNormal(w, J, e);
     }
@@ -430,13 +556,13 @@ double linearizeRays(const std::vector<RayPoint> &pts, double sr, double st,
 
 // IRLS Levenberg-Marquardt on (cx, cy, r) with analytic Jacobians (3 parameters); trial cost
 // and next linearization in one pass, as in refineGeometric.
-bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iterations,
-                Eigen::Vector3d &x) {
+bool refineRays(const std::vector<RayPoint> &pts, const std::vector<double> &pt_w, double sr,
+                double st, int iterations, Eigen::Vector3d &x) {
     double lambda = 1e-3;
     RayLinearization cur{std::vector<double>(pts.size()), Eigen::Matrix3d::Zero(),
                          Eigen::Vector3d::Zero(), 0};
     RayLinearization trial = cur;
-    linearizeRays(pts, sr, st, x, nullptr, cur);
+    linearizeRays(pts, pt_w, sr, st, x, nullptr, cur);
     for (int it = 0; it < iterations; ++it) {
         const double before = cur.cost;
         bool improved = false;
@@ -447,7 +573,7 @@ bool refineRays(const std::vector<RayPoint> &pts, double sr, double st, int iter
             if (!step.allFinite()) return false;
             const Eigen::Vector3d xn = x + step;
             const double after =
-                xn(2) > 0 ? linearizeRays(pts, sr, st, xn, &cur.w, trial) : before + 1.0;
+                xn(2) > 0 ? linearizeRays(pts, pt_w, sr, st, xn, &cur.w, trial) : before + 1.0;
             if (after <= before) {
                 x = xn;
                 std::swap(cur, trial);
@@ -470,48 +596,74 @@ namespace {
 
 // The range-model refinement of a valid orthogonal fit into `out` (its quality figures not yet
 // computed); false when the orthogonal fit stands.
+// Median of values, each counted weights[k] times (the element at position floor(total / 2)
+// of the values repeated by integer weights, sorted; that of nth_element without weights).
+double weightedMedian(std::vector<double> v, const std::vector<double> &weights) {
+    if (weights.empty()) {
+        std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
+        return v[v.size() / 2];
+    }
+    std::vector<size_t> order(v.size());
+    for (size_t k = 0; k < order.size(); ++k) order[k] = k;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return v[a] < v[b]; });
+    double total = 0;
+    for (double w : weights) total += w;
+    const double half = std::floor(total / 2);
+    double cumulative = 0;
+    for (size_t k : order) {
+        cumulative += weights[k];
+        if (cumulative > half) return v[k];
+    }
+    return v[order.back()];
+}
+
 bool rayRefined(const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
-                const CircleFitConfig &opt, const CircleFit &fit, CircleFit &out) {
+                const CircleFitConfig &opt, const CircleFit &fit, CircleFit &out,
+                const double *weights) {
     // Beams of the points near the orthogonal fit (clutter stays out), range spread first
     // from the orthogonal residuals.
     std::vector<RayPoint> pts;
-    std::vector<double> ortho, facing, grazing;
+    std::vector<double> ortho, facing, grazing, pt_w, facing_w, grazing_w;
     for (int i :
          inliersOf(xy, finiteIndices(xy), fit.centre, fit.radius, 2.0 * opt.inlier_threshold_m)) {
         const Eigen::Vector2d o = origins.row(i).transpose(), p = xy.row(i).transpose();
         const double range = (p - o).norm(), dist = (p - fit.centre).norm();
         if (!o.allFinite() || !(range > 1e-6) || !(dist > 0)) continue;
         pts.push_back({o, (p - o) / range, range});
+        pt_w.push_back(weightOf(weights, i));
         const double e = std::abs(dist - fit.radius);
         ortho.push_back(e);
         // Beam against the surface normal: residuals of beams facing the surface show the
         // range spread, of grazing beams the spread across the beam.
         const double c = std::abs(pts.back().dir.dot((p - fit.centre) / dist));
-        if (c > 0.8) facing.push_back(e);
-        if (c < 0.5) grazing.push_back(e);
+        if (c > 0.8) facing.push_back(e), facing_w.push_back(pt_w.back());
+        if (c < 0.5) grazing.push_back(e), grazing_w.push_back(pt_w.back());
     }
     if (pts.size() < 3) return false;
+    // Medians over the weights (none without: the unweighted fit's nth_element).
+    const std::vector<double> none;
+    auto wts = [&](const std::vector<double> &w) -> const std::vector<double> & {
+        return weights == nullptr ? none : w;
+    };
+    auto total = [&](const std::vector<double> &w, size_t count) {
+        return weights == nullptr ? static_cast<double>(count)
+                                  : std::accumulate(w.begin(), w.end(), 0.0);
+    };
     // The range model holds when the spread lies along the beams. Where it is as wide across
     // them (bark roughness, registration jitter, dense scanners) the orthogonal fit is the
     // unbiased one, and the range model would run large (+1 cm on such arcs).
-    auto median = [](std::vector<double> v) {
-        std::nth_element(v.begin(), v.begin() + static_cast<long>(v.size() / 2), v.end());
-        return v[v.size() / 2];
-    };
-    if (facing.size() >= 5 && grazing.size() >= 5 &&
-        median(facing) < opt.min_range_anisotropy * median(grazing))
+    if (total(facing_w, facing.size()) >= 5 && total(grazing_w, grazing.size()) >= 5 &&
+        weightedMedian(facing, wts(facing_w)) <
+            opt.min_range_anisotropy * weightedMedian(grazing, wts(grazing_w)))
         return false;
     const double st = std::max(opt.lateral_sigma_m, 1e-4);
-    std::nth_element(ortho.begin(), ortho.begin() + static_cast<long>(ortho.size() / 2),
-                     ortho.end());
-    double sr = std::max(1.4826 * ortho[ortho.size() / 2], st);
+    double sr = std::max(1.4826 * weightedMedian(ortho, wts(pt_w)), st);
     Eigen::Vector3d x(fit.centre.x(), fit.centre.y(), fit.radius);
     for (int round = 0; round < 3; ++round) {
-        if (!refineRays(pts, sr, st, opt.refine_iterations, x)) return false;
+        if (!refineRays(pts, pt_w, sr, st, opt.refine_iterations, x)) return false;
         std::vector<double> res;
         for (const RayPoint &p : pts) res.push_back(std::abs(rayResidual(p, x, 1.0, 1.0).x()));
-        std::nth_element(res.begin(), res.begin() + static_cast<long>(res.size() / 2), res.end());
-        sr = std::max(1.4826 * res[res.size() / 2], st);
+        sr = std::max(1.4826 * weightedMedian(res, wts(pt_w)), st);
     }
     if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return false;
     // A refinement that wandered off the points is not trusted: the range model moves a
@@ -524,25 +676,38 @@ bool rayRefined(const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Poin
     out.radius = x(2);
     out.inlier_indices =
         inliersOf(xy, finiteIndices(xy), out.centre, out.radius, opt.inlier_threshold_m);
-    if (out.inlier_indices.size() < 0.8 * static_cast<double>(fit.inlier_indices.size()))
+    if (weightSum(out.inlier_indices, weights) < 0.8 * weightSum(fit.inlier_indices, weights))
         return false;
     return true;
+}
+
+CircleFit raysFit(const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
+                  const CircleFitConfig &opt, const double *weights, const char *who) {
+    if (origins.rows() != xy.rows())
+        throw std::invalid_argument(std::string(who) + ": " + std::to_string(origins.rows()) +
+                                    " view origins for " + std::to_string(xy.rows()) + " points");
+    CircleFit fit = robustFit(xy, opt, weights);
+    if (!fit.valid) return fit;
+    // The orthogonal fit's quality figures only when it is the answer.
+    CircleFit out;
+    CircleFit &best = rayRefined(xy, origins, opt, fit, out, weights) ? out : fit;
+    finish(xy, opt, best, weights);
+    return best;
 }
 
 }  // namespace
 
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
                         const Eigen::Ref<const Points2> &origins, const CircleFitConfig &opt) {
-    if (origins.rows() != xy.rows())
-        throw std::invalid_argument("fitCircleRays: " + std::to_string(origins.rows()) +
-                                    " view origins for " + std::to_string(xy.rows()) + " points");
-    CircleFit fit = robustFit(xy, opt);
-    if (!fit.valid) return fit;
-    // The orthogonal fit's quality figures only when it is the answer.
-    CircleFit out;
-    CircleFit &best = rayRefined(xy, origins, opt, fit, out) ? out : fit;
-    finish(xy, opt, best);
-    return best;
+    return raysFit(xy, origins, opt, nullptr, "fitCircleRays");
+}
+
+CircleFit fitCircleRaysWeighted(const Eigen::Ref<const Points2> &xy,
+                                const Eigen::Ref<const Points2> &origins,
+                                const Eigen::Ref<const Eigen::VectorXd> &weights,
+                                const CircleFitConfig &opt) {
+    return raysFit(xy, origins, opt, checkedWeights(xy, weights, "fitCircleRaysWeighted"),
+                   "fitCircleRaysWeighted");
 }
 
 }  // namespace forestslam

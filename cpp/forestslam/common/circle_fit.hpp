@@ -69,6 +69,16 @@ CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy);
 // Robust fit; non-finite rows are ignored (indices still refer to the input rows).
 CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &options = {});
 
+// fitCircle with a weight per row (e.g. how many observations a voxel map's point stands
+// for): a row of weight w counts as w rows in the RANSAC draws (weighted sampling) and
+// consensus, the algebraic and geometric fits, rms_m and the covariance (sigma^2 from the
+// weighted residuals over summed weight - 3), so integer weights give the fit of the rows
+// repeated that often, without the copies. inliers and inlier_indices stay rows.
+// std::invalid_argument unless weights has one finite, non-negative value per row.
+CircleFit fitCircleWeighted(const Eigen::Ref<const Points2> &xy,
+                            const Eigen::Ref<const Eigen::VectorXd> &weights,
+                            const CircleFitConfig &options = {});
+
 // Robust fit refined by maximum likelihood under range noise: point i was measured from the
 // view origin origins.row(i) (the sensor position, same frame), its error lies along that beam.
 // Residual of a beam that hits the circle: measured range - range to the circle's near side;
@@ -79,6 +89,13 @@ CircleFit fitCircle(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
 CircleFit fitCircleRays(const Eigen::Ref<const Points2> &xy,
                         const Eigen::Ref<const Points2> &origins,
                         const CircleFitConfig &options = {});
+
+// fitCircleRays with a weight per row, as fitCircleWeighted (the range spread is the weighted
+// median, the refinement's weights are the rows' times the Cauchy weights).
+CircleFit fitCircleRaysWeighted(const Eigen::Ref<const Points2> &xy,
+                                const Eigen::Ref<const Points2> &origins,
+                                const Eigen::Ref<const Eigen::VectorXd> &weights,
+                                const CircleFitConfig &options = {});
 
 // Fraction of `sectors` equal angular sectors around `centre` that hold at least one of `rows`.
 double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,

@@ -365,26 +365,35 @@ void defineCircleFits(py::module_ &m) {
     m.def(
         "fit_circle_rays",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Points2> &origins,
-           const CircleFitConfig &config) {
+           const CircleFitConfig &config, std::optional<Eigen::VectorXd> weights) {
             if (origins.rows() != xy.rows())
                 throw std::invalid_argument("fit_circle_rays: origins must have one row per point");
+            if (weights && weights->size() != xy.rows())
+                throw std::invalid_argument("fit_circle_rays: weights must have one per point");
             py::gil_scoped_release release;
-            return fitCircleRays(xy, origins, config);
+            return weights ? fitCircleRaysWeighted(xy, origins, *weights, config)
+                           : fitCircleRays(xy, origins, config);
         },
         py::arg("xy"), py::arg("origins"), py::arg("config") = CircleFitConfig(),
+        py::arg("weights") = py::none(),
         "Circle fit of points xy (N,2) measured from view origins (N,2) (sensor positions, same "
         "frame): the robust fit refined under range noise along each beam (unbiased on one-sided "
-        "arcs, where fit_circle shrinks the circle). config: CircleFitConfig. Returns CircleFit.");
+        "arcs, where fit_circle shrinks the circle). config: CircleFitConfig. weights (N,): "
+        "each point counts that often (see fit_circle). Returns CircleFit.");
     m.def(
         "fit_circle",
-        [](const Eigen::Ref<const Points2> &xy, const CircleFitConfig &config) {
+        [](const Eigen::Ref<const Points2> &xy, const CircleFitConfig &config,
+           std::optional<Eigen::VectorXd> weights) {
+            if (weights && weights->size() != xy.rows())
+                throw std::invalid_argument("fit_circle: weights must have one per point");
             py::gil_scoped_release release;
-            return fitCircle(xy, config);
+            return weights ? fitCircleWeighted(xy, *weights, config) : fitCircle(xy, config);
         },
-        py::arg("xy"), py::arg("config") = CircleFitConfig(),
+        py::arg("xy"), py::arg("config") = CircleFitConfig(), py::arg("weights") = py::none(),
         "Robust circle fit (RANSAC + Taubin + Tukey-weighted geometric LM) of xy (N,2) float64;\n"
-        "config: CircleFitConfig. Returns CircleFit (non-finite rows are ignored; inlier_indices\n"
-        "are rows of xy).");
+        "config: CircleFitConfig; weights (N,) finite, >= 0: each point counts that often\n"
+        "(integer weights: the fit of the points repeated). Returns CircleFit (non-finite rows\n"
+        "are ignored; inlier_indices are rows of xy).");
     m.def(
         "fit_circle_algebraic",
         [](const Eigen::Ref<const Points2> &xy) { return fitCircleAlgebraic(xy); }, py::arg("xy"),

@@ -172,11 +172,13 @@ def _band_fit(
     whole walk, 923 frames: band points centred on the true circle within 0.2 cm with a
     10-90 % spread of -4.3 / +5.1 cm, yet the circles 2.2 cm too large in median DBH).
     Counted by the returns behind them, the points are dense at the wall again.
-    The covariance is the fit's, scaled by the mean count (repeated points are not new
-    information); the spread is that of four sub-slices' diameters (ddof 1; NaN when fewer
-    than two hold a circle within 5 cm of the band's)."""
+    The counts are the fits' weights (core.fit_circle's weights: a point counts that often,
+    the fit of the points repeated). The covariance is the fit's, scaled by the mean count
+    (repeated points are not new information); the spread is that of four sub-slices'
+    diameters (ddof 1; NaN when fewer than two hold a circle within 5 cm of the band's)."""
     reps = counts if len(counts) == len(band) else np.ones(len(band), np.int64)
-    fit = breast_circle(core, np.repeat(band[:, :2], reps, axis=0), features, views, view_range_m)
+    weights = np.asarray(reps, dtype=np.float64)
+    fit = breast_circle(core, band[:, :2], features, views, view_range_m, weights)
     if fit is None:
         return None
     lo, hi = config.band_m
@@ -186,8 +188,8 @@ def _band_fit(
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         part = (zb >= a) & (zb < b)
         if np.count_nonzero(part) >= 5:
-            xy = np.repeat(band[part, :2], reps[part], axis=0)
-            f = core.fit_circle(np.ascontiguousarray(xy), _circle_config())
+            xy = np.ascontiguousarray(band[part, :2])
+            f = core.fit_circle(xy, _circle_config(), weights[part])
             if f.valid and abs(f.radius - fit.radius) < 0.05:
                 sub.append(2 * f.radius)
     spread = float(np.std(sub, ddof=1)) if len(sub) >= 2 else float("nan")
@@ -239,8 +241,10 @@ def breast_circle(
     features: FeatureConfig,
     views: np.ndarray | None = None,
     view_range_m: tuple[float, float] = (0.0, np.inf),
+    weights: np.ndarray | None = None,
 ) -> CircleFit | None:
     """The robust circle fit (core.fit_circle's CircleFit) of a stem's band points (M,2), or None.
+    weights (M,): each point counts that often (None: once).
     With views (P,2), the scanner positions: refined under range noise (fit_circle_rays),
     each point's beam from view_origins. A mobile scanner's noise lies along its beams
     (VLP-16: 3 cm); on the one-sided arcs a walk sees, an orthogonal-distance fit of such
@@ -249,15 +253,16 @@ def breast_circle(
     around the true circle (median radial residual -0.05 / +0.09 cm), yet their orthogonal
     fits come out small (median DBH error -1.0 / -1.2 cm); fitted under range noise -0.0 cm
     (map, beams from view_origins) and +0.2 cm (raw points, each from its own scan)."""
-    if len(band_xy) < 5:
+    weight = len(band_xy) if weights is None else float(np.sum(weights))
+    if weight < 5:
         return None
     xy = np.ascontiguousarray(band_xy, dtype=np.float64)
     config = _circle_config(features)
-    fit = core.fit_circle(xy, config)
+    fit = core.fit_circle(xy, config, weights)
     if not fit.valid or views is None or len(views) == 0:
         return fit if fit.valid else None
     origins = view_origins(xy, np.asarray(fit.centre), views, view_range_m)
-    rays = core.fit_circle_rays(xy, origins, config)
+    rays = core.fit_circle_rays(xy, origins, config, weights)
     return rays if rays.valid else fit
 
 
