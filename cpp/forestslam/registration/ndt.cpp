@@ -1,6 +1,11 @@
 #include "forestslam/registration/ndt.hpp"
 
 #include <pcl/registration/ndt.h>
+// KdTreeFLANN's methods compiled here, not taken from PCL's shared library: FLANN's radius
+// search opens an OpenMP parallel region per query (num_threads(1) by default), and the NDT
+// asks one per source point per derivative evaluation; without -fopenmp the pragma is ignored
+// and the search is the same serial code (same neighbours in the same order, same results).
+#include <pcl/kdtree/impl/kdtree_flann.hpp>
 
 #include <stdexcept>
 
