@@ -608,7 +608,8 @@ def print_simulated(name: str, r: dict) -> None:
         f"features + LM CPU per frame: mean {s['features_lm_ms_mean']:.1f} ms, p95 "
         f"{s['features_lm_ms_p95']:.1f} ms (target mean <= 100 ms: "
         f"{_verdict(s['features_lm_ms_mean'] <= 100)}); all incl. NDT and target "
-        f"{s['all_ms_mean']:.1f} ms"
+        f"{s['all_ms_mean']:.1f} ms (features {s['features_ms_mean']:.1f}, NDT "
+        f"{s['ndt_ms_mean']:.1f}, target {s['target_ms_mean']:.1f}, LM {s['lm_ms_mean']:.1f})"
     )
     print(
         f"tls-register end to end (read, register, write; in-process): "

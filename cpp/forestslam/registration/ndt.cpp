@@ -2,6 +2,13 @@
 
 #include <pcl/registration/ndt.h>
 
+// KdTreeFLANN's methods compiled here instead of taken from PCL's shared library: FLANN's
+// radius search opens an OpenMP parallel region per query (num_threads(1) by default), and the
+// NDT asks one per source point per derivative evaluation (~60 % of its time went to libgomp
+// and futex calls). Without -fopenmp the pragma is ignored: the same serial search, the same
+// neighbours in the same order, the same results. The core's other KdTreeFLANN<PointXYZ> users
+// link to these definitions too.
+#include <pcl/kdtree/impl/kdtree_flann.hpp>
 #include <stdexcept>
 
 #include "forestslam/common/pcl_adapter.hpp"
