@@ -127,3 +127,15 @@ def test_numpy_numbers_are_numbers_but_numpy_bools_are_not():
     cfg.odometry.source_voxel_m = np.bool_(True)
     with pytest.raises(InputError, match="source_voxel_m: .*a number"):
         validate(cfg)
+
+
+def test_a_retired_key_of_an_earlier_run_yaml_is_logged_and_ignored(tmp_path, caplog):
+    """An earlier version's run.yaml (localization.dbh_resolution_m, before the DBH likelihood
+    ratio) still loads, says the key is ignored, and takes the current default; a key that was
+    never valid is still an error."""
+    with caplog.at_level("WARNING"):
+        cfg = load(tmp_path, "localization:\n  dbh_resolution_m: 0.05\n")
+    assert cfg.localization.dbh_sigma_m == ForestSlamConfig().localization.dbh_sigma_m
+    assert "localization.dbh_resolution_m is retired and ignored" in caplog.text
+    with pytest.raises(InputError, match="unknown key.*dbh_resolution_cm"):
+        load(tmp_path, "localization:\n  dbh_resolution_cm: 0.05\n")

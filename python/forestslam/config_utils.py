@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import math
 import numbers
 import re
@@ -27,6 +28,7 @@ import yaml
 from forestslam.errors import InputError
 
 T = TypeVar("T")
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -179,12 +181,24 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         raise InputError(f"{where.rstrip(':')}: expected a mapping, got {type(data).__name__}")
     hints = _hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
+    data = _without_retired_keys(cls, data, where)
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
         names, valid = ", ".join(map(str, unknown)), ", ".join(fields)
         raise InputError(f"{where.rstrip(':')}: unknown key(s) {names}; valid: {valid}")
     kwargs = {k: check_value(hints[k], v, _key(where, k)) for k, v in data.items()}
     return cls(**kwargs)
+
+
+def _without_retired_keys(cls: type, data: dict[str, Any], where: str) -> dict[str, Any]:
+    """`data` without the keys `cls.RETIRED_KEYS` names (key -> what replaced it), each logged:
+    an earlier run's run.yaml still loads after a key was renamed or dropped, and the user is
+    told its value is no longer read (never silently mapped onto a key that means another
+    thing)."""
+    retired: dict[str, str] = getattr(cls, "RETIRED_KEYS", {})
+    for key in sorted(set(data) & set(retired), key=str):
+        _log.warning("%s is retired and ignored: %s", _key(where, key), retired[key])
+    return {k: v for k, v in data.items() if k not in retired}
 
 
 def to_dict(obj: Any) -> dict[str, Any]:

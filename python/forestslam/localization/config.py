@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from forestslam.config_utils import (
     Fraction,
@@ -20,6 +20,11 @@ MATCHERS = ("default", "paper")  # the choices of `matcher`
 @dataclass
 class LocalizationConfig:
     """Star matching, verification and acceptance of a query; aggregation of frames (CLI)."""
+
+    # Keys earlier versions wrote into run.yaml (key -> why it is no longer read).
+    RETIRED_KEYS: ClassVar[dict[str, str]] = {
+        "dbh_resolution_m": "the DBH evidence is a likelihood ratio now; see dbh_sigma_m",
+    }
 
     # "default": stars verified by edge lengths and the side test, a pose per match, consensus;
     # "paper": Li et al. as written (Eq. 2-4, no peripheral stars, t_h = 2 m in trunk
