@@ -68,13 +68,13 @@ class CloudMap:
         )
         ground = np.concatenate([kf.ground for kf in parts])
         tree = np.concatenate([kf.tree_id for kf in parts])
-        stamp = np.concatenate([np.full(len(kf.points), kf.stamp) for kf in parts])
+        stamp = np.repeat([kf.stamp for kf in parts], [len(kf.points) for kf in parts])
         origin = column_bounds(pts)[0]  # voxel keys near the origin, whatever the offsets
         # Points grouped by voxel in one sort (as np.unique does), so the per-voxel maxima are
         # reductions over contiguous runs (np.maximum.at per point cost 0.3 s on 600 scans). The
         # order inside a run does not matter (maxima; the sums below go in point order): numpy's
         # default (SIMD) sort, several times faster than a stable one.
-        keys = voxel_keys(pts - origin, self.voxel_m)
+        keys = voxel_keys(pts, self.voxel_m, origin)
         order = np.argsort(keys)
         keys = keys[order]
         new_voxel = np.r_[True, keys[1:] != keys[:-1]]

@@ -52,9 +52,9 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class _Tree:
-    band: list = field(default_factory=list)  # (M,3) arrays, map frame
-    origins: list = field(default_factory=list)  # (M,2) sensor xy each band point was seen from
-    scan_of: list = field(default_factory=list)  # (M,) alignment block of each band point
+    band: list = field(default_factory=list)  # (M,3) arrays, map frame, one per scan
+    origins: list = field(default_factory=list)  # (2,) sensor xy each scan's band was seen from
+    scan_of: list = field(default_factory=list)  # alignment block of each scan's band
     first_scan: int = -1
     last_scan: int = -1
     n_band_scans: int = 0
@@ -184,6 +184,7 @@ class TreeMap:
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
         DBH (NaN = none). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
         lo, hi = self.cfg.dbh_band_m
+        origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
         for k in np.nonzero(np.asarray(ids) >= 0)[0]:
             tree = self.trees.setdefault(int(ids[k]), _Tree())
             if tree.first_scan < 0:
@@ -206,9 +207,8 @@ class TreeMap:
             if tree.n_band_scans == 0:
                 tree.first_scan = scan_index
             tree.band.append(transform_points(T_odom, band))
-            tree.origins.append(np.broadcast_to(T_odom[:2, 3], (len(band), 2)))
-            block = tree.n_band_scans // self.cfg.dbh_align_block_scans
-            tree.scan_of.append(np.full(len(band), block))
+            tree.origins.append(origin)
+            tree.scan_of.append(tree.n_band_scans // self.cfg.dbh_align_block_scans)
             tree.n_band_scans += 1
             tree.last_scan = scan_index
             if tree.n_band_scans >= self.cfg.dbh_window_scans:
@@ -227,8 +227,10 @@ class TreeMap:
                     tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
 
     def _fit(self, tree: _Tree) -> None:
-        pts, origins = np.concatenate(tree.band), np.concatenate(tree.origins)
-        scan_of = np.concatenate(tree.scan_of)
+        pts = np.concatenate(tree.band)
+        per_scan = [len(b) for b in tree.band]
+        origins = np.repeat(np.asarray(tree.origins, dtype=np.float64), per_scan, axis=0)
+        scan_of = np.repeat(np.asarray(tree.scan_of, dtype=np.int64), per_scan)
         tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
         if len(pts) > self.cfg.dbh_max_points_per_window:
             pick = self._rng.choice(len(pts), self.cfg.dbh_max_points_per_window, False)
