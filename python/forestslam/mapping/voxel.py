@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 CHUNK_ROWS = 1 << 16  # rows per block of a large cloud's voxel keys
 
 
