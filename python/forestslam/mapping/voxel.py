@@ -1,4 +1,5 @@
-"""Voxel-grid downsampling by packed integer keys (numpy only, no per-point Python)."""
+"""Voxel-grid downsampling by packed integer keys (numpy and the C++ core's voxel grouping, no
+per-point Python)."""
 
 from __future__ import annotations
 
@@ -46,10 +47,11 @@ def voxel_downsample(
     if len(points) == 0:
         empty = np.zeros((0, 3))
         return (empty, np.zeros(0, dtype=np.int64)) if return_counts else empty
-    _, inverse, counts = np.unique(
-        voxel_keys(points, voxel_m), return_inverse=True, return_counts=True
-    )
-    inverse = inverse.ravel()
+    from forestslam import _core
+
+    # the grouping np.unique of voxel_keys gave (voxels in key order), without its sort
+    inverse = _core.group_by_voxel(points, np.zeros(3), voxel_m).inverse
+    counts = np.bincount(inverse)
     sums = np.zeros((len(counts), 3))
     for axis in range(3):
         sums[:, axis] = np.bincount(inverse, weights=points[:, axis], minlength=len(counts))
