@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import os
+import platform
 import subprocess
 import sys
 
@@ -212,3 +213,14 @@ def test_a_foreign_run_yaml_is_not_taken_for_an_earlier_run(tmp_path):
     (tmp_path / "run.yaml").write_text("command: run\nsummary: {status: complete}\noutputs: a\n")
     with Job("run", tmp_path):
         assert (tmp_path / "a").read_text() == "keep"
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
+def test_a_job_keeps_freed_memory_for_reuse_on_glibc(tmp_path):
+    """The tuning is applied (mallopt accepted both settings), and a job still runs after it."""
+    from forestslam.job import keep_freed_memory
+
+    assert keep_freed_memory()
+    with Job("run", tmp_path / "out") as job:
+        job.summary = {"scans": 1}
+    assert meta(tmp_path / "out")["summary"]["status"] == "complete"

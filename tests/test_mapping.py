@@ -24,6 +24,21 @@ def test_voxel_downsample_centroids_and_counts():
     assert voxel_downsample(np.zeros((0, 3)), 0.1).shape == (0, 3)
 
 
+def test_voxel_keys_of_a_large_cloud_in_blocks_equal_the_whole_formula():
+    from forestslam.mapping.voxel import CHUNK_ROWS, finite_rows, voxel_keys
+
+    rng = np.random.default_rng(3)
+    pts = rng.normal(scale=40.0, size=(2 * CHUNK_ROWS + 17, 3)) + [5e5, 6e6, 300.0]
+    origin = np.floor(pts.min(axis=0))
+    idx = np.floor((pts - origin) / 0.1).astype(np.int64) + (1 << 20)
+    whole = (idx[:, 0] << 42) | (idx[:, 1] << 21) | idx[:, 2]
+    np.testing.assert_array_equal(voxel_keys(pts, 0.1, origin), whole)
+    with pytest.raises(ValueError, match="span more than"):
+        voxel_keys(pts, 0.1)  # 6e6 m from the key origin: beyond 21 bits at 0.1 m
+    pts[[5, CHUNK_ROWS + 3], [1, 2]] = [np.nan, np.inf]
+    np.testing.assert_array_equal(finite_rows(pts), np.isfinite(pts).all(axis=1))
+
+
 def test_dtm_of_a_plane_and_files(tmp_path):
     rng = np.random.default_rng(0)
     xy = rng.uniform(0, 10, size=(20000, 2))

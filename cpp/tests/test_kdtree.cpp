@@ -83,3 +83,32 @@ TEST(KdTree3, EmptyTreeAnswersNothing) {
     std::vector<std::pair<double, int>> out;
     EXPECT_EQ(tree.knn(Eigen::Vector3d::Zero(), 3, 1.0, out), 0);
 }
+
+// On a lattice many points lie on split planes and at equal distances (ties), where the pruning
+// by cell distance is at its edge: a radius search still returns every point brute force finds
+// within the radius, boundary included, and the nearest is at the true nearest distance.
+TEST(KdTree3, LatticeTiesAndBoundaryPointsAreNotPruned) {
+    fs::Points3 p(7 * 7 * 5, 3);
+    int n = 0;
+    for (int x = 0; x < 7; ++x)
+        for (int y = 0; y < 7; ++y)
+            for (int z = 0; z < 5; ++z) p.row(n++) << 0.5 * x, 0.5 * y, 0.5 * z;
+    std::vector<int> rows(static_cast<size_t>(n));
+    for (int i = 0; i < n; ++i) rows[static_cast<size_t>(i)] = i;
+    fs::KdTree3 tree;
+    tree.build(p, rows);
+    std::vector<std::pair<double, int>> out;
+    for (const Eigen::Vector3d q :
+         {Eigen::Vector3d(1.5, 1.5, 1.0), Eigen::Vector3d(1.25, 1.0, 0.75),
+          Eigen::Vector3d(0.0, 3.0, 2.0)}) {
+        const auto truth = bruteForce(p, rows, q);
+        for (const double r2 : {0.25, 0.5, 0.75, 1.0}) {
+            const auto inside = std::count_if(truth.begin(), truth.end(),
+                                              [&](const auto &d) { return d.first <= r2; });
+            EXPECT_EQ(tree.knn(q, n, r2, out), static_cast<int>(inside));
+        }
+        double d2 = -1;
+        ASSERT_GE(tree.nearest(q, 1e9, d2), 0);
+        EXPECT_DOUBLE_EQ(d2, truth[0].first);
+    }
+}

@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 namespace forestslam::features {
@@ -117,6 +120,82 @@ Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m,
 Points3 voxelDownsample(const Eigen::Ref<const Points3> &points, double voxel_m) {
     std::vector<int> unused;
     return voxelDownsample(points, voxel_m, unused);
+}
+
+namespace {
+
+// Stable LSD radix sort of (key, point) pairs by `bits` low bits of the keys, 11 bits per pass.
+void radixSort(std::vector<std::uint64_t> &keys, std::vector<std::int64_t> &rows, int bits) {
+    constexpr int kDigit = 11;
+    constexpr std::size_t kBuckets = std::size_t{1} << kDigit;
+    std::vector<std::uint64_t> keys_tmp(keys.size());
+    std::vector<std::int64_t> rows_tmp(rows.size());
+    std::vector<std::size_t> offset(kBuckets);
+    for (int shift = 0; shift < bits; shift += kDigit) {
+        std::fill(offset.begin(), offset.end(), 0);
+        for (const std::uint64_t k : keys) ++offset[(k >> shift) & (kBuckets - 1)];
+        std::size_t sum = 0;
+        for (std::size_t &o : offset) sum += std::exchange(o, sum);
+        for (std::size_t j = 0; j < keys.size(); ++j) {
+            const std::size_t at = offset[(keys[j] >> shift) & (kBuckets - 1)]++;
+            keys_tmp[at] = keys[j];
+            rows_tmp[at] = rows[j];
+        }
+        keys.swap(keys_tmp);
+        rows.swap(rows_tmp);
+    }
+}
+
+}  // namespace
+
+VoxelGroups groupByVoxel(const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &origin,
+                         double voxel_m) {
+    if (!(voxel_m > 0.0)) throw std::invalid_argument("groupByVoxel: voxel_m must be > 0");
+    const Eigen::Index n = points.rows();
+    auto cell = [&](Eigen::Index i, int a) {  // as numpy: floor((p - origin) / voxel_m)
+        return std::floor((points(i, a) - origin(a)) / voxel_m);
+    };
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (Eigen::Index i = 0; i < n; ++i)
+        for (int a = 0; a < 3; ++a) {
+            const double c = cell(i, a);
+            if (!std::isfinite(c)) throw std::invalid_argument("groupByVoxel: a non-finite point");
+            lo[a] = std::min(lo[a], c), hi[a] = std::max(hi[a], c);
+        }
+    VoxelGroups out;
+    out.order.resize(n), out.inverse.resize(n);
+    if (n == 0) return out;
+    std::uint64_t span[3];
+    int bits = 0;
+    for (int a = 0; a < 3; ++a) {
+        if (hi[a] - lo[a] >= 0x1p21)
+            throw std::invalid_argument("groupByVoxel: the points span more than " +
+                                        std::to_string(0x1p21 * voxel_m) + " m along an axis");
+        span[a] = static_cast<std::uint64_t>(hi[a] - lo[a]) + 1;
+        int b = 0;
+        while ((std::uint64_t{1} << b) < span[a]) ++b;
+        bits += b;
+    }
+    std::vector<std::uint64_t> keys(static_cast<std::size_t>(n));
+    std::vector<std::int64_t> rows(static_cast<std::size_t>(n));
+    for (Eigen::Index i = 0; i < n; ++i) {  // x, then y, then z: the packed keys' order
+        const auto x = static_cast<std::uint64_t>(cell(i, 0) - lo[0]);
+        const auto y = static_cast<std::uint64_t>(cell(i, 1) - lo[1]);
+        const auto z = static_cast<std::uint64_t>(cell(i, 2) - lo[2]);
+        keys[static_cast<std::size_t>(i)] = (x * span[1] + y) * span[2] + z;
+        rows[static_cast<std::size_t>(i)] = i;
+    }
+    radixSort(keys, rows, bits);
+    std::vector<std::int64_t> start;
+    for (Eigen::Index j = 0; j < n; ++j) {
+        const auto sj = static_cast<std::size_t>(j);
+        if (j == 0 || keys[sj] != keys[sj - 1]) start.push_back(j);
+        out.order(j) = rows[sj];
+        out.inverse(rows[sj]) = static_cast<std::int64_t>(start.size()) - 1;
+    }
+    out.start = Eigen::Map<const Eigen::Matrix<std::int64_t, Eigen::Dynamic, 1>>(
+        start.data(), static_cast<Eigen::Index>(start.size()));
+    return out;
 }
 
 }  // namespace forestslam::features

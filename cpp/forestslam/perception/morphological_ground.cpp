@@ -61,26 +61,31 @@ MinGrid minGrid(const std::vector<Eigen::Vector3f> &cells, float cell) {
 
 // out(r, c) = op over the clamped (2h+1)^2 window of in, as a row pass into tmp then a column
 // pass; out keeps its value where the window holds no cell (`empty`), as PCL's Z and Zf do.
+// Both passes run shift by shift over whole rows (contiguous, vectorised). min and max of
+// non-NaN values do not depend on the order they are taken in (up to the sign of a zero, which
+// no comparison sees), so this is the same grid as a window per cell.
 template <class Op>
 void windowPass(const std::vector<float> &in, std::vector<float> &out, std::vector<float> &tmp,
                 int rows, int cols, int h, float empty, Op op) {
     for (int r = 0; r < rows; ++r) {
         const float *src = in.data() + static_cast<size_t>(r) * cols;
         float *dst = tmp.data() + static_cast<size_t>(r) * cols;
-        for (int c = 0; c < cols; ++c) {
-            float v = empty;
-            for (int k = std::max(0, c - h); k <= std::min(cols - 1, c + h); ++k) v = op(v, src[k]);
-            dst[c] = v;
-        }
+        std::fill(dst, dst + cols, empty);
+        for (int d = -h; d <= h; ++d)
+            for (int c = std::max(0, -d); c < std::min(cols, cols - d); ++c)
+                dst[c] = op(dst[c], src[c + d]);
     }
+    std::vector<float> column(static_cast<size_t>(cols));
+    float *v = column.data();
     for (int r = 0; r < rows; ++r) {
-        float *dst = out.data() + static_cast<size_t>(r) * cols;
-        for (int c = 0; c < cols; ++c) {
-            float v = empty;
-            for (int j = std::max(0, r - h); j <= std::min(rows - 1, r + h); ++j)
-                v = op(v, tmp[static_cast<size_t>(j) * cols + c]);
-            if (v != empty) dst[c] = v;
+        std::fill(v, v + cols, empty);
+        for (int j = std::max(0, r - h); j <= std::min(rows - 1, r + h); ++j) {
+            const float *src = tmp.data() + static_cast<size_t>(j) * cols;
+            for (int c = 0; c < cols; ++c) v[c] = op(v[c], src[c]);
         }
+        float *dst = out.data() + static_cast<size_t>(r) * cols;
+        for (int c = 0; c < cols; ++c)
+            if (v[c] != empty) dst[c] = v[c];
     }
 }
 

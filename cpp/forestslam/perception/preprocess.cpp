@@ -2,6 +2,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -156,33 +157,39 @@ bool groundHeightGrid(const Eigen::Ref<const Points3> &points, const std::vector
 
 // Small islands of "ground" cells are the lowest returns of stems in the blind circle around the
 // sensor, where the filter has no true ground to compare with: components (cells within two
-// cells of each other) smaller than `min_cells` become unknown.
+// cells of each other) smaller than `min_cells` become unknown. The components are found on a
+// row-major mask with a border of two closed cells (no bounds checks); which cells a component
+// holds does not depend on the order they are found in, so neither does the result.
 void dropSmallIslands(Eigen::MatrixXd &z, int min_cells) {
-    const Eigen::Index rows = z.rows(), cols = z.cols();
-    Eigen::MatrixXi comp = Eigen::MatrixXi::Constant(rows, cols, -1);
-    std::vector<std::pair<Eigen::Index, Eigen::Index>> stack, members;
-    for (Eigen::Index r0 = 0; r0 < rows; ++r0)
-        for (Eigen::Index c0 = 0; c0 < cols; ++c0) {
-            if (!std::isfinite(z(r0, c0)) || comp(r0, c0) >= 0) continue;
-            comp(r0, c0) = 1;
-            stack.assign(1, {r0, c0});
-            members.assign(1, {r0, c0});
-            while (!stack.empty()) {
-                const auto [r, c] = stack.back();
-                stack.pop_back();
-                for (Eigen::Index dr = -2; dr <= 2; ++dr)
-                    for (Eigen::Index dc = -2; dc <= 2; ++dc) {
-                        const Eigen::Index rr = r + dr, cc = c + dc;
-                        if (rr < 0 || cc < 0 || rr >= rows || cc >= cols) continue;
-                        if (!std::isfinite(z(rr, cc)) || comp(rr, cc) >= 0) continue;
-                        comp(rr, cc) = 1;
-                        stack.push_back({rr, cc});
-                        members.push_back({rr, cc});
-                    }
-            }
-            if (static_cast<int>(members.size()) < min_cells)
-                for (const auto &[r, c] : members) z(r, c) = kNaN;
+    const Eigen::Index rows = z.rows(), cols = z.cols(), stride = cols + 4;
+    std::vector<char> open(static_cast<size_t>((rows + 4) * stride), 0);  // finite, not yet taken
+    for (Eigen::Index c = 0; c < cols; ++c)
+        for (Eigen::Index r = 0; r < rows; ++r)
+            open[static_cast<size_t>((r + 2) * stride + c + 2)] = std::isfinite(z(r, c)) ? 1 : 0;
+    std::array<Eigen::Index, 24> around{};
+    size_t n_around = 0;
+    for (Eigen::Index dr = -2; dr <= 2; ++dr)
+        for (Eigen::Index dc = -2; dc <= 2; ++dc)
+            if (dr != 0 || dc != 0) around[n_around++] = dr * stride + dc;
+    std::vector<Eigen::Index> stack, members;
+    for (Eigen::Index start = 0; start < static_cast<Eigen::Index>(open.size()); ++start) {
+        if (!open[static_cast<size_t>(start)]) continue;
+        open[static_cast<size_t>(start)] = 0;
+        stack.assign(1, start);
+        members.assign(1, start);
+        while (!stack.empty()) {
+            const Eigen::Index at = stack.back();
+            stack.pop_back();
+            for (const Eigen::Index d : around)
+                if (char &o = open[static_cast<size_t>(at + d)]; o) {
+                    o = 0;
+                    stack.push_back(at + d);
+                    members.push_back(at + d);
+                }
         }
+        if (static_cast<int>(members.size()) < min_cells)
+            for (const Eigen::Index at : members) z(at / stride - 2, at % stride - 2) = kNaN;
+    }
 }
 
 // Holes (cells under stems, shadows) filled from known neighbours, one cell deeper per pass: an

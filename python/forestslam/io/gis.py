@@ -77,7 +77,8 @@ def write_map_laz(
         header.add_crs(crs)
     times, adjusted = las_gps_time(np.asarray(gps_time, dtype=np.float64))
     header.global_encoding.gps_time_type = adjusted
-    las = laspy.LasData(header)
+    # The record sized once: filled field by field, an empty one is regrown per field.
+    las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
     las.classification = np.asarray(classification, dtype=np.uint8)
     las.tree_id = np.asarray(tree_id, dtype=np.uint32)

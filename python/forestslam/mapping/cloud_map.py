@@ -53,7 +53,7 @@ class CloudMap:
         keys = voxel_keys(pts, v)
         ground = np.zeros(len(pts), dtype=bool)
         if ground_points is not None and len(ground_points):
-            ground = np.isin(keys, voxel_keys(np.asarray(ground_points, np.float64), v))
+            ground = _isin(keys, voxel_keys(np.asarray(ground_points, np.float64), v))
         tree_id = _stem_ids(keys, v, stem_points or [], stem_tree_ids)
         self._keyframes.append(_Keyframe(keyframe, stamp, pts.astype(np.float32), ground, tree_id))
 
@@ -68,19 +68,16 @@ class CloudMap:
         )
         ground = np.concatenate([kf.ground for kf in parts])
         tree = np.concatenate([kf.tree_id for kf in parts])
-        stamp = np.concatenate([np.full(len(kf.points), kf.stamp) for kf in parts])
+        stamp = np.repeat([kf.stamp for kf in parts], [len(kf.points) for kf in parts])
         origin = column_bounds(pts)[0]  # voxel keys near the origin, whatever the offsets
-        # Points grouped by voxel in one sort (as np.unique does), so the per-voxel maxima are
+        # Points grouped by voxel (the C++ core's radix sort of compact voxel keys: the order of
+        # a sort of the packed keys, in half numpy's argsort CPU), so the per-voxel maxima are
         # reductions over contiguous runs (np.maximum.at per point cost 0.3 s on 600 scans). The
-        # order inside a run does not matter (maxima; the sums below go in point order): numpy's
-        # default (SIMD) sort, several times faster than a stable one.
-        keys = voxel_keys(pts - origin, self.voxel_m)
-        order = np.argsort(keys)
-        keys = keys[order]
-        new_voxel = np.r_[True, keys[1:] != keys[:-1]]
-        start = np.flatnonzero(new_voxel)
-        inverse = np.empty(len(keys), dtype=np.int64)
-        inverse[order] = np.cumsum(new_voxel) - 1
+        # order inside a run does not matter (maxima; the sums below go in point order).
+        from forestslam import _core
+
+        groups = _core.group_by_voxel(pts, origin, self.voxel_m)
+        order, start, inverse = groups.order, groups.start, groups.inverse
         m = len(start)
         counts = np.bincount(inverse, minlength=m)
         centroid = (
@@ -111,14 +108,25 @@ def _stem_ids(keys: np.ndarray, voxel_m: float, stems: list, ids) -> np.ndarray:
     use = [k for k in range(len(stems)) if ids[k] > 0 and len(stems[k])]
     if not use:
         return out
-    stem_keys = np.concatenate([voxel_keys(np.asarray(stems[k], np.float64), voxel_m) for k in use])
-    stem_ids = np.concatenate([np.full(len(stems[k]), ids[k], dtype=np.uint32) for k in use])
+    points = np.concatenate([np.asarray(stems[k], np.float64).reshape(-1, 3) for k in use])
+    stem_keys = voxel_keys(points, voxel_m)
+    stem_ids = np.repeat(ids[use].astype(np.uint32), [len(stems[k]) for k in use])
     order = np.argsort(stem_keys, kind="stable")
     stem_keys, stem_ids = stem_keys[order], stem_ids[order]
     last = np.searchsorted(stem_keys, keys, side="right") - 1  # the latest stem in a voxel
     hit = (last >= 0) & (stem_keys[np.maximum(last, 0)] == keys)
     out[hit] = stem_ids[last[hit]]
     return out
+
+
+def _isin(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
+    """np.isin(keys, of) for int64 keys by a binary search in the sorted `of` (np.isin sorts
+    both arrays together: 4x the CPU on a keyframe's voxels)."""
+    if len(of) == 0:
+        return np.zeros(len(keys), dtype=bool)
+    of = np.sort(of)
+    at = np.minimum(np.searchsorted(of, keys), len(of) - 1)
+    return of[at] == keys
 
 
 def _empty() -> dict[str, np.ndarray]:

@@ -40,6 +40,7 @@ spread), the spread of the per-scan DBH and a model floor for sections that are 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,9 +53,9 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class _Tree:
-    band: list = field(default_factory=list)  # (M,3) arrays, map frame
-    origins: list = field(default_factory=list)  # (M,2) sensor xy each band point was seen from
-    scan_of: list = field(default_factory=list)  # (M,) alignment block of each band point
+    band: list = field(default_factory=list)  # (M,3) arrays, map frame, one per scan
+    origins: list = field(default_factory=list)  # (2,) sensor xy each scan's band was seen from
+    scan_of: list = field(default_factory=list)  # alignment block of each scan's band
     first_scan: int = -1
     last_scan: int = -1
     n_band_scans: int = 0
@@ -68,21 +69,30 @@ class _Tree:
     z_n: int = 0
 
 
-def fit_band_circle(xy: np.ndarray, cfg: MappingConfig, origins: np.ndarray | None = None):
-    """Robust circle fit (forestslam._core.CircleFit) of band points (M,2), under range noise
-    along the beams when their view origins (M,2) are given; None when no acceptable fit."""
-    from forestslam import _core
+def circle_fit_config(cfg: MappingConfig):
+    """The C++ CircleFitConfig of the band fits."""
     from forestslam.core_bridge import core_struct
 
-    if len(xy) < cfg.dbh_min_points:
-        return None
     options = {
         "inlier_threshold_m": cfg.circle_inlier_m,
         "min_radius_m": cfg.dbh_min_m / 2,
         "max_radius_m": cfg.dbh_max_m / 2,
         "lateral_sigma_m": cfg.dbh_lateral_sigma_m,  # used by the range-model fit only
     }
-    config = core_struct("CircleFitConfig", options, "mapping")
+    return core_struct("CircleFitConfig", options, "mapping")
+
+
+def fit_band_circle(
+    xy: np.ndarray, cfg: MappingConfig, origins: np.ndarray | None = None, config=None
+):
+    """Robust circle fit (forestslam._core.CircleFit) of band points (M,2), under range noise
+    along the beams when their view origins (M,2) are given; None when no acceptable fit.
+    `config`: circle_fit_config(cfg) when the caller keeps one (else built here)."""
+    from forestslam import _core
+
+    if len(xy) < cfg.dbh_min_points:
+        return None
+    config = circle_fit_config(cfg) if config is None else config
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     if origins is None:
         fit = _core.fit_circle(xy, config)
@@ -168,6 +178,7 @@ class TreeMap:
         self._rng = np.random.default_rng(seed)
         self.n_fits = 0
         self.n_fits_accepted = 0
+        self._circle_config = None  # the C++ CircleFitConfig, built at the first fit
 
     def add(
         self,
@@ -184,35 +195,43 @@ class TreeMap:
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
         DBH (NaN = none). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
         lo, hi = self.cfg.dbh_band_m
-        for k in np.nonzero(np.asarray(ids) >= 0)[0]:
+        origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
+        ids = np.asarray(ids)
+        # plain Python values for the per-stem bookkeeping (numpy scalars cost ~1 us per use)
+        centre = np.asarray(centre_z, dtype=np.float64).tolist()
+        dbh = np.asarray(scan_dbh, dtype=np.float64).tolist()
+        for k in np.flatnonzero(ids >= 0).tolist():
             tree = self.trees.setdefault(int(ids[k]), _Tree())
             if tree.first_scan < 0:
                 tree.first_scan = scan_index
             tree.n_scans += 1
-            if np.isfinite(centre_z[k]):
-                tree.z_sum += float(centre_z[k])
+            if math.isfinite(centre[k]):
+                tree.z_sum += centre[k]
                 tree.z_n += 1
-            if np.isfinite(scan_dbh[k]):
+            if math.isfinite(dbh[k]):
                 tree.n_scans_dbh += 1
-                self._keep_scan_dbh(tree, float(scan_dbh[k]))
+                self._keep_scan_dbh(tree, dbh[k])
             pts = points[k] if k < len(points) else None
             if pts is None or len(pts) == 0 or not np.isfinite(base_z[k]):
                 continue
             h = pts[:, 2] - base_z[k]
             band = pts[(h >= lo) & (h <= hi)]
-            if len(band) == 0:
-                continue
-            tree.n_support_scans += 1
-            if tree.n_band_scans == 0:
-                tree.first_scan = scan_index
-            tree.band.append(transform_points(T_odom, band))
-            tree.origins.append(np.broadcast_to(T_odom[:2, 3], (len(band), 2)))
-            block = tree.n_band_scans // self.cfg.dbh_align_block_scans
-            tree.scan_of.append(np.full(len(band), block))
-            tree.n_band_scans += 1
-            tree.last_scan = scan_index
-            if tree.n_band_scans >= self.cfg.dbh_window_scans:
-                self._fit(tree)
+            if len(band):
+                self._add_band(tree, scan_index, transform_points(T_odom, band), origin)
+
+    def _add_band(self, tree: _Tree, scan_index: int, band: np.ndarray, origin: np.ndarray) -> None:
+        """One scan's band points (M,3) of a tree in the map frame, seen from origin (2,); the
+        window is fitted once it holds dbh_window_scans scans."""
+        tree.n_support_scans += 1
+        if tree.n_band_scans == 0:
+            tree.first_scan = scan_index
+        tree.band.append(band)
+        tree.origins.append(origin)
+        tree.scan_of.append(tree.n_band_scans // self.cfg.dbh_align_block_scans)
+        tree.n_band_scans += 1
+        tree.last_scan = scan_index
+        if tree.n_band_scans >= self.cfg.dbh_window_scans:
+            self._fit(tree)
 
     def flush(self, scan_index: int | None = None) -> None:
         """Fit the windows of trees out of view for a window (or of all trees when None)."""
@@ -227,20 +246,24 @@ class TreeMap:
                     tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
 
     def _fit(self, tree: _Tree) -> None:
-        pts, origins = np.concatenate(tree.band), np.concatenate(tree.origins)
-        scan_of = np.concatenate(tree.scan_of)
+        pts = np.concatenate(tree.band)
+        per_scan = [len(b) for b in tree.band]
+        origins = np.repeat(np.asarray(tree.origins, dtype=np.float64), per_scan, axis=0)
+        scan_of = np.repeat(np.asarray(tree.scan_of, dtype=np.int64), per_scan)
         tree.band, tree.origins, tree.scan_of, tree.n_band_scans = [], [], [], 0
         if len(pts) > self.cfg.dbh_max_points_per_window:
             pick = self._rng.choice(len(pts), self.cfg.dbh_max_points_per_window, False)
             pts, origins, scan_of = pts[pick], origins[pick], scan_of[pick]
         self.n_fits += 1
         xy = pts[:, :2]
-        fit = fit_band_circle(xy, self.cfg, origins)
+        if self._circle_config is None:
+            self._circle_config = circle_fit_config(self.cfg)
+        fit = fit_band_circle(xy, self.cfg, origins, self._circle_config)
         for _ in range(self.cfg.dbh_align_iterations):
             if fit is None:
                 break
             xy, origins = align_scans_across(xy, origins, scan_of, fit, self.cfg)
-            fit = fit_band_circle(xy, self.cfg, origins) or fit
+            fit = fit_band_circle(xy, self.cfg, origins, self._circle_config) or fit
         if fit is None:
             return
         self.n_fits_accepted += 1

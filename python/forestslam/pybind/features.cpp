@@ -96,6 +96,21 @@ void defineFeatureFunctions(py::module_ &m) {
         py::arg("points"), py::arg("voxel_m"),
         "Centroid per occupied voxel of points (N,3) -> (M,3); non-finite rows dropped.");
 
+    py::class_<ft::VoxelGroups>(m, "VoxelGroups",
+                                "Points grouped by voxel, the voxels in the order of their cells")
+        .def_readonly("order", &ft::VoxelGroups::order, "(N,) points, voxel by voxel")
+        .def_readonly("start", &ft::VoxelGroups::start, "(M,) first entry of each voxel in order")
+        .def_readonly("inverse", &ft::VoxelGroups::inverse, "(N,) voxel of each point");
+    m.def(
+        "group_by_voxel",
+        [](const Eigen::Ref<const Points3> &points, const Eigen::Vector3d &origin, double voxel_m) {
+            py::gil_scoped_release release;
+            return ft::groupByVoxel(points, origin, voxel_m);
+        },
+        py::arg("points"), py::arg("origin"), py::arg("voxel_m"),
+        "Points (N,3) grouped by the voxel of floor((p - origin) / voxel_m), voxels in the order "
+        "of their cells (x, then y, then z); ValueError beyond 2^21 voxels along an axis.");
+
     m.def(
         "detect_dog_keypoints",
         [](const Eigen::Ref<const Points3> &points, const ft::DogKeypointsConfig &config) {
