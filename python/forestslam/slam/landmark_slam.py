@@ -232,8 +232,9 @@ class LandmarkSlam:
 
     def tie_trees(self, pairs: np.ndarray, sigma_m: float) -> None:
         """Place recognition found trees mapped twice: each pair (older, newer) of landmark
-        indices is tied by a robust zero-difference factor, which closes the loop (counted in
-        `loop_closures`); the newer copy becomes an alias of the older in the tree table."""
+        indices is tied by a zero-difference factor (see `_add_ties`), which closes the loop
+        (counted in `loop_closures`); the newer copy becomes an alias of the older in the tree
+        table."""
         self._tie(pairs, sigma_m)
         self.loop_closures += 1
 
