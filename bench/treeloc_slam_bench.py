@@ -150,7 +150,8 @@ def print_closures(res, pr, ref_poses: np.ndarray) -> int:
     st = res.stats
     print(
         f"  closures {st['loop_closures']}, relocalizations {st.get('relocalizations', 0)} "
-        f"(tracking losses {st.get('losses', '?')}), false {n_false}; tied pairs {n_pairs}, "
+        f"(tracking losses {st.get('losses', '?')}, revisits {st.get('revisits', '?')}), "
+        f"false {n_false}; tied pairs {n_pairs}, "
         f"> {MAX_FALSE_M} m apart {n_far}"
     )
     print(f"  place recognition {pr.stats}")

@@ -6,8 +6,14 @@ time. The symptom is checked every `every_keyframes` keyframes: near the machine
 mapped earlier that the SLAM has not re-found lately, and trees it has just mapped. Then the
 newly mapped trees are localized by the Delaunay-star localizer among all trees mapped earlier
 (and prior-map trees); when its acceptance test holds and the place disagrees with the graph by
-more than `min_correction_m`, each matched pair (older copy, newer copy) is tied by a robust
-factor. A rejected query adds nothing, and a correction beyond `max_correction_m` is refused.
+more than `min_correction_m`, each matched pair (older copy, newer copy) is tied by a factor
+(`LandmarkSlam.tie_trees`). A rejected query adds nothing, and a correction beyond
+`max_correction_m` is refused.
+
+Revisit: when the SLAM's consensus moved a keyframe's scan onto older copies of the trees it was
+tracking, the SLAM declines the move and keeps its chain (`LandmarkSlam.pending_revisit`); at
+that keyframe the trees it tracks are localized among the trees not re-found lately, and an
+accepted place ties them as above: the loop closes without a tracking loss.
 
 Relocalization: when the SLAM lost track (the trees it tracked vanished at once: an odometry
 jump), it starts a segment nearly free of the odometry chain (`LandmarkSlam.lost_since`). At
@@ -60,6 +66,8 @@ class PlaceRecognition:
             "closures": 0,
             "relocalization_queries": 0,
             "relocalizations": 0,
+            "revisit_queries": 0,
+            "revisit_closures": 0,
             "index_builds": 0,
         }
         self._index = None  # (TreeMap, landmark ids, their positions when built)
@@ -72,6 +80,8 @@ class PlaceRecognition:
             return False
         if slam.lost_since is not None:
             return self._relocalize(slam, keyframe, T_map_sensor)
+        if slam.pending_revisit == keyframe:
+            return self._verify_revisit(slam, keyframe, T_map_sensor)
         return self._close_loop(slam, keyframe, T_map_sensor)
 
     def _close_loop(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
@@ -102,6 +112,39 @@ class PlaceRecognition:
                 loc.reason,
             )
             return False
+        return self._tie_verified(slam, loc, m_ids, q_ids, keyframe, "loop closed")
+
+    def _verify_revisit(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
+        """The SLAM declined a consensus move onto older copies of its tracked trees at this
+        keyframe (`LandmarkSlam.pending_revisit`): the trees it tracks here are localized among
+        the trees not re-found lately (where the older copies are); an accepted place ties
+        them, which closes the loop through the unbroken chain. Rejected: nothing is added and
+        the SLAM keeps tracking the recent copies."""
+        c = self.cfg
+        xy, _ = slam.landmarks()
+        _, last = slam.landmark_keyframes()
+        alive = slam.aliases() < 0
+        near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
+        lately = keyframe - c.window_keyframes
+        tracked = alive & near & (last >= lately)  # the recent copies, and trees seen first now
+        mapped = alive & (last < lately)  # not re-found lately: the older copies among them
+        if tracked.sum() < c.min_query_trees or (mapped & near).sum() < c.min_query_trees:
+            return False
+        self.stats["revisit_queries"] += 1
+        q_ids = np.flatnonzero(tracked)
+        loc, m_ids = self._query(xy, mapped, xy[q_ids])
+        if loc.rejected:
+            self.stats["rejected"] += 1
+            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
+            return False
+        tied = self._tie_verified(slam, loc, m_ids, q_ids, keyframe, "revisit verified")
+        self.stats["revisit_closures"] += int(tied)
+        return tied
+
+    def _tie_verified(self, slam, loc, m_ids, q_ids, keyframe: int, what: str) -> bool:
+        """Tie the trees of an accepted place unless it agrees with the graph already or its
+        correction is beyond `max_correction_m`; True when tied (a loop closure)."""
+        c = self.cfg
         shift = math.hypot(loc.x, loc.y)  # the query is in the graph's frame: identity = agree
         if shift < c.min_correction_m and abs(loc.yaw) < math.radians(2.0):
             self.stats["consistent"] += 1
@@ -115,7 +158,8 @@ class PlaceRecognition:
         slam.tie_trees(self._pairs(loc, m_ids, q_ids), c.tie_sigma_m)
         self.stats["closures"] += 1
         log.info(
-            "place recognition: loop closed at keyframe %d (%d trees, %.2f m, %.2f deg)",
+            "place recognition: %s at keyframe %d (%d trees, %.2f m, %.2f deg)",
+            what,
             keyframe,
             len(loc.matches),
             shift,

@@ -222,6 +222,7 @@ def run_table_slam(
     stats["merged_duplicates"] = slam.merged_duplicates
     stats["losses"] = slam.losses
     stats["relocalizations"] = slam.relocalizations
+    stats["revisits"] = slam.revisits  # consensus moves onto older copies, declined
     stats["landmarks"] = slam.n_landmarks
     return TableSlamResult(
         np.array(given),
