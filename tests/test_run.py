@@ -164,6 +164,9 @@ def test_run_slam_outputs_and_accuracy(tmp_path, monkeypatch):
     # No place recognition here: no loop closure; re-association corrections are counted apart.
     assert meta["summary"]["loop_closures"] == 0
     assert isinstance(meta["summary"]["reassociation_corrections"], int)
+    # a clean walk: no loss, no move onto older copies declined
+    assert meta["place_recognition"]["tracking_losses"] == 0
+    assert meta["place_recognition"]["revisits"] == 0
     stamps, poses = read_tum(out / "trajectory.tum")
     np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-6)  # first scan's sensor frame
     m = evaluate_run(out, truth, plot=False)

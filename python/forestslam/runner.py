@@ -629,8 +629,10 @@ def _record_multisession(job, pipe: Pipeline) -> None:
         job.meta["prior_map"] = pipe.prior.to_dict()
     if pipe.loops is not None:
         job.meta["place_recognition"] = dict(pipe.loops.stats)
-    if pipe.slam is not None:  # tracking losses (odometry jumps) and their relocalizations
-        job.meta.setdefault("place_recognition", {})["tracking_losses"] = pipe.slam.losses
+    if pipe.slam is not None:  # tracking losses (odometry jumps) and declined moves (revisits)
+        recognition = job.meta.setdefault("place_recognition", {})
+        recognition["tracking_losses"] = pipe.slam.losses
+        recognition["revisits"] = pipe.slam.revisits
 
 
 def _finish(pipe: Pipeline, summary: RunSummary) -> None:
