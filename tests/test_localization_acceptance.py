@@ -261,38 +261,64 @@ def test_dbh_needs_both_sides_and_one_value_per_trunk(forest):
         localize(tree_map, local, local_dbh_m=np.full(len(local) + 1, 0.3))
 
 
-def test_dbh_likelihood_ratio_finds_four_trunk_views_and_costs_little_when_useless():
-    """Views of exactly 4 trunks (a triangle and one more) in a sparse stand with DBHs on both
-    sides (2 cm noise): each inlier's DBH weighed by its likelihood ratio against its map
-    neighbourhood's DBHs finds all 76 views (positions alone 62; the earlier rank test 73),
-    none wrong; random query DBHs (useless as a whole) lose at most a tenth of the views (6;
-    the rank test lost 20); views of another stand with their DBHs stay rejected."""
+def _sparse_views_with_dbh(n_trunks: int):
+    """A sparse stand with DBHs (and another stand) and the seeded views of exactly `n_trunks`
+    map trunks within 12 m: per view its true pose, the view, its measured DBHs (2 cm noise),
+    the same pose's view of the other stand with its DBHs, and the view's seed."""
     xy = stand(400, 200.0, seed=3, spacing=4.0)
     other = stand(400, 200.0, seed=33, spacing=4.0)
     rng = np.random.default_rng(4)
     dbh, other_dbh = rng.uniform(0.08, 0.6, len(xy)), rng.uniform(0.08, 0.6, len(other))
     tree_map = build_map(xy, dbh)
     poses = np.random.default_rng(5)
-    views, found = 0, {"xy": 0, "dbh": 0, "random": 0}
+    views = []
     for q in range(400):
         truth = (poses.uniform(30, 170), poses.uniform(30, 170), poses.uniform(-3, 3))
-        if (np.hypot(*(xy - truth[:2]).T) <= 12.0).sum() != 4:
+        if (np.hypot(*(xy - truth[:2]).T) <= 12.0).sum() != n_trunks:
             continue
-        views += 1
         local = observe(xy, truth, 12.0, 0.05, 0.0, 1, seed=q)
         _, measured = _view_with_dbh(xy, dbh, truth, q, 0.02, local=local)
-        useless = np.random.default_rng(q).uniform(0.08, 0.6, len(local))
-        for key, local_dbh in (("xy", None), ("dbh", measured), ("random", useless)):
-            loc = localize(tree_map, local, local_dbh_m=local_dbh)
+        absent = observe(other, truth, 12.0, 0.05, 0.0, 1, seed=q)
+        _, absent_dbh = _view_with_dbh(other, other_dbh, truth, q, 0.02, local=absent)
+        views.append((truth, local, measured, (absent, absent_dbh), q))
+    return tree_map, views
+
+
+def _found(tree_map, views, query_dbhs) -> dict[str, int]:
+    """Views accepted per kind of query DBH (name -> function of the view and its measured
+    DBHs); every accepted view is within 0.3 m, every view of the other stand is rejected."""
+    found = dict.fromkeys(query_dbhs, 0)
+    for truth, local, measured, (absent, absent_dbh), q in views:
+        for key, dbh_of in query_dbhs.items():
+            loc = localize(tree_map, local, local_dbh_m=dbh_of(local, measured, q))
             if loc.accepted:
                 assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.3
                 found[key] += 1
-        absent = observe(other, truth, 12.0, 0.05, 0.0, 1, seed=q)
-        _, absent_dbh = _view_with_dbh(other, other_dbh, truth, q, 0.02, local=absent)
         assert localize(tree_map, absent, local_dbh_m=absent_dbh).rejected
-    assert views == 76
-    assert found["dbh"] == views > found["xy"]
-    assert found["random"] >= found["xy"] - views / 10
+    return found
+
+
+def test_dbh_likelihood_ratio_finds_four_trunk_views_and_costs_little_when_useless():
+    """Views of exactly 4 trunks (a triangle and one more) in a sparse stand with DBHs on both
+    sides (2 cm noise): each inlier's DBH weighed by its likelihood ratio against its map
+    neighbourhood's DBHs finds all 76 views (positions alone 62; the earlier rank test 73),
+    none wrong; random query DBHs (useless as a whole) lose at most a tenth of the views (6;
+    the rank test lost 20); views of another stand with their DBHs stay rejected."""
+    tree_map, views = _sparse_views_with_dbh(4)
+    found = _found(
+        tree_map,
+        views,
+        {
+            "xy": lambda local, measured, q: None,
+            "dbh": lambda local, measured, q: measured,
+            "random": lambda local, measured, q: np.random.default_rng(q).uniform(
+                0.08, 0.6, len(local)
+            ),
+        },
+    )
+    assert len(views) == 76
+    assert found["dbh"] == len(views) > found["xy"]
+    assert found["random"] >= found["xy"] - len(views) / 10
 
 
 def test_three_trunk_views_with_dbh_can_be_significant():
@@ -300,27 +326,11 @@ def test_three_trunk_views_with_dbh_can_be_significant():
     only a triangle's shape and are always rejected; with their DBHs (2 cm noise) the shape and
     three DBH agreements are significant for most views (43 of 71; min_inliers_with_dbh 3),
     none wrong; views of another stand with their DBHs stay rejected (fixed seeds)."""
-    xy = stand(400, 200.0, seed=3, spacing=4.0)
-    other = stand(400, 200.0, seed=33, spacing=4.0)
-    rng = np.random.default_rng(4)
-    dbh, other_dbh = rng.uniform(0.08, 0.6, len(xy)), rng.uniform(0.08, 0.6, len(other))
-    tree_map = build_map(xy, dbh)
-    poses = np.random.default_rng(5)
-    views, found = 0, {"xy": 0, "dbh": 0}
-    for q in range(400):
-        truth = (poses.uniform(30, 170), poses.uniform(30, 170), poses.uniform(-3, 3))
-        if (np.hypot(*(xy - truth[:2]).T) <= 12.0).sum() != 3:
-            continue
-        views += 1
-        local = observe(xy, truth, 12.0, 0.05, 0.0, 1, seed=q)
-        _, measured = _view_with_dbh(xy, dbh, truth, q, 0.02, local=local)
-        for key, local_dbh in (("xy", None), ("dbh", measured)):
-            loc = localize(tree_map, local, local_dbh_m=local_dbh)
-            if loc.accepted:
-                assert math.hypot(loc.x - truth[0], loc.y - truth[1]) < 0.3
-                found[key] += 1
-        absent = observe(other, truth, 12.0, 0.05, 0.0, 1, seed=q)
-        _, absent_dbh = _view_with_dbh(other, other_dbh, truth, q, 0.02, local=absent)
-        assert localize(tree_map, absent, local_dbh_m=absent_dbh).rejected
+    tree_map, views = _sparse_views_with_dbh(3)
+    found = _found(
+        tree_map,
+        views,
+        {"xy": lambda local, measured, q: None, "dbh": lambda local, measured, q: measured},
+    )
     assert found["xy"] == 0
-    assert found["dbh"] >= 0.55 * views
+    assert found["dbh"] >= 0.55 * len(views)

@@ -88,22 +88,15 @@ class PlaceRecognition:
         c = self.cfg
         if keyframe % c.every_keyframes or keyframe < c.window_keyframes:
             return False
-        xy, _ = slam.landmarks()
-        first, last = slam.landmark_keyframes()
-        alive = slam.aliases() < 0
-        near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
-        lately = keyframe - c.window_keyframes
+        xy, first, last, alive, near, lately = self._landmarks_around(slam, keyframe, T_map_sensor)
         recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
         old = alive & (first < lately)  # mapped earlier (prior-map trees never seen: -1)
         lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
-        if recent.sum() < c.min_query_trees or lost.sum() < c.min_query_trees:
+        asked = self._ask(xy, recent, old, lost, "queries")
+        if asked is None:
             return False
-        self.stats["queries"] += 1
-        q_ids = np.flatnonzero(recent)
-        loc, m_ids = self._query(xy, old, xy[q_ids])
+        loc, m_ids, q_ids = asked
         if loc.rejected:
-            self.stats["rejected"] += 1
-            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
             log.debug(
                 "place recognition: query at keyframe %d (%d trees among %d) rejected: %s",
                 keyframe,
@@ -120,26 +113,41 @@ class PlaceRecognition:
         the trees not re-found lately (where the older copies are); an accepted place ties
         them, which closes the loop through the unbroken chain. Rejected: nothing is added and
         the SLAM keeps tracking the recent copies."""
-        c = self.cfg
-        xy, _ = slam.landmarks()
-        _, last = slam.landmark_keyframes()
-        alive = slam.aliases() < 0
-        near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= c.radius_m
-        lately = keyframe - c.window_keyframes
+        xy, _, last, alive, near, lately = self._landmarks_around(slam, keyframe, T_map_sensor)
         tracked = alive & near & (last >= lately)  # the recent copies, and trees seen first now
         mapped = alive & (last < lately)  # not re-found lately: the older copies among them
-        if tracked.sum() < c.min_query_trees or (mapped & near).sum() < c.min_query_trees:
+        asked = self._ask(xy, tracked, mapped, mapped & near, "revisit_queries")
+        if asked is None or asked[0].rejected:
             return False
-        self.stats["revisit_queries"] += 1
-        q_ids = np.flatnonzero(tracked)
-        loc, m_ids = self._query(xy, mapped, xy[q_ids])
-        if loc.rejected:
-            self.stats["rejected"] += 1
-            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
-            return False
+        loc, m_ids, q_ids = asked
         tied = self._tie_verified(slam, loc, m_ids, q_ids, keyframe, "revisit verified")
         self.stats["revisit_closures"] += int(tied)
         return tied
+
+    def _landmarks_around(self, slam, keyframe: int, T_map_sensor: np.ndarray):
+        """The SLAM's landmark positions, the keyframes each was first and last seen at, which
+        are alive (not merged into another) and within radius_m of the sensor, and the first
+        keyframe of the recent window."""
+        xy, _ = slam.landmarks()
+        first, last = slam.landmark_keyframes()
+        alive = slam.aliases() < 0
+        near = np.linalg.norm(xy - T_map_sensor[:2, 3], axis=1) <= self.cfg.radius_m
+        return xy, first, last, alive, near, keyframe - self.cfg.window_keyframes
+
+    def _ask(self, xy, query, among, among_here, counter: str):
+        """Localize the `query` trees among the `among` ones, when each side has min_query_trees
+        (`among_here`: those of `among` around the sensor), counting the query under `counter`
+        and a rejection with its reason (run.yaml). None when too few to ask, else the
+        localization, the map and query landmark ids."""
+        if min(query.sum(), among_here.sum()) < self.cfg.min_query_trees:
+            return None
+        self.stats[counter] += 1
+        q_ids = np.flatnonzero(query)
+        loc, m_ids = self._query(xy, among, xy[q_ids])
+        if loc.rejected:
+            self.stats["rejected"] += 1
+            self.reasons[loc.reason] = self.reasons.get(loc.reason, 0) + 1
+        return loc, m_ids, q_ids
 
     def _tie_verified(self, slam, loc, m_ids, q_ids, keyframe: int, what: str) -> bool:
         """Tie the trees of an accepted place unless it agrees with the graph already or its
