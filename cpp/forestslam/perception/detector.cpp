@@ -246,10 +246,11 @@ Clusters classifyStems(const Points3 &filtered, const Clusters &coarse,
 
 // Local ground height under a stem at `xy` (nearest ground points, wider, the ground grid, the
 // plane of the ground seen farther out for the blind circle around the sensor); NaN if none.
-double stemGroundHeight(const Detection &det, const GroundSegmentation &gs,
-                        const Eigen::Vector2d &xy, const SegmentationConfig &so) {
-    double base = localGroundHeight(det.ground, xy, so.ground_search_m);
-    if (!std::isfinite(base)) base = localGroundHeight(det.ground, xy, 2.0 * so.ground_search_m);
+double stemGroundHeight(const Detection &det, const GroundByX &ground_by_x,
+                        const GroundSegmentation &gs, const Eigen::Vector2d &xy,
+                        const SegmentationConfig &so) {
+    double base = localGroundHeight(ground_by_x, xy, so.ground_search_m);
+    if (!std::isfinite(base)) base = localGroundHeight(ground_by_x, xy, 2.0 * so.ground_search_m);
     if (!std::isfinite(base)) base = gs.grid.heightAt(xy.x(), xy.y());
     if (!std::isfinite(base)) base = planeGroundHeight(det.ground, xy, 12.0);
     return base;
@@ -453,7 +454,8 @@ Points3 withReturnsOnSurface(const Points3 &view, const Points3 &pts, const Azim
     // Fewer than 2 returns the filter removed lie on the stem (no scan line's worth): its view is
     // whole, and most stems cost no more.
     if (onStemSurface(span, b, sensor).size() < 2) return view;
-    const Points3 o = rowsAtHeights(returnsAround(sectorOf(span), pts, columns, false, 0.15), lo, hi);
+    const Points3 o =
+        rowsAtHeights(returnsAround(sectorOf(span), pts, columns, false, 0.15), lo, hi);
     Points3 cand(b.rows() + o.rows(), 3);
     cand << b, o;
     const std::vector<int> on = onStemSurface(span, cand, sensor);
@@ -486,6 +488,7 @@ void measureStems(const Points3 &pts, const Points3 &bright, const Points3 &filt
     const AzimuthColumns ground_columns =
         use_silhouette ? azimuthColumns(det.ground, nullptr, step) : AzimuthColumns{};
     const Eigen::Vector3d sensor_origin = Eigen::Vector3d::Zero();
+    const GroundByX ground_by_x = groundByX(det.ground);
     for (size_t k = 0; k < stems.size(); ++k) {
         const std::vector<int> &rows = stems[k];
         Stem st;
@@ -493,7 +496,7 @@ void measureStems(const Points3 &pts, const Points3 &bright, const Points3 &filt
         st.normals = selectRows(nf.normals, rows);
         st.shape = clusterShape(filtered, rows, det.up);
         if (!isStem(st.shape, static_cast<int>(rows.size()), so)) continue;  // merged oddly
-        double base = stemGroundHeight(det, gs, st.shape.mean.head<2>(), so);
+        double base = stemGroundHeight(det, ground_by_x, gs, st.shape.mean.head<2>(), so);
         st.ground_found = std::isfinite(base);
         if (std::isfinite(opt.breast_height_z)) {
             // A stem without points near the given height has no DBH there (the cylinder

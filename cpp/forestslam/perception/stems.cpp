@@ -144,6 +144,31 @@ double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
     return median(std::move(z));
 }
 
+GroundByX groundByX(const Eigen::Ref<const Points3> &ground) {
+    GroundByX g;
+    g.p.reserve(static_cast<size_t>(ground.rows()));
+    for (Eigen::Index i = 0; i < ground.rows(); ++i)
+        if (std::isfinite(ground(i, 0)) && std::isfinite(ground(i, 1)))
+            g.p.push_back(ground.row(i).transpose());
+    std::sort(g.p.begin(), g.p.end(),
+              [](const Eigen::Vector3d &a, const Eigen::Vector3d &b) { return a.x() < b.x(); });
+    return g;
+}
+
+// The strip is padded by 1e-6 m so that rounding in dx * dx + dy * dy cannot leave out a return
+// the test accepts; the median does not depend on the order the returns are found in.
+double localGroundHeight(const GroundByX &g, const Eigen::Vector2d &xy, double radius) {
+    std::vector<double> z;
+    const double r2 = radius * radius, lo = xy.x() - radius - 1e-6, hi = xy.x() + radius + 1e-6;
+    auto it = std::lower_bound(g.p.begin(), g.p.end(), lo,
+                               [](const Eigen::Vector3d &a, double x) { return a.x() < x; });
+    for (; it != g.p.end() && it->x() <= hi; ++it) {
+        const double dx = it->x() - xy.x(), dy = it->y() - xy.y();
+        if (dx * dx + dy * dy <= r2) z.push_back(it->z());
+    }
+    return median(std::move(z));
+}
+
 double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
                          double radius) {
     std::vector<int> rows;
