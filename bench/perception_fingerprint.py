@@ -8,7 +8,9 @@ run it with two builds and compare the digests.
 Every third scan of each bag (VLP-16 geometry) goes through perception_segment_ground,
 perception_range_image_clusters (with its rings) and perception_normal_filter (on the non-ground
 rows); one wide cloud of several scans side by side goes through the ground filter as a map cloud
-would. Prints the SHA-256 of all outputs and the map cloud's ground count.
+would. Prints the SHA-256 of all outputs and the map cloud's ground count; then the SHA-256 of
+every field of the Stems that `detect` gives on every second of the first 400 scans (VLP-16),
+every diameter fit (circle, cylinder, silhouette) included, and the number of stems.
 """
 
 from __future__ import annotations
@@ -20,7 +22,11 @@ import numpy as np
 
 from forestslam import _core
 from forestslam.io.readers import read_scans
-from forestslam.perception.pipeline import sensor_geometry
+from forestslam.perception.pipeline import detect, sensor_geometry
+
+STEM_FIELDS = ("xy", "dbh", "z", "mean", "cov", "axis", "base_z", "ground", "breast_source")
+FIT_FIELDS = ("valid", "radius", "centre", "axis", "inliers", "rms_m", "arc_coverage", "score")
+FIT_FIELDS += ("radius_std", "multi_object_lines")
 
 
 def main(bags: list[str]) -> str:
@@ -56,7 +62,35 @@ def main(bags: list[str]) -> str:
     return digest.hexdigest()
 
 
+def stems_digest(bags: list[str], step: int = 2, scans: int = 400) -> str:
+    digest, count = hashlib.sha256(), 0
+
+    def add(x) -> None:
+        digest.update(np.ascontiguousarray(np.asarray(x, dtype=np.float64)).tobytes())
+
+    for bag in bags:
+        for k, scan in enumerate(read_scans(bag)):
+            if k >= scans:
+                break
+            if k % step:
+                continue
+            stems = detect(scan, "vlp16")
+            count += len(stems)
+            for name in STEM_FIELDS:
+                add(getattr(stems, name))
+            for p in stems.points:
+                add(p)
+            for d in stems.diameters:
+                for fit in (d.circle, d.cylinder, d.silhouette):
+                    for name in FIT_FIELDS:
+                        add(getattr(fit, name))
+                for x in (d.dbh, d.dbh_std, d.centre, d.band_points):
+                    add(x)
+    return f"{digest.hexdigest()} ({count} stems)"
+
+
 if __name__ == "__main__":
     if len(sys.argv) < 2:
         sys.exit(__doc__)
     print(main(sys.argv[1:]))
+    print("stems:", stems_digest(sys.argv[1:]))

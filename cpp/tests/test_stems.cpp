@@ -122,6 +122,30 @@ TEST(Stems, LocalGroundIsTheMedianAround) {
     EXPECT_TRUE(std::isnan(localGroundHeight(g, Eigen::Vector2d(50, 50), 2.0)));
 }
 
+TEST(Stems, LocalGroundOnTheSortedGroundIsIdentical) {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> xy(-30.0, 30.0), z(-0.5, 0.5);
+    Points3 g(3000, 3);
+    for (Eigen::Index i = 0; i < g.rows(); ++i) g.row(i) << xy(rng), xy(rng), z(rng);
+    g(5, 0) = kNaN;  // never within any radius
+    const GroundByX sorted = groundByX(g);
+    int found = 0;
+    for (int q = 0; q < 300; ++q) {
+        // Queries on ground points themselves put returns exactly on the radius now and then.
+        const Eigen::Vector2d at = q % 3 == 0 ? Eigen::Vector2d(g(q + 1, 0) + 2.0, g(q + 1, 1))
+                                              : Eigen::Vector2d(xy(rng), xy(rng));
+        for (double r : {0.5, 2.0, 4.0}) {
+            const double a = localGroundHeight(g, at, r), b = localGroundHeight(sorted, at, r);
+            found += std::isfinite(a);
+            if (std::isnan(a))
+                EXPECT_TRUE(std::isnan(b));
+            else
+                EXPECT_EQ(a, b);  // bit for bit
+        }
+    }
+    EXPECT_GT(found, 500);
+}
+
 TEST(Stems, NormalsOfAnotherLengthThrow) {
     Points3 n;
     const Points3 p = cylinderArc(8, 3, 0.2, 0.2, 3.0, 0.1, 0.005, &n);

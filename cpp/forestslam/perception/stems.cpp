@@ -144,6 +144,31 @@ double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::V
     return median(std::move(z));
 }
 
+GroundByX groundByX(const Eigen::Ref<const Points3> &ground) {
+    GroundByX g;
+    g.p.reserve(static_cast<size_t>(ground.rows()));
+    for (Eigen::Index i = 0; i < ground.rows(); ++i)
+        if (std::isfinite(ground(i, 0)) && std::isfinite(ground(i, 1)))
+            g.p.push_back(ground.row(i).transpose());
+    std::sort(g.p.begin(), g.p.end(),
+              [](const Eigen::Vector3d &a, const Eigen::Vector3d &b) { return a.x() < b.x(); });
+    return g;
+}
+
+// The strip is padded by 1e-6 m so that rounding in dx * dx + dy * dy cannot leave out a return
+// the test accepts; the median does not depend on the order the returns are found in.
+double localGroundHeight(const GroundByX &g, const Eigen::Vector2d &xy, double radius) {
+    std::vector<double> z;
+    const double r2 = radius * radius, lo = xy.x() - radius - 1e-6, hi = xy.x() + radius + 1e-6;
+    auto it = std::lower_bound(g.p.begin(), g.p.end(), lo,
+                               [](const Eigen::Vector3d &a, double x) { return a.x() < x; });
+    for (; it != g.p.end() && it->x() <= hi; ++it) {
+        const double dx = it->x() - xy.x(), dy = it->y() - xy.y();
+        if (dx * dx + dy * dy <= r2) z.push_back(it->z());
+    }
+    return median(std::move(z));
+}
+
 double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
                          double radius) {
     std::vector<int> rows;
@@ -268,9 +293,8 @@ struct NearbyReturn {
     double a = 0, rho = 0;
 };
 
-std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
+std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p, const Polar &pl,
                                         const std::vector<double> &va, double bearing) {
-    const Polar pl = polar(p);
     const std::vector<int> line = scanLines(p, pl, va);
     std::vector<NearbyReturn> out(line.size());
     for (size_t i = 0; i < line.size(); ++i) {
@@ -281,6 +305,11 @@ std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
         o.rho = pl.rho[i];
     }
     return out;
+}
+
+std::vector<NearbyReturn> nearbyReturns(const Eigen::Ref<const Points3> &p,
+                                        const std::vector<double> &va, double bearing) {
+    return nearbyReturns(p, polar(p), va, bearing);
 }
 
 // Rows of `p` on the scan lines first..last (by elevation, half a line spacing of margin):
@@ -385,9 +414,10 @@ namespace {
 
 // Silhouette radius from the scan lines of the stem section `p` (see StemDiameter); lines cut
 // by something in front of the stem (`occluders`) and lines across more than one object (two
-// or more returns behind the front of the stem their width implies) are left out.
-DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
-                          const Eigen::Ref<const Points3> &occluders,
+// or more returns behind the front of the stem their width implies) are left out. `pl` and
+// `po`: polar(p) and polar(occluders), shared with seenWidth.
+DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, const Polar &pl,
+                          const Eigen::Ref<const Points3> &occluders, const Polar &po,
                           const Eigen::Ref<const Points3> &beyond, double mid_z,
                           const SilhouetteSensor &sensor, const DiameterConfig &opt) {
     DiameterFit f;
@@ -396,16 +426,15 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p,
     Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     std::map<int, std::vector<int>> lines;
-    const Polar pl = polar(p);
     const std::vector<int> line_of = scanLines(p, pl, va);
     for (Eigen::Index i = 0; i < p.rows(); ++i)
         lines[line_of[static_cast<size_t>(i)]].push_back(static_cast<int>(i));
-    const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, va, bearing);
+    const std::vector<NearbyReturn> nearby = nearbyReturns(occluders, po, va, bearing);
     const std::vector<NearbyReturn> seen_through =
         beyond.rows() > 0
             ? nearbyReturns(onLines(beyond, va, lines.begin()->first, lines.rbegin()->first), va,
                             bearing)
-            : nearbyReturns(p, va, bearing);
+            : nearbyReturns(p, pl, va, bearing);
     std::vector<double> radii, mids, dists;
     for (const auto &[line, rows] : lines) {
         if (rows.size() < 2) continue;
@@ -566,11 +595,11 @@ DiameterFit sacCylinder(const Eigen::Ref<const Points3> &points,
 // (single VLP-16 scans: 60-110 cm circles on 14-34 cm stems of a clump). Infinite (no bound)
 // with < 2 points or when one of `occluders` lies within 1.5 steps beyond either edge and
 // 0.15 m nearer (the stem is partly hidden: it shows less than its diameter).
-double seenWidth(const Eigen::Ref<const Points3> &p, const Eigen::Ref<const Points3> &occluders,
+// `pl` and `po`: polar(p) and polar(occluders).
+double seenWidth(const Eigen::Ref<const Points3> &p, const Polar &pl, const Polar &po,
                  double step) {
     constexpr double kNoBound = std::numeric_limits<double>::infinity();
     if (p.rows() < 2) return kNoBound;
-    const Polar pl = polar(p);
     const Eigen::Vector2d m = p.leftCols<2>().colwise().mean().transpose();
     const double bearing = std::atan2(m.y(), m.x());
     auto offset = [bearing](double az) {
@@ -579,7 +608,6 @@ double seenWidth(const Eigen::Ref<const Points3> &p, const Eigen::Ref<const Poin
     double lo = 1e9, hi = -1e9;
     for (double az : pl.az) lo = std::min(lo, offset(az)), hi = std::max(hi, offset(az));
     const double range = median(pl.rho);
-    const Polar po = polar(occluders);
     for (size_t i = 0; i < po.az.size(); ++i) {
         const double a = offset(po.az[i]);
         const bool at_edge = (a < lo && a >= lo - 1.5 * step) || (a > hi && a <= hi + 1.5 * step);
@@ -641,10 +669,12 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         const Points3 sec = silhouette->points.rows() > 0 ? rowsBetween(silhouette->points, lo, hi)
                                                           : rowsBetween(points, lo, hi);
         const Points3 occluders = rowsBetween(silhouette->occluders, lo, hi);
-        out.silhouette =
-            silhouetteFit(sec, occluders, silhouette->beyond, mid, silhouette->sensor, opt);
-        seen_width =
-            seenWidth(sec.rows() >= 2 ? sec : band, occluders, silhouette->sensor.azimuth_step_rad);
+        const Polar psec = polar(sec), pocc = polar(occluders);  // computed once for both
+        out.silhouette = silhouetteFit(sec, psec, occluders, pocc, silhouette->beyond, mid,
+                                       silhouette->sensor, opt);
+        const double step = silhouette->sensor.azimuth_step_rad;
+        seen_width = sec.rows() >= 2 ? seenWidth(sec, psec, pocc, step)
+                                     : seenWidth(band, polar(band), pocc, step);
     }
     // The cylinder is the costliest estimate and only the fallback: skipped when an accepted
     // silhouette or band circle decides anyway (unless every estimate is asked for).

@@ -139,6 +139,16 @@ struct Stem {
 double localGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
                          double radius);
 
+// Ground points (finite x, y) sorted by x, for many localGroundHeight look-ups on one ground:
+// each tests only the strip of x within its radius.
+struct GroundByX {
+    std::vector<Eigen::Vector3d> p;
+};
+GroundByX groundByX(const Eigen::Ref<const Points3> &ground);
+
+// localGroundHeight(ground, xy, radius) on the sorted ground: the identical result.
+double localGroundHeight(const GroundByX &ground, const Eigen::Vector2d &xy, double radius);
+
 // Ground height at `xy` from a least-squares plane z = a x + b y + c through the ground points
 // within `radius` (one trimming pass against bushes); NaN with fewer than 10 points.
 double planeGroundHeight(const Eigen::Ref<const Points3> &ground, const Eigen::Vector2d &xy,
