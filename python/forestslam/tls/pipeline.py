@@ -721,6 +721,10 @@ class _Walk:
         self.motion = self.core.ConstantVelocityModel(motion_model_config(config.registration))
         self.anchored = False  # the walk has a pose in the TLS frame
         self.lost = 0  # consecutive frames that did not join the map
+        self.verified = False  # the current frame's stems sit on the reference's (_merge)
+        # The motion model's velocity and time at the last verified frame: the velocity the
+        # frames after a relocalization may try (_verified_velocity_pose).
+        self.verified_velocity: tuple[np.ndarray, float] | None = None
         self.T_prev = None  # previous frame's pose (trusted or not) and points: NDT chain
         self.prev_points = None
         self.seen = 0
@@ -903,6 +907,8 @@ class _Walk:
         reg.failure = trust_failure(reg.lm, T_pred, self.config)
         if not reg.good:
             self._second_initial_pose(frame, reg, V)
+        if not reg.good:
+            self._verified_velocity_pose(frame, reg)
         if self.lost >= reg_cfg.relocalize_after_frames:
             self._relocalize(frame, reg)
         return reg
@@ -928,6 +934,22 @@ class _Walk:
         lm2 = self._lm_at(frame, T2)
         if _trusted(lm2, T2, self.config):
             reg.lm, reg.failure, reg.fallback = lm2, "", True
+
+    def _verified_velocity_pose(self, frame: _Frame, reg: _Registration) -> None:
+        """Third initial pose while the model has no velocity (reset by a relocalization):
+        the last trusted pose moved on by the velocity of the last verified frame (stems on
+        the reference's). A hypothesis the LM must confirm, not a prediction: the machine
+        did not stop, but it may have turned since (longleaf-loop-12m-b frames 79-83 after a
+        relocalization neither predicted nor deskewed did not converge)."""
+        if self.verified_velocity is None or not self.motion.initialised:
+            return
+        if np.any(np.asarray(self.motion.twist)):
+            return
+        twist = self.verified_velocity[0]
+        T3 = np.asarray(self.motion.pose) @ se3_exp(twist * (frame.t_ref - self.motion.time))
+        lm3 = self._lm_at(frame, T3)
+        if _trusted(lm3, T3, self.config):
+            reg.lm, reg.failure, reg.fallback, reg.T_init = lm3, "", True, T3
 
     def _relocalize(self, frame: _Frame, reg: _Registration) -> None:
         """Tracking lost (the last frames did not join the map: untrusted, or trusted but their
@@ -1008,6 +1030,7 @@ class _Walk:
             frame.ms["lm"] += (time.process_time() - t0) * 1e3
             ref_dt, ref_dr = check["correction_m"], check["correction_deg"]
         self.lost = 0 if on_reference else self.lost + 1
+        self.verified = on_reference
         if accepted:
             self.gmap.add(transform_points(T, _merged_points(frame.points, cfg)))
             self.centres.append(transform_points(T, frame.feats.centres))
@@ -1028,14 +1051,17 @@ class _Walk:
     def _update_motion(self, frame: _Frame, reg: _Registration, T: np.ndarray) -> None:
         """The motion model learns the velocity from consecutive trusted poses only (a bad
         pose would distort the next frames through the deskew); a relocalized frame jumped,
-        so the motion from the previous pose is no velocity; the placed frame's velocity
-        comes from the frame chained back before it (LM refined)."""
+        so the motion from the previous pose is no velocity (the frames after it may try
+        the last verified one, _verified_velocity_pose); the placed frame's velocity comes
+        from the frame chained back before it (LM refined)."""
         if reg.relocalized:
             self.motion.reset()
         elif reg.seed is not None:
             self.motion.update(reg.seed[1], reg.seed[0], True)
             self.motion.begin_scan(frame.t_ref)
         self.motion.update(frame.t_ref, T, reg.good)
+        if self.verified and not reg.relocalized:
+            self.verified_velocity = (np.array(self.motion.twist), frame.t_ref)
 
     def _emit(self, frame, reg, sweep, T, reason, ref_dt, ref_dr) -> None:
         """The frame's record; the pose at the stamp (sweep start) from its own in-sweep
