@@ -722,9 +722,9 @@ class _Walk:
         self.anchored = False  # the walk has a pose in the TLS frame
         self.lost = 0  # consecutive frames that did not join the map
         self.verified = False  # the current frame's stems sit on the reference's (_merge)
-        # The motion model's velocity and time at the last verified frame: the velocity the
+        # The motion model's velocity (twist) at the last verified frame: the velocity the
         # frames after a relocalization may try (_verified_velocity_pose).
-        self.verified_velocity: tuple[np.ndarray, float] | None = None
+        self.verified_velocity: np.ndarray | None = None
         self.T_prev = None  # previous frame's pose (trusted or not) and points: NDT chain
         self.prev_points = None
         self.seen = 0
@@ -945,8 +945,8 @@ class _Walk:
             return
         if np.any(np.asarray(self.motion.twist)):
             return
-        twist = self.verified_velocity[0]
-        T3 = np.asarray(self.motion.pose) @ se3_exp(twist * (frame.t_ref - self.motion.time))
+        dt = frame.t_ref - self.motion.time
+        T3 = np.asarray(self.motion.pose) @ se3_exp(self.verified_velocity * dt)
         lm3 = self._lm_at(frame, T3)
         if _trusted(lm3, T3, self.config):
             reg.lm, reg.failure, reg.fallback, reg.T_init = lm3, "", True, T3
@@ -1061,7 +1061,7 @@ class _Walk:
             self.motion.begin_scan(frame.t_ref)
         self.motion.update(frame.t_ref, T, reg.good)
         if self.verified and not reg.relocalized:
-            self.verified_velocity = (np.array(self.motion.twist), frame.t_ref)
+            self.verified_velocity = np.array(self.motion.twist)
 
     def _emit(self, frame, reg, sweep, T, reason, ref_dt, ref_dr) -> None:
         """The frame's record; the pose at the stamp (sweep start) from its own in-sweep
