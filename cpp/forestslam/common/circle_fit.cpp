@@ -252,21 +252,22 @@ double inlierWeight(const Eigen::Ref<const Points2> &xy, const std::vector<int> 
     return sum;
 }
 
-// circleCovariance of a weighted fit: each row counts its weight times (sigma^2 from the
-// weighted residuals over (summed weight - 3)), so integer weights give the covariance of the
-// rows repeated that often.
-Eigen::Matrix3d weightedCircleCovariance(const Eigen::Ref<const Points2> &xy,
-                                         const std::vector<int> &rows, const double *weights,
-                                         const Eigen::Vector2d &centre, double radius) {
+// circleCovariance with a weight per row (nullptr: 1 each, bit for bit the unweighted
+// expressions): each row counts its weight times, sigma^2 from the weighted residuals over
+// (summed weight - fitted_parameters), so integer weights give the covariance of the rows
+// repeated that often.
+Eigen::Matrix3d covarianceOfRows(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
+                                 const double *weights, const Eigen::Vector2d &centre,
+                                 double radius, int fitted_parameters, double min_variance_m2) {
     const Eigen::Matrix3d unknown =
         Eigen::Matrix3d::Constant(std::numeric_limits<double>::infinity());
     const double total = weightSum(rows, weights);
-    if (rows.size() < 3 || total <= 3.0) return unknown;
+    if (rows.size() < 3 || total <= fitted_parameters) return unknown;
     Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
     double ss = 0;
     for (int i : rows) {
         const Eigen::Vector2d v = xy.row(i).transpose() - centre;
-        const double d = v.norm(), w = weights[i];
+        const double d = v.norm(), w = weightOf(weights, i);
         ss += w * (d - radius) * (d - radius);
         if (!(d > 0)) continue;
         const Eigen::Vector3d J(-v.x() / d, -v.y() / d, -1.0);
@@ -277,7 +278,7 @@ Eigen::Matrix3d weightedCircleCovariance(const Eigen::Ref<const Points2> &xy,
     bool invertible = false;
     JtJ.computeInverseAndDetWithCheck(inverse, det, invertible, 1e-12);
     if (!invertible) return unknown;
-    return std::max(ss / (total - 3.0), 1e-12) * inverse;
+    return std::max(ss / (total - fitted_parameters), min_variance_m2) * inverse;
 }
 
 void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, CircleFit &fit,
@@ -292,9 +293,7 @@ void finish(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &opt, Cir
     fit.rms_m = total > 0 ? std::sqrt(ss / total) : 0.0;
     fit.arc_coverage = arcCoverage(xy, fit.inlier_indices, fit.centre, opt.arc_sectors);
     fit.covariance =
-        weights == nullptr
-            ? circleCovariance(xy, fit.inlier_indices, fit.centre, fit.radius)
-            : weightedCircleCovariance(xy, fit.inlier_indices, weights, fit.centre, fit.radius);
+        covarianceOfRows(xy, fit.inlier_indices, weights, fit.centre, fit.radius, 3, 1e-12);
 }
 
 }  // namespace
@@ -320,26 +319,7 @@ double CircleFit::radiusStd() const { return std::sqrt(std::max(covariance(2, 2)
 Eigen::Matrix3d circleCovariance(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
                                  const Eigen::Vector2d &centre, double radius,
                                  int fitted_parameters, double min_variance_m2) {
-    const Eigen::Matrix3d unknown =
-        Eigen::Matrix3d::Constant(std::numeric_limits<double>::infinity());
-    const int n = static_cast<int>(rows.size());
-    if (n < 3 || n <= fitted_parameters) return unknown;
-    Eigen::Matrix3d JtJ = Eigen::Matrix3d::Zero();
-    double ss = 0;
-    for (int i : rows) {
-        const Eigen::Vector2d v = xy.row(i).transpose() - centre;
-        const double d = v.norm();
-        ss += (d - radius) * (d - radius);
-        if (!(d > 0)) continue;
-        const Eigen::Vector3d J(-v.x() / d, -v.y() / d, -1.0);
-        JtJ += J * J.transpose();
-    }
-    Eigen::Matrix3d inverse;
-    double det = 0;
-    bool invertible = false;
-    JtJ.computeInverseAndDetWithCheck(inverse, det, invertible, 1e-12);
-    if (!invertible) return unknown;
-    return std::max(ss / (n - fitted_parameters), min_variance_m2) * inverse;
+    return covarianceOfRows(xy, rows, nullptr, centre, radius, fitted_parameters, min_variance_m2);
 }
 
 CircleFit fitCircleAlgebraic(const Eigen::Ref<const Points2> &xy) {
