@@ -162,7 +162,8 @@ class Pipeline:
             stem_fits=False,
         )
         self.slam = LandmarkSlam(config.slam) if mode != "odometry" else None
-        self.trees = TreeMap(config.mapping) if mode != "odometry" else None
+        step = float(np.radians(sensor.azimuth_resolution_deg))  # the DBH resolution gate
+        self.trees = TreeMap(config.mapping, azimuth_step_rad=step) if mode != "odometry" else None
         self.ground = (
             GroundMap(config.mapping.ground_keyframe_voxel_m, config.mapping.ground_voxel_m)
             if mode == "map3d"
@@ -287,6 +288,7 @@ class Pipeline:
                 np.asarray(stems.base_z, dtype=np.float64),
                 centre_map[:, 2],
                 dbh,
+                np.hypot(stems.xy[:, 0], stems.xy[:, 1]),
             )
         if i % self.cfg.mapping.dbh_window_scans == 0:
             self.trees.flush(i)

@@ -344,6 +344,22 @@ bool edgeOccluded(const SilhouetteLine &sl, int line, const std::vector<NearbyRe
     return false;
 }
 
+// True when one of `returns` on scan line `line` lies within 1.5 azimuth steps beyond either
+// edge of `sl` at the depth of its front (within 0.15 m): the surface goes on beyond the edge,
+// so the line spans a strip of something wider (a stem the normal filter or the clustering
+// cut), not a whole stem. The beams beside a real edge pass the stem.
+bool edgeContinues(const SilhouetteLine &sl, int line, const std::vector<NearbyReturn> &returns,
+                   double step) {
+    // The next beams beyond the outermost returns: from half a step (the line's own returns,
+    // up to rounding, lie within) to 1.5 steps out.
+    const double lo = sl.mid - 0.5 * sl.width, hi = sl.mid + 0.5 * sl.width;
+    for (const NearbyReturn &o : returns) {
+        if (o.line != line || !(std::abs(o.rho - sl.front) <= kBehindFrontM)) continue;
+        if ((o.a < lo && o.a >= lo - step) || (o.a > hi && o.a <= hi + step)) return true;
+    }
+    return false;
+}
+
 // Returns of one scan line that lie behind the front surface of the stem its width implies.
 // A single stem of radius r (r = front sin(w/2) / (1 - sin(w/2)), its centre r beyond the front
 // on the middle bearing) stops every beam that meets it: no return of its own lies behind that
@@ -436,6 +452,7 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, const Polar &pl,
                             bearing)
             : nearbyReturns(p, pl, va, bearing);
     std::vector<double> radii, mids, dists;
+    int strips = 0;  // kept lines whose surface goes on beyond an edge (see edgeContinues)
     for (const auto &[line, rows] : lines) {
         if (rows.size() < 2) continue;
         const SilhouetteLine sl = lineExtent(pl, rows, bearing, sensor.azimuth_step_rad);
@@ -446,6 +463,9 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, const Polar &pl,
             ++f.multi_object_lines;
             continue;
         }
+        const double step = sensor.azimuth_step_rad;
+        strips +=
+            edgeContinues(sl, line, nearby, step) || edgeContinues(sl, line, seen_through, step);
         radii.push_back(sl.front * s / (1.0 - s));
         mids.push_back(sl.mid);
         dists.push_back(sl.front);
@@ -470,7 +490,14 @@ DiameterFit silhouetteFit(const Eigen::Ref<const Points3> &p, const Polar &pl,
     const double sampling = d * sensor.azimuth_step_rad / std::sqrt(6.0);
     const double median_se = 2.0 * 1.2533 * spread / std::sqrt(static_cast<double>(radii.size()));
     f.radius_std = 0.5 * std::hypot(sampling, median_se);
-    f.valid = spread <= std::max(0.02, 0.25 * r) && r >= opt.min_radius_m && r <= opt.max_radius_m;
+    // Below the circle fits' radius floor (their fits of a few noisy points of a thin stem are
+    // noise) a silhouette still measures: each line kept spans >= 2 returns, so the stem is
+    // resolved at this range (whether well enough is the tree map's decision over all its
+    // scans: its range gate). Saplings of 2-5 cm are trees. Such a narrow silhouette counts
+    // only when most of its lines end at real edges: a strip of a wider stem is no DBH.
+    const bool thin_ok = 2 * strips < static_cast<int>(radii.size());
+    f.valid = spread <= std::max(0.02, 0.25 * r) && r <= opt.max_radius_m &&
+              (r >= opt.min_radius_m || thin_ok);
     return f;
 }
 

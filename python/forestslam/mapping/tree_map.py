@@ -51,6 +51,15 @@ from forestslam.mapping.config import MappingConfig
 log = logging.getLogger(__name__)
 
 
+# Ranges binned for the resolution gate (TreeMap._resolved_range): 0.25 m up to 40 m.
+RANGE_BIN_M = 0.25
+N_RANGE_BINS = 160
+
+
+def _range_bin(rho: float) -> int:
+    return min(N_RANGE_BINS - 1, int(rho / RANGE_BIN_M)) if math.isfinite(rho) else N_RANGE_BINS - 1
+
+
 @dataclass
 class _Tree:
     band: list = field(default_factory=list)  # (M,3) arrays, map frame, one per scan
@@ -61,6 +70,10 @@ class _Tree:
     n_band_scans: int = 0
     measurements: list = field(default_factory=list)  # (dbh, weight)
     scan_dbh: list = field(default_factory=list)  # per-scan DBH, every scan_stride-th kept
+    scan_rho: list = field(default_factory=list)  # the range each kept per-scan DBH was seen at
+    # Scans that observed the tree / gave it a per-scan DBH, by range (RANGE_BIN_M bins).
+    seen_at: list = field(default_factory=lambda: [0] * N_RANGE_BINS)
+    dbh_at: list = field(default_factory=lambda: [0] * N_RANGE_BINS)
     scan_stride: int = 1
     n_scans: int = 0  # scans that observed the tree
     n_scans_dbh: int = 0  # of those, scans with a per-scan DBH
@@ -172,8 +185,13 @@ class TreeMap:
 
     MAX_SCAN_DBH = 1024  # per tree; beyond, every other value is dropped and the stride doubled
 
-    def __init__(self, config: MappingConfig | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, config: MappingConfig | None = None, seed: int = 0, azimuth_step_rad: float = 0.0
+    ) -> None:
+        """`azimuth_step_rad`: the sensor's horizontal resolution, for the resolution gate (0:
+        unknown, every scan's DBH counts)."""
         self.cfg = config or MappingConfig()
+        self.azimuth_step_rad = float(azimuth_step_rad)
         self.trees: dict[int, _Tree] = {}
         self._rng = np.random.default_rng(seed)
         self.n_fits = 0
@@ -189,28 +207,34 @@ class TreeMap:
         base_z: np.ndarray,
         centre_z: np.ndarray,
         scan_dbh: np.ndarray,
+        ranges: np.ndarray | None = None,
     ) -> None:
         """Observations of one scan: ids (K,) tree id per stem (-1 none); points[k] (Mk,3) the
         stem's points and base_z (K,) its local ground height, both in the sensor frame;
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
-        DBH (NaN = none). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
+        DBH (NaN = none); ranges (K,) the stems' horizontal distance from the sensor (None:
+        unknown, no resolution gate). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
         lo, hi = self.cfg.dbh_band_m
         origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
         ids = np.asarray(ids)
         # plain Python values for the per-stem bookkeeping (numpy scalars cost ~1 us per use)
         centre = np.asarray(centre_z, dtype=np.float64).tolist()
         dbh = np.asarray(scan_dbh, dtype=np.float64).tolist()
+        rho = [0.0] * len(ids) if ranges is None else np.asarray(ranges, dtype=np.float64).tolist()
         for k in np.flatnonzero(ids >= 0).tolist():
             tree = self.trees.setdefault(int(ids[k]), _Tree())
             if tree.first_scan < 0:
                 tree.first_scan = scan_index
             tree.n_scans += 1
+            b = _range_bin(rho[k])
+            tree.seen_at[b] += 1
             if math.isfinite(centre[k]):
                 tree.z_sum += centre[k]
                 tree.z_n += 1
             if math.isfinite(dbh[k]):
                 tree.n_scans_dbh += 1
-                self._keep_scan_dbh(tree, dbh[k])
+                tree.dbh_at[b] += 1
+                self._keep_scan_dbh(tree, dbh[k], rho[k])
             pts = points[k] if k < len(points) else None
             if pts is None or len(pts) == 0 or not np.isfinite(base_z[k]):
                 continue
@@ -270,16 +294,44 @@ class TreeMap:
         weight = fit.inliers * fit.arc_coverage**2
         tree.measurements.append((2.0 * fit.radius, weight))
 
-    def _keep_scan_dbh(self, tree: _Tree, dbh: float) -> None:
-        """Keep every scan_stride-th per-scan DBH (tree.n_scans_dbh counts them all); a full
-        buffer drops every other value and doubles the stride: bounded memory, spread evenly
-        over the whole observation."""
+    def _keep_scan_dbh(self, tree: _Tree, dbh: float, rho: float) -> None:
+        """Keep every scan_stride-th per-scan DBH and its range (tree.n_scans_dbh counts them
+        all); a full buffer drops every other value and doubles the stride: bounded memory,
+        spread evenly over the whole observation."""
         if (tree.n_scans_dbh - 1) % tree.scan_stride:
             return
         tree.scan_dbh.append(dbh)
+        tree.scan_rho.append(rho)
         if len(tree.scan_dbh) >= self.MAX_SCAN_DBH:
             tree.scan_dbh = tree.scan_dbh[::2]
+            tree.scan_rho = tree.scan_rho[::2]
             tree.scan_stride *= 2
+
+    def _resolved_range(self, dbh: float) -> float:
+        """Farthest range (m) at which one azimuth step spans at most 1 / dbh_resolve_steps of
+        a stem of this DBH (inf when the step is unknown)."""
+        if not (self.azimuth_step_rad > 0):
+            return math.inf
+        return dbh / (self.cfg.dbh_resolve_steps * self.azimuth_step_rad)
+
+    def _resolved_scans(self, tree: _Tree) -> np.ndarray:
+        """The per-scan DBHs of the scans that resolved the stem (module docstring): a
+        silhouette needs >= 2 returns on a scan line, so a stem spanning 1-2 azimuth steps
+        gives one only when the steps happen to fall twice on it, always 2 steps wide (up to
+        2x its DBH); from 2 steps on every line keeps its returns and the width is unbiased.
+        Selected by range (not by the scans' own widths, which would select the wide ones):
+        ranges where a step spans at most half the DBH, the DBH from the scans selected (twice,
+        from the median of all)."""
+        d = np.asarray(tree.scan_dbh, dtype=np.float64)
+        if not (self.azimuth_step_rad > 0) or len(d) == 0:
+            return d
+        rho = np.asarray(tree.scan_rho, dtype=np.float64)
+        keep = d
+        for _ in range(2):
+            keep = d[rho <= self._resolved_range(float(np.median(keep)))]
+            if len(keep) == 0:
+                break
+        return keep
 
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
         """Fused DBH, its std and the number of window measurements fused (module docstring)."""
@@ -312,7 +364,7 @@ class TreeMap:
         scans (1.2533 x their robust spread / sqrt(blocks), from 3 blocks on), not below that of
         independent scans. Scans of a far tree merged with its neighbour give 2-4x its DBH:
         better the windows, or none, than that."""
-        d = np.asarray(tree.scan_dbh)
+        d = self._resolved_scans(tree)
         if len(d) < self.cfg.dbh_fallback_min_scans:
             return None
         med = float(np.median(d))
@@ -332,7 +384,7 @@ class TreeMap:
         if not tree.measurements:
             return None
         d, w = np.array(tree.measurements).T
-        scans = np.asarray(tree.scan_dbh)
+        scans = self._resolved_scans(tree)
         if len(scans) >= self.cfg.dbh_fallback_min_scans:
             # A window circle cannot be much wider than the stem seen scan by scan (perception's
             # silhouettes: angular widths, independent of a circle's curvature, and widened,
@@ -365,7 +417,14 @@ class TreeMap:
         and 39 cm from 0-3 scans with band returns). Silhouettes may stand in for a band
         circle that failed (a thin or far stem), not for a missing band. A tree that fails
         keeps its position (the localizer's evidence) without a DBH."""
-        enough_scans = 2 * tree.n_scans_dbh >= tree.n_scans
+        seen, with_dbh = tree.n_scans, tree.n_scans_dbh
+        if self.azimuth_step_rad > 0 and tree.scan_dbh:
+            # Scans too far to resolve the stem give it no DBH: a sapling seen from 15 m would
+            # fail rule (1) in every map. Counted over the ranges that resolve it.
+            d = self._resolved_scans(tree)
+            far = _range_bin(self._resolved_range(float(np.median(d if len(d) else tree.scan_dbh))))
+            seen, with_dbh = sum(tree.seen_at[: far + 1]), sum(tree.dbh_at[: far + 1])
+        enough_scans = with_dbh > 0 and 2 * with_dbh >= seen
         return enough_scans and tree.n_support_scans >= self.cfg.dbh_min_window_scans
 
     def table(self, ids: np.ndarray, xy: np.ndarray, observations: np.ndarray) -> dict:
