@@ -55,11 +55,14 @@ class MappingConfig:
     dbh_max_scan_ratio: Annotated[float, Range(ge=1)] = 1.5
     # A per-scan DBH counts only from scans at ranges where one azimuth step of the sensor
     # spans at most 1 / dbh_resolve_steps of the DBH (TreeMap._resolved_scans): under 2 steps a
-    # silhouette comes only from the scans whose steps fell twice on the stem (up to 2x wide);
-    # under 3, a thin stem's detection itself still depends on whether 2 or 3 returns per line
-    # fell on it (the normal filter's neighbour count), and so does its DBH (4 cm stem passed
-    # at 5 m by a VLP-16: +1.1 cm from the scans of 2-3 steps; tests/test_dbh_saplings.py).
-    dbh_resolve_steps: Annotated[float, Range(ge=1)] = 3.0
+    # silhouette comes only from the scans whose steps fell twice on the stem (up to 2x wide).
+    dbh_resolve_steps: Annotated[float, Range(ge=1)] = 2.0
+    # Stems thinner than dbh_thin_m (2 of perception's 5 cm thinning voxels) need
+    # dbh_thin_resolve_steps: at 2-3 steps their detection itself depends on whether 2 or 3
+    # returns per line fell on them (the normal filter's neighbour count after thinning), and
+    # so does their DBH (a 4 cm stem passed at 5 m by a VLP-16: +1.1 cm from 2-3 step scans).
+    dbh_thin_m: NonNegative = 0.1
+    dbh_thin_resolve_steps: Annotated[float, Range(ge=1)] = 3.0
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the

@@ -35,6 +35,14 @@ DBHs disagree (a far stem merged with its neighbour in some scans, a clump) the 
 decides, its dbh_std_m the standard error of the window mean (Bessel-corrected weighted
 spread), the spread of the per-scan DBH and a model floor for sections that are not circles
 (dbh_std_floor_rel of the DBH).
+
+Resolution: a silhouette's width is a whole number of azimuth steps, unbiased over scans only
+where every scan line keeps its returns. Per-scan DBHs count only from ranges where one step
+spans at most 1/2 of the stem (1/3 for stems under dbh_thin_m, whose detection itself depends
+on the returns per line), chosen by range, not by the scans' own widths; the stem test's share
+of scans with a DBH is counted over those ranges too. A sapling seen only from farther (on the
+style-b loops: 2-4 cm stems never nearer than 4-6 m) keeps its position without a DBH: below
+the sensor's resolution there, a DBH would be the width of one or two steps, not the stem's.
 """
 
 from __future__ import annotations
@@ -308,11 +316,14 @@ class TreeMap:
             tree.scan_stride *= 2
 
     def _resolved_range(self, dbh: float) -> float:
-        """Farthest range (m) at which one azimuth step spans at most 1 / dbh_resolve_steps of
-        a stem of this DBH (inf when the step is unknown)."""
+        """Farthest range (m) at which one azimuth step spans at most 1 / dbh_resolve_steps
+        (dbh_thin_resolve_steps under dbh_thin_m) of a stem of this DBH (inf when the step is
+        unknown)."""
         if not (self.azimuth_step_rad > 0):
             return math.inf
-        return dbh / (self.cfg.dbh_resolve_steps * self.azimuth_step_rad)
+        cfg = self.cfg
+        steps = cfg.dbh_thin_resolve_steps if dbh < cfg.dbh_thin_m else cfg.dbh_resolve_steps
+        return dbh / (steps * self.azimuth_step_rad)
 
     def _resolved_scans(self, tree: _Tree) -> np.ndarray:
         """The per-scan DBHs of the scans that resolved the stem (module docstring): a
@@ -320,8 +331,9 @@ class TreeMap:
         gives one only when the steps happen to fall twice on it, always 2 steps wide (up to
         2x its DBH); from 2 steps on every line keeps its returns and the width is unbiased.
         Selected by range (not by the scans' own widths, which would select the wide ones):
-        ranges where a step spans at most half the DBH, the DBH from the scans selected (twice,
-        from the median of all)."""
+        ranges where a step spans at most half the DBH (a third for thin stems, see
+        MappingConfig.dbh_thin_resolve_steps), the DBH from the scans selected (twice, from the
+        median of all)."""
         d = np.asarray(tree.scan_dbh, dtype=np.float64)
         if not (self.azimuth_step_rad > 0) or len(d) == 0:
             return d
