@@ -57,11 +57,12 @@ class MappingConfig:
     # spans at most 1 / dbh_resolve_steps of the DBH (TreeMap._resolved_scans): under 2 steps a
     # silhouette comes only from the scans whose steps fell twice on the stem (up to 2x wide).
     dbh_resolve_steps: Annotated[float, Range(ge=1)] = 2.0
-    # Stems thinner than dbh_thin_m (2 of perception's 5 cm thinning voxels) need
+    # Stems thinner than dbh_thin_m (1.5 of perception's 5 cm thinning voxels) need
     # dbh_thin_resolve_steps: at 2-3 steps their detection itself depends on whether 2 or 3
     # returns per line fell on them (the normal filter's neighbour count after thinning), and
     # so does their DBH (a 4 cm stem passed at 5 m by a VLP-16: +1.1 cm from 2-3 step scans).
-    dbh_thin_m: NonNegative = 0.1
+    # At 0.1 a 10.2 cm tree of dbh4 vlp16-loop-b (9.7 cm from its 2-3 step scans) lost its DBH.
+    dbh_thin_m: NonNegative = 0.075
     dbh_thin_resolve_steps: Annotated[float, Range(ge=1)] = 3.0
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3
