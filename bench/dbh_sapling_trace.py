@@ -9,8 +9,10 @@ sequence: runs `forestslam run` in-process (the tree map kept), scores it agains
   its radius below DiameterConfig.min_radius_m (the floor) or its lines too spread; with a
   valid band circle; with a per-scan DBH;
 - in the tree map (the run's own, SLAM poses): scans that observed the tree, of those with a
-  per-scan DBH, with band returns, and which test of TreeMap.dbh fails (is_stem's DBH share
-  or band support, the per-scan spread, no window).
+  per-scan DBH, with band returns, per-scan DBHs from ranges that resolve it, and the first
+  test of TreeMap.dbh it fails, in this order: is_stem's band support, is_stem's DBH share
+  (over the resolving ranges), fewer than 3 per-scan DBHs from resolving ranges and no window
+  ("below resolution"), per-scan DBHs that disagree.
 
 Also what the mapped objects without a truth stem are (the nearest truth stem and its DBH,
 the nearest other mapped tree: a split tree lies within ~1 m of a truth stem that another
