@@ -10,7 +10,9 @@ chained from. The velocity (deskew, prediction) is used only while fresh (Regist
 .max_velocity_age_s: the motion model's max_gap_s). register_mls_to_tls feeds the frames to
 _Walk, whose add() reads as the stages of one frame. A trusted frame of a spinning scanner is
 registered again with its motion during the sweep (continuous time, see tls.sweep) and its
-points are moved with it.
+points are moved with it; so is, with RegistrationConfig.rescue_in_sweep, a frame whose rigid
+LM ran out of rounds near its minimum (_rescue_in_sweep: a sweep distorted by motion the deskew
+did not know), trusted only if that converges.
 
 What joins the map: a trusted frame whose in-sweep motion was estimated (when it has per-point
 times), whose stems sit on the reference's stems, that was not itself relocalized, and whose
@@ -79,7 +81,8 @@ class FrameRecord:
     ms_lm: float
     ms_ndt: float
     ms_target: float = 0.0  # local LM target (re-)build charged to this frame
-    fallback: bool = False  # the second initial pose was used (NDT, or velocity in NDT mode)
+    # A fallback gave the pose: another initial pose, the in-sweep rescue or a relocalization.
+    fallback: bool = False
     # Registration frame: the sensor at t_mid_s after the stamp (mid-sweep); the scan was
     # deskewed with deskew_twist (6,) per second (zeros: not deskewed), see odometry.deskew.
     t_mid_s: float = 0.0
@@ -399,9 +402,16 @@ def trust_failure(lm: StemCentreLmResult, T_pred: np.ndarray | None, config: Tls
     if lm.real_inliers > 0 and lm.real_rms_m > reg.good_real_rms_m:
         return f"real-feature residual {100 * lm.real_rms_m:.1f} cm"
     if T_pred is not None:
-        dt, dr = _correction(T_pred, lm.T_target_source)
-        if dt > reg.max_correction_m or dr > reg.max_correction_deg:
-            return f"correction {dt:.2f} m / {dr:.1f} deg from the prediction"
+        return _correction_failure(lm, T_pred, config)
+    return ""
+
+
+def _correction_failure(lm: StemCentreLmResult, T_pred: np.ndarray, config: TlsConfig) -> str:
+    """Why the LM's correction from the prediction is too large for the motion model ("")."""
+    reg = config.registration
+    dt, dr = _correction(T_pred, lm.T_target_source)
+    if dt > reg.max_correction_m or dr > reg.max_correction_deg:
+        return f"correction {dt:.2f} m / {dr:.1f} deg from the prediction"
     return ""
 
 
@@ -688,6 +698,8 @@ class _Registration:
     fallback: bool = False
     relocalized: bool = False
     seed: tuple[np.ndarray, float] | None = None  # placed frame: the frame before it (T, t)
+    # Set when the in-sweep LM already ran in _register (_rescue_in_sweep): (features, sweep).
+    swept: tuple[FrameFeatures, np.ndarray] | None = None
 
     @property
     def good(self) -> bool:
@@ -909,6 +921,8 @@ class _Walk:
             self._second_initial_pose(frame, reg, V)
         if not reg.good:
             self._verified_velocity_pose(frame, reg)
+        if not reg.good:
+            self._rescue_in_sweep(frame, reg)
         if self.lost >= reg_cfg.relocalize_after_frames:
             self._relocalize(frame, reg)
         return reg
@@ -951,6 +965,34 @@ class _Walk:
         if _trusted(lm3, T3, self.config):
             reg.lm, reg.failure, reg.fallback, reg.T_init = lm3, "", True, T3
 
+    def _rescue_in_sweep(self, frame: _Frame, reg: _Registration) -> None:
+        """A rigid LM that ran out of rounds without converging (not degenerate, its residual
+        and its correction from the prediction within the gates) usually creeps because the
+        frame is distorted by motion within its sweep that the deskew got wrong (a turn,
+        vibration: the constant velocity of the last frames is not this sweep's): the
+        in-sweep LM from it, kept only when it converges within the same gates (trusted from
+        the prediction and from the rigid result). Never merged unless it then passes the
+        same verification as any frame (_merge)."""
+        lm, reg_cfg = reg.lm, self.config.registration
+        if not reg_cfg.rescue_in_sweep or frame.times is None or reg_cfg.sweep_order <= 0:
+            return
+        if lm.degenerate:
+            return
+        if lm.converged or lm.iterations < reg_cfg.lm_max_rounds:
+            return
+        if reg.T_pred is not None and _correction_failure(lm, reg.T_pred, self.config):
+            return
+        if lm.real_inliers > 0 and lm.real_rms_m > reg_cfg.good_real_rms_m:
+            return
+        lm_at = lambda T, **o: self._lm_at(frame, T, **o)  # noqa: E731
+        refined = _sweep_lm(
+            lm, frame.feats, frame.points, frame.times, frame.t_mid, lm_at, self.config, frame.ms
+        )
+        if refined is None or not _trusted(refined[0], reg.T_pred, self.config):
+            return
+        reg.lm, reg.failure, reg.fallback = refined[0], "", True
+        reg.swept = (refined[1], refined[2])
+
     def _relocalize(self, frame: _Frame, reg: _Registration) -> None:
         """Tracking lost (the last frames did not join the map: untrusted, or trusted but their
         stems off the reference's): the frame placed afresh by its stems on the reference's
@@ -963,6 +1005,7 @@ class _Walk:
             frame.feats, lm2.T_target_source, self.ref_stems, self.config
         ):
             reg.lm, reg.failure, reg.fallback, reg.relocalized = lm2, "", True, True
+            reg.swept = None
             log.info(
                 "frame %d at %.3f: relocalized on the reference stems", frame.index, frame.t_ref
             )
@@ -971,7 +1014,12 @@ class _Walk:
         """A trusted frame registered again with its motion during the sweep (continuous time);
         its points and features are moved with it -> (registration, sweep (K,6) or empty)."""
         sweep = np.zeros((0, 6))
-        if reg.good and frame.times is not None and self.config.registration.sweep_order > 0:
+        if reg.swept is not None:
+            frame.feats, sweep = reg.swept
+            frame.points = apply_sweep(
+                frame.points, frame.times - frame.t_mid, reg.lm.T_target_source, sweep
+            )
+        elif reg.good and frame.times is not None and self.config.registration.sweep_order > 0:
             lm_at = lambda T, **o: self._lm_at(frame, T, **o)  # noqa: E731
             refined = _sweep_lm(
                 reg.lm,
