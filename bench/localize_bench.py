@@ -158,8 +158,9 @@ class Drive:
 
 
 def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
-    """Local trunks (K,2) in the last frame's sensor frame, its true pose (x, y, yaw) and the
-    trunks' measured DBH (K,) (NaN where not measured): `frames` simulated frames aggregated."""
+    """Local trunks (K,2) in the last frame's sensor frame, its true pose (x, y, yaw), the
+    trunks' measured DBH (K,) (NaN where not measured) and the frames each was seen in (K,):
+    `frames` simulated frames aggregated."""
     return aggregate_view(simulate_drive(xy, dbh, rng, frames, args, lo, hi), args)
 
 
@@ -213,9 +214,9 @@ def simulate_drive(xy, dbh, rng, frames, args, lo=None, hi=None) -> Drive:
 
 
 def aggregate_view(drive: Drive, args, last: int | None = None):
-    """(local trunks (K,2), true pose, DBH (K,)) of the last `last` frames of a drive (all when
-    None) aggregated by odometry as `forestslam localize --frames N` does; a trunk seen in
-    several frames gets the median of its DBH measurements."""
+    """(local trunks (K,2), true pose, DBH (K,), frames seen in (K,)) of the last `last` frames
+    of a drive (all when None) aggregated by odometry as `forestslam localize --frames N` does;
+    a trunk seen in several frames gets the median of its DBH measurements."""
     from scipy.spatial import cKDTree
 
     from forestslam.localization import LocalizationConfig, aggregate_stems
@@ -223,7 +224,7 @@ def aggregate_view(drive: Drive, args, last: int | None = None):
     n = len(drive.xys) if last is None else last
     xys, poses, dbhs = drive.xys[-n:], drive.poses[-n:], drive.dbhs[-n:]
     config = LocalizationConfig(min_observations=args.min_observations)
-    centres = aggregate_stems(xys, poses, config)
+    centres, observations = aggregate_stems(xys, poses, config, return_observations=True)
     # Each aggregated trunk's DBH: the median of the detections merged into it.
     T_last = np.linalg.inv(poses[-1])
     det = np.vstack(
@@ -238,7 +239,7 @@ def aggregate_view(drive: Drive, args, last: int | None = None):
         centre_dbh = np.array(
             [np.nanmedian(det_dbh[n]) if np.isfinite(det_dbh[n]).any() else np.nan for n in near]
         )
-    return centres, drive.truth, centre_dbh
+    return centres, drive.truth, centre_dbh, observations
 
 
 def measured_dbh(true_dbh: np.ndarray, rng: np.random.Generator, args) -> np.ndarray:
@@ -369,9 +370,14 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
         truth = views[0][1]
         seen.append(in_view(map_tree, views[0][0], truth))
         right.append(False)
-        for attempt, (local, _truth, local_dbh) in enumerate(views):
+        for attempt, (local, _truth, local_dbh, seen_in) in enumerate(views):
             c0 = time.process_time()
-            loc = localize(tree_map, local, local_dbh_m=local_dbh if with_dbh else None)
+            loc = localize(
+                tree_map,
+                local,
+                local_dbh_m=local_dbh if with_dbh else None,
+                observations=seen_in,
+            )
             times.append(1e3 * (time.process_time() - c0))
             if attempt == 0:
                 trunks.append(len(local))
@@ -416,14 +422,14 @@ def count_absent(name, frames, tree_map, drive, args, totals):
     acc = tri = acc_dbh = acc_retry = acc_retry_dbh = 0
     for _ in range(args.absent_queries):
         d = drive()
-        local, _truth, local_dbh = aggregate_view(d, args)
-        loc = localize(tree_map, local)
+        local, _truth, local_dbh, seen_in = aggregate_view(d, args)
+        loc = localize(tree_map, local, observations=seen_in)
         acc += loc.accepted
         tri += loc.accepted and loc.stage == "triangle"
-        loc_dbh = localize(tree_map, local, local_dbh_m=local_dbh)
+        loc_dbh = localize(tree_map, local, local_dbh_m=local_dbh, observations=seen_in)
         acc_dbh += loc_dbh.accepted
         if frames > 1:
-            first, _truth, first_dbh = aggregate_view(d, args, 1)
+            first, _truth, first_dbh, _seen = aggregate_view(d, args, 1)
             acc_retry += localize(tree_map, first).accepted or loc.accepted
             acc_retry_dbh += (
                 localize(tree_map, first, local_dbh_m=first_dbh).accepted or loc_dbh.accepted
@@ -583,7 +589,7 @@ def treeloc_retry_view(table, k: int, args, config):
     """The query of frame k retried as `forestslam localize --retry-frames R` would: frame k
     and up to R - 1 earlier frames at least config.retry_keyframe_distance_m apart, each
     levelled by its stems, aggregated in frame k's levelled frame by the table's reference
-    poses (standing in for odometry: no drift)."""
+    poses (standing in for odometry: no drift); with the frames each trunk was seen in."""
     from forestslam.geometry import planar_pose
     from forestslam.localization import aggregate_stems
     from forestslam.localization.tables import query_trees, true_planar_pose
@@ -602,7 +608,7 @@ def treeloc_retry_view(table, k: int, args, config):
         xy, _dbh, R = query_trees(table, j, args.treeloc_gravity, config.max_range_m)
         xys.append(xy)
         poses.append(planar_pose(*true_planar_pose(table, j, R)))
-    return aggregate_stems(xys, poses, config)
+    return aggregate_stems(xys, poses, config, return_observations=True)
 
 
 def treeloc_localize(tree_map, table, k: int, args, config):
@@ -614,8 +620,8 @@ def treeloc_localize(tree_map, table, k: int, args, config):
     local, local_dbh, R = query_trees(table, int(k), args.treeloc_gravity, config.max_range_m)
     loc = localize(tree_map, local, config, local_dbh if args.treeloc_dbh else None)
     if loc.rejected and args.treeloc_retry > 1:
-        local = treeloc_retry_view(table, int(k), args, config)
-        return localize(tree_map, local, config), R, len(local), True
+        local, seen_in = treeloc_retry_view(table, int(k), args, config)
+        return localize(tree_map, local, config, observations=seen_in), R, len(local), True
     return loc, R, len(local), False
 
 
@@ -783,9 +789,9 @@ def run_paper_table(args) -> None:
         for matcher in ("paper", "default"):
             config = LocalizationConfig(matcher=matcher)
             tri, ok, wrong, ms = [], 0, 0, []
-            for local, truth, _dbh in queries:
+            for local, truth, _dbh, seen_in in queries:
                 c0 = time.process_time()
-                loc = localize(tree_map, local, config)
+                loc = localize(tree_map, local, config, observations=seen_in)
                 ms.append(1e3 * (time.process_time() - c0))
                 tri.append(loc.matched_triangles)
                 if loc.accepted:
@@ -1064,9 +1070,9 @@ def run_speed_queries(args, rng, xy) -> None:
         times, cpu, sizes, ok = [], [], [], 0
         lo, hi = float(xy.min() + 5), float(xy.max() - 5)
         for _ in range(args.speed_queries):
-            local, truth, _dbh = simulate_query(xy, dbh, rng, frames, args, lo, hi)
+            local, truth, _dbh, seen_in = simulate_query(xy, dbh, rng, frames, args, lo, hi)
             c0 = time.process_time()
-            loc = localize(tree_map, local)
+            loc = localize(tree_map, local, observations=seen_in)
             cpu.append(1e3 * (time.process_time() - c0))
             sizes.append(len(local))
             times.append(loc.time_ms)

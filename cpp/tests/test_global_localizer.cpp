@@ -233,3 +233,19 @@ TEST(GlobalLocalizer, DbhLengthsMustMatch) {
                  std::invalid_argument);
     EXPECT_FALSE(forestslam::localization::TreeMap(map).hasDbh());
 }
+
+TEST(GlobalLocalizer, ObservationCountsNeedOnePerTrunkAndOneFrameChangesNothing) {
+    Points2 map(40, 2);
+    for (int i = 0; i < 40; ++i) map.row(i) << (i % 7) * 3.1 + 0.2 * (i % 3), (i / 7) * 2.9;
+    const forestslam::localization::TreeMap tree_map(map);
+    EXPECT_THROW(tree_map.localize(map, {}, {}, Eigen::VectorXi::Constant(3, 2)),
+                 std::invalid_argument);
+    // Counts of a single frame (all 1) leave every trunk alike: the same answer as no counts.
+    const Points2 local = map.topRows(12);
+    const auto plain = tree_map.localize(local);
+    const auto counted = tree_map.localize(local, {}, {}, Eigen::VectorXi::Ones(12));
+    EXPECT_EQ(plain.rejected, counted.rejected);
+    EXPECT_EQ(plain.inliers, counted.inliers);
+    EXPECT_EQ(plain.hypotheses, counted.hypotheses);
+    EXPECT_DOUBLE_EQ(plain.significance, counted.significance);
+}

@@ -328,8 +328,10 @@ def _query(
     current scan and up to retry_frames - 1 earlier ones."""
 
     def attempt(frames: list) -> tuple[Localization, int, int]:
-        local = aggregate_stems([f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg)
-        return localize(q.tree_map, local, q.cfg), len(local), len(frames) + 1
+        local, seen = aggregate_stems(
+            [f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg, True
+        )
+        return localize(q.tree_map, local, q.cfg, observations=seen), len(local), len(frames) + 1
 
     loc, trunks, used = attempt(earlier[len(earlier) - (q.frames - 1) :] if q.frames > 1 else [])
     first_reason, retried = "", False
