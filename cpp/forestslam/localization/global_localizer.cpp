@@ -228,7 +228,8 @@ std::vector<std::array<int, 3>> fallbackTriangles(const Eigen::Ref<const Points2
         return tris;
     };
     const std::vector<int> all = firstRows(false), sure = firstRows(true);
-    if (sure == all) return trianglesOf(all);
+    // (neighbourTriangles takes every row when given none: fewer than 3 sure rows, one group.)
+    if (sure == all || sure.size() < 3) return trianglesOf(all);
     std::vector<std::array<int, 3>> out = trianglesOf(sure);
     auto key = [](std::array<int, 3> t) {
         std::sort(t.begin(), t.end());
