@@ -301,7 +301,8 @@ def print_simulated_protocol(args, has_dbh: bool) -> None:
         f"{args.dropout:.0%} (saplings dbh<0.1 m {args.sapling_dropout:.0%}), noise "
         f"{args.noise} m, false trunks ~{args.false_trunks} persistent + "
         f"~{args.transient_false}/frame transient; frames {args.spacing} m apart with odometry "
-        "noise (2 cm, 0.2 deg per frame)"
+        "noise (2 cm, 0.2 deg per frame); an aggregated view passes the frames each trunk was "
+        "seen in (localize observations=)"
     )
     if has_dbh:
         print(
