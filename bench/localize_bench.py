@@ -346,7 +346,70 @@ def run_simulated_range(args, xy, dbh, tree_map, has_dbh: bool) -> None:
             for label, queries in attempts.items():
                 for with_dbh in (False, True) if has_dbh else (False,):
                     print_simulated_row(tree_map, queries, with_dbh, args.range, label, model)
+        if len(args.chain) > 2:
+            run_chain_rows(args, xy, dbh, tree_map, has_dbh, model)
     args.pose_model = "uniform"  # the absent places' drives
+
+
+def chain_drives(xy, dbh, args, seed: int) -> list:
+    """`args.queries` drives of max(args.chain) frames (own random streams, so the rows above
+    stay as they were): the chain's windows are their last n frames."""
+    rng = np.random.default_rng(seed)
+    dbh_rng, args.dbh_rng = args.dbh_rng, np.random.default_rng(seed + 1)
+    drives = [simulate_drive(xy, dbh, rng, args.chain[-1], args) for _ in range(args.queries)]
+    args.dbh_rng = dbh_rng
+    return drives
+
+
+def run_chain_rows(args, xy, dbh, tree_map, has_dbh: bool, model: str) -> None:
+    """'Keep driving until accepted': each drive of max(chain) frames queried on its last n
+    frames for n in the chain until one is accepted; the 1>5 rows of the same drives (the
+    CLI's single retry) beside it, and the chain with its significance level spent across its
+    looks (`chain_significance`)."""
+    drives = chain_drives(xy, dbh, args, args.seed + 1000 + args.chain[-1])
+    label = ">".join(map(str, args.chain))
+    print(
+        f"{model:>7} chain: {args.queries} drives of {args.chain[-1]} frames {args.spacing:g} m "
+        f"apart (own seeds); '1>5' the CLI's single retry and '{label}' keeping on driving "
+        "until accepted, on the same drives; '*': each look at the significance spent across "
+        "the looks (chain_significance)"
+    )
+    windows = {n: [aggregate_view(d, args, n) for d in drives] for n in args.chain}
+    chains = {"1>5": [1, 5], ">".join(map(str, args.chain)): args.chain}
+    for label, chain in chains.items():
+        queries = [[windows[n][i] for n in chain] for i in range(len(drives))]
+        for with_dbh in (False, True) if has_dbh else (False,):
+            for spent in (False, True) if len(chain) > 2 else (False,):
+                config = chain_config(args, len(chain) if spent else 1)
+                steps = print_simulated_row(
+                    tree_map, queries, with_dbh, args.range, label + ("*" if spent else ""),
+                    model, config,
+                )
+                print_chain_needs(steps, chain, args.spacing)
+
+
+def chain_config(args, looks: int):
+    """The localizer's config for a chain of `looks` looks (the default's for 1)."""
+    from forestslam.localization import LocalizationConfig, chain_significance
+
+    config = LocalizationConfig()
+    config.min_significance = chain_significance(config.min_significance, looks)
+    return config
+
+
+def print_chain_needs(steps: list, chain: list, spacing: float) -> None:
+    """Under a chain row: the step each query was accepted at, frames and metres driven."""
+    acc = [s for s in steps if s is not None]
+    if not acc:
+        print(f"{'':>7} accepted at no step of {chain}")
+        return
+    frames = np.array([chain[s] for s in acc])
+    per_step = ", ".join(f"{n} fr: {sum(s == k for s in acc)}" for k, n in enumerate(chain))
+    print(
+        f"{'':>7} accepted at step ({per_step}); mean frames {frames.mean():.2f}, mean metres "
+        f"driven {spacing * (frames - 1).mean():.1f} (budget {spacing * (chain[-1] - 1):g} m); "
+        f"still rejected at the end {1 - len(acc) / len(steps):.1%}"
+    )
 
 
 def in_view(map_tree, local: np.ndarray, truth) -> int:
@@ -356,9 +419,12 @@ def in_view(map_tree, local: np.ndarray, truth) -> int:
     return len(set(j[np.isfinite(d)].tolist()))
 
 
-def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, poses: str) -> None:
+def print_simulated_row(
+    tree_map, queries, with_dbh, max_range, frames: str, poses: str, config=None
+) -> list:
     """One row: each query is a list of views (local, truth, dbh) tried in turn until one is
-    accepted (a retry after a rejection)."""
+    accepted (a retry after a rejection). Returns per query the index of the accepted view
+    (None: all rejected)."""
     from scipy.spatial import cKDTree
 
     from forestslam.localization import localize
@@ -367,6 +433,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
     ok = rej = wrong = retried = 0
     errs, degs, trunks, times = [], [], [], []
     seen, right = [], []  # per query: map trunks in the (first) view, answered right
+    steps = []  # per query: the view accepted (None: none)
     for views in queries:
         truth = views[0][1]
         seen.append(in_view(map_tree, views[0][0], truth))
@@ -376,6 +443,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
             loc = localize(
                 tree_map,
                 local,
+                config,
                 local_dbh_m=local_dbh if with_dbh else None,
                 observations=seen_in,
             )
@@ -385,6 +453,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
             retried += attempt > 0
             if loc.accepted:
                 break
+        steps.append(attempt if loc.accepted else None)
         if loc.rejected:
             rej += 1
             continue
@@ -411,6 +480,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
         f"{rate(seen >= 4):>15} "
         f"{f'{right[seen == 4].sum()}/{(seen == 4).sum()}':>12} {rate(seen >= 5):>15} {retried:>7}"
     )
+    return steps
 
 
 def count_absent(name, frames, tree_map, drive, args, totals):
@@ -484,11 +554,21 @@ def run_simulated_absent(args) -> None:
         "'retry': the 5-frame drive's last frame alone first, its 5 frames when rejected "
         "(--retry-frames 5): two tests per query"
     )
+    if len(args.chain) > 2:
+        print(
+            f"chain rows: drives of {args.chain[-1]} frames {args.spacing:g} m apart, looks on "
+            f"their last {args.chain} frames in turn (as the sim rows); '*': each look tested at "
+            "the significance spent across the looks (chain_significance)"
+        )
     print(
         f"{'case':>28} {'range m':>7} {'frames':>6} {'queries':>7} {'accepted':>8} {'triangle':>8} "
         f"{'acc w/ dbh':>10} {'retry':>7} {'r w/dbh':>7}"
     )
     args.dbh_rng = np.random.default_rng(args.seed + 150)
+    # The chain's drives: own streams, so the rows of the 1- and 5-frame drives stay as they were.
+    args.chain_rng = np.random.default_rng(args.seed + 200)
+    args.chain_dbh_rng = np.random.default_rng(args.seed + 250)
+    args.chain_totals = np.zeros(7, dtype=int)
     whole = build_map(xy, dbh)
     totals = [0] * 6
     for name, (in_map, (xlo, xhi)) in halves("longleaf", xy, args).items():
@@ -496,6 +576,7 @@ def run_simulated_absent(args) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(name, frames, tree_map, drive, args, totals)
+        chain_absent(name, tree_map, partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi), args)
     others = {"spruces in longleaf": (sp_xy, sp_dbh, 2.0)}
     for density in (0.01, 0.02, 0.05):
         sxy = random_stand(3000, density, rng)
@@ -505,10 +586,12 @@ def run_simulated_absent(args) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive, oxy, odbh, rng, frames, args, lo, hi)
             count_absent(name, frames, whole, drive, args, totals)
+        chain_absent(name, whole, partial(simulate_drive, oxy, odbh, lo=lo, hi=hi), args)
     run_clustered_absent(args, xy, dbh, totals)
     for name in args.stand:
         if name not in ("longleaf", "clustered"):
             run_stand_absent(args, name, totals)
+    print_chain_absent_total(args)
     total, total_retry = max(totals[0], 1), max(totals[3], 1)
     print(
         f"absent places accepted: xy {totals[1]}/{total} = {totals[1] / total:.2%}, with DBH "
@@ -516,6 +599,58 @@ def run_simulated_absent(args) -> None:
         f"{totals[4]}/{total_retry} = {totals[4] / total_retry:.2%}, with DBH "
         f"{totals[5]}/{total_retry} = {totals[5] / total_retry:.2%} (target <= 0.5 %)"
     )
+
+
+def chain_absent(name: str, tree_map, simulate, args) -> None:
+    """The chain's absent row of one case: `args.absent_queries` drives of max(chain) frames
+    (own random streams: the rows above stay as they were), `simulate(rng=, frames=, args=)`
+    simulates one; a query is accepted when ANY look accepts. Counts 1>5 on the same drives,
+    the chain, and the chain with its significance spent across its looks ('*')."""
+    from forestslam.localization import localize
+
+    if len(args.chain) < 3:
+        return
+    configs = (chain_config(args, 1), chain_config(args, len(args.chain)))
+    counts = np.zeros((2, 3), dtype=int)  # [xy, xy+dbh] x [1>5, chain, chain*]
+    dbh_rng, args.dbh_rng = args.dbh_rng, args.chain_dbh_rng
+    for _ in range(args.absent_queries):
+        d = simulate(rng=args.chain_rng, frames=args.chain[-1], args=args)
+        views = [aggregate_view(d, args, n) for n in args.chain]
+        for k, with_dbh in enumerate((False, True)):
+            acc = np.array(
+                [
+                    [
+                        localize(
+                            tree_map, v[0], c, local_dbh_m=v[2] if with_dbh else None,
+                            observations=v[3],
+                        ).accepted
+                        for v in views
+                    ]
+                    for c in configs
+                ]
+            )
+            first_two = [i for i, n in enumerate(args.chain) if n in (1, 5)]
+            counts[k] += [acc[0, first_two].any(), acc[0].any(), acc[1].any()]
+    args.dbh_rng = dbh_rng
+    args.chain_totals += np.hstack([[args.absent_queries], counts.ravel()])
+    label = ">".join(map(str, args.chain))
+    print(
+        f"{name:>28} {args.range:>7.0f} {label:>6} {args.absent_queries:>7} chain looks "
+        f"accepted (any): 1>5 {counts[0, 0]}, {label} {counts[0, 1]}, {label}* {counts[0, 2]}; "
+        f"with DBH {counts[1, 0]}, {counts[1, 1]}, {counts[1, 2]}"
+    )
+
+
+def print_chain_absent_total(args) -> None:
+    if len(args.chain) < 3:
+        return
+    t = args.chain_totals
+    n = max(int(t[0]), 1)
+    label = ">".join(map(str, args.chain))
+    names = ("1>5", label, label + "*")
+    xy = ", ".join(f"{m} {t[1 + i]}/{n} = {t[1 + i] / n:.2%}" for i, m in enumerate(names))
+    dbh = ", ".join(f"{m} {t[4 + i]}/{n} = {t[4 + i] / n:.2%}" for i, m in enumerate(names))
+    print(f"absent places accepted by ANY look of a chain (same drives): xy {xy}; with DBH {dbh}")
 
 
 def run_clustered_absent(args, ll_xy, ll_dbh, totals) -> None:
@@ -530,10 +665,12 @@ def run_clustered_absent(args, ll_xy, ll_dbh, totals) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(name, frames, tree_map, drive, args, totals)
+        chain_absent(name, tree_map, partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi), args)
     whole = build_map(xy)
     for frames in (1, 5):
         drive = partial(simulate_drive, ll_xy, ll_dbh, rng, frames, args)
         count_absent("longleaf in clustered", frames, whole, drive, args, totals)
+    chain_absent("longleaf in clustered", whole, partial(simulate_drive, ll_xy, ll_dbh), args)
 
 
 def run_stand_absent(args, name: str, totals) -> None:
@@ -549,6 +686,7 @@ def run_stand_absent(args, name: str, totals) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(case, frames, tree_map, drive, args, totals)
+        chain_absent(case, tree_map, partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi), args)
 
 
 def simulate_drive_x(xy, dbh, rng, frames, args, xlo, xhi) -> Drive:
@@ -1111,6 +1249,13 @@ def main() -> int:
     parser.add_argument("--false-trunks", type=float, default=2.0, help="persistent, per query")
     parser.add_argument("--transient-false", type=float, default=1.0, help="per frame")
     parser.add_argument("--spacing", type=float, default=3.0, help="metres between frames")
+    parser.add_argument(
+        "--chain",
+        type=lambda v: [int(x) for x in v.split(",")],
+        default=[1, 5, 7],
+        help="'keep driving until accepted': frames of each look, increasing, starting at 1 "
+        "(frames --spacing m apart: 1,5,7 = 0, 12, 18 m driven); fewer than 3 looks: off",
+    )
     parser.add_argument("--min-observations", type=int, default=1)
     parser.add_argument("--dbh-noise", type=float, default=0.03, help="query DBH sigma, m")
     parser.add_argument("--dbh-outliers", type=float, default=0.1, help="gross DBH errors")

@@ -121,6 +121,15 @@ def _runner_up(r) -> RunnerUp:
     return RunnerUp(r.x, r.y, r.yaw, r.inliers, r.significance)
 
 
+def chain_significance(min_significance: float, looks: int) -> float:
+    """The significance each of ``looks`` tests of one place must reach so that the chance that
+    ANY of them accepts an absent place stays at 10**-min_significance (Bonferroni: the looks
+    of a query retried on more frames share most trunks, so this is conservative)."""
+    if looks < 1:
+        raise ValueError(f"looks must be >= 1 (got {looks})")
+    return min_significance + math.log10(looks)
+
+
 def localize(
     tree_map: TreeMap,
     local_xy: np.ndarray,
