@@ -101,6 +101,7 @@ _NOT_IN_CORE = (
     "distinct_yaw_deg",
     "matcher",
     "retry_frames",
+    "retry_last_frames",
     "retry_keyframe_distance_m",
 )
 
