@@ -158,8 +158,9 @@ class Drive:
 
 
 def simulate_query(xy, dbh, rng, frames, args, lo=None, hi=None):
-    """Local trunks (K,2) in the last frame's sensor frame, its true pose (x, y, yaw) and the
-    trunks' measured DBH (K,) (NaN where not measured): `frames` simulated frames aggregated."""
+    """Local trunks (K,2) in the last frame's sensor frame, its true pose (x, y, yaw), the
+    trunks' measured DBH (K,) (NaN where not measured) and the frames each was seen in (K,):
+    `frames` simulated frames aggregated."""
     return aggregate_view(simulate_drive(xy, dbh, rng, frames, args, lo, hi), args)
 
 
@@ -213,9 +214,9 @@ def simulate_drive(xy, dbh, rng, frames, args, lo=None, hi=None) -> Drive:
 
 
 def aggregate_view(drive: Drive, args, last: int | None = None):
-    """(local trunks (K,2), true pose, DBH (K,)) of the last `last` frames of a drive (all when
-    None) aggregated by odometry as `forestslam localize --frames N` does; a trunk seen in
-    several frames gets the median of its DBH measurements."""
+    """(local trunks (K,2), true pose, DBH (K,), frames seen in (K,)) of the last `last` frames
+    of a drive (all when None) aggregated by odometry as `forestslam localize --frames N` does;
+    a trunk seen in several frames gets the median of its DBH measurements."""
     from scipy.spatial import cKDTree
 
     from forestslam.localization import LocalizationConfig, aggregate_stems
@@ -223,7 +224,7 @@ def aggregate_view(drive: Drive, args, last: int | None = None):
     n = len(drive.xys) if last is None else last
     xys, poses, dbhs = drive.xys[-n:], drive.poses[-n:], drive.dbhs[-n:]
     config = LocalizationConfig(min_observations=args.min_observations)
-    centres = aggregate_stems(xys, poses, config)
+    centres, observations = aggregate_stems(xys, poses, config, return_observations=True)
     # Each aggregated trunk's DBH: the median of the detections merged into it.
     T_last = np.linalg.inv(poses[-1])
     det = np.vstack(
@@ -238,7 +239,7 @@ def aggregate_view(drive: Drive, args, last: int | None = None):
         centre_dbh = np.array(
             [np.nanmedian(det_dbh[n]) if np.isfinite(det_dbh[n]).any() else np.nan for n in near]
         )
-    return centres, drive.truth, centre_dbh
+    return centres, drive.truth, centre_dbh, observations
 
 
 def measured_dbh(true_dbh: np.ndarray, rng: np.random.Generator, args) -> np.ndarray:
@@ -300,7 +301,8 @@ def print_simulated_protocol(args, has_dbh: bool) -> None:
         f"{args.dropout:.0%} (saplings dbh<0.1 m {args.sapling_dropout:.0%}), noise "
         f"{args.noise} m, false trunks ~{args.false_trunks} persistent + "
         f"~{args.transient_false}/frame transient; frames {args.spacing} m apart with odometry "
-        "noise (2 cm, 0.2 deg per frame)"
+        "noise (2 cm, 0.2 deg per frame); an aggregated view passes the frames each trunk was "
+        "seen in (localize observations=)"
     )
     if has_dbh:
         print(
@@ -344,7 +346,75 @@ def run_simulated_range(args, xy, dbh, tree_map, has_dbh: bool) -> None:
             for label, queries in attempts.items():
                 for with_dbh in (False, True) if has_dbh else (False,):
                     print_simulated_row(tree_map, queries, with_dbh, args.range, label, model)
+        if len(args.chain) > 2:
+            run_chain_rows(args, xy, dbh, tree_map, has_dbh, model)
     args.pose_model = "uniform"  # the absent places' drives
+
+
+def chain_drives(xy, dbh, args, seed: int) -> list:
+    """`args.queries` drives of max(args.chain) frames (own random streams, so the rows above
+    stay as they were): the chain's windows are their last n frames."""
+    rng = np.random.default_rng(seed)
+    dbh_rng, args.dbh_rng = args.dbh_rng, np.random.default_rng(seed + 1)
+    drives = [simulate_drive(xy, dbh, rng, args.chain[-1], args) for _ in range(args.queries)]
+    args.dbh_rng = dbh_rng
+    return drives
+
+
+def run_chain_rows(args, xy, dbh, tree_map, has_dbh: bool, model: str) -> None:
+    """'Keep driving until accepted': each drive of max(chain) frames queried on its last n
+    frames for n in the chain until one is accepted; the 1>5 rows of the same drives (the
+    CLI's single retry) beside it, and the chain with its significance level spent across its
+    looks (`chain_significance`)."""
+    drives = chain_drives(xy, dbh, args, args.seed + 1000 + args.chain[-1])
+    label = ">".join(map(str, args.chain))
+    print(
+        f"{model:>7} chain: {args.queries} drives of {args.chain[-1]} frames {args.spacing:g} m "
+        f"apart (own seeds); '1>5' the CLI's single retry and '{label}' keeping on driving "
+        "until accepted, on the same drives; '*': each look at the significance spent across "
+        "the looks (chain_significance)"
+    )
+    windows = {n: [aggregate_view(d, args, n) for d in drives] for n in args.chain}
+    chains = {"1>5": [1, 5], ">".join(map(str, args.chain)): args.chain}
+    for label, chain in chains.items():
+        queries = [[windows[n][i] for n in chain] for i in range(len(drives))]
+        for with_dbh in (False, True) if has_dbh else (False,):
+            for spent in (False, True) if len(chain) > 2 else (False,):
+                config = chain_config(args, len(chain) if spent else 1)
+                steps = print_simulated_row(
+                    tree_map,
+                    queries,
+                    with_dbh,
+                    args.range,
+                    label + ("*" if spent else ""),
+                    model,
+                    config,
+                )
+                print_chain_needs(steps, chain, args.spacing)
+
+
+def chain_config(args, looks: int):
+    """The localizer's config for a chain of `looks` looks (the default's for 1)."""
+    from forestslam.localization import LocalizationConfig, chain_significance
+
+    config = LocalizationConfig()
+    config.min_significance = chain_significance(config.min_significance, looks)
+    return config
+
+
+def print_chain_needs(steps: list, chain: list, spacing: float) -> None:
+    """Under a chain row: the step each query was accepted at, frames and metres driven."""
+    acc = [s for s in steps if s is not None]
+    if not acc:
+        print(f"{'':>7} accepted at no step of {chain}")
+        return
+    frames = np.array([chain[s] for s in acc])
+    per_step = ", ".join(f"{n} fr: {sum(s == k for s in acc)}" for k, n in enumerate(chain))
+    print(
+        f"{'':>7} accepted at step ({per_step}); mean frames {frames.mean():.2f}, mean metres "
+        f"driven {spacing * (frames - 1).mean():.1f} (budget {spacing * (chain[-1] - 1):g} m); "
+        f"still rejected at the end {1 - len(acc) / len(steps):.1%}"
+    )
 
 
 def in_view(map_tree, local: np.ndarray, truth) -> int:
@@ -354,9 +424,12 @@ def in_view(map_tree, local: np.ndarray, truth) -> int:
     return len(set(j[np.isfinite(d)].tolist()))
 
 
-def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, poses: str) -> None:
+def print_simulated_row(
+    tree_map, queries, with_dbh, max_range, frames: str, poses: str, config=None
+) -> list:
     """One row: each query is a list of views (local, truth, dbh) tried in turn until one is
-    accepted (a retry after a rejection)."""
+    accepted (a retry after a rejection). Returns per query the index of the accepted view
+    (None: all rejected)."""
     from scipy.spatial import cKDTree
 
     from forestslam.localization import localize
@@ -365,19 +438,27 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
     ok = rej = wrong = retried = 0
     errs, degs, trunks, times = [], [], [], []
     seen, right = [], []  # per query: map trunks in the (first) view, answered right
+    steps = []  # per query: the view accepted (None: none)
     for views in queries:
         truth = views[0][1]
         seen.append(in_view(map_tree, views[0][0], truth))
         right.append(False)
-        for attempt, (local, _truth, local_dbh) in enumerate(views):
+        for attempt, (local, _truth, local_dbh, seen_in) in enumerate(views):
             c0 = time.process_time()
-            loc = localize(tree_map, local, local_dbh_m=local_dbh if with_dbh else None)
+            loc = localize(
+                tree_map,
+                local,
+                config,
+                local_dbh_m=local_dbh if with_dbh else None,
+                observations=seen_in,
+            )
             times.append(1e3 * (time.process_time() - c0))
             if attempt == 0:
                 trunks.append(len(local))
             retried += attempt > 0
             if loc.accepted:
                 break
+        steps.append(attempt if loc.accepted else None)
         if loc.rejected:
             rej += 1
             continue
@@ -404,6 +485,7 @@ def print_simulated_row(tree_map, queries, with_dbh, max_range, frames: str, pos
         f"{rate(seen >= 4):>15} "
         f"{f'{right[seen == 4].sum()}/{(seen == 4).sum()}':>12} {rate(seen >= 5):>15} {retried:>7}"
     )
+    return steps
 
 
 def count_absent(name, frames, tree_map, drive, args, totals):
@@ -416,14 +498,14 @@ def count_absent(name, frames, tree_map, drive, args, totals):
     acc = tri = acc_dbh = acc_retry = acc_retry_dbh = 0
     for _ in range(args.absent_queries):
         d = drive()
-        local, _truth, local_dbh = aggregate_view(d, args)
-        loc = localize(tree_map, local)
+        local, _truth, local_dbh, seen_in = aggregate_view(d, args)
+        loc = localize(tree_map, local, observations=seen_in)
         acc += loc.accepted
         tri += loc.accepted and loc.stage == "triangle"
-        loc_dbh = localize(tree_map, local, local_dbh_m=local_dbh)
+        loc_dbh = localize(tree_map, local, local_dbh_m=local_dbh, observations=seen_in)
         acc_dbh += loc_dbh.accepted
         if frames > 1:
-            first, _truth, first_dbh = aggregate_view(d, args, 1)
+            first, _truth, first_dbh, _seen = aggregate_view(d, args, 1)
             acc_retry += localize(tree_map, first).accepted or loc.accepted
             acc_retry_dbh += (
                 localize(tree_map, first, local_dbh_m=first_dbh).accepted or loc_dbh.accepted
@@ -477,11 +559,21 @@ def run_simulated_absent(args) -> None:
         "'retry': the 5-frame drive's last frame alone first, its 5 frames when rejected "
         "(--retry-frames 5): two tests per query"
     )
+    if len(args.chain) > 2:
+        print(
+            f"chain rows: drives of {args.chain[-1]} frames {args.spacing:g} m apart, looks on "
+            f"their last {args.chain} frames in turn (as the sim rows); '*': each look tested at "
+            "the significance spent across the looks (chain_significance)"
+        )
     print(
         f"{'case':>28} {'range m':>7} {'frames':>6} {'queries':>7} {'accepted':>8} {'triangle':>8} "
         f"{'acc w/ dbh':>10} {'retry':>7} {'r w/dbh':>7}"
     )
     args.dbh_rng = np.random.default_rng(args.seed + 150)
+    # The chain's drives: own streams, so the rows of the 1- and 5-frame drives stay as they were.
+    args.chain_rng = np.random.default_rng(args.seed + 200)
+    args.chain_dbh_rng = np.random.default_rng(args.seed + 250)
+    args.chain_totals = np.zeros(7, dtype=int)
     whole = build_map(xy, dbh)
     totals = [0] * 6
     for name, (in_map, (xlo, xhi)) in halves("longleaf", xy, args).items():
@@ -489,6 +581,12 @@ def run_simulated_absent(args) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(name, frames, tree_map, drive, args, totals)
+        chain_absent(
+            name,
+            tree_map,
+            partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi, whole_path=True),
+            args,
+        )
     others = {"spruces in longleaf": (sp_xy, sp_dbh, 2.0)}
     for density in (0.01, 0.02, 0.05):
         sxy = random_stand(3000, density, rng)
@@ -498,10 +596,12 @@ def run_simulated_absent(args) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive, oxy, odbh, rng, frames, args, lo, hi)
             count_absent(name, frames, whole, drive, args, totals)
+        chain_absent(name, whole, partial(simulate_drive, oxy, odbh, lo=lo, hi=hi), args)
     run_clustered_absent(args, xy, dbh, totals)
     for name in args.stand:
         if name not in ("longleaf", "clustered"):
             run_stand_absent(args, name, totals)
+    print_chain_absent_total(args)
     total, total_retry = max(totals[0], 1), max(totals[3], 1)
     print(
         f"absent places accepted: xy {totals[1]}/{total} = {totals[1] / total:.2%}, with DBH "
@@ -509,6 +609,61 @@ def run_simulated_absent(args) -> None:
         f"{totals[4]}/{total_retry} = {totals[4] / total_retry:.2%}, with DBH "
         f"{totals[5]}/{total_retry} = {totals[5] / total_retry:.2%} (target <= 0.5 %)"
     )
+
+
+def chain_absent(name: str, tree_map, simulate, args) -> None:
+    """The chain's absent row of one case: `args.absent_queries` drives of max(chain) frames
+    (own random streams: the rows above stay as they were), `simulate(rng=, frames=, args=)`
+    simulates one; a query is accepted when ANY look accepts. Counts 1>5 on the same drives,
+    the chain, and the chain with its significance spent across its looks ('*')."""
+    from forestslam.localization import localize
+
+    if len(args.chain) < 3:
+        return
+    configs = (chain_config(args, 1), chain_config(args, len(args.chain)))
+    counts = np.zeros((2, 3), dtype=int)  # [xy, xy+dbh] x [1>5, chain, chain*]
+    dbh_rng, args.dbh_rng = args.dbh_rng, args.chain_dbh_rng
+    for _ in range(args.absent_queries):
+        d = simulate(rng=args.chain_rng, frames=args.chain[-1], args=args)
+        views = [aggregate_view(d, args, n) for n in args.chain]
+        for k, with_dbh in enumerate((False, True)):
+            acc = np.array(
+                [
+                    [
+                        localize(
+                            tree_map,
+                            v[0],
+                            c,
+                            local_dbh_m=v[2] if with_dbh else None,
+                            observations=v[3],
+                        ).accepted
+                        for v in views
+                    ]
+                    for c in configs
+                ]
+            )
+            first_two = [i for i, n in enumerate(args.chain) if n in (1, 5)]
+            counts[k] += [acc[0, first_two].any(), acc[0].any(), acc[1].any()]
+    args.dbh_rng = dbh_rng
+    args.chain_totals += np.hstack([[args.absent_queries], counts.ravel()])
+    label = ">".join(map(str, args.chain))
+    print(
+        f"{name:>28} {args.range:>7.0f} {label:>6} {args.absent_queries:>7} chain looks "
+        f"accepted (any): 1>5 {counts[0, 0]}, {label} {counts[0, 1]}, {label}* {counts[0, 2]}; "
+        f"with DBH {counts[1, 0]}, {counts[1, 1]}, {counts[1, 2]}"
+    )
+
+
+def print_chain_absent_total(args) -> None:
+    if len(args.chain) < 3:
+        return
+    t = args.chain_totals
+    n = max(int(t[0]), 1)
+    label = ">".join(map(str, args.chain))
+    names = ("1>5", label, label + "*")
+    xy = ", ".join(f"{m} {t[1 + i]}/{n} = {t[1 + i] / n:.2%}" for i, m in enumerate(names))
+    dbh = ", ".join(f"{m} {t[4 + i]}/{n} = {t[4 + i] / n:.2%}" for i, m in enumerate(names))
+    print(f"absent places accepted by ANY look of a chain (same drives): xy {xy}; with DBH {dbh}")
 
 
 def run_clustered_absent(args, ll_xy, ll_dbh, totals) -> None:
@@ -523,10 +678,17 @@ def run_clustered_absent(args, ll_xy, ll_dbh, totals) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(name, frames, tree_map, drive, args, totals)
+        chain_absent(
+            name,
+            tree_map,
+            partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi, whole_path=True),
+            args,
+        )
     whole = build_map(xy)
     for frames in (1, 5):
         drive = partial(simulate_drive, ll_xy, ll_dbh, rng, frames, args)
         count_absent("longleaf in clustered", frames, whole, drive, args, totals)
+    chain_absent("longleaf in clustered", whole, partial(simulate_drive, ll_xy, ll_dbh), args)
 
 
 def run_stand_absent(args, name: str, totals) -> None:
@@ -542,14 +704,24 @@ def run_stand_absent(args, name: str, totals) -> None:
         for frames in (1, 5):
             drive = partial(simulate_drive_x, xy, dbh, rng, frames, args, xlo, xhi)
             count_absent(case, frames, tree_map, drive, args, totals)
+        chain_absent(
+            case,
+            tree_map,
+            partial(simulate_drive_x, xy, dbh, xlo=xlo, xhi=xhi, whole_path=True),
+            args,
+        )
 
 
-def simulate_drive_x(xy, dbh, rng, frames, args, xlo, xhi) -> Drive:
-    """simulate_drive with the last pose's x inside [xlo, xhi] (a strip of the stand)."""
+def simulate_drive_x(xy, dbh, rng, frames, args, xlo, xhi, whole_path=False) -> Drive:
+    """simulate_drive with the last pose's x inside [xlo, xhi] (a strip of the stand); with
+    `whole_path` every frame's (a long drive's earlier frames would otherwise see into the
+    mapped half: the chain's 7-frame drives, 18 m, were found there, 0.1 m off, and counted as
+    absent places accepted)."""
     ylo, yhi = float(xy[:, 1].min()) + 5, float(xy[:, 1].max()) - 5
     for _ in range(1000):
         d = simulate_drive(xy, dbh, rng, frames, args, min(xlo, ylo), max(xhi, yhi))
-        if xlo <= d.truth[0] <= xhi and ylo <= d.truth[1] <= yhi:
+        at = np.array([T[:2, 3] for T in d.poses]) if whole_path else np.array([d.truth[:2]])
+        if ((at >= [xlo, ylo]) & (at <= [xhi, yhi])).all():
             return d
     raise RuntimeError("no drivable pose in the strip")
 
@@ -583,7 +755,7 @@ def treeloc_retry_view(table, k: int, args, config):
     """The query of frame k retried as `forestslam localize --retry-frames R` would: frame k
     and up to R - 1 earlier frames at least config.retry_keyframe_distance_m apart, each
     levelled by its stems, aggregated in frame k's levelled frame by the table's reference
-    poses (standing in for odometry: no drift)."""
+    poses (standing in for odometry: no drift); with the frames each trunk was seen in."""
     from forestslam.geometry import planar_pose
     from forestslam.localization import aggregate_stems
     from forestslam.localization.tables import query_trees, true_planar_pose
@@ -602,7 +774,7 @@ def treeloc_retry_view(table, k: int, args, config):
         xy, _dbh, R = query_trees(table, j, args.treeloc_gravity, config.max_range_m)
         xys.append(xy)
         poses.append(planar_pose(*true_planar_pose(table, j, R)))
-    return aggregate_stems(xys, poses, config)
+    return aggregate_stems(xys, poses, config, return_observations=True)
 
 
 def treeloc_localize(tree_map, table, k: int, args, config):
@@ -614,8 +786,8 @@ def treeloc_localize(tree_map, table, k: int, args, config):
     local, local_dbh, R = query_trees(table, int(k), args.treeloc_gravity, config.max_range_m)
     loc = localize(tree_map, local, config, local_dbh if args.treeloc_dbh else None)
     if loc.rejected and args.treeloc_retry > 1:
-        local = treeloc_retry_view(table, int(k), args, config)
-        return localize(tree_map, local, config), R, len(local), True
+        local, seen_in = treeloc_retry_view(table, int(k), args, config)
+        return localize(tree_map, local, config, observations=seen_in), R, len(local), True
     return loc, R, len(local), False
 
 
@@ -783,9 +955,9 @@ def run_paper_table(args) -> None:
         for matcher in ("paper", "default"):
             config = LocalizationConfig(matcher=matcher)
             tri, ok, wrong, ms = [], 0, 0, []
-            for local, truth, _dbh in queries:
+            for local, truth, _dbh, seen_in in queries:
                 c0 = time.process_time()
-                loc = localize(tree_map, local, config)
+                loc = localize(tree_map, local, config, observations=seen_in)
                 ms.append(1e3 * (time.process_time() - c0))
                 tri.append(loc.matched_triangles)
                 if loc.accepted:
@@ -1064,9 +1236,9 @@ def run_speed_queries(args, rng, xy) -> None:
         times, cpu, sizes, ok = [], [], [], 0
         lo, hi = float(xy.min() + 5), float(xy.max() - 5)
         for _ in range(args.speed_queries):
-            local, truth, _dbh = simulate_query(xy, dbh, rng, frames, args, lo, hi)
+            local, truth, _dbh, seen_in = simulate_query(xy, dbh, rng, frames, args, lo, hi)
             c0 = time.process_time()
-            loc = localize(tree_map, local)
+            loc = localize(tree_map, local, observations=seen_in)
             cpu.append(1e3 * (time.process_time() - c0))
             sizes.append(len(local))
             times.append(loc.time_ms)
@@ -1104,6 +1276,13 @@ def main() -> int:
     parser.add_argument("--false-trunks", type=float, default=2.0, help="persistent, per query")
     parser.add_argument("--transient-false", type=float, default=1.0, help="per frame")
     parser.add_argument("--spacing", type=float, default=3.0, help="metres between frames")
+    parser.add_argument(
+        "--chain",
+        type=lambda v: [int(x) for x in v.split(",")],
+        default=[1, 5, 7],
+        help="'keep driving until accepted': frames of each look, increasing, starting at 1 "
+        "(frames --spacing m apart: 1,5,7 = 0, 12, 18 m driven); fewer than 3 looks: off",
+    )
     parser.add_argument("--min-observations", type=int, default=1)
     parser.add_argument("--dbh-noise", type=float, default=0.03, help="query DBH sigma, m")
     parser.add_argument("--dbh-outliers", type=float, default=0.1, help="gross DBH errors")

@@ -27,6 +27,7 @@ ONLY_PYTHON = {
         "min_observations",
         "max_range_m",
         "retry_frames",
+        "retry_last_frames",
         "retry_keyframe_distance_m",
     },
 }

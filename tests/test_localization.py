@@ -203,7 +203,80 @@ def test_aggregate_stems_moves_frames_into_the_last_and_merges():
     # A detection in only one of >= 3 frames is dropped when two observations are required.
     xys[0] = np.vstack([xys[0], [[10.0, 10.0]]])
     assert len(aggregate_stems(xys, poses, LocalizationConfig(min_observations=2))) == 3
-    assert len(aggregate_stems(xys, poses, LocalizationConfig(min_observations=1))) == 4
+    merged, seen = aggregate_stems(xys, poses, LocalizationConfig(), return_observations=True)
+    assert len(merged) == 4 and sorted(seen.tolist()) == [1, 4, 4, 4]
+
+
+def _cluttered_drive(xy, rng, frames=5, transient=6, radius=20.0):
+    """Frames 3 m apart on a straight path ending 2-8 m from a random tree, 1.5 m off every
+    trunk: true trunks within radius (15 % missed, 5 cm noise) plus `transient` false
+    detections per frame that do not repeat (clutter). Returns the frames' trunks, their poses
+    T_world_sensor and the last frame's true (x, y)."""
+    from scipy.spatial import cKDTree
+
+    tree, lo, hi = cKDTree(xy), xy.min(axis=0) + 30, xy.max(axis=0) - 30
+    while True:
+        a, heading = rng.uniform(-math.pi, math.pi, 2)
+        end = xy[rng.integers(len(xy))] + rng.uniform(2, 8) * np.array([math.cos(a), math.sin(a)])
+        path = end + np.outer(
+            3.0 * np.arange(1 - frames, 1), [math.cos(heading), math.sin(heading)]
+        )
+        if (tree.query(path)[0] > 1.5).all() and (path > lo).all() and (path < hi).all():
+            break
+    c, s = math.cos(heading), math.sin(heading)
+    xys, poses = [], []
+    for pos in path:
+        d = xy - pos
+        d = d[(np.hypot(*d.T) < radius) & (rng.uniform(size=len(d)) > 0.15)]
+        local = d @ np.array([[c, -s], [s, c]]) + rng.normal(0, 0.05, d.shape)
+        r, b = (
+            radius * np.sqrt(rng.uniform(size=transient)),
+            rng.uniform(-math.pi, math.pi, transient),
+        )
+        xys.append(np.vstack([local, np.column_stack([r * np.cos(b), r * np.sin(b)])]))
+        T = np.eye(4)
+        T[:2, :2] = [[c, -s], [s, c]]
+        T[:2, 3] = pos
+        poses.append(T)
+    return xys, poses, end
+
+
+def test_aggregated_views_gathering_transient_clutter_are_found():
+    """5 frames hold more trunks than their last frame alone and must not be found less often.
+    Each frame adds its own transient false detections while the true trunks saturate; the
+    single-triangle stage tries triangles of trunks seen in >= 2 frames first (main spent its
+    budget on triangles holding clutter: 32/40 found here, and 97.2 % against 99.7 % for 1 frame
+    on the bench's clustered stand), and the inlier fraction counts those trunks only."""
+    from forestslam.sim.stand import load_stand
+
+    xy = load_stand(
+        "generated",
+        seed=16,
+        size_m=(500.0, 250.0),
+        process="clustered",
+        density_per_ha=72.08,
+        cluster_radius_m=30.0,
+        trees_per_cluster=70.0,
+        min_spacing_m=1.0,
+    ).xy
+    tree_map = build_map(xy)
+    rng = np.random.default_rng(5)
+    found = {"5 frames": 0, "last frame": 0}
+    wrong = 0
+    for _ in range(40):
+        xys, poses, end = _cluttered_drive(xy, rng)
+        local, seen = aggregate_stems(xys, poses, return_observations=True)
+        views = {"5 frames": (local, seen), "last frame": (xys[-1], None)}
+        for name, (trunks, counts) in views.items():
+            loc = localize(tree_map, trunks, observations=counts)
+            right = math.hypot(loc.x - end[0], loc.y - end[1]) < 0.5
+            found[name] += loc.accepted and right
+            wrong += loc.accepted and not right
+    assert wrong == 0
+    assert found["5 frames"] >= 38
+    assert found["5 frames"] >= found["last frame"]
+    with pytest.raises(InputError, match="observations"):
+        localize(tree_map, local, observations=seen[:-1])
 
 
 def test_extract_trunks_from_a_cloud():

@@ -229,3 +229,62 @@ def test_retry_frames_must_exceed_frames(doubles, tmp_path):
 
     with pytest.raises(InputError, match="retry-frames"):
         run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path, frames=3, retry_frames=3)
+
+
+def test_still_rejected_queries_get_a_last_look_on_more_frames(doubles, tmp_path):
+    """localization.retry_last_frames: one scan holds 16-19 trunks, too few for min_inliers 20;
+    a query rejected on 1 frame and on retry_frames (2) is looked at a last time on up to 5
+    keyframes (the machine kept driving) and found; without the last look it stays rejected."""
+    config = tmp_path / "config.yaml"
+    text = "localization:\n  min_inliers: 20\n  retry_keyframe_distance_m: 1.0\n  retry_frames: 2\n"
+    config.write_text(text + "  retry_last_frames: 5\n")
+    run = run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path / "a", config_path=config)
+    last = [q for q in run.queries if q["looks"] == 3 and q["accepted"]]
+    assert last, [(q["looks"], q["frames"], q["accepted"]) for q in run.queries]
+    for q in last:
+        assert 2 < q["frames"] <= 5 and q["retried"] and q["first_reason"] == "too few inliers"
+        truth = _pose(q["stamp"])
+        assert np.hypot(q["x"] - truth[0, 3], q["y"] - truth[1, 3]) < 0.1
+    assert all(q["looks"] <= 3 and q["frames"] <= 5 for q in run.queries)
+    config.write_text(text + "  retry_last_frames: 0\n")
+    two = run_localization("seq.bag", TreeMap(doubles), "vlp16", tmp_path / "b", config_path=config)
+    by_scan = {q["scan"]: q for q in two.queries}
+    assert all(not by_scan[q["scan"]]["accepted"] for q in last)
+    assert all(q["looks"] <= 2 for q in two.queries)
+
+
+def test_every_look_of_a_retried_query_spends_the_significance():
+    """A query that may get 3 looks tests each at min_significance + log10(3): a view accepted
+    alone at a level just below its significance is rejected when the retries are on (it has
+    no earlier frame, so it gets no second look either)."""
+    from forestslam.localization import LocalizationConfig
+    from forestslam.localization.runner import _query, _QuerySetup
+
+    stand = _stand()
+    T = _pose(0.0)
+    d = np.column_stack([stand, np.zeros(len(stand)), np.ones(len(stand))]) @ np.linalg.inv(T).T
+    xy = d[:, :2][np.hypot(d[:, 0], d[:, 1]) < 15.0]
+    scan = Scan(0.0, np.zeros((1, 3)))
+
+    def first_look(retry_frames: int, retry_last_frames: int, cfg: LocalizationConfig) -> dict:
+        q = _QuerySetup(TreeMap(stand), None, None, cfg, 1, 1, {}, retry_frames, retry_last_frames)
+        return _query(q, [], [], xy, np.eye(4), scan, 0)
+
+    alone = first_look(0, 0, LocalizationConfig())
+    assert alone["accepted"] and alone["looks"] == 1
+    cfg = LocalizationConfig(min_significance=alone["significance"] - 0.1)
+    assert first_look(0, 0, cfg)["accepted"]
+    chained = first_look(5, 7, cfg)
+    assert chained["looks"] == 1 and not chained["retried"]
+    assert not chained["accepted"]
+    assert chained["significance"] == pytest.approx(alone["significance"])
+    assert first_look(5, 0, cfg)["accepted"] is False  # 2 looks: + log10(2) = 0.3
+
+
+def test_chain_significance():
+    from forestslam.localization import chain_significance
+
+    assert chain_significance(2.3, 1) == 2.3
+    assert chain_significance(2.3, 3) == pytest.approx(2.3 + math.log10(3))
+    with pytest.raises(ValueError):
+        chain_significance(2.3, 0)

@@ -233,3 +233,28 @@ TEST(GlobalLocalizer, DbhLengthsMustMatch) {
                  std::invalid_argument);
     EXPECT_FALSE(forestslam::localization::TreeMap(map).hasDbh());
 }
+
+TEST(GlobalLocalizer, ObservationCountsNeedOnePerTrunkAndOneFrameChangesNothing) {
+    Points2 map(400, 2);
+    for (int i = 0; i < 400; ++i)
+        map.row(i) << (i % 20) * 3.1 + 0.4 * ((i * 7) % 5), (i / 20) * 2.9;
+    const forestslam::localization::TreeMap tree_map(map);
+    EXPECT_THROW(tree_map.localize(map, {}, {}, Eigen::VectorXi::Constant(3, 2)),
+                 std::invalid_argument);
+    // Counts of a single frame (all 1) leave every trunk alike: the same answer as no counts,
+    // also for a view larger than the fallback's max_fallback_trunks.
+    // A place not in the map (both stages run in full), larger than the fallback's 10 trunks.
+    forestslam::localization::GlobalLocalizerConfig cfg;
+    cfg.max_fallback_trunks = 10;
+    for (int n : {12, 60}) {
+        Points2 local(n, 2);
+        for (int i = 0; i < n; ++i)
+            local.row(i) << 2.3 * i - 1.7 * (i * i % 11), 1.9 * (i % 7) + 0.8 * (i * i % 13);
+        const auto plain = tree_map.localize(local, cfg);
+        const auto counted = tree_map.localize(local, cfg, {}, Eigen::VectorXi::Ones(n));
+        EXPECT_EQ(plain.stage, counted.stage);
+        EXPECT_EQ(plain.inliers, counted.inliers);
+        EXPECT_EQ(plain.hypotheses, counted.hypotheses);
+        EXPECT_DOUBLE_EQ(plain.significance, counted.significance);
+    }
+}

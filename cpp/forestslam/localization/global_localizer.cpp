@@ -203,6 +203,46 @@ void sortByReach(std::vector<std::array<int, 3>> &tris, const Eigen::Ref<const P
               [&](const auto &a, const auto &b) { return reach(a) < reach(b); });
 }
 
+// Stage 2's local triangles in the order they are tried: each trunk with two of its nearest
+// among the first max_fallback_trunks of `near_rows`, nearest first. When some trunks are not
+// confirmed (seen in one aggregated frame only: a transient false detection is, and an
+// aggregated view gathers one per frame while its true trunks saturate), the triangles of the
+// confirmed trunks among themselves come first (a transient does not take a true neighbour's
+// place), then the others.
+std::vector<std::array<int, 3>> fallbackTriangles(const Eigen::Ref<const Points2> &local,
+                                                  const std::vector<int> &near_rows,
+                                                  const std::vector<bool> &confirmed,
+                                                  const GlobalLocalizerConfig &cfg) {
+    auto firstRows = [&](bool confirmed_only) {
+        std::vector<int> rows;
+        for (int r : near_rows) {
+            if (cfg.max_fallback_trunks > 0 && int(rows.size()) >= cfg.max_fallback_trunks) break;
+            if (!confirmed_only || confirmed[r]) rows.push_back(r);
+        }
+        return rows;
+    };
+    auto trianglesOf = [&](const std::vector<int> &rows) {
+        std::vector<std::array<int, 3>> tris =
+            neighbourTriangles(local, rows, cfg.triangle_neighbours, kMaxTriangleEdge);
+        sortByReach(tris, local);
+        return tris;
+    };
+    const std::vector<int> all = firstRows(false), sure = firstRows(true);
+    // (neighbourTriangles takes every row when given none: fewer than 3 sure rows, one group.)
+    if (sure == all || sure.size() < 3) return trianglesOf(all);
+    std::vector<std::array<int, 3>> out = trianglesOf(sure);
+    auto key = [](std::array<int, 3> t) {
+        std::sort(t.begin(), t.end());
+        return t;
+    };
+    std::vector<std::array<int, 3>> tried;
+    for (const auto &t : out) tried.push_back(key(t));
+    std::sort(tried.begin(), tried.end());
+    for (const auto &t : trianglesOf(all))
+        if (!std::binary_search(tried.begin(), tried.end(), key(t))) out.push_back(t);
+    return out;
+}
+
 // Eq. 3: the candidate angles between corresponding centre edges of two stars (vertices in
 // canonical order, Eq. 2); the one with the smallest squared vertex residual wins, the
 // translation D is the centroid difference.
@@ -277,9 +317,10 @@ void setCovariance(const Points2 &local, const Points2 &map,
     if (lu.isInvertible()) res.covariance = sigma2 * lu.inverse();
 }
 
-// The verdict of the acceptance test on res (its inliers and trunks set), the answer's
-// evidence and the runner-up's fraction of it.
-void applyVerdict(const ChanceEvidence &best, double runner_fraction,
+// The verdict of the acceptance test on res (its inliers set), the answer's evidence and the
+// runner-up's fraction of it; `explainable` local trunks are expected to have a map trunk (the
+// base of min_inlier_fraction).
+void applyVerdict(const ChanceEvidence &best, double runner_fraction, int explainable,
                   const GlobalLocalizerConfig &cfg, GlobalLocalization &res) {
     res.significance = best.significance;
     res.expected_chance_inliers = best.expected;
@@ -293,7 +334,7 @@ void applyVerdict(const ChanceEvidence &best, double runner_fraction,
     const AcceptanceVerdict verdict = judge(best, runner_fraction, acfg);
     res.rejected = !verdict.accepted;
     res.reason = verdict.reason;
-    if (verdict.accepted && res.inliers < cfg.min_inlier_fraction * res.local_trunks) {
+    if (verdict.accepted && res.inliers < cfg.min_inlier_fraction * explainable) {
         res.rejected = true;
         res.reason = "inlier fraction too low";
     }
@@ -432,9 +473,17 @@ struct TreeMap::Hypotheses {
 struct TreeMap::Query {
     // with_dbh: both sides have DBH and the test uses it (scoring_dbh filled).
     Query(const Eigen::Ref<const Points2> &local_in, const GlobalLocalizerConfig &cfg,
-          const Eigen::VectorXd &local_dbh, bool with_dbh)
+          const Eigen::VectorXd &local_dbh, bool with_dbh, const Eigen::VectorXi &observations)
         : input(local_in), tri(delaunayTriangulation(local_in, cfg.duplicate_tolerance_m)) {
         usable = rowsOf(input, tri.used_points);
+        // Without observation counts every trunk counts as confirmed (one order, as before).
+        confirmed.assign(input.rows(), true);
+        for (Eigen::Index i = 0; i < observations.size(); ++i) confirmed[i] = observations[i] >= 2;
+        // The trunks a true pose should explain: in an aggregated view the confirmed ones (not
+        // the transient detections it gathers, one set per frame); all in a single frame.
+        explainable = 0;
+        for (int r : tri.used_points) explainable += confirmed[r];
+        if (explainable == 0) explainable = static_cast<int>(usable.rows());
         // Bounded work on huge local sets: hypotheses are scored on (and the fallback triangles
         // built from) the trunks nearest the local origin, where the view is most complete.
         near_rows = tri.used_points;
@@ -455,16 +504,23 @@ struct TreeMap::Query {
     std::vector<int> near_rows;       // rows of input nearest the origin (max_query_trunks)
     Points2 scoring;                  // those rows: the hypotheses are scored on them
     Eigen::VectorXd scoring_dbh;      // their diameters; empty unless with_dbh
+    std::vector<bool> confirmed;      // per input row: seen in >= 2 frames (or no counts given)
+    int explainable = 0;              // usable trunks confirmed (all when none is)
 };
 
 GlobalLocalization TreeMap::localize(const Eigen::Ref<const Points2> &local_in,
                                      const GlobalLocalizerConfig &cfg,
-                                     const Eigen::VectorXd &local_dbh) const {
-    if (local_dbh.size() != 0 && local_dbh.size() != local_in.rows())
-        throw std::invalid_argument("localize: " + std::to_string(local_dbh.size()) +
-                                    " DBH values for " + std::to_string(local_in.rows()) +
-                                    " local trunks");
-    const Query q(local_in, cfg, local_dbh, cfg.dbh_evidence && hasDbh() && local_dbh.size() != 0);
+                                     const Eigen::VectorXd &local_dbh,
+                                     const Eigen::VectorXi &observations) const {
+    auto checkLength = [&](Eigen::Index n, const char *what) {
+        if (n != 0 && n != local_in.rows())
+            throw std::invalid_argument("localize: " + std::to_string(n) + " " + what + " for " +
+                                        std::to_string(local_in.rows()) + " local trunks");
+    };
+    checkLength(local_dbh.size(), "DBH values");
+    checkLength(observations.size(), "observation counts");
+    const Query q(local_in, cfg, local_dbh, cfg.dbh_evidence && hasDbh() && local_dbh.size() != 0,
+                  observations);
     GlobalLocalization res;
     res.local_trunks = static_cast<int>(q.usable.rows());
     if (q.tri.size() == 0) {
@@ -557,12 +613,8 @@ void TreeMap::matchStar(const Query &q, const Star &star, const GlobalLocalizerC
 
 void TreeMap::triangleHypotheses(const Query &q, const GlobalLocalizerConfig &cfg, int decisive,
                                  Hypotheses &hyps) const {
-    std::vector<int> fallback_rows = q.near_rows;
-    if (cfg.max_fallback_trunks > 0 && int(fallback_rows.size()) > cfg.max_fallback_trunks)
-        fallback_rows.resize(cfg.max_fallback_trunks);
-    std::vector<std::array<int, 3>> ltris =
-        neighbourTriangles(q.input, fallback_rows, cfg.triangle_neighbours, kMaxTriangleEdge);
-    sortByReach(ltris, q.input);
+    const std::vector<std::array<int, 3>> ltris =
+        fallbackTriangles(q.input, q.near_rows, q.confirmed, cfg);
     // Bounded time where nothing matches (an absent place in a dense map verifies thousands of
     // chance triangle matches): at most max_fallback_matches, nearest triangles first.
     const int budget = hyps.verified + std::max(0, cfg.max_fallback_matches);
@@ -835,7 +887,7 @@ GlobalLocalization TreeMap::decide(const GlobalLocalization &base, std::vector<H
         cfg.matcher == Matcher::Paper
             ? (sel.runner >= 0 ? double(hyps[sel.runner].score) / std::max(best.score, 1) : 0.0)
             : runnerUpFraction(sel.best_evidence.significance, res.runner_up);
-    applyVerdict(sel.best_evidence, runner_fraction, cfg, res);
+    applyVerdict(sel.best_evidence, runner_fraction, q.explainable, cfg, res);
     return res;
 }
 

@@ -128,11 +128,15 @@ class TreeMap {
     explicit TreeMap(const Eigen::Ref<const Points2> &xy, double duplicate_tolerance_m = 0.01,
                      const Eigen::VectorXd &dbh = {});
 
-    // local_dbh (K,) the local trunks' diameters (m, NaN where unknown; empty: none); another
-    // length than local_xy's is std::invalid_argument.
+    // local_dbh (K,) the local trunks' diameters (m, NaN where unknown; empty: none).
+    // observations (K,) in how many aggregated frames each trunk was detected (empty: unknown):
+    // the single-triangle stage tries triangles of trunks seen in >= 2 frames first (transient
+    // false detections are seen once); the acceptance test does not use them. Another length
+    // than local_xy's is std::invalid_argument.
     GlobalLocalization localize(const Eigen::Ref<const Points2> &local_xy,
                                 const GlobalLocalizerConfig &config = {},
-                                const Eigen::VectorXd &local_dbh = {}) const;
+                                const Eigen::VectorXd &local_dbh = {},
+                                const Eigen::VectorXi &observations = {}) const;
 
     const Points2 &points() const { return xy_; }
     bool hasDbh() const { return !dbh_neighbours_.empty(); }

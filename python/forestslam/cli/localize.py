@@ -13,10 +13,12 @@ Gravity = Literal["stems", "reference", "none"]  # how a tree table's frames are
 
 
 _RETRY_HELP = (
-    "When a query is rejected, retry it once on up to this many of the last frames (> N), at "
-    "least localization.retry_keyframe_distance_m (3 m) apart, aggregated by odometry; each "
-    "query records `retried` and the frames of its answer. Default: localization.retry_frames "
-    "(5; off when N >= 5); 0: no retry. Scans only: a tree table's frames are queried one by one."
+    "When a query is rejected, retry it on up to this many of the last frames (> N), at "
+    "least localization.retry_keyframe_distance_m (3 m) apart, aggregated by odometry, and "
+    "when still rejected a last time on up to localization.retry_last_frames (7); every look "
+    "is tested at the significance level spent across the looks. Each query records `retried`, "
+    "`looks` and the frames of its answer. Default: localization.retry_frames (5; off when "
+    "N >= 5); 0: no retry. Scans only: a tree table's frames are queried one by one."
 )
 
 

@@ -9,6 +9,7 @@ from forestslam.localization.config import LocalizationConfig
 from forestslam.localization.localize import (
     Localization,
     aggregate_stems,
+    chain_significance,
     extract_trunks,
     localize,
     merge_close,
@@ -21,6 +22,7 @@ __all__ = [
     "LocalizationConfig",
     "TreeMap",
     "aggregate_stems",
+    "chain_significance",
     "build_map",
     "extract_trunks",
     "load_map",

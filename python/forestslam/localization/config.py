@@ -92,6 +92,11 @@ class LocalizationConfig:
     # many of the last frames, aggregated by odometry (the trunks already driven past; a view
     # of at most 3 map trunks is always rejected). 0 or at most the query's frames: off.
     retry_frames: NonNegativeInt = 5
+    # Still rejected on retry_frames: once more on up to this many (the machine keeps driving:
+    # 7 frames 3 m apart span 18 m); at most retry_frames: off. Every look of a query that may be
+    # retried is tested at chain_significance(min_significance, looks), so the chance that ANY
+    # look accepts an absent place stays within the level.
+    retry_last_frames: NonNegativeInt = 7
     retry_keyframe_distance_m: NonNegative = 3.0  # the retry's frames at least this far apart
     max_range_m: Positive = 25.0  # detections further from their sensor are dropped
 

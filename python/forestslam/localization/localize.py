@@ -101,6 +101,7 @@ _NOT_IN_CORE = (
     "distinct_yaw_deg",
     "matcher",
     "retry_frames",
+    "retry_last_frames",
     "retry_keyframe_distance_m",
 )
 
@@ -121,18 +122,33 @@ def _runner_up(r) -> RunnerUp:
     return RunnerUp(r.x, r.y, r.yaw, r.inliers, r.significance)
 
 
+def chain_significance(min_significance: float, looks: int) -> float:
+    """The significance each of ``looks`` tests of one place must reach so that the chance that
+    ANY of them accepts an absent place stays at 10**-min_significance (Bonferroni: the looks
+    of a query retried on more frames share most trunks, so this is conservative)."""
+    if looks < 1:
+        raise ValueError(f"looks must be >= 1 (got {looks})")
+    return min_significance + math.log10(looks)
+
+
 def localize(
     tree_map: TreeMap,
     local_xy: np.ndarray,
     config: LocalizationConfig | None = None,
     local_dbh_m: np.ndarray | None = None,
+    observations: np.ndarray | None = None,
 ) -> Localization:
     """Pose of the frame of ``local_xy`` (K,2) trunk positions in ``tree_map``'s frame.
 
     ``local_dbh_m`` (K,) the trunks' diameters in metres (NaN where unknown): when the map has
     DBH too, their agreement is evidence of the acceptance test (``config.dbh_evidence``).
+    ``observations`` (K,) in how many aggregated frames each trunk was detected
+    (``aggregate_stems(..., return_observations=True)``): the single-triangle stage tries
+    triangles of trunks seen in 2 or more frames first (a transient false detection is seen in
+    one); the acceptance test does not use them. None: all trunks alike.
     Never raises for few, collinear, duplicate or NaN trunks: the result is ``rejected`` with a
-    ``reason``. A ``(K,2)`` shape is required, and one DBH per trunk (InputError otherwise).
+    ``reason``. A ``(K,2)`` shape is required, and one DBH and count per trunk (InputError
+    otherwise).
     """
     import time
 
@@ -146,9 +162,17 @@ def localize(
         raise InputError(
             f"localize: local_dbh_m must have one value per trunk ({len(local)},), got {dbh.shape}"
         )
+    seen = np.zeros(0, np.int32) if observations is None else np.asarray(observations)
+    if observations is not None and seen.shape != (len(local),):
+        raise InputError(
+            f"localize: observations must have one count per trunk ({len(local)},), "
+            f"got {seen.shape}"
+        )
     core_config = _core_config(config)
     t0 = time.perf_counter()
-    r = tree_map.index.localize(local, core_config, np.ascontiguousarray(dbh))
+    r = tree_map.index.localize(
+        local, core_config, np.ascontiguousarray(dbh), np.ascontiguousarray(seen, dtype=np.int32)
+    )
     ms = 1e3 * (time.perf_counter() - t0)
     result = Localization(
         x=r.x,
@@ -190,20 +214,24 @@ def aggregate_stems(
     xys: list[np.ndarray],
     poses: list[np.ndarray],
     config: LocalizationConfig | None = None,
-) -> np.ndarray:
+    return_observations: bool = False,
+):
     """Trunks seen in several scans, in the frame of the last scan.
 
     ``xys[i]`` (K_i,2) stem centres in scan i's sensor frame, ``poses[i]`` (4,4)
     T_world_sensor of scan i (odometry). Detections beyond ``max_range_m`` are dropped,
     detections of one trunk from several scans (closer than ``merge_radius_m``) are averaged,
     and with at least 3 scans a trunk must be seen in ``min_observations`` of them (transient
-    false detections do not repeat). Returns (K,2) in the last scan's sensor frame (planar).
+    false detections do not repeat). Returns (K,2) in the last scan's sensor frame (planar);
+    with ``return_observations`` also (K,) int, the scans each trunk was seen in (for
+    ``localize(..., observations=)``).
     """
     config = config or LocalizationConfig()
     if len(xys) != len(poses):
         raise InputError(f"aggregate_stems: {len(xys)} stem sets for {len(poses)} poses")
+    empty = (np.zeros((0, 2)), np.zeros(0, dtype=np.int32))
     if not xys:
-        return np.zeros((0, 2))
+        return empty if return_observations else empty[0]
     T_last_world = np.linalg.inv(np.asarray(poses[-1], dtype=np.float64))
     parts, frame_ids = [], []
     for k, (xy, pose) in enumerate(zip(xys, poses, strict=True)):
@@ -217,15 +245,16 @@ def aggregate_stems(
         parts.append((pts @ T.T)[:, :2])
         frame_ids.append(np.full(len(xy), k))
     if not parts:
-        return np.zeros((0, 2))
+        return empty if return_observations else empty[0]
     points = np.concatenate(parts)
     centres, labels = merge_close(points, config.merge_radius_m, return_labels=True)
+    seen = np.zeros((len(centres), len(xys)), dtype=bool)
+    seen[labels, np.concatenate(frame_ids)] = True
+    counts = seen.sum(axis=1).astype(np.int32)
     if len(xys) >= 3 and config.min_observations > 1:
-        frames = np.concatenate(frame_ids)
-        seen = np.zeros((len(centres), len(xys)), dtype=bool)
-        seen[labels, frames] = True
-        centres = centres[seen.sum(axis=1) >= config.min_observations]
-    return centres
+        keep = counts >= config.min_observations
+        centres, counts = centres[keep], counts[keep]
+    return (centres, counts) if return_observations else centres
 
 
 def merge_close(xy: np.ndarray, radius: float, return_labels: bool = False):

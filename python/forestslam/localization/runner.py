@@ -12,9 +12,13 @@ earlier scans at least that far apart (a wider view); 0 means the last N scans.
 With ``retry_frames`` R > N (``localization.retry_frames``, 5 by default), a rejected query is
 tried once more on the last R frames at least ``retry_keyframe_distance_m`` (3 m) apart (as many
 as the sequence has given so far), aggregated by odometry like N: the machine told "rejected"
-waits for more trunks, and these are the trunks it has already driven past. The record says
-which answer it is: ``retried``, ``frames`` (the frames of the answer) and ``first_reason`` (why
-the N-frame query was rejected; "" when not retried); run.yaml's summary counts the retried.
+waits for more trunks, and these are the trunks it has already driven past. Still rejected, it
+is tried a last time on up to ``retry_last_frames`` (7: 18 m of driving) when the sequence has
+given more. Each look is another chance to accept an absent place, so every look of such a query
+is tested at ``chain_significance(min_significance, looks)``. The record says which answer it
+is: ``retried``, ``frames`` (the frames of the answer), ``looks`` (tests made) and
+``first_reason`` (why the N-frame query was rejected; "" when not retried); run.yaml's summary
+counts the retried.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +36,12 @@ import numpy as np
 from forestslam.errors import InputError, ProcessingError
 from forestslam.geometry import planar_pose
 from forestslam.localization.config import LocalizationConfig
-from forestslam.localization.localize import Localization, aggregate_stems, localize
+from forestslam.localization.localize import (
+    Localization,
+    aggregate_stems,
+    chain_significance,
+    localize,
+)
 from forestslam.localization.tree_map import TreeMap, load_map
 
 log = logging.getLogger(__name__)
@@ -64,12 +73,14 @@ def _query_record(
     frames: int = 1,
     first_reason: str = "",
     retried: bool = False,
+    looks: int = 1,
 ) -> dict:
     return {
         "stamp": float(stamp),
         "scan": int(scan),
         "frames": int(frames),
         "retried": bool(retried),
+        "looks": int(looks),
         "first_reason": first_reason,
         "accepted": loc.accepted,
         "x": float(loc.x),
@@ -207,6 +218,7 @@ def run_localization(
     root, cfg = _load_config(config_path, keyframe_distance_m)
     if retry_frames is None:  # the config's, off when it asks for no more than a query has
         retry_frames = cfg.retry_frames if cfg.retry_frames > frames else 0
+    retry_last = cfg.retry_last_frames if 0 < retry_frames < cfg.retry_last_frames else 0
     profile = load_profile(sensor)
     tree_map = _open_map(map_path)
     # `start` skipped undecoded; raw Velodyne packets decoded as the profile says
@@ -217,6 +229,7 @@ def run_localization(
         "sensor": profile.name,
         "frames": frames,
         "retry_frames": retry_frames,
+        "retry_last_frames": retry_last,
         "retry_keyframe_distance_m": cfg.retry_keyframe_distance_m,
         "every": every,
         "keyframe_distance_m": cfg.keyframe_distance_m,
@@ -224,7 +237,9 @@ def run_localization(
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
         "config": {"localization": to_dict(cfg)},
     }
-    query = _QuerySetup(tree_map, profile, root, cfg, frames, every, meta, retry_frames)
+    query = _QuerySetup(
+        tree_map, profile, root, cfg, frames, every, meta, retry_frames, retry_last
+    )
 
     def loop(run: LocalizationRun) -> None:
         bar = Progress(count, "scan", "localize", enabled=progress)
@@ -249,11 +264,24 @@ class _QuerySetup:
     every: int
     meta: dict
     retry_frames: int = 0  # > frames: a rejected query is retried on up to this many frames
+    retry_last_frames: int = 0  # > retry_frames: still rejected, once more on up to this many
 
     @property
     def needs_odometry(self) -> bool:
         """Frames aggregated: a query of several frames, or a retry."""
         return max(self.frames, self.retry_frames) > 1
+
+    @property
+    def looks(self) -> int:
+        """Tests a query may get: the first, the retry, the last retry."""
+        return 1 + (self.retry_frames > 0) + (self.retry_last_frames > 0)
+
+    @property
+    def look_config(self) -> LocalizationConfig:
+        """The config of every look: the significance level spent across the looks."""
+        return replace(
+            self.cfg, min_significance=chain_significance(self.cfg.min_significance, self.looks)
+        )
 
 
 class _Keyframes:
@@ -295,7 +323,9 @@ def _localize_along(scans, first: int, q: _QuerySetup, run: LocalizationRun, bar
     # Earlier frames (keyframes at least keyframe_distance_m apart, the retry's at least
     # retry_keyframe_distance_m); the current scan is always the last frame of a query.
     window = _Keyframes(q.frames - 1, q.cfg.keyframe_distance_m)
-    retry_window = _Keyframes(q.retry_frames - 1, q.cfg.retry_keyframe_distance_m)
+    retry_window = _Keyframes(
+        max(q.retry_frames, q.retry_last_frames) - 1, q.cfg.retry_keyframe_distance_m
+    )
     for i, scan in enumerate(scans, start=first):
         run.scans += 1
         bar.update(1, queries=len(run.queries), accepted=run.accepted)
@@ -324,17 +354,27 @@ def _query(
     q: _QuerySetup, earlier: list, retry_earlier: list, xy: np.ndarray, T: np.ndarray, scan, i
 ) -> dict:
     """The record of one query (scan `scan`, number i): the current scan and the last frames - 1
-    earlier frames; when rejected and the retry's frames hold more than that, once more on the
-    current scan and up to retry_frames - 1 earlier ones."""
+    earlier frames; when rejected and the retry's keyframes hold more than that, once more on the
+    current scan and up to retry_frames - 1 earlier ones; still rejected and holding more, a
+    last time on up to retry_last_frames - 1 (every look at the level spent across the looks)."""
+    config = q.look_config
 
     def attempt(frames: list) -> tuple[Localization, int, int]:
-        local = aggregate_stems([f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg)
-        return localize(q.tree_map, local, q.cfg), len(local), len(frames) + 1
+        local, seen = aggregate_stems(
+            [f[0] for f in frames] + [xy], [f[1] for f in frames] + [T], q.cfg, True
+        )
+        return localize(q.tree_map, local, config, observations=seen), len(local), len(frames) + 1
+
+    def last(frames: int) -> list:
+        return retry_earlier[max(len(retry_earlier) - (frames - 1), 0) :] if frames > 1 else []
 
     loc, trunks, used = attempt(earlier[len(earlier) - (q.frames - 1) :] if q.frames > 1 else [])
-    first_reason, retried = "", False
-    if loc.rejected and len(retry_earlier) >= q.frames:
-        first_reason, retried = loc.reason, True
-        loc, trunks, used = attempt(retry_earlier)
+    first_reason, looks = "", 1
+    for frames in (q.retry_frames, q.retry_last_frames):
+        if not (loc.rejected and frames and len(last(frames)) >= used):
+            break
+        first_reason = first_reason or loc.reason
+        loc, trunks, used = attempt(last(frames))
+        looks += 1
         log.debug("scan %d: rejected (%s), retried on %d frames", i, first_reason, used)
-    return _query_record(scan.stamp, i, trunks, loc, used, first_reason, retried)
+    return _query_record(scan.stamp, i, trunks, loc, used, first_reason, looks > 1, looks)

@@ -203,9 +203,11 @@ void defineTreeMap(py::module_ &m) {
              "stem diameters in m (NaN unknown, empty none) for the DBH evidence.")
         .def("localize", &localization::TreeMap::localize, py::arg("local_xy"),
              py::arg("config") = localization::GlobalLocalizerConfig(),
-             py::arg("local_dbh") = Eigen::VectorXd(), py::call_guard<py::gil_scoped_release>(),
+             py::arg("local_dbh") = Eigen::VectorXd(), py::arg("observations") = Eigen::VectorXi(),
+             py::call_guard<py::gil_scoped_release>(),
              "Pose of the local frame in the map from local trunks (K,2) and optionally their "
-             "diameters (K,) -> GlobalLocalization.")
+             "diameters (K,) and detection counts over aggregated frames (K,) -> "
+             "GlobalLocalization.")
         .def_property_readonly("points", &localization::TreeMap::points, "(M,2) map trunks")
         .def_property_readonly(
             "triangles",
