@@ -267,14 +267,18 @@ def main() -> None:
     for (name, noise), rs in runs.items():
         for stage, e in scan_stage_errors(rs).items():
             print(f"{name:6} {100 * noise:4.0f}c {stage:13} {stats(e)}")
+    # The filter off, and the removed returns as evidence per cluster (intensity_as_evidence),
+    # beside the filter before the clustering (the default), all at 1 m steps.
+    variants = (
+        ("chosen, filter (1 m steps)", config),
+        ("chosen, no intensity filter", dataclasses.replace(config, intensity_filter=False)),
+        ("chosen, intensity evidence", dataclasses.replace(config, intensity_as_evidence=True)),
+    )
     for style in (ROUND, ROUGH, ROUGH_MATERIAL):
-        off = dataclasses.replace(config, intensity_filter=False)
-        rs = [drive(style, noises[-1], s, args.sensor, off, step_m=1.0) for s in seeds]
-        e = scan_stage_errors(rs)
-        print(
-            f"{style.name:6} {100 * noises[-1]:4.0f}c {'chosen, no intensity filter':28} "
-            f"{stats(e['chosen'])}"
-        )
+        for label, cfg in variants:
+            rs = [drive(style, noises[-1], s, args.sensor, cfg, step_m=1.0) for s in seeds]
+            e = scan_stage_errors(rs)
+            print(f"{style.name:6} {100 * noises[-1]:4.0f}c {label:28} {stats(e['chosen'])}")
     # Beam footprint: a VLP-16 beam diverges ~3 mrad; returns from partly hit edges widen a
     # silhouette by up to range x divergence (worst case: any part of the footprint returns).
     for style in (ROUND, ROUGH_MATERIAL):

@@ -106,6 +106,11 @@ struct DiameterConfig {
 
 struct PerceptionConfig {
     double intensity_threshold = std::numeric_limits<double>::quiet_NaN();  // NaN: no filter
+    // Single scans: cluster the returns the filter removes too and keep those a cluster's
+    // geometry shows to be its bark (detector.cpp, refineWithEvidence) instead of filtering
+    // before the clustering. Off by default: on our simulator's style-a loops it still lets
+    // bright foliage carry saplings into the tree map (fewer mapped trees with a DBH).
+    bool intensity_as_evidence = false;
     GroundConfig ground;
     NormalFilterConfig filter;
     SegmentationConfig segmentation;

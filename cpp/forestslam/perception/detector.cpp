@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdint>
 #include <ctime>
+#include <limits>
+#include <map>
 #include <unordered_map>
 
 #include "forestslam/common/voxel_key.hpp"
@@ -131,6 +133,10 @@ struct Input {
     Eigen::RowVector3d origin = Eigen::RowVector3d::Zero();
     Eigen::VectorXi ring;            // per row of pts; empty when the input has no rings
     Points3 bright = Points3(0, 3);  // finite rows the intensity filter left out
+    Eigen::VectorXi bright_ring;     // per row of bright; empty when the input has no rings
+    // Rows of pts the intensity filter kept: all, unless the removed ones were appended after
+    // them for the clustering (see appendRemovedReturns).
+    Eigen::Index kept_rows = 0;
 };
 
 // 1. Finite rows within the intensity threshold (and apart, those above it: the diameter stage
@@ -150,8 +156,9 @@ Input selectInput(const Eigen::Ref<const Points3> &points,
     det.finite_points = static_cast<int>(finite.size());
     Input in;
     in.pts = selectRows(points, finite);
+    in.kept_rows = in.pts.rows();
+    std::vector<int> bright;
     if (keep.size() < static_cast<size_t>(points.rows())) {
-        std::vector<int> bright;
         size_t k = 0;
         for (Eigen::Index i = 0; i < points.rows(); ++i) {
             if (k < keep.size() && keep[k] == i) {
@@ -171,8 +178,53 @@ Input selectInput(const Eigen::Ref<const Points3> &points,
         in.ring.resize(static_cast<Eigen::Index>(finite.size()));
         for (size_t k = 0; k < finite.size(); ++k)
             in.ring(static_cast<Eigen::Index>(k)) = ring(finite[k]);
+        in.bright_ring.resize(static_cast<Eigen::Index>(bright.size()));
+        for (size_t k = 0; k < bright.size(); ++k)
+            in.bright_ring(static_cast<Eigen::Index>(k)) = ring(bright[k]);
     }
     return in;
+}
+
+// When the returns the intensity filter removed from a cluster count as its bark (see
+// removedFaceTheSensor): their median off-centre at least this much below the kept ones'
+// (0 faces the sensor, 1 grazes the edge), ...
+constexpr double kCentreMargin = 0.1;
+// ... on at least this many scan lines holding both, ...
+constexpr int kMinMixedLines = 2;
+// ... and a rank-sum z at least this (one-sided p ~ 0.02 under "intensity does not depend on
+// where a return meets the section", as for foliage).
+constexpr double kMinCentreZ = 2.0;
+
+// True when the clustering sees the returns the intensity filter removed too, and intensity is
+// only evidence per cluster (see refineWithEvidence): when the config asks for it, on single
+// scans with a range image and beam elevations in which the filter removed something. A fixed
+// threshold cannot know another sensor's or simulator's intensity scale: under a brighter gain it
+// removes the bark facing the sensor and breaks each stem into edge strips before any geometry is
+// seen. Map and TLS clouds keep the filter before the clustering.
+bool intensityAsEvidence(const Input &in, const SensorGeometry &sensor, bool scan_centred,
+                         const PerceptionConfig &opt) {
+    return opt.intensity_as_evidence && scan_centred && sensor.has_range_image &&
+           !sensor.vertical_angles_rad.empty() && in.bright.rows() > 0;
+}
+
+// The removed returns appended after the kept ones (pts, ring), non-ground unless within the
+// ground height of the ground grid found from the kept returns (ground and its outputs stay
+// those of the kept returns).
+void appendRemovedReturns(Input &in, GroundSegmentation &gs, double ground_height_m) {
+    const Eigen::Index n = in.pts.rows(), m = in.bright.rows();
+    Points3 all(n + m, 3);
+    all << in.pts, in.bright;
+    in.pts = std::move(all);
+    if (in.ring.size() == n && in.bright_ring.size() == m) {
+        Eigen::VectorXi ring(n + m);
+        ring << in.ring, in.bright_ring;
+        in.ring = std::move(ring);
+    }
+    gs.is_ground.resize(static_cast<size_t>(n + m), 0);
+    for (Eigen::Index i = 0; i < m; ++i) {
+        const double h = in.bright(i, 2) - gs.grid.heightAt(in.bright(i, 0), in.bright(i, 1));
+        gs.is_ground[static_cast<size_t>(n + i)] = std::isfinite(h) && h <= ground_height_m;
+    }
 }
 
 // 2. Ground: segmentation, thinned ground points and the ground normal.
@@ -210,9 +262,11 @@ NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation
 }
 
 // 4. Coarse clusters: range image for single scans, 3D otherwise.
+// `line` (may be null): the range-image row (scan line) of each filtered point.
 Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
                         const Eigen::VectorXi &ring, const SensorGeometry &sensor,
-                        bool scan_centred, const SegmentationConfig &so) {
+                        bool scan_centred, const SegmentationConfig &so,
+                        std::vector<int> *line = nullptr) {
     if (!(sensor.has_range_image && scan_centred))
         return euclideanClusters(filtered, so.euclidean_tolerance_m,
                                  std::max(2, so.min_points / 2));
@@ -223,22 +277,127 @@ Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
             ring_f(static_cast<Eigen::Index>(k)) = ring(nf.kept[k]);
     }
     const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
+    if (line != nullptr) *line = proj.row;
     return rangeImageClusters(filtered, proj, sensor, so, std::max(2, so.min_points / 2));
 }
 
-// 5. DBSCAN refinement, SVD classification and the merge of one tree's pieces.
-Clusters classifyStems(const Points3 &filtered, const Clusters &coarse,
+SilhouetteSensor silhouetteSensor(const SensorGeometry &sensor);
+
+// Stems among `rows` of `filtered` by the SVD test.
+void keepStems(const Points3 &filtered, std::vector<int> rows, const SegmentationConfig &so,
+               Detection &det, Clusters &stems) {
+    const ClusterShape s = clusterShape(filtered, rows, det.up);
+    if (isStem(s, static_cast<int>(rows.size()), so)) stems.push_back(std::move(rows));
+}
+
+// Median of `v` (reordered); NaN when empty.
+double median(std::vector<double> &v) {
+    if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
+    auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(v.begin(), mid, v.end());
+    return *mid;
+}
+
+// Whether the removed returns of a cluster lie nearer the middle of their scan lines than its
+// kept ones, beyond chance. Off-centre of a return: |bearing - middle| / half the line's width
+// (0 faces the sensor, 1 grazes a convex section's edge), on the lines holding both kept and
+// removed returns (`line`: per row of `filtered`, its scan line); at least kMinMixedLines such
+// lines, the medians kCentreMargin apart, and the rank-sum (Mann-Whitney) z of the kept ones
+// being farther off >= kMinCentreZ: a handful of dark returns among foliage is not evidence.
+bool removedFaceTheSensor(const Points3 &filtered, const std::vector<int> &line,
+                          const std::vector<int> &kept, const std::vector<int> &removed) {
+    Eigen::Vector2d m = Eigen::Vector2d::Zero();
+    for (int r : kept) m += filtered.block<1, 2>(r, 0).transpose();
+    for (int r : removed) m += filtered.block<1, 2>(r, 0).transpose();
+    const double bearing = std::atan2(m.y(), m.x());
+    std::map<int, std::vector<std::pair<double, bool>>> lines;  // line -> (bearing, kept)
+    auto add = [&](int r, bool is_kept) {
+        const double a = std::atan2(filtered(r, 1), filtered(r, 0)) - bearing;
+        lines[line[static_cast<size_t>(r)]].push_back(
+            {std::atan2(std::sin(a), std::cos(a)), is_kept});
+    };
+    for (int r : kept) add(r, true);
+    for (int r : removed) add(r, false);
+    int mixed = 0;
+    std::vector<std::pair<double, bool>> off;  // (off-centre, kept)
+    for (const auto &[l, rets] : lines) {
+        const auto n_kept =
+            std::count_if(rets.begin(), rets.end(), [](const auto &x) { return x.second; });
+        if (l < 0 || n_kept == 0 || n_kept == static_cast<std::ptrdiff_t>(rets.size())) continue;
+        ++mixed;
+        const auto [lo, hi] = std::minmax_element(rets.begin(), rets.end());
+        const double half = 0.5 * (hi->first - lo->first), mid = 0.5 * (hi->first + lo->first);
+        if (!(half > 0)) continue;
+        for (const auto &[a, is_kept] : rets) off.push_back({std::abs(a - mid) / half, is_kept});
+    }
+    if (mixed < kMinMixedLines) return false;
+    std::vector<double> off_kept, off_removed;
+    for (const auto &[o, is_kept] : off) (is_kept ? off_kept : off_removed).push_back(o);
+    if (median(off_removed) + kCentreMargin > median(off_kept)) return false;
+    // Rank sum of the kept ones (ties get their mean rank).
+    std::sort(off.begin(), off.end());
+    double rank_sum = 0;
+    for (size_t i = 0; i < off.size();) {
+        size_t j = i;
+        while (j < off.size() && off[j].first == off[i].first) ++j;
+        const double mean_rank = 0.5 * static_cast<double>(i + j + 1);
+        for (size_t k = i; k < j; ++k)
+            if (off[k].second) rank_sum += mean_rank;
+        i = j;
+    }
+    const double n1 = static_cast<double>(off_kept.size()),
+                 n2 = static_cast<double>(off_removed.size());
+    const double u = rank_sum - 0.5 * n1 * (n1 + 1);
+    const double z = (u - 0.5 * n1 * n2) / std::sqrt(n1 * n2 * (n1 + n2 + 1) / 12.0);
+    return z >= kMinCentreZ;
+}
+
+// A refined cluster holding returns the intensity filter removed (rows >= kept_rows of the
+// input; see intensityAsEvidence): geometry decides, intensity is evidence. Bark returns more
+// light the more squarely a beam meets it (any incidence-dependent intensity, whatever its
+// scale), so a threshold that cuts into a stem's bark removes the returns facing the sensor,
+// in the middle of each scan line, and keeps the grazing ones at its edges; foliage has no
+// such order. When the removed returns lie nearer the middle of their lines than the kept ones
+// (removedFaceTheSensor), those on the surface the kept ones span (onStemSurface) join them
+// and together they are tested as one stem; otherwise, or when that is no stem, the kept
+// returns alone are refined and classified, as if the removed ones had never been seen.
+void refineWithEvidence(const Points3 &filtered, const NormalFilterResult &nf,
+                        const std::vector<int> &line, Eigen::Index kept_rows, std::vector<int> sub,
+                        double eps, const SilhouetteSensor &sensor, const SegmentationConfig &so,
+                        Detection &det, Clusters &stems) {
+    std::vector<int> kept, removed;
+    for (int r : sub) (nf.kept[static_cast<size_t>(r)] < kept_rows ? kept : removed).push_back(r);
+    if (removed.empty()) return keepStems(filtered, std::move(sub), so, det, stems);
+    if (kept.size() >= 2 && removedFaceTheSensor(filtered, line, kept, removed)) {
+        std::vector<int> rows = kept;
+        for (int k :
+             onStemSurface(selectRows(filtered, kept), selectRows(filtered, removed), sensor))
+            rows.push_back(removed[static_cast<size_t>(k)]);
+        const ClusterShape s = clusterShape(filtered, rows, det.up);
+        if (rows.size() > kept.size() && isStem(s, static_cast<int>(rows.size()), so))
+            return stems.push_back(std::move(rows));
+    }
+    for (auto &piece : dbscan(filtered, kept, eps, so.dbscan_min_neighbours))
+        keepStems(filtered, std::move(piece), so, det, stems);
+}
+
+// 5. DBSCAN refinement, SVD classification and the merge of one tree's pieces. `kept_rows`:
+// rows of the input the intensity filter kept (see refineWithEvidence; all when it acted
+// before the clustering); `line`: per filtered row, its scan line (then).
+Clusters classifyStems(const Points3 &filtered, const NormalFilterResult &nf,
+                       const std::vector<int> &line, Eigen::Index kept_rows, const Clusters &coarse,
                        const SensorGeometry &sensor, bool scan_centred,
                        const SegmentationConfig &so, Detection &det) {
     Clusters stems;
+    const SilhouetteSensor silhouette = silhouetteSensor(sensor);
     for (const auto &c : coarse) {
         const double eps = (sensor.has_range_image && scan_centred)
                                ? adaptiveEps(filtered, c, sensor.theta_v_rad, so)
                                : so.map_dbscan_eps_m;
         for (auto &sub : dbscan(filtered, c, eps, so.dbscan_min_neighbours)) {
             ++det.refined_clusters;
-            const ClusterShape s = clusterShape(filtered, sub, det.up);
-            if (isStem(s, static_cast<int>(sub.size()), so)) stems.push_back(std::move(sub));
+            refineWithEvidence(filtered, nf, line, kept_rows, std::move(sub), eps, silhouette, so,
+                               det, stems);
         }
     }
     return mergeStemClusters(filtered, stems, so);
@@ -305,9 +464,10 @@ struct VoxelBox {
     }
 };
 
+// Returns the intensity filter removed (rows >= kept_rows) join only the stems that hold some.
 std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegmentation &gs,
                                          const NormalFilterResult &nf, const Clusters &stems,
-                                         double voxel_m) {
+                                         Eigen::Index kept_rows, double voxel_m) {
     std::vector<Points3> out(stems.size());
     if (!(voxel_m > 0)) return out;  // nothing thinned: the stems' own points
     auto cell = [&](Eigen::Index i, std::int64_t (&v)[3]) {
@@ -317,9 +477,11 @@ std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegment
     std::unordered_map<std::uint64_t, int> stem_of;
     VoxelBox box;
     std::int64_t v[3];
+    std::vector<char> holds_removed(stems.size(), 0);
     for (size_t k = 0; k < stems.size(); ++k)
         for (int r : stems[k]) {
             const int i = nf.kept[static_cast<size_t>(r)];
+            if (i >= kept_rows) holds_removed[k] = 1;
             cell(i, v);
             box.add(v);
             stem_of.emplace(cellKey3(v[0], v[1], v[2]), static_cast<int>(k));
@@ -330,7 +492,7 @@ std::vector<Points3> fullResolutionStems(const Points3 &pts, const GroundSegment
         cell(i, v);
         if (box.excludes(v)) continue;
         const auto it = stem_of.find(cellKey3(v[0], v[1], v[2]));
-        if (it != stem_of.end())
+        if (it != stem_of.end() && (i < kept_rows || holds_removed[it->second]))
             rows[static_cast<size_t>(it->second)].push_back(static_cast<int>(i));
     }
     for (size_t k = 0; k < stems.size(); ++k) out[k] = selectRows(pts, rows[k]);
@@ -466,10 +628,12 @@ Points3 withReturnsOnSurface(const Points3 &view, const Points3 &pts, const Azim
 }
 
 // 6. Per stem: shape, local ground, breast-height centre and diameter.
-void measureStems(const Points3 &pts, const Points3 &bright, const Points3 &filtered,
-                  const NormalFilterResult &nf, const Clusters &stems, const GroundSegmentation &gs,
-                  const SensorGeometry &sensor, bool scan_centred, const PerceptionConfig &opt,
-                  Detection &det) {
+// `pts`: the input's returns, those the intensity filter removed (`bright`) appended after
+// the first `kept_rows` when the clustering saw them.
+void measureStems(const Points3 &pts, Eigen::Index kept_rows, const Points3 &bright,
+                  const Points3 &filtered, const NormalFilterResult &nf, const Clusters &stems,
+                  const GroundSegmentation &gs, const SensorGeometry &sensor, bool scan_centred,
+                  const PerceptionConfig &opt, Detection &det) {
     const SegmentationConfig &so = opt.segmentation;
     SilhouetteView silhouette;
     silhouette.sensor = silhouetteSensor(sensor);
@@ -479,11 +643,15 @@ void measureStems(const Points3 &pts, const Points3 &bright, const Points3 &filt
     const bool use_silhouette = opt.diameter.silhouette && scan_centred && sensor.has_range_image &&
                                 !silhouette.sensor.vertical_angles_rad.empty();
     const std::vector<Points3> seen =
-        use_silhouette ? fullResolutionStems(pts, gs, nf, stems, opt.filter.voxel_m)
+        use_silhouette ? fullResolutionStems(pts, gs, nf, stems, kept_rows, opt.filter.voxel_m)
                        : std::vector<Points3>(stems.size());
     const double step = silhouette.sensor.azimuth_step_rad;
+    // Occluders, returns seen through a stem and those given back (withReturnsOnSurface) come
+    // from the kept returns, the removed ones from `bright`.
+    std::vector<char> skip = gs.is_ground;
+    for (size_t i = static_cast<size_t>(kept_rows); i < skip.size(); ++i) skip[i] = 1;
     const AzimuthColumns columns =
-        use_silhouette ? azimuthColumns(pts, &gs.is_ground, step) : AzimuthColumns{};
+        use_silhouette ? azimuthColumns(pts, &skip, step) : AzimuthColumns{};
     // The thinned ground too: beams passing between two stems of a cluster often end there.
     const AzimuthColumns ground_columns =
         use_silhouette ? azimuthColumns(det.ground, nullptr, step) : AzimuthColumns{};
@@ -569,22 +737,26 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     const auto t0 = clock.wall;
     const double c0 = clock.cpu;
 
-    const Input in = selectInput(points, intensity, ring, scan_centred, opt, det);
+    Input in = selectInput(points, intensity, ring, scan_centred, opt, det);
     clock.lap(det, "intensity");
-    const GroundSegmentation gs = findGround(in.pts, scan_centred, opt, det);
+    GroundSegmentation gs = findGround(in.pts, scan_centred, opt, det);
+    if (intensityAsEvidence(in, sensor, scan_centred, opt))
+        appendRemovedReturns(in, gs, opt.ground.cell_height_m);
     clock.lap(det, "ground");
     const NormalFilterResult nf = filterStemPoints(in.pts, gs, sensor, scan_centred, opt);
     const Points3 filtered = selectRows(in.pts, nf.kept);
     det.filtered_points = static_cast<int>(filtered.rows());
     clock.lap(det, "normals");
+    std::vector<int> line;
     const Clusters coarse =
-        coarseClusters(filtered, nf, in.ring, sensor, scan_centred, opt.segmentation);
+        coarseClusters(filtered, nf, in.ring, sensor, scan_centred, opt.segmentation, &line);
     det.coarse_clusters = static_cast<int>(coarse.size());
     clock.lap(det, "clustering");
-    const Clusters stems =
-        classifyStems(filtered, coarse, sensor, scan_centred, opt.segmentation, det);
+    const Clusters stems = classifyStems(filtered, nf, line, in.kept_rows, coarse, sensor,
+                                         scan_centred, opt.segmentation, det);
     clock.lap(det, "classification");
-    measureStems(in.pts, in.bright, filtered, nf, stems, gs, sensor, scan_centred, opt, det);
+    measureStems(in.pts, in.kept_rows, in.bright, filtered, nf, stems, gs, sensor, scan_centred,
+                 opt, det);
     if (!scan_centred && det.stems.empty()) det.stems = groundlessStems(in.pts, opt);
     toInputFrame(in.origin, det);
     clock.lap(det, "diameter");

@@ -123,6 +123,10 @@ class PerceptionConfig:
     intensity_threshold (skipped when the profile has none or the scan has no intensity)."""
 
     intensity_filter: bool = True
+    # Single scans: the returns the filter removes are clustered too and kept where a
+    # cluster's geometry shows them to be its bark (bright bark facing the sensor under another
+    # sensor's intensity scale); off by default (see the C++ PerceptionConfig).
+    intensity_as_evidence: bool = False
     ground_voxel_m: Positive = 0.25  # ground output: one point per voxel
     # `map` clouds in which the chain finds no stem (a cropped trunk, a breast-height slice, a
     # stem cut out of a plot, without ground): every 3D cluster whose breast-height section is

@@ -117,6 +117,7 @@ void defineStemOptions(py::module_ &m) {
                                        "intensity_threshold NaN: no intensity filter.");
     p.def(py::init<>());
     FS_FIELD(p, pc::PerceptionConfig, intensity_threshold);
+    FS_FIELD(p, pc::PerceptionConfig, intensity_as_evidence);
     FS_FIELD(p, pc::PerceptionConfig, ground_voxel_m);
     FS_FIELD(p, pc::PerceptionConfig, breast_height_z);
     FS_FIELD(p, pc::PerceptionConfig, ground);
