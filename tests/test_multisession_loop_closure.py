@@ -43,11 +43,13 @@ def _loop(step: float = 0.2) -> list[np.ndarray]:
     return poses
 
 
-def _walk(stand: np.ndarray, place_recognition: bool, seed: int = 0):
-    """The loop with drifted odometry, stems within 12 m observed with 2 cm noise."""
+def _walk(stand: np.ndarray, place_recognition: bool, seed: int = 0, loops=None):
+    """The loop with drifted odometry, stems within 12 m observed with 2 cm noise; `loops`:
+    the PlaceRecognition to use (default: the default one when place_recognition)."""
     rng = np.random.default_rng(seed)
     slam = LandmarkSlam(SlamConfig())
-    loops = PlaceRecognition(PlaceRecognitionConfig()) if place_recognition else None
+    if loops is None and place_recognition:
+        loops = PlaceRecognition(PlaceRecognitionConfig())
     drift = DriftInjector(0.02, 1.0)
     truth = _loop()
     cov = np.diag([0.01**2, 0.01**2, math.radians(0.1) ** 2])

@@ -15,6 +15,13 @@ tracking, the SLAM declines the move and keeps its chain (`LandmarkSlam.pending_
 that keyframe the trees it tracks are localized among the trees not re-found lately, and an
 accepted place ties them as above: the loop closes without a tracking loss.
 
+Local closure: at every keyframe, the trees just mapped around the machine are matched to the
+trees mapped earlier and not re-found lately by the association's consensus (one rigid shift
+within the SLAM's search radius); when that many agreeing trees are improbable by chance at the
+local tree density (binomial tail, paid for every shift tried), the pairs are tied. It closes
+the loops whose error the pose uncertainty bounds, which the global query, searching the whole
+map, cannot tell from chance.
+
 Relocalization: when the SLAM lost track (the trees it tracked vanished at once: an odometry
 jump), it starts a segment nearly free of the odometry chain (`LandmarkSlam.lost_since`). At
 every keyframe the segment's own trees are then localized among the trees mapped before it,
@@ -52,6 +59,12 @@ class PlaceRecognitionConfig:
     # the kept Delaunay index is rebuilt when a tree moved this much or the set grew by this
     rebuild_growth: NonNegative = 0.1
     index_tolerance_m: Positive = 0.1
+    # Local closure (see `_close_locally`): the trees just mapped and the trees not re-found
+    # lately around the machine, matched under one rigid shift within the SLAM's search radius;
+    # tied when the support is this improbable by chance (-log10): 5, once in 10^5 queries,
+    # against a few hundred (the keyframes where both sets have min_query_trees) per 4.5 km.
+    local_consensus: bool = True
+    local_min_significance: NonNegative = 5.0
 
 
 class PlaceRecognition:
@@ -68,6 +81,7 @@ class PlaceRecognition:
             "relocalizations": 0,
             "revisit_queries": 0,
             "revisit_closures": 0,
+            "local_closures": 0,
             "index_builds": 0,
         }
         self._index = None  # (TreeMap, landmark ids, their positions when built)
@@ -86,12 +100,16 @@ class PlaceRecognition:
 
     def _close_loop(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
         c = self.cfg
-        if keyframe % c.every_keyframes or keyframe < c.window_keyframes:
+        if keyframe < c.window_keyframes:
             return False
         xy, first, last, alive, near, lately = self._landmarks_around(slam, keyframe, T_map_sensor)
         recent = alive & near & (first >= lately)  # just mapped: second copies, or new trees
         old = alive & (first < lately)  # mapped earlier (prior-map trees never seen: -1)
         lost = old & near & (last < lately)  # mapped earlier, here, and not re-found lately
+        if self._close_locally(slam, keyframe, xy, recent, lost):
+            return True
+        if keyframe % c.every_keyframes:
+            return False
         asked = self._ask(xy, recent, old, lost, "queries")
         if asked is None:
             return False
@@ -106,6 +124,60 @@ class PlaceRecognition:
             )
             return False
         return self._tie_verified(slam, loc, m_ids, q_ids, keyframe, "loop closed")
+
+    def _close_locally(self, slam, keyframe: int, xy, recent, lost) -> bool:
+        """A loop the SLAM's own pose uncertainty bounds: back at a place after a long
+        excursion, the association keeps the trees it tracks and maps the place's trees a
+        second time when they lie beyond its gate (Wild-Places V03: 25 trees mapped twice
+        1.0-1.5 m apart, a bend the global query could not verify against 7,000 trees). The
+        just-mapped trees are matched to the ones not re-found lately by one rigid shift within
+        the SLAM's search radius (`shared_shift`); the pairs are tied when that many agreeing
+        trees are improbable by chance at the local density, paid for every shift tried
+        (`chance_significance`). Never two trees one keyframe saw (a recent tree was first seen
+        after every lost tree's last sighting), never one pair alone."""
+        from scipy.spatial import cKDTree
+
+        from forestslam.slam.association import shared_shift
+
+        c = self.cfg
+        if not c.local_consensus or min(recent.sum(), lost.sum()) < c.min_query_trees:
+            return False
+        m_ids = np.flatnonzero(lost)
+        radius = slam.search_radius()
+        # only recent trees some shift within the radius could put on a lost one count
+        reach = cKDTree(xy[m_ids]).query(xy[recent])[0] <= radius + slam.cfg.consensus_inlier_m
+        q_ids = np.flatnonzero(recent)[reach]
+        if len(q_ids) < c.min_query_trees:
+            return False
+        _, pairs, tried = shared_shift(xy[q_ids], xy[m_ids], radius, slam.cfg)
+        if len(pairs) < c.min_query_trees:
+            return False
+        density = local_density(xy[m_ids], c.radius_m)
+        inlier_m = slam.cfg.consensus_inlier_m
+        sig = chance_significance(len(pairs), len(q_ids), tried, density, inlier_m)
+        if sig < c.local_min_significance:
+            log.debug(
+                "local closure at keyframe %d: %d of %d trees agree, significance %.1f: too low",
+                keyframe,
+                len(pairs),
+                len(q_ids),
+                sig,
+            )
+            return False
+        tied = np.column_stack([m_ids[pairs[:, 1]], q_ids[pairs[:, 0]]])
+        apart = float(np.median(np.linalg.norm(xy[tied[:, 0]] - xy[tied[:, 1]], axis=1)))
+        slam.tie_trees(tied, c.tie_sigma_m)
+        self.stats["local_closures"] += 1
+        log.info(
+            "place recognition: local closure at keyframe %d (%d of %d trees, %.2f m apart, "
+            "significance %.1f)",
+            keyframe,
+            len(pairs),
+            len(q_ids),
+            apart,
+            sig,
+        )
+        return True
 
     def _verify_revisit(self, slam, keyframe: int, T_map_sensor: np.ndarray) -> bool:
         """The SLAM declined a consensus move onto older copies of its tracked trees at this
@@ -234,3 +306,34 @@ class PlaceRecognition:
         """(K,2) landmark indices (map tree, query tree) of the localizer's matches."""
         m = np.asarray(loc.matches, dtype=np.int64).reshape(-1, 2)
         return np.column_stack([m_ids[m[:, 1]], q_ids[m[:, 0]]])
+
+
+def local_density(xy: np.ndarray, radius_m: float) -> float:
+    """Trees per m^2 of the points xy (N,2) around the machine: the larger of their count over
+    the query disc and the density their mean nearest-neighbour distance gives (a Poisson
+    pattern of density rho has mean 0.5 / sqrt(rho)), so a clump is not taken for a sparse
+    stand."""
+    from scipy.spatial import cKDTree
+
+    disc = len(xy) / (math.pi * radius_m**2)
+    if len(xy) < 2:
+        return disc
+    nn = cKDTree(xy).query(xy, k=2)[0][:, 1]
+    return max(disc, 0.25 / max(float(np.mean(nn)) ** 2, 1e-6))
+
+
+def chance_significance(
+    support: int, n_query: int, hypotheses: int, density: float, inlier_m: float
+) -> float:
+    """-log10 of the chance that one of `hypotheses` shifts puts `support` of `n_query` trees
+    within `inlier_m` of a mapped tree at `density` (trees per m^2). A shift is seeded by one
+    pair, which it aligns for free; each other tree lands near a mapped one independently with
+    p = 1 - exp(-density pi inlier_m^2): binomial tail of support - 1 among n_query - 1,
+    Bonferroni over the shifts."""
+    from scipy.stats import binom
+
+    if support < 2 or n_query < 2:
+        return 0.0
+    p = 1.0 - math.exp(-density * math.pi * inlier_m**2)
+    log_tail = float(binom.logsf(support - 2, n_query - 1, p)) / math.log(10.0)
+    return -(math.log10(max(hypotheses, 1)) + log_tail)

@@ -74,6 +74,36 @@ def _consensus(
     return corr, n_in
 
 
+def shared_shift(
+    src_xy: np.ndarray, dst_xy: np.ndarray, radius: float, cfg: SlamConfig
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The consensus of `associate` between two point sets: the rigid correction (3,3) of
+    src (K,2) onto dst (L,2) that most src points agree on among the shifts of src / dst pairs
+    within `radius`; the pairs (P,2) (src index, dst index) within `consensus_inlier_m` of each
+    other after it, one-to-one, nearest first (none below `consensus_min_support`); and the
+    number of shifts tried (the hypotheses a chance test must pay for)."""
+    none = np.zeros((0, 2), dtype=np.int64)
+    if len(src_xy) == 0 or len(dst_xy) == 0:
+        return np.eye(3), none, 0
+    tree = cKDTree(dst_xy)
+    tried = 1 + int(sum(len(c) for c in tree.query_ball_point(src_xy, r=radius)))
+    corr, support = _consensus(src_xy, tree, dst_xy, radius, cfg)
+    if not support:
+        return corr, none, tried
+    dist, nn = tree.query(
+        transform_points(corr, src_xy), distance_upper_bound=cfg.consensus_inlier_m
+    )
+    used: set[int] = set()
+    pairs = []
+    for i in np.argsort(dist):
+        if not np.isfinite(dist[i]):
+            break
+        if int(nn[i]) not in used:
+            used.add(int(nn[i]))
+            pairs.append((int(i), int(nn[i])))
+    return corr, np.array(pairs, dtype=np.int64).reshape(-1, 2), tried
+
+
 def rigid_2d(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Planar rigid fit (3,3) with dst ~ R src + t of (N,2) pairs (geometry.rigid_fit)."""
     return rigid_fit(src, dst)

@@ -185,6 +185,12 @@ class LandmarkSlam:
         """Scan index (order of `add_scan` calls) of every keyframe."""
         return np.asarray(self._kf_scan, dtype=np.int64)
 
+    def search_radius(self) -> float:
+        """The association's search radius at the last keyframe: 3 sigma of its position
+        marginal (the pose error the map may carry here), clamped to the configured range."""
+        eig = float(np.sqrt(max(np.linalg.eigvalsh(self._pose_cov[:2, :2]).max(), 0.0)))
+        return float(np.clip(3.0 * eig, self.cfg.search_radius_min_m, self.cfg.search_radius_max_m))
+
     def landmarks(self) -> tuple[np.ndarray, np.ndarray]:
         """Tree positions (L,2) in the map frame and observation counts (L,)."""
         return self._lm_xy.copy(), self._lm_nobs.copy()
