@@ -45,6 +45,11 @@ struct IcpConfig {
     double max_correspondence_m = 1.0;    // first iterations
     double final_correspondence_m = 0.3;  // shrinks geometrically towards this
     int shrink_iterations = 3;            // ... reaching it after this many iterations
+    // While the correspondence distance still shrinks, only every coarse_stride-th source point
+    // is used (1: all): those iterations only bring the pose into the basin, and their wide
+    // searches are the costliest. Every iteration at the final distance, the one the result
+    // and its covariance come from included, uses all points.
+    int coarse_stride = 3;
     double huber_m = 0.05;                // robust kernel width on point-to-plane residuals
     double translation_tolerance_m = 5e-4;
     double rotation_tolerance_rad = 5e-5;
