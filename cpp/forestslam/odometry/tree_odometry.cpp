@@ -264,12 +264,11 @@ Points3 TreeOdometry::sourceCloud(const perception::Detection &det) const {
         return finite.rows() ? registration::voxelCentroids(finite, config_.source_voxel_m)
                              : Points3(0, 3);
     };
-    const Points3 ground =
-        thinEvenly(voxels(det.ground), std::min(config_.max_ground_source_points,
-                                                config_.max_source_points));
+    const Points3 ground = thinEvenly(
+        voxels(det.ground), std::min(config_.max_ground_source_points, config_.max_source_points));
     const Points3 stems =
-        thinEvenly(voxels(stem_points), std::max<int>(1, config_.max_source_points -
-                                                             static_cast<int>(ground.rows())));
+        thinEvenly(voxels(stem_points),
+                   std::max<int>(1, config_.max_source_points - static_cast<int>(ground.rows())));
     Points3 cloud(stems.rows() + ground.rows(), 3);
     cloud << stems, ground;
     return cloud;

@@ -50,7 +50,7 @@ struct IcpConfig {
     // searches are the costliest. Every iteration at the final distance, the one the result
     // and its covariance come from included, uses all points.
     int coarse_stride = 3;
-    double huber_m = 0.05;                // robust kernel width on point-to-plane residuals
+    double huber_m = 0.05;  // robust kernel width on point-to-plane residuals
     double translation_tolerance_m = 5e-4;
     double rotation_tolerance_rad = 5e-5;
     int min_correspondences = 20;
