@@ -34,13 +34,9 @@ struct OdometryConfig {
     std::string mode = "local_map";
     bool deskew = true;  // spinning scans with per-point time, constant-velocity motion
     int min_stems = 2;   // fewer matched stems: ICP with the velocity prior, pose degraded
-    // Source cloud for ICP: stem + ground points thinned to this voxel, at most this many, of
-    // which at most max_ground_source_points ground points. The ground only fixes z, roll and
-    // pitch (one near-plane), the stems x, y and yaw; an even thinning of both together spent
-    // two thirds of the ICP on ground (issue 18).
+    // Source cloud for ICP: stem + ground points thinned to this voxel, at most this many.
     double source_voxel_m = 0.2;
     int max_source_points = 1200;
-    int max_ground_source_points = 300;
     // Local map: a keyframe every keyframe_distance_m / keyframe_yaw_deg, the last
     // local_map_keyframes kept, cropped to local_map_radius_m around the sensor.
     double keyframe_distance_m = 1.0;

@@ -120,8 +120,6 @@ void validate(const OdometryConfig &c) {
     need(c.source_voxel_m > 0 && c.map_voxel_m > 0, "source_voxel_m and map_voxel_m must be > 0");
     need(c.max_source_points >= 3 && c.fpfh_max_points >= 3,
          "max_source_points and fpfh_max_points must be >= 3");
-    need(c.max_ground_source_points >= 1 && c.max_ground_source_points < c.max_source_points,
-         "max_ground_source_points must be >= 1 and < max_source_points (the stems need room)");
     need(c.local_map_keyframes >= 1, "local_map_keyframes must be >= 1");
     need(c.local_map_radius_m > 0, "local_map_radius_m must be > 0");
     need(c.prior_sigma_m > 0 && c.prior_sigma_deg > 0, "prior sigmas must be > 0");
@@ -249,34 +247,21 @@ perception::Detection TreeOdometry::detect(const LidarScan &scan, const Points3 
     }
 }
 
-// The ICP source: stem voxels first, then ground voxels, each thinned evenly to its budget.
-Points3 TreeOdometry::sourceCloud(const perception::Detection &det) const {
-    Eigen::Index total = 0;
-    for (const auto &s : det.stems) total += s.points.rows();
-    Points3 stem_points(total, 3);
-    Eigen::Index n = 0;
-    for (const auto &s : det.stems) {
-        stem_points.middleRows(n, s.points.rows()) = s.points;
-        n += s.points.rows();
-    }
-    auto voxels = [this](const Points3 &points) {
-        const Points3 finite = finiteRows(points);
-        return finite.rows() ? registration::voxelCentroids(finite, config_.source_voxel_m)
-                             : Points3(0, 3);
-    };
-    const Points3 ground = thinEvenly(
-        voxels(det.ground), std::min(config_.max_ground_source_points, config_.max_source_points));
-    const Points3 stems =
-        thinEvenly(voxels(stem_points),
-                   std::max<int>(1, config_.max_source_points - static_cast<int>(ground.rows())));
-    Points3 cloud(stems.rows() + ground.rows(), 3);
-    cloud << stems, ground;
-    return cloud;
-}
-
 void TreeOdometry::selectSources(Work &work) const {
     const auto &stems = work.out.detection.stems;
-    work.cloud = sourceCloud(work.out.detection);
+    Eigen::Index total = work.out.detection.ground.rows();
+    for (const auto &s : stems) total += s.points.rows();
+    Points3 all(total, 3);
+    Eigen::Index n = 0;
+    for (const auto &s : stems) {
+        all.middleRows(n, s.points.rows()) = s.points;
+        n += s.points.rows();
+    }
+    all.bottomRows(work.out.detection.ground.rows()) = work.out.detection.ground;
+    all = finiteRows(all);
+    if (all.rows())
+        work.cloud = thinEvenly(registration::voxelCentroids(all, config_.source_voxel_m),
+                                config_.max_source_points);
     if (config_.method == "fpfh" && work.points.rows())
         work.cloud =
             thinEvenly(registration::voxelCentroids(work.points, config_.registration.fpfh.voxel_m),

@@ -80,7 +80,6 @@ class TreeOdometry {
     bool deskews(const LidarScan &scan) const;
     Points3 deskew(const LidarScan &scan, double t_mid) const;
     perception::Detection detect(const LidarScan &scan, const Points3 &points, Work &work) const;
-    Points3 sourceCloud(const perception::Detection &detection) const;
     void selectSources(Work &work) const;
     Registration firstScan() const;
     Registration registerOnMap(Work &work) const;

@@ -28,12 +28,9 @@ class OdometryConfig:
     deskew: bool = True  # spinning scans with per-point time, constant-velocity motion
     # fewer matched stems: ICP with the velocity prior, pose marked degraded
     min_stems: NonNegativeInt = 2
-    # Source cloud for ICP: stem points + ground points, thinned to this voxel, at most this many,
-    # of which at most max_ground_source_points ground points (the ground fixes only z, roll and
-    # pitch; the stems x, y and yaw).
+    # Source cloud for ICP: stem points + ground points, thinned to this voxel, at most this many.
     source_voxel_m: Positive = 0.2
     max_source_points: PositiveInt = 1200
-    max_ground_source_points: PositiveInt = 300
     # Local map: keyframes every keyframe_distance_m / keyframe_yaw_deg, the last
     # local_map_keyframes kept, cropped to local_map_radius_m around the sensor.
     keyframe_distance_m: NonNegative = 1.0

@@ -46,7 +46,6 @@ void defineOdometryConfig(py::module_ &m) {
     FS_FIELD(c, od::OdometryConfig, min_stems);
     FS_FIELD(c, od::OdometryConfig, source_voxel_m);
     FS_FIELD(c, od::OdometryConfig, max_source_points);
-    FS_FIELD(c, od::OdometryConfig, max_ground_source_points);
     FS_FIELD(c, od::OdometryConfig, keyframe_distance_m);
     FS_FIELD(c, od::OdometryConfig, keyframe_yaw_deg);
     FS_FIELD(c, od::OdometryConfig, local_map_keyframes);
