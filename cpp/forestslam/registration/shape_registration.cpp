@@ -141,9 +141,7 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
     std::vector<int> best, cand;
     double best_sse = 0.0, sse = 0.0;
     score(best_pose, best, best_sse);
-    // Once every pair is an inlier no hypothesis can win on count; a lower sum of squares would
-    // only move the start of the cost minimisation, which converges to the same pose.
-    int tried = static_cast<int>(best.size()) == n ? config.max_consensus_pairs : 0;
+    int tried = 0;
     for (int a = 0; a < n && tried < config.max_consensus_pairs; ++a) {
         for (int b = a + 1; b < n && tried < config.max_consensus_pairs; ++b) {
             const Eigen::Vector2d s = xy(source, pairs[b].first) - xy(source, pairs[a].first);
@@ -164,7 +162,6 @@ std::pair<Pose3, std::vector<int>> consensusPairs(const Eigen::Ref<const Points3
                 best = cand;
                 best_sse = sse;
                 best_pose = pose;
-                if (static_cast<int>(best.size()) == n) tried = config.max_consensus_pairs;
             }
         }
     }
