@@ -78,6 +78,29 @@ TEST(PointToPlaneIcp, NoisyResampledScanRecoversTransform) {
     expectPoseNear(Pose3(r.T_target_source), T, 0.03, 0.2);
 }
 
+// The coarse iterations on every n-th point only bring the pose into the basin: the result and
+// its covariance come from iterations on all points, as without the stride.
+TEST(PointToPlaneIcp, CoarseStrideEndsOnTheFullSolutionAndItsCovariance) {
+    const auto stems = synth::randomStems(15, 15.0, 4);
+    const Points3 target = synth::sceneCloud(stems, 15.0, 5, 0.01);
+    const Pose3 T = knownPose();
+    const Points3 source = transformPoints(T.inverse(), synth::sceneCloud(stems, 15.0, 6, 0.01));
+    const registration::PlaneTarget plane_target(target);
+    registration::IcpConfig all, coarse;
+    all.coarse_stride = 1;
+    coarse.coarse_stride = 4;
+    const registration::RegistrationResult a =
+        registration::icpPointToPlane(plane_target, source, Pose3::Identity(), all);
+    const registration::RegistrationResult c =
+        registration::icpPointToPlane(plane_target, source, Pose3::Identity(), coarse);
+    ASSERT_TRUE(a.converged);
+    ASSERT_TRUE(c.converged);
+    expectPoseNear(Pose3(c.T_target_source), Pose3(a.T_target_source), 1e-3, 0.01);
+    EXPECT_NEAR(c.inliers, a.inliers, 0.01 * a.inliers);  // counted over every point
+    for (int k = 0; k < 6; ++k)
+        EXPECT_NEAR(c.covariance(k, k), a.covariance(k, k), 0.05 * a.covariance(k, k));
+}
+
 TEST(PointToPlaneIcp, FlatGroundOnlyIsDegenerateAndPriorHoldsIt) {
     Points3 ground(0, 3);
     std::vector<Eigen::Vector3d> pts;

@@ -154,13 +154,15 @@ double warmRadius(const Points3 &tp, int last, const Eigen::Vector3d &q, double 
 
 // `last` holds each source point's nearest target point of the previous iteration (-1: none)
 // and is updated; the nearest points found are those of an unbounded search.
+// Every stride-th source point only.
 NormalEquations linearise(const PlaneTarget &target, const Points3 &source, const Pose3 &T,
-                          double max_d, const IcpConfig &config, std::vector<int> &last) {
+                          double max_d, const IcpConfig &config, std::vector<int> &last,
+                          int stride) {
     const Points3 &tp = target.points();
     const double max_d2 = max_d * max_d;
     NormalEquations eq;
     Eigen::Matrix<double, 1, 6> J;
-    for (Eigen::Index i = 0; i < source.rows(); ++i) {
+    for (Eigen::Index i = 0; i < source.rows(); i += stride) {
         const Eigen::Vector3d p = source.row(i).transpose();
         const Eigen::Vector3d q = T * p;
         double d2 = 0.0;
@@ -255,13 +257,19 @@ RegistrationResult icpPointToPlane(const PlaneTarget &target,
     bool converged = false;
     int it = 0;
     for (; it < config.max_iterations; ++it) {
-        eq = linearise(target, source, T, max_d, config, last);
-        if (eq.used < config.min_correspondences) break;
+        const bool coarse = max_d > config.final_correspondence_m + 1e-9;
+        const int stride = coarse ? std::max(1, config.coarse_stride) : 1;
+        eq = linearise(target, source, T, max_d, config, last, stride);
+        if (eq.used < config.min_correspondences) {
+            if (stride == 1) break;
+            eq = linearise(target, source, T, max_d, config, last, 1);  // too few: all points
+            if (eq.used < config.min_correspondences) break;
+        }
         const Vector6d delta = solveStep(eq, T, prior_information, T_prior);
         if (!delta.allFinite()) break;
         T = expSE3(delta) * T;
         max_d = std::max(config.final_correspondence_m, max_d * shrink);
-        if (delta.head<3>().norm() < config.translation_tolerance_m &&
+        if (stride == 1 && delta.head<3>().norm() < config.translation_tolerance_m &&
             delta.tail<3>().norm() < config.rotation_tolerance_rad &&
             max_d <= config.final_correspondence_m + 1e-9) {
             converged = true;

@@ -45,7 +45,14 @@ struct IcpConfig {
     double max_correspondence_m = 1.0;    // first iterations
     double final_correspondence_m = 0.3;  // shrinks geometrically towards this
     int shrink_iterations = 3;            // ... reaching it after this many iterations
-    double huber_m = 0.05;                // robust kernel width on point-to-plane residuals
+    // While the correspondence distance still shrinks, only every coarse_stride-th source point
+    // is used (1: all): those iterations only bring the pose into the basin, and their wide
+    // searches are the costliest. Every iteration at the final distance, the one the result
+    // and its covariance come from included, uses all points. 3 saves ~0.25 ms of ~2.2 ms per
+    // VLP-16 scan; on 9 sequences (with 1 m SLAM keyframes) RPE was within the run-to-run
+    // spread but higher on average (issue 18), so 1 stays the default.
+    int coarse_stride = 1;
+    double huber_m = 0.05;  // robust kernel width on point-to-plane residuals
     double translation_tolerance_m = 5e-4;
     double rotation_tolerance_rad = 5e-5;
     int min_correspondences = 20;

@@ -82,6 +82,7 @@ void defineRegistrationTypes(py::module_ &m) {
     FS_FIELD(i, rg::IcpConfig, max_correspondence_m);
     FS_FIELD(i, rg::IcpConfig, final_correspondence_m);
     FS_FIELD(i, rg::IcpConfig, shrink_iterations);
+    FS_FIELD(i, rg::IcpConfig, coarse_stride);
     FS_FIELD(i, rg::IcpConfig, huber_m);
     FS_FIELD(i, rg::IcpConfig, translation_tolerance_m);
     FS_FIELD(i, rg::IcpConfig, rotation_tolerance_rad);

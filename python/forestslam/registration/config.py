@@ -47,6 +47,7 @@ class IcpConfig:
     max_correspondence_m: Positive = 1.0
     final_correspondence_m: Positive = 0.3
     shrink_iterations: NonNegativeInt = 3
+    coarse_stride: PositiveInt = 1  # every n-th source point while the distance shrinks
     huber_m: Positive = 0.05
     translation_tolerance_m: NonNegative = 5e-4
     rotation_tolerance_rad: NonNegative = 5e-5
