@@ -5,6 +5,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -88,6 +89,7 @@ Columns buildColumns(const Points3 &pts) {
 struct StemCentreTarget::Impl {
     Points3 points;
     Columns columns;
+    std::uint64_t id = 0;  // unique per target built (a cache never mistakes a new one)
 
     // The k nearest points of q as FLANN answers them: rows and single-precision squared
     // distances, nearest first, ties in the tree's order.
@@ -148,8 +150,10 @@ struct StemCentreTarget::Impl {
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
+    static std::atomic<std::uint64_t> next_id{1};
     impl_->points = finiteRows(points);
     impl_->columns = buildColumns(impl_->points);
+    impl_->id = next_id++;
 }
 
 StemCentreTarget::~StemCentreTarget() = default;
@@ -396,21 +400,28 @@ struct VirtualCandidates {
     };
     std::vector<Eigen::Vector3d> at;           // transformed centre when gathered
     std::vector<std::vector<Member>> members;  // target points
+    std::vector<double> gate_of;               // the gate they were gathered for
     std::vector<char> valid;
+
+    // The widest gate of a registration (its first round's), not the cap: a call that starts
+    // at the fine gates scans a quarter of the cells.
+    static double gatherGate(const StemCentreLmConfig &cfg) {
+        return std::min(cfg.virtual_max_gate_m,
+                        cfg.virtual_gate_m * std::max(1.0, cfg.coarse_gate_factor));
+    }
 
     void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
                 double radius, const StemCentreLmConfig &cfg) {
         if (at.size() <= i) {
             at.resize(i + 1);
             members.resize(i + 1);
+            gate_of.resize(i + 1, 0.0);
             valid.resize(i + 1, 0);
         }
         auto &out = members[i];
         out.clear();
-        // The widest gate of this registration (its first round's), not the cap: a call that
-        // starts at the fine gates scans a quarter of the cells.
-        const double gate = std::min(cfg.virtual_max_gate_m,
-                                     cfg.virtual_gate_m * std::max(1.0, cfg.coarse_gate_factor));
+        const double gate = gatherGate(cfg);
+        gate_of[i] = gate;
         const double reach = radius + gate + kSlack;
         const double window = cfg.virtual_window_m + kSlack;
         const double reach2 = reach * reach;
@@ -437,12 +448,26 @@ struct VirtualCandidates {
         valid[i] = 1;
     }
 
+    // Members gathered for a wider gate (an earlier registration of the same features) serve
+    // a narrower one once cut to its reach around the same place: exactly the members a
+    // gather there would give, in the same order (the extra ones lie beyond every pair).
     const std::vector<Member> &near(const StemCentreTarget::Impl &target, std::size_t i,
                                     const Eigen::Vector3d &q, double radius,
                                     const StemCentreLmConfig &cfg) {
+        const double gate = gatherGate(cfg);
         if (i >= valid.size() || !valid[i] || std::abs(q.z() - at[i].z()) > kSlack ||
-            std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack) {
+            std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack || gate > gate_of[i]) {
             gather(target, i, q, radius, cfg);
+        } else if (gate < gate_of[i]) {
+            const double reach = radius + gate + kSlack, reach2 = reach * reach;
+            auto &ms = members[i];
+            ms.erase(std::remove_if(ms.begin(), ms.end(),
+                                    [&](const Member &m) {
+                                        const double dx = m.x - at[i].x(), dy = m.y - at[i].y();
+                                        return !(dx * dx + dy * dy <= reach2);
+                                    }),
+                     ms.end());
+            gate_of[i] = gate;
         }
         return members[i];
     }
@@ -597,7 +622,8 @@ struct RealCandidates {
     }
 };
 
-// The candidates of both feature kinds, shared by all rounds of a registration.
+// The candidates of both feature kinds, shared by all rounds of a registration (and by the
+// registrations of one StemCentreLmCache).
 struct PairCandidates {
     VirtualCandidates centres;
     RealCandidates real;
@@ -996,12 +1022,37 @@ void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
 
 }  // namespace
 
+// The candidates of the last registration, the target they came from and its features.
+struct StemCentreLmCache::Impl {
+    std::uint64_t target_id = 0;
+    LmFeatures features;
+    PairCandidates candidates;
+
+    // The candidates for these features on this target: the kept ones when both are the same
+    // as last time, else a fresh set.
+    PairCandidates &candidatesFor(const StemCentreTarget::Impl &target, const LmFeatures &f) {
+        const auto same = [](const auto &a, const auto &b) {
+            return a.rows() == b.rows() && a.cols() == b.cols() && a == b;
+        };
+        if (target.id != target_id || !same(f.centres, features.centres) ||
+            !same(f.radii, features.radii) || !same(f.real, features.real)) {
+            candidates = PairCandidates();
+            target_id = target.id;
+            features = f;
+        }
+        return candidates;
+    }
+};
+
+StemCentreLmCache::StemCentreLmCache() : impl_(std::make_unique<Impl>()) {}
+StemCentreLmCache::~StemCentreLmCache() = default;
+
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
                                         const Pose3 &T_initial, const StemCentreLmConfig &config,
-                                        const SweepTimes *times) {
+                                        const SweepTimes *times, StemCentreLmCache *cache) {
     const int order = std::max(0, config.sweep_order);
     if (order > 0 && (times == nullptr || times->centres.size() != virtual_centres.rows() ||
                       times->real.size() != real_points.rows()))
@@ -1020,7 +1071,9 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     const LmFeatures features =
         usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
     LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
-    PairCandidates candidates;  // target points near each feature, shared by all rounds
+    PairCandidates own;  // target points near each feature, shared by all rounds
+    PairCandidates &candidates =
+        cache != nullptr ? cache->impl().candidatesFor(target.impl(), features) : own;
     iterateRounds(target.impl(), features, config, candidates, state, result);
     state.T = orthonormalised(state.T);  // the left updates accumulate rounding
     result.T_target_source = Pose3(state.T);
