@@ -266,6 +266,18 @@ class _VoxelCloud:
         if len(self._side[0]) > self.SIDE_FRACTION * len(self._main[0]):
             self._consolidate()
 
+    def points_where(self, select: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The points (in `points` order) for which select(points (K,3)) -> (K,) bool holds,
+        without consolidating: main's and the side store's selections merged in key order
+        (the side store joins main only when it has grown; each join copies the whole map)."""
+        main, side = self._main, self._side
+        keep = select(main[1])
+        if not len(side[0]):
+            return main[1][keep]
+        keep_side = select(side[1])
+        at = np.searchsorted(main[0][keep], side[0][keep_side])
+        return np.insert(main[1][keep], at, side[1][keep_side], axis=0)
+
     def _consolidate(self) -> None:
         if len(self._side[0]):
             self._main = _insert_voxels(self._main, *self._side)
@@ -365,10 +377,15 @@ class _GlobalMap:
         ):
             return self.target, False
         zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
-        c = self.coarse
-        c = c[(c[:, 2] >= zlo) & (c[:, 2] <= zhi)]  # the height band first: fewer distances
-        keep = np.sum((c[:, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
-        self.target = self.core.StemCentreTarget(np.ascontiguousarray(c[keep]))
+
+        def crop(c: np.ndarray) -> np.ndarray:
+            keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)  # the height band first: fewer distances
+            band = np.flatnonzero(keep)
+            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+            return keep
+
+        cropped = self._coarse_cloud.points_where(crop)
+        self.target = self.core.StemCentreTarget(np.ascontiguousarray(cropped))
         self.target_centre = xy
         self.target_z = (zlo, zhi)
         self.dirty = False
