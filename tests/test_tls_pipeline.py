@@ -329,3 +329,24 @@ def test_a_frame_whose_rigid_lm_runs_out_in_a_sharp_turn_is_registered_with_its_
         for a, b in zip(short.frames, full.frames, strict=True)
     ]
     assert all(g < 0.01 for g in gaps), gaps
+
+
+def test_voxel_map_selection_without_consolidating_equals_selecting_the_map():
+    # The LM target is cropped from the map while new voxels wait in the side store: the crop
+    # (main's and side's selections merged in key order) must equal cropping the whole map.
+    from forestslam import _core
+    from forestslam.tls.pipeline import _VoxelCloud
+
+    rng = np.random.default_rng(9)
+    cloud = _VoxelCloud(rng.uniform(0, 4, (20000, 3)), 0.1, _core)
+    cloud.merge(np.vstack([rng.uniform(0, 4, (2000, 3)), rng.uniform(4, 5, (2000, 3))]))
+    assert len(cloud._side[0]) > 0  # new voxels wait beside the map
+
+    def select(p):
+        return (p[:, 2] > 1.0) & (np.hypot(p[:, 0] - 3.5, p[:, 1] - 2.0) < 1.5)
+
+    selected = cloud.points_where(select)
+    assert len(cloud._side[0]) > 0  # not consolidated by the selection
+    everything = cloud.points  # consolidates
+    np.testing.assert_array_equal(selected, everything[select(everything)])
+    assert 0 < len(selected) < len(everything)

@@ -243,3 +243,57 @@ TEST(StemCentreLm, InvalidInputThrows) {
                      target, centres, Eigen::VectorXd::Constant(2, 0.2), Points3(0, 3), nan),
                  std::invalid_argument);
 }
+
+namespace {
+
+void expectSameResult(const registration::StemCentreLmResult &a,
+                      const registration::StemCentreLmResult &b) {
+    EXPECT_TRUE(a.T_target_source.matrix() == b.T_target_source.matrix());
+    EXPECT_TRUE(a.covariance == b.covariance);
+    EXPECT_TRUE(a.sweep == b.sweep);
+    EXPECT_EQ(a.converged, b.converged);
+    EXPECT_EQ(a.degenerate, b.degenerate);
+    EXPECT_EQ(a.iterations, b.iterations);
+    EXPECT_EQ(a.virtual_inliers, b.virtual_inliers);
+    EXPECT_EQ(a.real_inliers, b.real_inliers);
+    EXPECT_EQ(a.virtual_rms_m, b.virtual_rms_m);
+    EXPECT_EQ(a.real_rms_m, b.real_rms_m);
+}
+
+}  // namespace
+
+// A frame's calls as the TLS pipeline makes them, with one cache and without: the rigid LM
+// (coarse gates), the in-sweep LM from its result (fine gates), a fallback from another pose
+// (coarse gates again: wider than the kept candidates), then another target. Bit-identical.
+TEST(StemCentreLm, CacheGivesTheSameResults) {
+    const auto scene = test::defaultScene();
+    const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
+    const registration::StemCentreTarget other(test::denseMap(scene, 12.0, 0.05));
+    const Pose3 T_mid = test::makePose(0.6, -0.4, 0.2, 0.0, 0.0, 0.3);
+    const VibratingFrame f = vibratingFrame(scene, T_mid);
+    const features::VirtualFeatures vf = features::extractVirtualFeaturesRings(f.points, f.rings);
+    const features::DogKeypoints kp = features::detectDogKeypoints(f.points);
+    ASSERT_GE(vf.stems.rows(), 3);
+    const registration::SweepTimes times{featureTimes(vf.centres), featureTimes(kp.points)};
+    registration::StemCentreLmCache cache;
+    const auto both = [&](const registration::StemCentreTarget &t, const Pose3 &T,
+                          const registration::StemCentreLmConfig &cfg) {
+        const auto fresh =
+            registration::registerStemCentreLm(t, vf.centres, vf.radii, kp.points, T, cfg, &times);
+        const auto cached = registration::registerStemCentreLm(t, vf.centres, vf.radii, kp.points,
+                                                               T, cfg, &times, &cache);
+        expectSameResult(fresh, cached);
+        return cached;
+    };
+    registration::StemCentreLmConfig rigid;
+    const auto r =
+        both(target, test::makePose(0.12, -0.1, 0.03, 0.006, 0.004, 0.04) * T_mid, rigid);
+    EXPECT_TRUE(r.converged);
+    registration::StemCentreLmConfig sweep;
+    sweep.sweep_order = 2;
+    sweep.coarse_gate_factor = 1.0;
+    both(target, r.T_target_source, sweep);
+    both(target, test::makePose(-0.3, 0.25, -0.05, -0.01, 0.008, -0.06) * T_mid, rigid);
+    both(other, r.T_target_source, rigid);
+    both(other, r.T_target_source, sweep);
+}

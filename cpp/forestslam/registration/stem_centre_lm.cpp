@@ -5,13 +5,13 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <mutex>
 #include <stdexcept>
 #include <string>
-#include <unordered_map>
 #include <vector>
 
 #include "forestslam/common/pcl_adapter.hpp"
@@ -30,8 +30,47 @@ std::int64_t cellKey(std::int64_t ix, std::int64_t iy) {
 struct Column {
     int begin = 0, end = 0;  // its range in Columns::z / Columns::index
 };
+// Column of a key by open addressing (keys are non-negative, -1 marks a free slot): a map
+// target holds ~10^5 columns, and every candidate search looks up a dozen of them (the
+// node-based std::unordered_map's lookups and its build were a visible share of the LM).
+class ColumnTable {
+  public:
+    void reserve(std::size_t n) {
+        std::size_t size = 16;
+        while (size < 2 * n) size *= 2;
+        keys_.assign(size, -1);
+        columns_.assign(size, Column{});
+        mask_ = size - 1;
+    }
+    // The column of key, inserted as `fresh` when absent (added says which).
+    Column &insert(std::int64_t key, const Column &fresh, bool &added) {
+        std::size_t i = slot(key);
+        added = keys_[i] != key;
+        if (added) {
+            keys_[i] = key;
+            columns_[i] = fresh;
+        }
+        return columns_[i];
+    }
+    const Column *find(std::int64_t key) const {
+        if (keys_.empty()) return nullptr;
+        const std::size_t i = slot(key);
+        return keys_[i] == key ? &columns_[i] : nullptr;
+    }
+
+  private:
+    std::size_t slot(std::int64_t key) const {  // the key's slot, or the free one it would take
+        auto h = static_cast<std::uint64_t>(key) * 0x9E3779B97F4A7C15ULL;
+        std::size_t i = static_cast<std::size_t>(h ^ (h >> 29)) & mask_;
+        while (keys_[i] != -1 && keys_[i] != key) i = (i + 1) & mask_;
+        return i;
+    }
+    std::vector<std::int64_t> keys_;
+    std::vector<Column> columns_;
+    std::size_t mask_ = 0;
+};
 struct Columns {
-    std::unordered_map<std::int64_t, Column> at;
+    ColumnTable at;
     std::vector<double> z;
     std::vector<int> index;
 };
@@ -44,20 +83,24 @@ Columns buildColumns(const Points3 &pts) {
     std::vector<int> column_of(n);
     std::vector<int> counts;
     std::vector<std::int64_t> keys;
+    c.at.reserve(n);  // at most one column per point
     for (std::size_t i = 0; i < n; ++i) {
         const auto key = cellKey(cellIndex(pts(static_cast<Eigen::Index>(i), 0)),
                                  cellIndex(pts(static_cast<Eigen::Index>(i), 1)));
-        const auto [it, added] = c.at.try_emplace(key, Column{static_cast<int>(keys.size()), 0});
+        bool added = false;
+        const Column &col = c.at.insert(key, Column{static_cast<int>(keys.size()), 0}, added);
         if (added) {
             keys.push_back(key);
             counts.push_back(0);
         }
-        column_of[i] = it->second.begin;  // the column's ordinal until the ranges are set
-        ++counts[static_cast<std::size_t>(it->second.begin)];
+        column_of[i] = col.begin;  // the column's ordinal until the ranges are set
+        ++counts[static_cast<std::size_t>(col.begin)];
     }
     std::vector<int> start(keys.size() + 1, 0);
     for (std::size_t k = 0; k < keys.size(); ++k) start[k + 1] = start[k] + counts[k];
-    for (std::size_t k = 0; k < keys.size(); ++k) c.at[keys[k]] = Column{start[k], start[k + 1]};
+    bool added = false;
+    for (std::size_t k = 0; k < keys.size(); ++k)
+        c.at.insert(keys[k], Column{}, added) = Column{start[k], start[k + 1]};
     struct Entry {
         double z;
         int index;
@@ -88,6 +131,7 @@ Columns buildColumns(const Points3 &pts) {
 struct StemCentreTarget::Impl {
     Points3 points;
     Columns columns;
+    std::uint64_t id = 0;  // unique per target built (a cache never mistakes a new one)
 
     // The k nearest points of q as FLANN answers them: rows and single-precision squared
     // distances, nearest first, ties in the tree's order.
@@ -122,12 +166,12 @@ struct StemCentreTarget::Impl {
                 const double gy = gap(q.y(), iy);
                 const double h2 = r2 - gx * gx - gy * gy;
                 if (h2 < -1e-9) continue;
-                const auto it = columns.at.find(cellKey(ix, iy));
-                if (it == columns.at.end()) continue;
+                const Column *col = columns.at.find(cellKey(ix, iy));
+                if (col == nullptr) continue;
                 // Slightly wider than the exact window: the distance test below decides.
                 const double h = std::sqrt(std::max(h2, 0.0)) + 1e-6;
-                const auto z0 = columns.z.begin() + it->second.begin;
-                const auto z1 = columns.z.begin() + it->second.end;
+                const auto z0 = columns.z.begin() + col->begin;
+                const auto z1 = columns.z.begin() + col->end;
                 const auto hi = std::upper_bound(z0, z1, q.z() + h);
                 for (auto k = std::lower_bound(z0, hi, q.z() - h); k < hi; ++k) {
                     const int j = columns.index[static_cast<std::size_t>(k - columns.z.begin())];
@@ -148,8 +192,10 @@ struct StemCentreTarget::Impl {
 
 StemCentreTarget::StemCentreTarget(const Eigen::Ref<const Points3> &points)
     : impl_(std::make_unique<Impl>()) {
+    static std::atomic<std::uint64_t> next_id{1};
     impl_->points = finiteRows(points);
     impl_->columns = buildColumns(impl_->points);
+    impl_->id = next_id++;
 }
 
 StemCentreTarget::~StemCentreTarget() = default;
@@ -396,30 +442,37 @@ struct VirtualCandidates {
     };
     std::vector<Eigen::Vector3d> at;           // transformed centre when gathered
     std::vector<std::vector<Member>> members;  // target points
+    std::vector<double> gate_of;               // the gate they were gathered for
     std::vector<char> valid;
+
+    // The widest gate of a registration (its first round's), not the cap: a call that starts
+    // at the fine gates scans a quarter of the cells.
+    static double gatherGate(const StemCentreLmConfig &cfg) {
+        return std::min(cfg.virtual_max_gate_m,
+                        cfg.virtual_gate_m * std::max(1.0, cfg.coarse_gate_factor));
+    }
 
     void gather(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
                 double radius, const StemCentreLmConfig &cfg) {
         if (at.size() <= i) {
             at.resize(i + 1);
             members.resize(i + 1);
+            gate_of.resize(i + 1, 0.0);
             valid.resize(i + 1, 0);
         }
         auto &out = members[i];
         out.clear();
-        // The widest gate of this registration (its first round's), not the cap: a call that
-        // starts at the fine gates scans a quarter of the cells.
-        const double gate = std::min(cfg.virtual_max_gate_m,
-                                     cfg.virtual_gate_m * std::max(1.0, cfg.coarse_gate_factor));
+        const double gate = gatherGate(cfg);
+        gate_of[i] = gate;
         const double reach = radius + gate + kSlack;
         const double window = cfg.virtual_window_m + kSlack;
         const double reach2 = reach * reach;
         for (auto ix = cellIndex(q.x() - reach); ix <= cellIndex(q.x() + reach); ++ix) {
             for (auto iy = cellIndex(q.y() - reach); iy <= cellIndex(q.y() + reach); ++iy) {
-                const auto it = target.columns.at.find(cellKey(ix, iy));
-                if (it == target.columns.at.end()) continue;
-                const auto z0 = target.columns.z.begin() + it->second.begin;
-                const auto z1 = target.columns.z.begin() + it->second.end;
+                const Column *col = target.columns.at.find(cellKey(ix, iy));
+                if (col == nullptr) continue;
+                const auto z0 = target.columns.z.begin() + col->begin;
+                const auto z1 = target.columns.z.begin() + col->end;
                 const auto lo = std::lower_bound(z0, z1, q.z() - window);
                 const auto hi = std::upper_bound(lo, z1, q.z() + window);
                 for (auto k = lo; k < hi; ++k) {
@@ -437,12 +490,26 @@ struct VirtualCandidates {
         valid[i] = 1;
     }
 
+    // Members gathered for a wider gate (an earlier registration of the same features) serve
+    // a narrower one once cut to its reach around the same place: exactly the members a
+    // gather there would give, in the same order (the extra ones lie beyond every pair).
     const std::vector<Member> &near(const StemCentreTarget::Impl &target, std::size_t i,
                                     const Eigen::Vector3d &q, double radius,
                                     const StemCentreLmConfig &cfg) {
+        const double gate = gatherGate(cfg);
         if (i >= valid.size() || !valid[i] || std::abs(q.z() - at[i].z()) > kSlack ||
-            std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack) {
+            std::hypot(q.x() - at[i].x(), q.y() - at[i].y()) > kSlack || gate > gate_of[i]) {
             gather(target, i, q, radius, cfg);
+        } else if (gate < gate_of[i]) {
+            const double reach = radius + gate + kSlack, reach2 = reach * reach;
+            auto &ms = members[i];
+            ms.erase(std::remove_if(ms.begin(), ms.end(),
+                                    [&](const Member &m) {
+                                        const double dx = m.x - at[i].x(), dy = m.y - at[i].y();
+                                        return !(dx * dx + dy * dy <= reach2);
+                                    }),
+                     ms.end());
+            gate_of[i] = gate;
         }
         return members[i];
     }
@@ -514,8 +581,9 @@ struct RealCandidates {
     }
 
     // Fewer than k points within kReach: a ball grown (doubling, up to kMaxSparseReach) until
-    // it surely holds the k + 1 nearest in single precision, all its points the members (not
-    // reused); none within the gate (plus a margin): no pair; else the tree.
+    // it surely holds the k + 1 nearest in single precision, all its points the members
+    // (reused like gather's while 2 delta < radius - d_k - 2 eps); none within the gate (plus
+    // a margin): no pair; else the tree.
     void sparse(const StemCentreTarget::Impl &target, std::size_t i, const Eigen::Vector3d &q,
                 double gate) {
         const double eps = singlePrecisionSlack(q, kMaxSparseReach);
@@ -533,6 +601,10 @@ struct RealCandidates {
             if (std::sqrt(scratch[want - 1].first) + 2.0 * eps > radius) continue;
             for (const auto &[dd, row] : scratch) members[i].push_back(member(target, row));
             mode[i] = Mode::kMembers;
+            // Reused as a gathered neighbourhood is (the ball is complete to its radius): 40 %
+            // of the gathers were these, asked again every round.
+            const auto kth = std::max_element(scratch.begin(), scratch.begin() + (want - 1));
+            room[i] = radius - std::sqrt(kth->first) - 2.0 * eps;
             return;
         }
     }
@@ -572,6 +644,11 @@ struct RealCandidates {
                             std::vector<int> &rows, std::vector<float> &d2) {
         const float qx = static_cast<float>(q.x()), qy = static_cast<float>(q.y()),
                     qz = static_cast<float>(q.z());
+        const std::size_t n = ms.size(), k = std::min<std::size_t>(kNearest, n);
+        const std::size_t check = std::min(k + 1, n);
+        // The `check` nearest in ascending order, by insertion (most members are farther than
+        // the check-th so far and cost one comparison). Which of two equal distances is kept
+        // or comes first is arbitrary, as with a sort: ties are reported below.
         sorted.clear();
         for (const auto &m : ms) {
             float r = 0.0f, d = qx - m.x;
@@ -580,12 +657,14 @@ struct RealCandidates {
             r += d * d;
             d = qz - m.z;
             r += d * d;
-            sorted.emplace_back(r, m.index);
+            if (sorted.size() == check) {
+                if (!(r < sorted.back().first)) continue;
+                sorted.pop_back();
+            }
+            auto pos = sorted.end();
+            while (pos != sorted.begin() && r < (pos - 1)->first) --pos;
+            sorted.insert(pos, {r, m.index});
         }
-        const std::size_t n = sorted.size(), k = std::min<std::size_t>(kNearest, n);
-        const std::size_t check = std::min(k + 1, n);
-        std::partial_sort(sorted.begin(), sorted.begin() + static_cast<long>(check), sorted.end(),
-                          [](const auto &a, const auto &b) { return a.first < b.first; });
         std::size_t tie = kNoTie;
         for (std::size_t j = 0; j + 1 < check && tie == kNoTie; ++j)
             if (!(sorted[j].first < sorted[j + 1].first)) tie = j;
@@ -597,7 +676,8 @@ struct RealCandidates {
     }
 };
 
-// The candidates of both feature kinds, shared by all rounds of a registration.
+// The candidates of both feature kinds, shared by all rounds of a registration (and by the
+// registrations of one StemCentreLmCache).
 struct PairCandidates {
     VirtualCandidates centres;
     RealCandidates real;
@@ -996,12 +1076,37 @@ void assessSolution(const StemCentreTarget::Impl &target, const LmFeatures &f,
 
 }  // namespace
 
+// The candidates of the last registration, the target they came from and its features.
+struct StemCentreLmCache::Impl {
+    std::uint64_t target_id = 0;
+    LmFeatures features;
+    PairCandidates candidates;
+
+    // The candidates for these features on this target: the kept ones when both are the same
+    // as last time, else a fresh set.
+    PairCandidates &candidatesFor(const StemCentreTarget::Impl &target, const LmFeatures &f) {
+        const auto same = [](const auto &a, const auto &b) {
+            return a.rows() == b.rows() && a.cols() == b.cols() && a == b;
+        };
+        if (target.id != target_id || !same(f.centres, features.centres) ||
+            !same(f.radii, features.radii) || !same(f.real, features.real)) {
+            candidates = PairCandidates();
+            target_id = target.id;
+            features = f;
+        }
+        return candidates;
+    }
+};
+
+StemCentreLmCache::StemCentreLmCache() : impl_(std::make_unique<Impl>()) {}
+StemCentreLmCache::~StemCentreLmCache() = default;
+
 StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
                                         const Eigen::Ref<const Points3> &virtual_centres,
                                         const Eigen::Ref<const Eigen::VectorXd> &radii,
                                         const Eigen::Ref<const Points3> &real_points,
                                         const Pose3 &T_initial, const StemCentreLmConfig &config,
-                                        const SweepTimes *times) {
+                                        const SweepTimes *times, StemCentreLmCache *cache) {
     const int order = std::max(0, config.sweep_order);
     if (order > 0 && (times == nullptr || times->centres.size() != virtual_centres.rows() ||
                       times->real.size() != real_points.rows()))
@@ -1020,7 +1125,9 @@ StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
     const LmFeatures features =
         usableFeatures(virtual_centres, radii, real_points, order > 0 ? times : nullptr);
     LmState state{T_initial.matrix(), Eigen::MatrixXd::Zero(order, 6), {}, {}};
-    PairCandidates candidates;  // target points near each feature, shared by all rounds
+    PairCandidates own;  // target points near each feature, shared by all rounds
+    PairCandidates &candidates =
+        cache != nullptr ? cache->impl().candidatesFor(target.impl(), features) : own;
     iterateRounds(target.impl(), features, config, candidates, state, result);
     state.T = orthonormalised(state.T);  // the left updates accumulate rounding
     result.T_target_source = Pose3(state.T);

@@ -91,18 +91,37 @@ class StemCentreTarget {
     std::unique_ptr<Impl> impl_;
 };
 
+// The target points that can pair with each feature (gathered around where the feature was),
+// kept between registrations of the same features onto the same target: the rigid LM of a
+// frame, its fallbacks from other initial poses and its in-sweep LM then gather them about
+// once instead of once per call. Reuse is exact (the same pairs as a fresh gather, see
+// VirtualCandidates and RealCandidates): a registration with other features (after the
+// usable-feature filter) or another target starts the cache afresh. Not thread-safe.
+class StemCentreLmCache {
+  public:
+    StemCentreLmCache();
+    ~StemCentreLmCache();
+    StemCentreLmCache(const StemCentreLmCache &) = delete;
+    StemCentreLmCache &operator=(const StemCentreLmCache &) = delete;
+
+    struct Impl;
+    Impl &impl() { return *impl_; }
+
+  private:
+    std::unique_ptr<Impl> impl_;
+};
+
 // Register source features onto the target. virtual_centres (V,3) with radii (V,), real
 // points (R,3), both in the source frame. Either set may be empty; with too few pairs the
 // result is flagged not converged / degenerate and T stays at the initial guess. times (one
 // per feature) are needed when config.sweep_order > 0 (std::invalid_argument without them, or
 // with other lengths) and ignored otherwise. std::invalid_argument too when radii and
-// virtual_centres differ in length or T_initial is not finite.
-StemCentreLmResult registerStemCentreLm(const StemCentreTarget &target,
-                                        const Eigen::Ref<const Points3> &virtual_centres,
-                                        const Eigen::Ref<const Eigen::VectorXd> &radii,
-                                        const Eigen::Ref<const Points3> &real_points,
-                                        const Pose3 &T_initial,
-                                        const StemCentreLmConfig &config = {},
-                                        const SweepTimes *times = nullptr);
+// virtual_centres differ in length or T_initial is not finite. cache (optional): candidates
+// shared with earlier registrations of the same features onto the same target (same result).
+StemCentreLmResult registerStemCentreLm(
+    const StemCentreTarget &target, const Eigen::Ref<const Points3> &virtual_centres,
+    const Eigen::Ref<const Eigen::VectorXd> &radii, const Eigen::Ref<const Points3> &real_points,
+    const Pose3 &T_initial, const StemCentreLmConfig &config = {},
+    const SweepTimes *times = nullptr, StemCentreLmCache *cache = nullptr);
 
 }  // namespace forestslam::registration

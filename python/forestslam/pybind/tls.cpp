@@ -102,12 +102,20 @@ void defineStemCentreLm(py::module_ &m) {
              py::arg("points"))
         .def("__len__", [](const rg::StemCentreTarget &t) { return t.size(); });
 
+    py::class_<rg::StemCentreLmCache>(
+        m, "StemCentreLmCache",
+        "Pair candidates kept between register_stem_centre_lm calls with the same features on "
+        "the same target (e.g. one frame's rigid and in-sweep LM): same results, fewer "
+        "searches. One per frame; not shared between threads.")
+        .def(py::init<>());
+
     m.def(
         "register_stem_centre_lm",
         [](const rg::StemCentreTarget &target, const Eigen::Ref<const Points3> &centres,
            const Eigen::Ref<const Eigen::VectorXd> &radii, const Eigen::Ref<const Points3> &real,
            const Pose3 &T_initial, const rg::StemCentreLmConfig &config,
-           std::optional<Eigen::VectorXd> centre_times, std::optional<Eigen::VectorXd> real_times) {
+           std::optional<Eigen::VectorXd> centre_times, std::optional<Eigen::VectorXd> real_times,
+           rg::StemCentreLmCache *cache) {
             if (centres.rows() != radii.size()) {
                 throw py::value_error("centres and radii must have the same length");
             }
@@ -118,18 +126,21 @@ void defineStemCentreLm(py::module_ &m) {
             rg::StemCentreLmResult r;
             {
                 py::gil_scoped_release release;
-                r = rg::registerStemCentreLm(target, centres, radii, real, T_initial, cfg, &times);
+                r = rg::registerStemCentreLm(target, centres, radii, real, T_initial, cfg, &times,
+                                             cache);
             }
             return r;
         },
         py::arg("target"), py::arg("centres"), py::arg("radii"), py::arg("real_points"),
         py::arg("T_initial"), py::arg("config") = rg::StemCentreLmConfig(),
         py::arg("centre_times") = py::none(), py::arg("real_times") = py::none(),
+        py::arg("cache") = nullptr,
         "Stem-centre LM: virtual features centres (V,3) + radii (V,), real features (R,3), all "
         "in the source frame, onto target from T_initial (4,4); config: StemCentreLmConfig. "
         "-> StemCentreLmResult. With config.sweep_order > 0 also centre_times (V,) and "
         "real_times (R,): "
-        "feature times in seconds from the registration time.");
+        "feature times in seconds from the registration time. cache: a StemCentreLmCache "
+        "(optional) whose candidates the call reuses and leaves for the next.");
 }
 
 void defineNdt(py::module_ &m) {

@@ -269,6 +269,18 @@ class _VoxelCloud:
         if len(self._side[0]) > self.SIDE_FRACTION * len(self._main[0]):
             self._consolidate()
 
+    def points_where(self, select: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The points (in `points` order) for which select(points (K,3)) -> (K,) bool holds,
+        without consolidating: main's and the side store's selections merged in key order
+        (the side store joins main only when it has grown; each join copies the whole map)."""
+        main, side = self._main, self._side
+        keep = select(main[1])
+        if not len(side[0]):
+            return main[1][keep]
+        keep_side = select(side[1])
+        at = np.searchsorted(main[0][keep], side[0][keep_side])
+        return np.insert(main[1][keep], at, side[1][keep_side], axis=0)
+
     def _consolidate(self) -> None:
         if len(self._side[0]):
             self._main = _insert_voxels(self._main, *self._side)
@@ -368,10 +380,15 @@ class _GlobalMap:
         ):
             return self.target, False
         zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
-        c = self.coarse
-        c = c[(c[:, 2] >= zlo) & (c[:, 2] <= zhi)]  # the height band first: fewer distances
-        keep = np.sum((c[:, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
-        self.target = self.core.StemCentreTarget(np.ascontiguousarray(c[keep]))
+
+        def crop(c: np.ndarray) -> np.ndarray:
+            keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)  # the height band first: fewer distances
+            band = np.flatnonzero(keep)
+            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+            return keep
+
+        cropped = self._coarse_cloud.points_where(crop)
+        self.target = self.core.StemCentreTarget(np.ascontiguousarray(cropped))
         self.target_centre = xy
         self.target_z = (zlo, zhi)
         self.dirty = False
@@ -420,9 +437,18 @@ def _trusted(lm: StemCentreLmResult, T_pred: np.ndarray | None, config: TlsConfi
 
 
 def _lm(
-    core, target, feats, T_init, config: TlsConfig, centre_times=None, real_times=None, **options
+    core,
+    target,
+    feats,
+    T_init,
+    config: TlsConfig,
+    centre_times=None,
+    real_times=None,
+    cache=None,
+    **options,
 ) -> StemCentreLmResult:
-    """The stem-centre LM with the lm_* options of config, then `options` (C++ field names)."""
+    """The stem-centre LM with the lm_* options of config, then `options` (C++ field names);
+    cache: a StemCentreLmCache of the frame (same result, its pair candidates reused)."""
     return core.register_stem_centre_lm(
         target,
         feats.centres,
@@ -432,6 +458,7 @@ def _lm(
         lm_config(config.registration, **options),
         centre_times=centre_times,
         real_times=real_times,
+        cache=cache,
     )
 
 
@@ -684,6 +711,8 @@ class _Frame:
     feats: FrameFeatures
     ms: dict
     deskew_twist: np.ndarray  # the motion model's velocity it was deskewed with (6,)
+    # Pair candidates shared by the frame's LM calls on the map target (StemCentreLmCache).
+    lm_cache: object = None
 
 
 @dataclass
@@ -799,22 +828,34 @@ class _Walk:
         feats = frame_features(points, rings, self.config.features)
         ms = {"features": (time.process_time() - t0) * 1e3, "ndt": 0.0, "target": 0.0, "lm": 0.0}
         return _Frame(
-            index, float(scan.stamp), t_mid, t_ref, points, rings, times, feats, ms, twist
+            index,
+            float(scan.stamp),
+            t_mid,
+            t_ref,
+            points,
+            rings,
+            times,
+            feats,
+            ms,
+            twist,
+            self.core.StemCentreLmCache(),
         )
 
-    def _lm(self, T_start: np.ndarray, feats, z_points, ms=None, **options) -> StemCentreLmResult:
+    def _lm(
+        self, T_start: np.ndarray, feats, z_points, ms=None, cache=None, **options
+    ) -> StemCentreLmResult:
         """LM of features from T_start against the map target cropped around it."""
         t0 = time.process_time()
         target, _ = self.gmap.target_at(T_start[:2, 3], _z_range(z_points, T_start))
         t1 = time.process_time()
-        result = _lm(self.core, target, feats, T_start, self.config, **options)
+        result = _lm(self.core, target, feats, T_start, self.config, cache=cache, **options)
         if ms is not None:
             ms["target"] += (t1 - t0) * 1e3
             ms["lm"] += (time.process_time() - t1) * 1e3
         return result
 
     def _lm_at(self, frame: _Frame, T_start: np.ndarray, **options) -> StemCentreLmResult:
-        return self._lm(T_start, frame.feats, frame.points, frame.ms, **options)
+        return self._lm(T_start, frame.feats, frame.points, frame.ms, frame.lm_cache, **options)
 
     def _ndt(self, frame: _Frame, V: np.ndarray) -> np.ndarray | None:
         """The relative pose T_prev_frame by NDT against the previous frame's points from the
