@@ -66,6 +66,20 @@ def _walk(stand: np.ndarray, place_recognition: bool, seed: int = 0, loops=None)
     return slam, loops, ate, end_error
 
 
+def _assert_ties_are_true_trees(slam, stand: np.ndarray, min_ties: int = 6) -> None:
+    """No false tie: both copies of every tied tree are the same true tree (the map frame is
+    the truth's: the odometry starts at the true pose)."""
+    xy, _ = slam.landmarks()
+    alias = slam.aliases()
+    tied = np.flatnonzero(alias >= 0)
+    assert len(tied) >= min_ties
+
+    def nearest(ids):
+        return np.argmin(np.linalg.norm(xy[ids][:, None] - stand[None], axis=2), axis=1)
+
+    np.testing.assert_array_equal(nearest(tied), nearest(alias[tied]))
+
+
 def test_place_recognition_closes_a_loop_that_re_association_does_not():
     stand = _stand(3)
     slam, _, ate_without, end_without = _walk(stand, place_recognition=False)
@@ -76,14 +90,4 @@ def test_place_recognition_closes_a_loop_that_re_association_does_not():
     assert loops.stats["closures"] >= 1
     assert slam.loop_closures == loops.stats["closures"]  # only verified closures counted
     assert ate < 0.25 and end < 0.2
-    # no false tie: both copies of every tied tree are the same true tree (the map frame is
-    # the truth's: the odometry starts at the true pose)
-    xy, _ = slam.landmarks()
-    alias = slam.aliases()
-    tied = np.flatnonzero(alias >= 0)
-    assert len(tied) >= 6
-
-    def nearest(ids):
-        return np.argmin(np.linalg.norm(xy[ids][:, None] - stand[None], axis=2), axis=1)
-
-    np.testing.assert_array_equal(nearest(tied), nearest(alias[tied]))
+    _assert_ties_are_true_trees(slam, stand)

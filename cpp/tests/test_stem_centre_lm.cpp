@@ -146,22 +146,35 @@ Eigen::VectorXd featureTimes(const Points3 &features) {
     return t;
 }
 
+// The features of a vibrating frame taken at T_mid, with their times within the sweep.
+struct VibratingFeatures {
+    features::VirtualFeatures vf;
+    features::DogKeypoints kp;
+    registration::SweepTimes times;
+};
+
+VibratingFeatures vibratingFeatures(const test::Scene &scene, const Pose3 &T_mid) {
+    const VibratingFrame f = vibratingFrame(scene, T_mid);
+    VibratingFeatures out{features::extractVirtualFeaturesRings(f.points, f.rings),
+                          features::detectDogKeypoints(f.points),
+                          {}};
+    out.times = {featureTimes(out.vf.centres), featureTimes(out.kp.points)};
+    return out;
+}
+
 }  // namespace
 
 TEST(StemCentreLm, SweepMotionOfAVibratingFrameIsRecovered) {
     const auto scene = test::defaultScene();
     const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const Pose3 T_mid = test::makePose(0.6, -0.4, 0.2, 0.0, 0.0, 0.3);
-    const VibratingFrame f = vibratingFrame(scene, T_mid);
-    const features::VirtualFeatures vf = features::extractVirtualFeaturesRings(f.points, f.rings);
-    const features::DogKeypoints kp = features::detectDogKeypoints(f.points);
+    const auto [vf, kp, times] = vibratingFeatures(scene, T_mid);  // C++17: not capturable
     ASSERT_GE(vf.stems.rows(), 3);
     const Pose3 T_init = test::makePose(0.05, -0.04, 0.02, 0.004, 0.003, 0.01) * T_mid;
     registration::StemCentreLmConfig cfg;
     const auto rigid =
         registration::registerStemCentreLm(target, vf.centres, vf.radii, kp.points, T_init, cfg);
     cfg.sweep_order = 2;
-    const registration::SweepTimes times{featureTimes(vf.centres), featureTimes(kp.points)};
     const auto sweep = registration::registerStemCentreLm(target, vf.centres, vf.radii, kp.points,
                                                           T_init, cfg, &times);
     ASSERT_TRUE(sweep.converged);
@@ -270,11 +283,11 @@ TEST(StemCentreLm, CacheGivesTheSameResults) {
     const registration::StemCentreTarget target(test::denseMap(scene, 14.0, 0.04));
     const registration::StemCentreTarget other(test::denseMap(scene, 12.0, 0.05));
     const Pose3 T_mid = test::makePose(0.6, -0.4, 0.2, 0.0, 0.0, 0.3);
-    const VibratingFrame f = vibratingFrame(scene, T_mid);
-    const features::VirtualFeatures vf = features::extractVirtualFeaturesRings(f.points, f.rings);
-    const features::DogKeypoints kp = features::detectDogKeypoints(f.points);
+    const VibratingFeatures frame = vibratingFeatures(scene, T_mid);
+    const auto &vf = frame.vf;
+    const auto &kp = frame.kp;
+    const auto &times = frame.times;
     ASSERT_GE(vf.stems.rows(), 3);
-    const registration::SweepTimes times{featureTimes(vf.centres), featureTimes(kp.points)};
     registration::StemCentreLmCache cache;
     const auto both = [&](const registration::StemCentreTarget &t, const Pose3 &T,
                           const registration::StemCentreLmConfig &cfg) {
