@@ -237,9 +237,7 @@ def run_localization(
         "frame": "pose of the last scan's sensor in the map frame (planar x, y, yaw)",
         "config": {"localization": to_dict(cfg)},
     }
-    query = _QuerySetup(
-        tree_map, profile, root, cfg, frames, every, meta, retry_frames, retry_last
-    )
+    query = _QuerySetup(tree_map, profile, root, cfg, frames, every, meta, retry_frames, retry_last)
 
     def loop(run: LocalizationRun) -> None:
         bar = Progress(count, "scan", "localize", enabled=progress)
