@@ -12,6 +12,7 @@
 #include <map>
 #include <unordered_map>
 
+#include "forestslam/common/median.hpp"
 #include "forestslam/common/voxel_key.hpp"
 #include "forestslam/perception/preprocess.hpp"
 #include "forestslam/perception/segmentation.hpp"
@@ -288,14 +289,6 @@ void keepStems(const Points3 &filtered, std::vector<int> rows, const Segmentatio
                Detection &det, Clusters &stems) {
     const ClusterShape s = clusterShape(filtered, rows, det.up);
     if (isStem(s, static_cast<int>(rows.size()), so)) stems.push_back(std::move(rows));
-}
-
-// Median of `v` (reordered); NaN when empty.
-double median(std::vector<double> &v) {
-    if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-    auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-    std::nth_element(v.begin(), mid, v.end());
-    return *mid;
 }
 
 // Whether the removed returns of a cluster lie nearer the middle of their scan lines than its

@@ -13,16 +13,10 @@
 #include <numeric>
 
 #include "forestslam/common/circle_fit.hpp"
+#include "forestslam/common/median.hpp"
 
 namespace forestslam::perception {
 namespace {
-
-double median(std::vector<double> v) {
-    if (v.empty()) return kNaN;
-    const size_t m = v.size() / 2;
-    std::nth_element(v.begin(), v.begin() + static_cast<long>(m), v.end());
-    return v[m];
-}
 
 // Quality of a circle (centre on an axis through `centre` along `axis`, radius r) on `band`.
 void evaluate(const Eigen::Ref<const Points3> &band, const DiameterConfig &opt, DiameterFit &f) {
