@@ -283,3 +283,25 @@ TEST(Stems, SilhouetteOfOneStemKeepsItsLinesWhateverTheFilterRemoved) {
     EXPECT_EQ(d.method, 3);
     EXPECT_NEAR(d.dbh, 0.34, 0.03);
 }
+
+TEST(Stems, AcceptedSilhouetteSparesTheBandCircle) {
+    // The silhouette decides over the band circle, so the circle is only fitted when every
+    // estimate is asked for (fit_all); the chosen DBH is the same either way.
+    Points3 stem, raw;
+    SilhouetteView view = viewAtTenMetres({{10.0, 0.0, 0.17}}, stem, raw);
+    const Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+    const StemDiameter d =
+        estimateDiameter(stem, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), {}, &view, &origin);
+    ASSERT_EQ(d.method, 3);
+    EXPECT_FALSE(d.circle.valid);
+    EXPECT_TRUE(std::isnan(d.circle.radius));
+    DiameterConfig all;
+    all.fit_all = true;
+    const StemDiameter e =
+        estimateDiameter(stem, Points3(0, 3), 0.0, Eigen::Vector3d::UnitZ(), all, &view, &origin);
+    ASSERT_EQ(e.method, 3);
+    EXPECT_TRUE(e.circle.valid);
+    EXPECT_EQ(d.dbh, e.dbh);
+    EXPECT_EQ(d.dbh_std, e.dbh_std);
+    EXPECT_EQ(d.centre, e.centre);
+}

@@ -100,8 +100,9 @@ struct DiameterConfig {
     double cylinder_section_high_m = 3.0;
     double max_lean_rad = 0.35;
     bool silhouette = true;  // single scans: also the silhouette width estimate (preferred)
-    bool fit_all = false;    // also fit the cylinder when a silhouette or circle decides
-                             // (it is then only reported; costs time)
+    bool fit_all = false;    // also fit the cylinder when a silhouette or circle decides,
+                             // and the circle when a silhouette does (then only reported;
+                             // costs time)
 };
 
 struct PerceptionConfig {

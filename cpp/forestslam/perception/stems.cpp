@@ -683,7 +683,6 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
     const double mid = base_z + 0.5 * (opt.band_low_m + opt.band_high_m);
     const Points3 band = breastHeightBand(points, mid, opt);
     out.band_points = static_cast<int>(band.rows());
-    out.circle = bandCircle(band, mid, opt, view_origin);
     double seen_width = std::numeric_limits<double>::infinity();  // bound in single scans
     if (silhouette != nullptr) {
         const double lo = mid - opt.band_max_half_m, hi = mid + opt.band_max_half_m;
@@ -697,6 +696,10 @@ StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
         seen_width = sec.rows() >= 2 ? seenWidth(sec, psec, pocc, step)
                                      : seenWidth(band, polar(band), pocc, step);
     }
+    // An accepted silhouette decides over the band circle (chooseDiameter), so the circle, a
+    // third of a scan's perception, is only fitted when it may be chosen (or every estimate is
+    // asked for).
+    if (opt.fit_all || !out.silhouette.valid) out.circle = bandCircle(band, mid, opt, view_origin);
     // The cylinder is the costliest estimate and only the fallback: skipped when an accepted
     // silhouette or band circle decides anyway (unless every estimate is asked for).
     const bool cylinder_needed =

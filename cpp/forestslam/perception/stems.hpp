@@ -106,9 +106,10 @@ struct StemDiameter {
 // Diameter of one stem. `normals` (same rows as `points`, may be empty: then no cylinder; other
 // lengths are std::invalid_argument).
 // With `silhouette` (single scans) the silhouette estimate is made too and preferred when its scan
-// lines agree (the cylinder is then not fitted unless options.fit_all); otherwise the better of
-// circle and cylinder by quality. With `view_origin` (where every point was seen from: the
-// sensor of a single scan) the band circle is fitted under range noise (fitCircleRays).
+// lines agree (the band circle and the cylinder are then not fitted unless options.fit_all);
+// otherwise the better of circle and cylinder by quality. With `view_origin` (where every point
+// was seen from: the sensor of a single scan) the band circle is fitted under range noise
+// (fitCircleRays).
 StemDiameter estimateDiameter(const Eigen::Ref<const Points3> &points,
                               const Eigen::Ref<const Points3> &normals, double base_z,
                               const Eigen::Vector3d &up, const DiameterConfig &options,

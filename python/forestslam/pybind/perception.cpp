@@ -181,7 +181,9 @@ void defineDiameterResults(py::module_ &m) {
         m, "StemDiameter",
         "Diameter of one stem (read-only): the circle (band), cylinder (PCL SAC) and silhouette "
         "estimates, the one chosen and its DBH.")
-        .def_readonly("circle", &pc::StemDiameter::circle)
+        .def_readonly("circle", &pc::StemDiameter::circle,
+                      "not fitted (valid False) when an accepted silhouette decides, unless "
+                      "DiameterConfig.fit_all")
         .def_readonly("cylinder", &pc::StemDiameter::cylinder,
                       "not fitted (valid False) when an accepted silhouette or band circle "
                       "decides, unless DiameterConfig.fit_all")
