@@ -150,9 +150,13 @@ struct NormalSums {
 };
 
 // Weighted cost of (c, r) under the weights `w_old` (returned), and the linearization there.
+// Once that cost exceeds `reject_above` the pass stops (`lin` is then incomplete): its terms are
+// non-negative and a rounded sum of non-negative terms never decreases, so the full cost would
+// exceed it too, and the caller rejects such a step whatever the rest of the pass holds.
 double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, const std::vector<double> &pt_w,
                           double tukey_c, const Eigen::Vector2d &c, double r,
-                          const std::vector<double> *w_old, GeoLinearization &lin) {
+                          const std::vector<double> *w_old, GeoLinearization &lin,
+                          double reject_above = std::numeric_limits<double>::infinity()) {
     // Sums in locals: stores through lin.w would otherwise alias them.
     NormalSums sums;
     double wsum = 0, cost = 0, old_cost = 0;
@@ -162,6 +166,7 @@ double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, const std::ve
         const double dist = dvec.norm();
         const double e = dist - r;
         if (w_old != nullptr) old_cost += (*w_old)[k] * e * e;
+        if (old_cost > reject_above) return old_cost;
         const double w = w_new[k] = pt_w[k] * tukeyWeight(e, tukey_c);
         wsum += w;
         cost += w * e * e;
@@ -178,11 +183,10 @@ double linearizeGeometric(const std::vector<Eigen::Vector2d> &pts, const std::ve
 // Geometric LM on (cx, cy, r) minimising sum w_i (|p_i - c| - r)^2, Tukey weights with scale
 // `tukey_c` re-evaluated every iteration (IRLS). A trial step's cost (under the current
 // weights) and the linearization at it come from one pass: an accepted step is the next
-// iteration's starting point.
+// iteration's starting point. `restarts` runs of up to `iterations` each, lambda reset.
 void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
                      double tukey_c, int iterations, Eigen::Vector2d &c, double &r,
-                     const double *weights = nullptr) {
-    double lambda = 1e-3;
+                     const double *weights = nullptr, int restarts = 1) {
     GeoLinearization cur{std::vector<double>(rows.size()), Eigen::Matrix3d::Zero(),
                          Eigen::Vector3d::Zero(), 0, 0};
     GeoLinearization trial = cur;
@@ -193,29 +197,36 @@ void refineGeometric(const Eigen::Ref<const Points2> &xy, const std::vector<int>
         pt_w[k] = weightOf(weights, rows[k]);
     }
     linearizeGeometric(pts, pt_w, tukey_c, c, r, nullptr, cur);
-    for (int it = 0; it < iterations; ++it) {
-        if (cur.wsum < 3.0) return;
-        const double before = cur.cost;
-        bool improved = false;
-        for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
-            Eigen::Matrix3d A = cur.JtJ;
-            A.diagonal() *= (1.0 + lambda);
-            const Eigen::Vector3d step = A.ldlt().solve(-cur.Jte);
-            if (!step.allFinite()) return;
-            const Eigen::Vector2d cn = c + step.head<2>();
-            const double rn = r + step(2);
-            if (rn > 0 && linearizeGeometric(pts, pt_w, tukey_c, cn, rn, &cur.w, trial) <= before) {
-                c = cn;
-                r = rn;
-                std::swap(cur, trial);
-                lambda = std::max(lambda * 0.3, 1e-9);
-                improved = true;
-                if (step.norm() < 1e-9) return;
-            } else {
-                lambda *= 10.0;
+    // Each restart (lambda afresh) begins where the last one ended, and `cur` is already the
+    // linearization there: the same pass as a fresh one (the weights it was made under only
+    // enter the cost it returned).
+    for (int k = 0; k < restarts; ++k) {
+        double lambda = 1e-3;
+        for (int it = 0; it < iterations; ++it) {
+            if (cur.wsum < 3.0) break;
+            const double before = cur.cost;
+            bool improved = false, converged = false;
+            for (int attempt = 0; attempt < 8 && !improved; ++attempt) {
+                Eigen::Matrix3d A = cur.JtJ;
+                A.diagonal() *= (1.0 + lambda);
+                const Eigen::Vector3d step = A.ldlt().solve(-cur.Jte);
+                if (!step.allFinite()) break;
+                const Eigen::Vector2d cn = c + step.head<2>();
+                const double rn = r + step(2);
+                if (rn > 0 && linearizeGeometric(pts, pt_w, tukey_c, cn, rn, &cur.w, trial,
+                                                 before) <= before) {
+                    c = cn;
+                    r = rn;
+                    std::swap(cur, trial);
+                    lambda = std::max(lambda * 0.3, 1e-9);
+                    improved = true;
+                    converged = step.norm() < 1e-9;
+                } else {
+                    lambda *= 10.0;
+                }
             }
+            if (!improved || converged) break;
         }
-        if (!improved) return;
     }
 }
 
@@ -413,9 +424,7 @@ CircleFit robustFit(const Eigen::Ref<const Points2> &xy, const CircleFitConfig &
     Eigen::Vector2d c;
     double r;
     if (!taubin(xy, seed_rows, c, r, weights)) return fit;
-    for (int round = 0; round < 3; ++round) {
-        refineGeometric(xy, rows, 2.5 * thr, opt.refine_iterations, c, r, weights);
-    }
+    refineGeometric(xy, rows, 2.5 * thr, opt.refine_iterations, c, r, weights, 3);
     fit.inlier_indices = inliersOf(xy, rows, c, r, thr);
     if (fit.inlier_indices.size() < 3 || !std::isfinite(r) || !inBounds(r)) {
         fit.inlier_indices.clear();
@@ -514,9 +523,11 @@ struct RayLinearization {
     double cost;
 };
 
+// Stops once the cost under `w_old` exceeds `reject_above`, as linearizeGeometric.
 double linearizeRays(const std::vector<RayPoint> &pts, const std::vector<double> &pt_w, double sr,
                      double st, const Eigen::Vector3d &x, const std::vector<double> *w_old,
-                     RayLinearization &lin) {
+                     RayLinearization &lin,
+                     double reject_above = std::numeric_limits<double>::infinity()) {
     NormalSums sums;
     double cost = 0, old_cost = 0;
     double *w_new = lin.w.data();
@@ -525,6 +536,7 @@ double linearizeRays(const std::vector<RayPoint> &pts, const std::vector<double>
         const Eigen::Vector2d e = rayResidual(pts[k], x, sr, st, &J);
         const double e2 = e.squaredNorm();
         if (w_old != nullptr) old_cost += (*w_old)[k] * e2;
+        if (old_cost > reject_above) return old_cost;
         const double w = w_new[k] = pt_w[k] * cauchyWeight(e2);
         cost += w * e2;
         sums.addNormal(w, J, e);
@@ -552,8 +564,9 @@ bool refineRays(const std::vector<RayPoint> &pts, const std::vector<double> &pt_
             const Eigen::Vector3d step = A.ldlt().solve(-cur.Jte);
             if (!step.allFinite()) return false;
             const Eigen::Vector3d xn = x + step;
-            const double after =
-                xn(2) > 0 ? linearizeRays(pts, pt_w, sr, st, xn, &cur.w, trial) : before + 1.0;
+            const double after = xn(2) > 0
+                                     ? linearizeRays(pts, pt_w, sr, st, xn, &cur.w, trial, before)
+                                     : before + 1.0;
             if (after <= before) {
                 x = xn;
                 std::swap(cur, trial);
@@ -640,10 +653,12 @@ bool rayRefined(const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Poin
     double sr = std::max(1.4826 * weightedMedian(ortho, wts(pt_w)), st);
     Eigen::Vector3d x(fit.centre.x(), fit.centre.y(), fit.radius);
     for (int round = 0; round < 3; ++round) {
+        if (round > 0) {  // the range spread re-estimated from the last round's residuals
+            std::vector<double> res;
+            for (const RayPoint &p : pts) res.push_back(std::abs(rayResidual(p, x, 1.0, 1.0).x()));
+            sr = std::max(1.4826 * weightedMedian(res, wts(pt_w)), st);
+        }
         if (!refineRays(pts, pt_w, sr, st, opt.refine_iterations, x)) return false;
-        std::vector<double> res;
-        for (const RayPoint &p : pts) res.push_back(std::abs(rayResidual(p, x, 1.0, 1.0).x()));
-        sr = std::max(1.4826 * weightedMedian(res, wts(pt_w)), st);
     }
     if (!x.allFinite() || x(2) < opt.min_radius_m || x(2) > opt.max_radius_m) return false;
     // A refinement that wandered off the points is not trusted: the range model moves a
