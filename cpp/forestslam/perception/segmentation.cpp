@@ -312,12 +312,18 @@ Clusters dbscan(const Eigen::Ref<const Points3> &points, const std::vector<int> 
     // Neighbour lists (brute force for small clusters, KD-tree otherwise).
     std::vector<std::vector<int>> nb(n);
     if (n <= 256) {
+        // The pairs first, then each list sized once (one allocation per list, not a growing
+        // one); filled in pair order, so every list holds its rows ascending as before.
+        std::vector<std::pair<int, int>> pairs;
+        std::vector<int> degree(n, 0);
         for (size_t a = 0; a < n; ++a)
             for (size_t b = a + 1; b < n; ++b)
                 if ((points.row(rows[a]) - points.row(rows[b])).squaredNorm() <= eps2) {
-                    nb[a].push_back(static_cast<int>(b));
-                    nb[b].push_back(static_cast<int>(a));
+                    pairs.emplace_back(static_cast<int>(a), static_cast<int>(b));
+                    ++degree[a], ++degree[b];
                 }
+        for (size_t a = 0; a < n; ++a) nb[a].reserve(static_cast<size_t>(degree[a]));
+        for (const auto &[a, b] : pairs) nb[a].push_back(b), nb[b].push_back(a);
     } else {
         auto cloud = subsetCloud(points, rows);
         pcl::KdTreeFLANN<pcl::PointXYZ> tree;
