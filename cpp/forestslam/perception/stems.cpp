@@ -627,7 +627,10 @@ double seenWidth(const Eigen::Ref<const Points3> &p, const Polar &pl, const Pola
         return std::atan2(std::sin(az - bearing), std::cos(az - bearing));
     };
     double lo = 1e9, hi = -1e9;
-    for (double az : pl.az) lo = std::min(lo, offset(az)), hi = std::max(hi, offset(az));
+    for (double az : pl.az) {
+        const double a = offset(az);  // once: three libm calls
+        lo = std::min(lo, a), hi = std::max(hi, a);
+    }
     const double range = median(pl.rho);
     for (size_t i = 0; i < po.az.size(); ++i) {
         const double a = offset(po.az[i]);
