@@ -92,7 +92,8 @@ class _Tentative:
     def copy(self) -> _Tentative:
         """An independent copy (what copy.deepcopy gave, at a fraction of its cost): the lists
         hold floats and tuples of numbers, which are immutable."""
-        return _Tentative(self.xy.copy(), list(self.dbh), list(self.obs), list(self.z), self.last_kf)
+        xy, last = self.xy.copy(), self.last_kf
+        return _Tentative(xy, list(self.dbh), list(self.obs), list(self.z), last)
 
 
 @dataclass
