@@ -123,24 +123,19 @@ def write_trees_gpkg(path: str | Path, table: dict[str, np.ndarray], crs=None) -
         )
 
 
-# Imported by pyogrio's package for its arrow API and its own tests only (pyogrio 0.13), ~80 ms
-# CPU together; raw.write (GDAL's path) uses neither.
-_PYOGRIO_EXTRAS = ("pyarrow", "pyproj")
-
-
 def _pyogrio_write():
-    """pyogrio.raw.write. On pyogrio's first import, the extras nothing has imported yet are
-    hidden from it (an import of them raises ImportError, which pyogrio takes as not installed),
-    so pyogrio in this process reports pyarrow absent: forestslam uses no pyogrio arrow call."""
-    hidden = (
-        [] if "pyogrio" in sys.modules else [m for m in _PYOGRIO_EXTRAS if m not in sys.modules]
-    )
-    sys.modules.update(dict.fromkeys(hidden))
-    try:
+    """pyogrio.raw.write, its GDAL path (no arrow). Importing pyogrio also imports pyarrow when
+    installed, for pyogrio's arrow API only (~30 ms CPU of every run that writes it): when
+    nothing has imported either yet, pyarrow is hidden from that first import, so pyogrio in
+    this process reports it absent (forestslam uses none of pyogrio's arrow functions)."""
+    if "pyogrio" in sys.modules or "pyarrow" in sys.modules:
         from pyogrio.raw import write
-    finally:
-        for name in hidden:
-            del sys.modules[name]
+    else:
+        sys.modules["pyarrow"] = None  # import pyarrow raises ImportError: pyogrio skips it
+        try:
+            from pyogrio.raw import write
+        finally:
+            del sys.modules["pyarrow"]
     return write
 
 
