@@ -18,7 +18,8 @@ def poses_to_tum_lines(stamps: np.ndarray, poses: np.ndarray) -> list[str]:
         return []
     quat = Rotation.from_matrix(poses[:, :3, :3]).as_quat()  # x, y, z, w
     rows = np.column_stack([np.asarray(stamps, dtype=np.float64), poses[:, :3, 3], quat])
-    return [" ".join(f"{v:.9f}" for v in row) for row in rows]
+    line = " ".join(["%.9f"] * rows.shape[1])  # the text of f"{v:.9f}", one format per row
+    return [line % tuple(row) for row in rows.tolist()]
 
 
 def write_tum(path: str | Path, stamps: np.ndarray, poses: np.ndarray) -> None:

@@ -161,7 +161,9 @@ def label_stems(
     radius = np.where(np.isfinite(dbh), dbh / 2, 0.15) + margin_m
     z = np.asarray(trees["z"], dtype=np.float64)
     free = np.flatnonzero((ids == 0) & (classification != GROUND))
-    dist, k = cKDTree(xy).query(points[free, :2], distance_upper_bound=float(radius.max()))
+    reach = float(radius.max())
+    free = free[_maybe_near(points[free, :2], xy, reach)]  # the query's certain misses dropped
+    dist, k = cKDTree(xy).query(points[free, :2], distance_upper_bound=reach)
     hit = np.isfinite(dist)
     free, dist, k = free[hit], dist[hit], k[hit]
     dz = points[free, 2] - z[k]
@@ -172,3 +174,30 @@ def label_stems(
     )
     ids[free[inside]] = np.asarray(trees["id"])[k[inside]]
     return ids
+
+
+MAX_GRID_CELLS = 1 << 24  # the prefilter's grid (bytes); beyond, every point goes to the query
+
+
+def _maybe_near(xy: np.ndarray, centres: np.ndarray, reach: float) -> np.ndarray:
+    """(N,) False for points xy (N,2) certainly farther than `reach` from every centre (M,2),
+    True for the others (which may be farther): a grid of `reach` cells over the centres, each
+    marking the 5x5 cells around its own (a point within `reach` of a centre lies at most one
+    cell away, two with rounding). A cKDTree query of every map point cost 3x this."""
+    if not (reach > 0 and np.isfinite(centres).all()) or len(centres) == 0 or len(xy) == 0:
+        return np.ones(len(xy), dtype=bool)
+    lo = centres.min(axis=0) - 3 * reach
+    shape = np.floor((centres.max(axis=0) + 3 * reach - lo) / reach).astype(np.int64) + 1
+    if shape.prod() > MAX_GRID_CELLS:
+        return np.ones(len(xy), dtype=bool)
+    grid = np.zeros(shape, dtype=bool)
+    cell = np.floor((centres - lo) / reach).astype(np.int64)
+    for dx in range(-2, 3):
+        for dy in range(-2, 3):
+            grid[cell[:, 0] + dx, cell[:, 1] + dy] = True
+    at = np.floor((xy - lo) / reach)
+    inside = (at[:, 0] >= 0) & (at[:, 0] < shape[0]) & (at[:, 1] >= 0) & (at[:, 1] < shape[1])
+    near = np.zeros(len(xy), dtype=bool)
+    at = at[inside].astype(np.int64)
+    near[inside] = grid[at[:, 0], at[:, 1]]
+    return near

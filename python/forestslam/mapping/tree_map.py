@@ -53,7 +53,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from forestslam.geometry import transform_points
 from forestslam.mapping.config import MappingConfig
 
 log = logging.getLogger(__name__)
@@ -145,13 +144,15 @@ def seen_through_share(xy: np.ndarray, origins: np.ndarray, fit, tol_m: float) -
     beam = xy - origins
     rng = np.linalg.norm(beam, axis=1)
     ok = rng > 0
-    if not ok.any():
-        return 0.0
-    u = beam[ok] / rng[ok, None]
-    to_centre = centre - origins[ok]
+    if not ok.all():  # (the copies of a selection only when a point sits at its origin)
+        if not ok.any():
+            return 0.0
+        beam, rng, origins = beam[ok], rng[ok], origins[ok]
+    u = beam / rng[:, None]
+    to_centre = centre - origins
     mid = np.einsum("ij,ij->i", u, to_centre)  # chord middle along the beam
     miss2 = np.einsum("ij,ij->i", to_centre, to_centre) - mid**2  # beam-centre distance^2
-    behind = (miss2 < radius**2) & (rng[ok] > mid + tol_m)
+    behind = (miss2 < radius**2) & (rng > mid + tol_m)
     return float(np.count_nonzero(behind)) / len(xy)
 
 
@@ -224,13 +225,20 @@ class TreeMap:
         unknown, no resolution gate). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
         lo, hi = self.cfg.dbh_band_m
         origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
+        T = np.asarray(T_odom, dtype=np.float64)  # transform_points' R p + t, split once per scan
+        R_t, t = T[:3, :3].T, T[:3, 3]
         ids = np.asarray(ids)
         # plain Python values for the per-stem bookkeeping (numpy scalars cost ~1 us per use)
+        tree_ids = ids.tolist()
+        base_z = np.asarray(base_z, dtype=np.float64)
+        base = base_z.tolist()
         centre = np.asarray(centre_z, dtype=np.float64).tolist()
         dbh = np.asarray(scan_dbh, dtype=np.float64).tolist()
         rho = [0.0] * len(ids) if ranges is None else np.asarray(ranges, dtype=np.float64).tolist()
         for k in np.flatnonzero(ids >= 0).tolist():
-            tree = self.trees.setdefault(int(ids[k]), _Tree())
+            tree = self.trees.get(tree_ids[k])
+            if tree is None:  # not setdefault: a _Tree per stem costs more than the rest
+                tree = self.trees[tree_ids[k]] = _Tree()
             if tree.first_scan < 0:
                 tree.first_scan = scan_index
             tree.n_scans += 1
@@ -244,12 +252,13 @@ class TreeMap:
                 tree.dbh_at[b] += 1
                 self._keep_scan_dbh(tree, dbh[k], rho[k])
             pts = points[k] if k < len(points) else None
-            if pts is None or len(pts) == 0 or not np.isfinite(base_z[k]):
+            if pts is None or len(pts) == 0 or not math.isfinite(base[k]):
                 continue
             h = pts[:, 2] - base_z[k]
             band = pts[(h >= lo) & (h <= hi)]
             if len(band):
-                self._add_band(tree, scan_index, transform_points(T_odom, band), origin)
+                band = np.asarray(band, dtype=np.float64).reshape(-1, 3)
+                self._add_band(tree, scan_index, band @ R_t + t, origin)
 
     def _add_band(self, tree: _Tree, scan_index: int, band: np.ndarray, origin: np.ndarray) -> None:
         """One scan's band points (M,3) of a tree in the map frame, seen from origin (2,); the

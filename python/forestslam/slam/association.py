@@ -17,6 +17,7 @@ floored) rather than taken from iSAM2 marginals, which would cost one solve per 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,16 +42,22 @@ def dbh_compatible(obs_dbh: np.ndarray, lm_dbh: np.ndarray, ratio: float) -> np.
     return ~known | close
 
 
+def _pairs_within(tree: cKDTree, xy: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every (query, tree point) index pair within `radius` (query_ball_point's lists, flattened
+    in their order without an array per list)."""
+    cand = tree.query_ball_point(xy, r=radius)
+    counts = np.fromiter(map(len, cand), dtype=np.int64, count=len(cand))
+    lm_idx = np.fromiter(itertools.chain.from_iterable(cand), dtype=np.int64, count=counts.sum())
+    return np.repeat(np.arange(len(cand)), counts), lm_idx
+
+
 def _consensus(
     obs: np.ndarray, lm_tree: cKDTree, lm_xy: np.ndarray, radius: float, cfg: SlamConfig
 ) -> tuple[np.ndarray, int]:
     k = len(obs)
-    cand = lm_tree.query_ball_point(obs, r=radius)
-    counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=k)
-    if counts.sum() == 0:
+    obs_idx, lm_idx = _pairs_within(lm_tree, obs, radius)
+    if len(lm_idx) == 0:
         return np.eye(3), 0
-    obs_idx = np.repeat(np.arange(k), counts)
-    lm_idx = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
     shifts = np.vstack([np.zeros((1, 2)), lm_xy[lm_idx] - obs[obs_idx]])
     moved = (obs[None, :, :] + shifts[:, None, :]).reshape(-1, 2)
     dist, _ = lm_tree.query(moved, distance_upper_bound=cfg.consensus_inlier_m)
@@ -142,12 +149,9 @@ def associate(
     else:
         pose_var = eig**2
         search = radius
-    cand = tree.query_ball_point(obs, r=search)
-    counts = np.fromiter((len(c) for c in cand), dtype=np.int64, count=k)
-    if counts.sum() == 0:
+    oi, li = _pairs_within(tree, obs, search)
+    if len(li) == 0:
         return result
-    oi = np.repeat(np.arange(k), counts)
-    li = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand if len(c)])
     e2 = np.sum((obs[oi] - lm_xy[li]) ** 2, axis=1)
     d2 = e2 / (var_obs + lm_sigma[li] ** 2 + pose_var)
     ok = (d2 <= cfg.association_chi2) & dbh_compatible(obs_dbh[oi], lm_dbh[li], cfg.dbh_gate_ratio)
