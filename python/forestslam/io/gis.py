@@ -12,7 +12,6 @@ Both are written beside the target and renamed into place, so a crash never leav
 from __future__ import annotations
 
 import os
-import sys
 import tempfile
 import warnings
 from contextlib import contextmanager
@@ -100,7 +99,8 @@ def write_trees_gpkg(path: str | Path, table: dict[str, np.ndarray], crs=None) -
     """The tree map as a GeoPackage point layer `trees`: geometry (x, y) in the output frame and
     every other column of `table` (id, dbh_m, dbh_std_m, observations, status, height_m, z ...)
     as a field; `crs` a pyproj CRS or None (then the layer has no srs)."""
-    write = _pyogrio_write()
+    from pyogrio.raw import write
+
     path = Path(path)
     if "x" not in table or "y" not in table:
         raise InputError(f"{path}: trees need x and y columns")
@@ -121,22 +121,6 @@ def write_trees_gpkg(path: str | Path, table: dict[str, np.ndarray], crs=None) -
             geometry_type="Point",
             crs=None if crs is None else crs.to_wkt(),
         )
-
-
-def _pyogrio_write():
-    """pyogrio.raw.write, its GDAL path (no arrow). Importing pyogrio also imports pyarrow when
-    installed, for pyogrio's arrow API only (~30 ms CPU of every run that writes it): when
-    nothing has imported either yet, pyarrow is hidden from that first import, so pyogrio in
-    this process reports it absent (forestslam uses none of pyogrio's arrow functions)."""
-    if "pyogrio" in sys.modules or "pyarrow" in sys.modules:
-        from pyogrio.raw import write
-    else:
-        sys.modules["pyarrow"] = None  # import pyarrow raises ImportError: pyogrio skips it
-        try:
-            from pyogrio.raw import write
-        finally:
-            del sys.modules["pyarrow"]
-    return write
 
 
 def _field(values: np.ndarray) -> np.ndarray:
