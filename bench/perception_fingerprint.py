@@ -22,6 +22,7 @@ import numpy as np
 
 from forestslam import _core
 from forestslam.io.readers import read_scans
+from forestslam.perception.config import PerceptionConfig
 from forestslam.perception.pipeline import detect, sensor_geometry
 
 STEM_FIELDS = ("xy", "dbh", "z", "mean", "cov", "axis", "base_z", "ground", "breast_source")
@@ -64,6 +65,8 @@ def main(bags: list[str]) -> str:
 
 def stems_digest(bags: list[str], step: int = 2, scans: int = 400) -> str:
     digest, count = hashlib.sha256(), 0
+    every_fit = PerceptionConfig()  # every estimate fitted, even those an earlier one decides
+    every_fit.diameter.fit_all = True
 
     def add(x) -> None:
         digest.update(np.ascontiguousarray(np.asarray(x, dtype=np.float64)).tobytes())
@@ -74,7 +77,7 @@ def stems_digest(bags: list[str], step: int = 2, scans: int = 400) -> str:
                 break
             if k % step:
                 continue
-            stems = detect(scan, "vlp16")
+            stems = detect(scan, "vlp16", every_fit)
             count += len(stems)
             for name in STEM_FIELDS:
                 add(getattr(stems, name))

@@ -112,8 +112,9 @@ class DiameterConfig:
     silhouette: bool = (
         True  # single scans: stem width seen from the sensor, preferred if consistent
     )
-    # The SAC cylinder is skipped when an accepted silhouette or band circle decides the DBH
-    # anyway (the costliest estimate); True fits (and reports) every estimate for every stem.
+    # An estimate is skipped when one before it decides the DBH anyway: the band circle when
+    # an accepted silhouette does, the SAC cylinder (the costliest) when either does; True fits
+    # (and reports) every estimate for every stem.
     fit_all: bool = False
 
 
