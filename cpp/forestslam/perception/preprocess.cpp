@@ -294,7 +294,8 @@ Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<ch
 
 NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
                                 const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterConfig &opt, const GroundGrid *grid) {
+                                const NormalFilterConfig &opt, const GroundGrid *grid,
+                                Eigen::Index evidence_from) {
     NormalFilterResult out;
     // Height band above the local ground, then thinning to one point per small voxel.
     std::vector<int> rows;
@@ -332,8 +333,15 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
         out.normals.resize(0, 3);
         return out;
     }
-    KdTree3 tree;
-    tree.build(points, rows);
+    // Rows from `evidence_from` on (returns the intensity filter removed) never count as
+    // neighbours of the rows before it: those pass or fail as without them.
+    std::vector<int> own;
+    for (const int i : rows)
+        if (i < evidence_from) own.push_back(i);
+    const bool has_evidence = own.size() < rows.size();
+    KdTree3 tree, own_tree;
+    own_tree.build(points, std::move(own));
+    if (has_evidence) tree.build(points, rows);
     const double max_nz = std::sin(opt.max_normal_angle_rad);
     const int max_nn = std::max(opt.max_neighbours, 3);
     std::vector<std::pair<double, int>> nn;
@@ -349,7 +357,8 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
         }
         // The max_nn nearest within the radius (as PCL's radiusSearch with max_nn).
         const Eigen::Vector3d p = points.row(i).transpose();
-        const int found = tree.knn(p, max_nn, radius * radius, nn);
+        const KdTree3 &neighbours = i < evidence_from ? own_tree : tree;
+        const int found = neighbours.knn(p, max_nn, radius * radius, nn);
         if (found - 1 < opt.min_neighbours || found < 3) continue;  // the query is in nn
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
         for (const auto &[d2, j] : nn) mean += points.row(j).transpose();

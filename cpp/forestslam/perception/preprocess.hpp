@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <vector>
 
 #include "forestslam/common/types.hpp"
@@ -49,9 +50,13 @@ struct NormalFilterResult {
 // Adaptive ring-based normal estimation and outlier filter over `candidates` rows of `points`
 // (non-ground). Rings in the sensor XY plane, radii geomspace(ring_min_m, ring_max_m, rings);
 // per ring radius radius_scale * theta_v * (r_in + r_out) / 2 (or fixed_radius_m). `grid`
-// limits candidates to the height band above ground when it knows the ground there.
-NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
-                                const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterConfig &options, const GroundGrid *grid);
+// limits candidates to the height band above ground when it knows the ground there. Rows from
+// `evidence_from` on (the returns the intensity filter removed, appended after the kept ones)
+// are filtered with every row as neighbours, but are no neighbours of the rows before them:
+// those pass or fail, with the same normals, as if the removed returns had never been seen.
+NormalFilterResult normalFilter(
+    const Eigen::Ref<const Points3> &points, const std::vector<int> &candidates,
+    double theta_v_rad, const NormalFilterConfig &options, const GroundGrid *grid,
+    Eigen::Index evidence_from = std::numeric_limits<Eigen::Index>::max());
 
 }  // namespace forestslam::perception
