@@ -402,11 +402,14 @@ Clusters stemPieces(const Points3 &filtered, const Clusters &coarse, const Senso
     return stems;
 }
 
-// 5b. With the removed returns as evidence: the pieces the clustering of every return finds
-// where removed returns are bark (see evidenceStem) replace the pieces of the kept returns
-// alone (`pieces`, rows of the first filtered rows: the same) that share a return with them.
-// Removed returns can so make a stem of a cluster whose kept returns are its edges, but never
-// change a cluster in which they are not the bark facing the sensor.
+// 5b. With the removed returns as evidence: a piece the clustering of every return finds where
+// removed returns are bark (see evidenceStem) replaces the pieces of the kept returns alone
+// (`pieces`, rows of the first filtered rows: the same rows) that share a return with it, and
+// is dropped when it shares none. The removed returns so complete a stem the kept returns
+// found (its edges, or pieces of it), but never make one of their own, nor change a cluster in
+// which they are not the bark facing the sensor: on foliage, dark returns among bright leaves
+// made sapling-like stems that the kept returns alone never gave (precision on the style-a
+// loops, see the report of issue 15).
 Clusters withEvidencePieces(const Points3 &filtered, const NormalFilterResult &nf,
                             const Eigen::VectorXi &ring, Eigen::Index kept_rows,
                             const SensorGeometry &sensor, const SegmentationConfig &so,
@@ -419,14 +422,22 @@ Clusters withEvidencePieces(const Points3 &filtered, const NormalFilterResult &n
         evidenceStem(filtered, nf, line, kept_rows, sub, silhouette, so, up, evidence);
     });
     if (evidence.empty()) return pieces;
-    std::vector<char> taken(static_cast<size_t>(filtered.rows()), 0);
-    for (const auto &e : evidence)
-        for (int r : e) taken[static_cast<size_t>(r)] = 1;
+    std::vector<int> piece_of(static_cast<size_t>(filtered.rows()), -1);
+    for (size_t k = 0; k < pieces.size(); ++k)
+        for (int r : pieces[k]) piece_of[static_cast<size_t>(r)] = static_cast<int>(k);
+    std::vector<char> replaced(pieces.size(), 0);
+    Clusters completed;
+    for (auto &e : evidence) {
+        bool completes = false;
+        for (int r : e)
+            if (const int k = piece_of[static_cast<size_t>(r)]; k >= 0)
+                replaced[static_cast<size_t>(k)] = 1, completes = true;
+        if (completes) completed.push_back(std::move(e));
+    }
     Clusters out;
-    for (auto &p : pieces)
-        if (std::none_of(p.begin(), p.end(), [&](int r) { return taken[static_cast<size_t>(r)]; }))
-            out.push_back(std::move(p));
-    for (auto &e : evidence) out.push_back(std::move(e));
+    for (size_t k = 0; k < pieces.size(); ++k)
+        if (!replaced[k]) out.push_back(std::move(pieces[k]));
+    for (auto &e : completed) out.push_back(std::move(e));
     return out;
 }
 
