@@ -241,7 +241,7 @@ GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const Perce
 }
 
 // 3. Adaptive normals and filter on the non-ground points within range. Rows from `kept_rows`
-// on (the removed returns, see appendRemovedReturns) are no neighbours of the kept ones.
+// on (the removed returns, see appendRemovedReturns) are evidence (see normalFilter).
 NormalFilterResult filterStemPoints(const Points3 &pts, Eigen::Index kept_rows,
                                     const GroundSegmentation &gs, const SensorGeometry &sensor,
                                     bool scan_centred, const PerceptionConfig &opt) {
@@ -384,13 +384,6 @@ void refinedClusters(const Points3 &filtered, const Clusters &coarse, const Sens
     }
 }
 
-// Filtered rows (a prefix of nf.kept) that come from the first `kept_rows` input rows.
-Eigen::Index keptFilteredRows(const NormalFilterResult &nf, Eigen::Index kept_rows) {
-    return std::partition_point(nf.kept.begin(), nf.kept.end(),
-                                [&](int i) { return i < kept_rows; }) -
-           nf.kept.begin();
-}
-
 // 5. DBSCAN refinement and SVD classification: stem pieces (before the merge of one tree's).
 Clusters stemPieces(const Points3 &filtered, const Clusters &coarse, const SensorGeometry &sensor,
                     bool scan_centred, const SegmentationConfig &so, Detection &det) {
@@ -404,12 +397,13 @@ Clusters stemPieces(const Points3 &filtered, const Clusters &coarse, const Senso
 
 // 5b. With the removed returns as evidence: a piece the clustering of every return finds where
 // removed returns are bark (see evidenceStem) replaces the pieces of the kept returns alone
-// (`pieces`, rows of the first filtered rows: the same rows) that share a return with it, and
-// is dropped when it shares none. The removed returns so complete a stem the kept returns
-// found (its edges, or pieces of it), but never make one of their own, nor change a cluster in
-// which they are not the bark facing the sensor: on foliage, dark returns among bright leaves
-// made sapling-like stems that the kept returns alone never gave (precision on the style-a
-// loops, see the report of issue 15).
+// (`pieces`, rows of the first filtered rows: the same rows) that share a return with it. It
+// stands alone when it shares none: under a bright gain the kept returns of a stem can be too
+// few for a piece (its edges only). Every other piece is the kept returns' own: removed
+// returns that are not the bark facing the sensor change nothing. When they were filtered and
+// clustered with the kept returns, dark leaves among bright ones became sapling-like stems:
+// they passed the normal filter with bright neighbours, and the joint clustering cut them into
+// other pieces than alone (the false trees of the style-a loops, issue 15).
 Clusters withEvidencePieces(const Points3 &filtered, const NormalFilterResult &nf,
                             const Eigen::VectorXi &ring, Eigen::Index kept_rows,
                             const SensorGeometry &sensor, const SegmentationConfig &so,
@@ -422,22 +416,14 @@ Clusters withEvidencePieces(const Points3 &filtered, const NormalFilterResult &n
         evidenceStem(filtered, nf, line, kept_rows, sub, silhouette, so, up, evidence);
     });
     if (evidence.empty()) return pieces;
-    std::vector<int> piece_of(static_cast<size_t>(filtered.rows()), -1);
-    for (size_t k = 0; k < pieces.size(); ++k)
-        for (int r : pieces[k]) piece_of[static_cast<size_t>(r)] = static_cast<int>(k);
-    std::vector<char> replaced(pieces.size(), 0);
-    Clusters completed;
-    for (auto &e : evidence) {
-        bool completes = false;
-        for (int r : e)
-            if (const int k = piece_of[static_cast<size_t>(r)]; k >= 0)
-                replaced[static_cast<size_t>(k)] = 1, completes = true;
-        if (completes) completed.push_back(std::move(e));
-    }
+    std::vector<char> taken(static_cast<size_t>(filtered.rows()), 0);
+    for (const auto &e : evidence)
+        for (int r : e) taken[static_cast<size_t>(r)] = 1;
     Clusters out;
-    for (size_t k = 0; k < pieces.size(); ++k)
-        if (!replaced[k]) out.push_back(std::move(pieces[k]));
-    for (auto &e : completed) out.push_back(std::move(e));
+    for (auto &p : pieces)
+        if (std::none_of(p.begin(), p.end(), [&](int r) { return taken[static_cast<size_t>(r)]; }))
+            out.push_back(std::move(p));
+    for (auto &e : evidence) out.push_back(std::move(e));
     return out;
 }
 
@@ -785,9 +771,10 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     const Points3 filtered = selectRows(in.pts, nf.kept);
     det.filtered_points = static_cast<int>(filtered.rows());
     clock.lap(det, "normals");
-    // Filtered rows of the kept returns come first; they are clustered alone, as without the
-    // removed returns, which can only add evidence pieces (withEvidencePieces).
-    const Eigen::Index own = keptFilteredRows(nf, in.kept_rows);
+    // The first nf.own_rows filtered rows are the kept returns that pass as without the removed
+    // ones: clustered alone, they give the stems found without them; the removed returns can
+    // only add evidence pieces (withEvidencePieces).
+    const auto own = static_cast<Eigen::Index>(nf.own_rows);
     const bool evidence = own < filtered.rows();
     const Points3 own_filtered = evidence ? Points3(filtered.topRows(own)) : Points3(0, 3);
     const Points3 &kept_filtered = evidence ? own_filtered : filtered;
