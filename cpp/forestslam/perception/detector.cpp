@@ -357,9 +357,9 @@ bool removedFaceTheSensor(const Points3 &filtered, const std::vector<int> &line,
 // and together they are tested as one stem (appended to `stems`); otherwise the cluster adds
 // nothing: what its kept returns hold was found without the removed ones (stemPieces).
 void evidenceStem(const Points3 &filtered, const NormalFilterResult &nf,
-                  const std::vector<int> &line, Eigen::Index kept_rows,
-                  const std::vector<int> &sub, const SilhouetteSensor &sensor,
-                  const SegmentationConfig &so, const Eigen::Vector3d &up, Clusters &stems) {
+                  const std::vector<int> &line, Eigen::Index kept_rows, const std::vector<int> &sub,
+                  const SilhouetteSensor &sensor, const SegmentationConfig &so,
+                  const Eigen::Vector3d &up, Clusters &stems) {
     std::vector<int> kept, removed;
     for (int r : sub) (nf.kept[static_cast<size_t>(r)] < kept_rows ? kept : removed).push_back(r);
     if (removed.empty() || kept.size() < 2 || !removedFaceTheSensor(filtered, line, kept, removed))
@@ -767,7 +767,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     if (intensityAsEvidence(in, sensor, scan_centred, opt))
         appendRemovedReturns(in, gs, opt.ground.cell_height_m);
     clock.lap(det, "ground");
-    const NormalFilterResult nf = filterStemPoints(in.pts, in.kept_rows, gs, sensor, scan_centred, opt);
+    const NormalFilterResult nf =
+        filterStemPoints(in.pts, in.kept_rows, gs, sensor, scan_centred, opt);
     const Points3 filtered = selectRows(in.pts, nf.kept);
     det.filtered_points = static_cast<int>(filtered.rows());
     clock.lap(det, "normals");
@@ -785,8 +786,8 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     Clusters pieces =
         stemPieces(kept_filtered, coarse, sensor, scan_centred, opt.segmentation, det);
     if (evidence)
-        pieces = withEvidencePieces(filtered, nf, in.ring, in.kept_rows, sensor,
-                                    opt.segmentation, det.up, std::move(pieces));
+        pieces = withEvidencePieces(filtered, nf, in.ring, in.kept_rows, sensor, opt.segmentation,
+                                    det.up, std::move(pieces));
     const Clusters stems = mergeStemClusters(filtered, pieces, opt.segmentation);
     clock.lap(det, "classification");
     measureStems(in.pts, in.kept_rows, in.bright, filtered, nf, stems, gs, sensor, scan_centred,

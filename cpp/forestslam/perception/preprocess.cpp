@@ -355,9 +355,9 @@ RingRadii ringRadii(double theta_v_rad, const NormalFilterConfig &opt) {
 // The normal of row `i` (towards the sensor) from its max_neighbours nearest rows of `tree`
 // within `radius` (as PCL's radiusSearch with max_nn); false when fewer than min_neighbours lie
 // there or the normal is not within max_normal_angle of horizontal (no vertical surface).
-bool stemNormal(const Eigen::Ref<const Points3> &points, int i, const KdTree3 &tree,
-                double radius, const NormalFilterConfig &opt,
-                std::vector<std::pair<double, int>> &nn, Eigen::Vector3d &normal) {
+bool stemNormal(const Eigen::Ref<const Points3> &points, int i, const KdTree3 &tree, double radius,
+                const NormalFilterConfig &opt, std::vector<std::pair<double, int>> &nn,
+                Eigen::Vector3d &normal) {
     const Eigen::Vector3d p = points.row(i).transpose();
     const int found = tree.knn(p, std::max(opt.max_neighbours, 3), radius * radius, nn);
     if (found - 1 < opt.min_neighbours || found < 3) return false;  // the query is in nn

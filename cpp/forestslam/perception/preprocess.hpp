@@ -57,8 +57,8 @@ struct NormalFilterResult {
 // first own_rows of `kept`, with the same normals), then the rows that failed that and the
 // evidence rows with every row as neighbours (appended after them).
 NormalFilterResult normalFilter(
-    const Eigen::Ref<const Points3> &points, const std::vector<int> &candidates,
-    double theta_v_rad, const NormalFilterConfig &options, const GroundGrid *grid,
+    const Eigen::Ref<const Points3> &points, const std::vector<int> &candidates, double theta_v_rad,
+    const NormalFilterConfig &options, const GroundGrid *grid,
     Eigen::Index evidence_from = std::numeric_limits<Eigen::Index>::max());
 
 }  // namespace forestslam::perception
