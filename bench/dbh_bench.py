@@ -19,8 +19,9 @@ goes through `forestslam.perception.detect`.
    (SAC cylinder / band circle) vs full-map DBH; adaptive vs fixed-radius normal filter (trees
    found); the paper's figures printed beside.
 
-Usage: python bench/dbh_bench.py [--worlds 2] [--noise 0.01,0.02,0.03] [--sensor vlp16]
-         [--quick]
+Usage: python bench/dbh_bench.py [--worlds 2] [--first-world 0] [--noise 0.01,0.02,0.03]
+         [--sensor vlp16] [--quick]
+(--quick --first-world 1: the quick figures on a second, independent world.)
 """
 
 from __future__ import annotations
@@ -246,10 +247,11 @@ def main() -> None:
     ap.add_argument("--worlds", type=int, default=2, help="worlds (seeds) per style")
     ap.add_argument("--noise", default="0.01,0.02,0.03", help="range noise levels (m)")
     ap.add_argument("--sensor", default="vlp16")
+    ap.add_argument("--first-world", type=int, default=0, help="seed of the first world")
     ap.add_argument("--quick", action="store_true", help="one world, 3 cm noise only")
     args = ap.parse_args()
     noises = [0.03] if args.quick else [float(x) for x in args.noise.split(",")]
-    seeds = range(1 if args.quick else args.worlds)
+    seeds = range(args.first_world, args.first_world + (1 if args.quick else args.worlds))
     t0 = time.process_time()
     config = PerceptionConfig()
     config.diameter.fit_all = True
@@ -267,6 +269,14 @@ def main() -> None:
     for (name, noise), rs in runs.items():
         for stage, e in scan_stage_errors(rs).items():
             print(f"{name:6} {100 * noise:4.0f}c {stage:13} {stats(e)}")
+    # The same drives with the other setting of intensity_as_evidence (the removed returns as
+    # evidence per cluster, detector.cpp): the chosen DBH beside the default's.
+    other = dataclasses.replace(config, intensity_as_evidence=not config.intensity_as_evidence)
+    for style in (ROUND, ROUGH, ROUGH_MATERIAL):
+        rs = [drive(style, noises[-1], s, args.sensor, other) for s in seeds]
+        label = f"chosen, evidence {'on' if other.intensity_as_evidence else 'off'}"
+        e = scan_stage_errors(rs)["chosen"]
+        print(f"{style.name:6} {100 * noises[-1]:4.0f}c {label:13} {stats(e)}")
     # The filter off, and the removed returns as evidence per cluster (intensity_as_evidence),
     # beside the filter before the clustering (the default), all at 1 m steps.
     variants = (

@@ -81,3 +81,54 @@ def test_bright_foliage_beside_a_stem_stays_out_of_it():
         assert len(stems) == 1
         assert np.linalg.norm(stems.xy[0] - [6.0, 0.0]) < 0.1
         assert abs(stems.dbh[0] - stem.dbh) < 0.03
+
+
+def _scan_with_shrubs(seed: int, bright_share: float = 0.6) -> tuple[Scan, int]:
+    """Three round 30 cm stems and up to 8 shrubs (1-1.6 m clumps of leaves from the ground to
+    2 m up, 3-12 m from a VLP-16-like sensor): 60 % of the leaf returns above the threshold,
+    the rest below it, at random (foliage: no order across a scan line). Also the number of
+    shrubs."""
+    rng = np.random.default_rng(seed)
+    stems = [make_stem(x, y, 0.30, ROUND, rng) for x, y in ((6.0, 3.0), (-5.0, -4.0), (2.0, -7.0))]
+    scan = scan_stems(stems, np.zeros(2), ROUND, noise_m=0.01, seed=seed)
+    el = np.deg2rad(np.arange(-15.0, 16.0, 2.0))
+    az = np.arange(-np.pi, np.pi, np.deg2rad(0.2))
+    e, a = np.meshgrid(el, az, indexing="ij")
+    d = np.c_[(np.cos(e) * np.cos(a)).ravel(), (np.cos(e) * np.sin(a)).ravel(), np.sin(e).ravel()]
+    points, intensity = [scan.points], [scan.intensity]
+    shrubs = 0
+    for _ in range(8):
+        c = rng.uniform(-12.0, 12.0, 2)
+        if np.linalg.norm(c) < 3.0:
+            continue
+        w = rng.uniform(1.0, 1.6)
+        p = d * (np.linalg.norm(c) + rng.uniform(-w / 2, w / 2, len(d)))[:, None]
+        inside = (np.abs(p[:, :2] - c).max(axis=1) < w / 2) & (p[:, 2] > -1.7) & (p[:, 2] < 0.3)
+        leaves = p[inside & (rng.random(len(d)) < 0.5)]
+        points.append(leaves)
+        intensity.append(np.where(rng.random(len(leaves)) < bright_share, 160.0, 40.0))
+        shrubs += 1
+    cloud = np.concatenate(points)
+    return Scan(0.0, cloud, intensity=np.concatenate(intensity).astype(np.float32)), shrubs
+
+
+def test_dark_returns_among_bright_leaves_make_no_stem_of_their_own():
+    """Shrubs whose leaves straddle the threshold: a stem found with the removed returns as
+    evidence and not by the kept returns alone (0.3 m apart) needs the removed returns of a
+    shrub to pass the rank test of removedFaceTheSensor, which a shrub does by chance at its
+    one-sided level (about 2 %): at most that share of the shrubs. When the removed returns
+    were filtered and clustered with the kept ones, dark leaves among bright ones made
+    sapling-like stems: 18 extra stems in these 30 scenes (96 stems without the option, the
+    false trees of the style-a loops, issue 15); measured now: 1 in 233 shrubs."""
+    extra, found, shrubs = 0, 0, 0
+    for seed in range(30):
+        scan, n = _scan_with_shrubs(seed)
+        shrubs += n
+        off = detect(scan, "vlp16", PerceptionConfig(intensity_as_evidence=False))
+        on = detect(scan, "vlp16", EVIDENCE)
+        found += len(off)
+        for xy in on.xy:
+            extra += not len(off) or np.linalg.norm(off.xy - xy, axis=1).min() > 0.3
+    print(f"extra stems {extra} in {shrubs} shrubs; {found} stems without the option")
+    assert found >= 90  # the three stems of every scene at least
+    assert extra <= 0.02 * shrubs

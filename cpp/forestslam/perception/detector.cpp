@@ -240,10 +240,11 @@ GroundSegmentation findGround(const Points3 &pts, bool scan_centred, const Perce
     return gs;
 }
 
-// 3. Adaptive normals and filter on the non-ground points within range.
-NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation &gs,
-                                    const SensorGeometry &sensor, bool scan_centred,
-                                    const PerceptionConfig &opt) {
+// 3. Adaptive normals and filter on the non-ground points within range. Rows from `kept_rows`
+// on (the removed returns, see appendRemovedReturns) are evidence (see normalFilter).
+NormalFilterResult filterStemPoints(const Points3 &pts, Eigen::Index kept_rows,
+                                    const GroundSegmentation &gs, const SensorGeometry &sensor,
+                                    bool scan_centred, const PerceptionConfig &opt) {
     std::vector<int> candidates;
     candidates.reserve(static_cast<size_t>(pts.rows()));
     const double range_max = scan_centred ? opt.segmentation.max_range_m : 0.0;
@@ -259,11 +260,12 @@ NormalFilterResult filterStemPoints(const Points3 &pts, const GroundSegmentation
         fopt.voxel_m = std::max(fopt.voxel_m, fopt.map_voxel_m);
     }
     return normalFilter(pts, candidates, sensor.theta_v_rad, fopt,
-                        gs.grid.z.size() > 0 ? &gs.grid : nullptr);
+                        gs.grid.z.size() > 0 ? &gs.grid : nullptr, kept_rows);
 }
 
-// 4. Coarse clusters: range image for single scans, 3D otherwise.
-// `line` (may be null): the range-image row (scan line) of each filtered point.
+// 4. Coarse clusters: range image for single scans, 3D otherwise. `filtered`: the first rows of
+// the normal filter's output (nf.kept). `line` (may be null): the range-image row (scan line)
+// of each filtered point.
 Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
                         const Eigen::VectorXi &ring, const SensorGeometry &sensor,
                         bool scan_centred, const SegmentationConfig &so,
@@ -273,9 +275,9 @@ Clusters coarseClusters(const Points3 &filtered, const NormalFilterResult &nf,
                                  std::max(2, so.min_points / 2));
     Eigen::VectorXi ring_f;
     if (ring.size() > 0) {
-        ring_f.resize(static_cast<Eigen::Index>(nf.kept.size()));
-        for (size_t k = 0; k < nf.kept.size(); ++k)
-            ring_f(static_cast<Eigen::Index>(k)) = ring(nf.kept[k]);
+        ring_f.resize(filtered.rows());
+        for (Eigen::Index k = 0; k < filtered.rows(); ++k)
+            ring_f(k) = ring(nf.kept[static_cast<size_t>(k)]);
     }
     const RangeImageProjection proj = projectToRangeImage(filtered, ring_f, sensor);
     if (line != nullptr) *line = proj.row;
@@ -352,48 +354,77 @@ bool removedFaceTheSensor(const Points3 &filtered, const std::vector<int> &line,
 // in the middle of each scan line, and keeps the grazing ones at its edges; foliage has no
 // such order. When the removed returns lie nearer the middle of their lines than the kept ones
 // (removedFaceTheSensor), those on the surface the kept ones span (onStemSurface) join them
-// and together they are tested as one stem; otherwise, or when that is no stem, the kept
-// returns alone are refined and classified, as if the removed ones had never been seen.
-void refineWithEvidence(const Points3 &filtered, const NormalFilterResult &nf,
-                        const std::vector<int> &line, Eigen::Index kept_rows, std::vector<int> sub,
-                        double eps, const SilhouetteSensor &sensor, const SegmentationConfig &so,
-                        Detection &det, Clusters &stems) {
+// and together they are tested as one stem (appended to `stems`); otherwise the cluster adds
+// nothing: what its kept returns hold was found without the removed ones (stemPieces).
+void evidenceStem(const Points3 &filtered, const NormalFilterResult &nf,
+                  const std::vector<int> &line, Eigen::Index kept_rows, const std::vector<int> &sub,
+                  const SilhouetteSensor &sensor, const SegmentationConfig &so,
+                  const Eigen::Vector3d &up, Clusters &stems) {
     std::vector<int> kept, removed;
     for (int r : sub) (nf.kept[static_cast<size_t>(r)] < kept_rows ? kept : removed).push_back(r);
-    if (removed.empty()) return keepStems(filtered, std::move(sub), so, det, stems);
-    if (kept.size() >= 2 && removedFaceTheSensor(filtered, line, kept, removed)) {
-        std::vector<int> rows = kept;
-        for (int k :
-             onStemSurface(selectRows(filtered, kept), selectRows(filtered, removed), sensor))
-            rows.push_back(removed[static_cast<size_t>(k)]);
-        const ClusterShape s = clusterShape(filtered, rows, det.up);
-        if (rows.size() > kept.size() && isStem(s, static_cast<int>(rows.size()), so))
-            return stems.push_back(std::move(rows));
-    }
-    for (auto &piece : dbscan(filtered, kept, eps, so.dbscan_min_neighbours))
-        keepStems(filtered, std::move(piece), so, det, stems);
+    if (removed.empty() || kept.size() < 2 || !removedFaceTheSensor(filtered, line, kept, removed))
+        return;
+    std::vector<int> rows = kept;
+    for (int k : onStemSurface(selectRows(filtered, kept), selectRows(filtered, removed), sensor))
+        rows.push_back(removed[static_cast<size_t>(k)]);
+    const ClusterShape s = clusterShape(filtered, rows, up);
+    if (rows.size() > kept.size() && isStem(s, static_cast<int>(rows.size()), so))
+        stems.push_back(std::move(rows));
 }
 
-// 5. DBSCAN refinement, SVD classification and the merge of one tree's pieces. `kept_rows`:
-// rows of the input the intensity filter kept (see refineWithEvidence; all when it acted
-// before the clustering); `line`: per filtered row, its scan line (then).
-Clusters classifyStems(const Points3 &filtered, const NormalFilterResult &nf,
-                       const std::vector<int> &line, Eigen::Index kept_rows, const Clusters &coarse,
-                       const SensorGeometry &sensor, bool scan_centred,
-                       const SegmentationConfig &so, Detection &det) {
-    Clusters stems;
-    const SilhouetteSensor silhouette = silhouetteSensor(sensor);
+// DBSCAN sub-clusters of the coarse clusters (eps from the range for single scans).
+template <typename Visit>
+void refinedClusters(const Points3 &filtered, const Clusters &coarse, const SensorGeometry &sensor,
+                     bool scan_centred, const SegmentationConfig &so, Visit visit) {
     for (const auto &c : coarse) {
         const double eps = (sensor.has_range_image && scan_centred)
                                ? adaptiveEps(filtered, c, sensor.theta_v_rad, so)
                                : so.map_dbscan_eps_m;
-        for (auto &sub : dbscan(filtered, c, eps, so.dbscan_min_neighbours)) {
-            ++det.refined_clusters;
-            refineWithEvidence(filtered, nf, line, kept_rows, std::move(sub), eps, silhouette, so,
-                               det, stems);
-        }
+        for (auto &sub : dbscan(filtered, c, eps, so.dbscan_min_neighbours)) visit(std::move(sub));
     }
-    return mergeStemClusters(filtered, stems, so);
+}
+
+// 5. DBSCAN refinement and SVD classification: stem pieces (before the merge of one tree's).
+Clusters stemPieces(const Points3 &filtered, const Clusters &coarse, const SensorGeometry &sensor,
+                    bool scan_centred, const SegmentationConfig &so, Detection &det) {
+    Clusters stems;
+    refinedClusters(filtered, coarse, sensor, scan_centred, so, [&](std::vector<int> sub) {
+        ++det.refined_clusters;
+        keepStems(filtered, std::move(sub), so, det, stems);
+    });
+    return stems;
+}
+
+// 5b. With the removed returns as evidence: a piece the clustering of every return finds where
+// removed returns are bark (see evidenceStem) replaces the pieces of the kept returns alone
+// (`pieces`, rows of the first filtered rows: the same rows) that share a return with it. It
+// stands alone when it shares none: under a bright gain the kept returns of a stem can be too
+// few for a piece (its edges only). Every other piece is the kept returns' own: removed
+// returns that are not the bark facing the sensor change nothing. When they were filtered and
+// clustered with the kept returns, dark leaves among bright ones became sapling-like stems:
+// they passed the normal filter with bright neighbours, and the joint clustering cut them into
+// other pieces than alone (the false trees of the style-a loops, issue 15).
+Clusters withEvidencePieces(const Points3 &filtered, const NormalFilterResult &nf,
+                            const Eigen::VectorXi &ring, Eigen::Index kept_rows,
+                            const SensorGeometry &sensor, const SegmentationConfig &so,
+                            const Eigen::Vector3d &up, Clusters pieces) {
+    std::vector<int> line;
+    const Clusters coarse = coarseClusters(filtered, nf, ring, sensor, true, so, &line);
+    Clusters evidence;
+    const SilhouetteSensor silhouette = silhouetteSensor(sensor);
+    refinedClusters(filtered, coarse, sensor, true, so, [&](const std::vector<int> &sub) {
+        evidenceStem(filtered, nf, line, kept_rows, sub, silhouette, so, up, evidence);
+    });
+    if (evidence.empty()) return pieces;
+    std::vector<char> taken(static_cast<size_t>(filtered.rows()), 0);
+    for (const auto &e : evidence)
+        for (int r : e) taken[static_cast<size_t>(r)] = 1;
+    Clusters out;
+    for (auto &p : pieces)
+        if (std::none_of(p.begin(), p.end(), [&](int r) { return taken[static_cast<size_t>(r)]; }))
+            out.push_back(std::move(p));
+    for (auto &e : evidence) out.push_back(std::move(e));
+    return out;
 }
 
 // Local ground height under a stem at `xy` (nearest ground points, wider, the ground grid, the
@@ -736,17 +767,28 @@ Detection detectStems(const Eigen::Ref<const Points3> &points,
     if (intensityAsEvidence(in, sensor, scan_centred, opt))
         appendRemovedReturns(in, gs, opt.ground.cell_height_m);
     clock.lap(det, "ground");
-    const NormalFilterResult nf = filterStemPoints(in.pts, gs, sensor, scan_centred, opt);
+    const NormalFilterResult nf =
+        filterStemPoints(in.pts, in.kept_rows, gs, sensor, scan_centred, opt);
     const Points3 filtered = selectRows(in.pts, nf.kept);
     det.filtered_points = static_cast<int>(filtered.rows());
     clock.lap(det, "normals");
-    std::vector<int> line;
+    // The first nf.own_rows filtered rows are the kept returns that pass as without the removed
+    // ones: clustered alone, they give the stems found without them; the removed returns can
+    // only add evidence pieces (withEvidencePieces).
+    const auto own = static_cast<Eigen::Index>(nf.own_rows);
+    const bool evidence = own < filtered.rows();
+    const Points3 own_filtered = evidence ? Points3(filtered.topRows(own)) : Points3(0, 3);
+    const Points3 &kept_filtered = evidence ? own_filtered : filtered;
     const Clusters coarse =
-        coarseClusters(filtered, nf, in.ring, sensor, scan_centred, opt.segmentation, &line);
+        coarseClusters(kept_filtered, nf, in.ring, sensor, scan_centred, opt.segmentation);
     det.coarse_clusters = static_cast<int>(coarse.size());
     clock.lap(det, "clustering");
-    const Clusters stems = classifyStems(filtered, nf, line, in.kept_rows, coarse, sensor,
-                                         scan_centred, opt.segmentation, det);
+    Clusters pieces =
+        stemPieces(kept_filtered, coarse, sensor, scan_centred, opt.segmentation, det);
+    if (evidence)
+        pieces = withEvidencePieces(filtered, nf, in.ring, in.kept_rows, sensor, opt.segmentation,
+                                    det.up, std::move(pieces));
+    const Clusters stems = mergeStemClusters(filtered, pieces, opt.segmentation);
     clock.lap(det, "classification");
     measureStems(in.pts, in.kept_rows, in.bright, filtered, nf, stems, gs, sensor, scan_centred,
                  opt, det);

@@ -292,11 +292,13 @@ Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<ch
     return selectRows(points, rows);
 }
 
-NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
-                                const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterConfig &opt, const GroundGrid *grid) {
-    NormalFilterResult out;
-    // Height band above the local ground, then thinning to one point per small voxel.
+namespace {
+
+// Candidate rows within the height band above the local ground (where `grid` knows it),
+// thinned to the first row per voxel of `opt.voxel_m` (none when 0).
+std::vector<int> thinnedBandRows(const Eigen::Ref<const Points3> &points,
+                                 const std::vector<int> &candidates, const NormalFilterConfig &opt,
+                                 const GroundGrid *grid) {
     std::vector<int> rows;
     rows.reserve(candidates.size());
     VoxelIndex voxels(opt.voxel_m > 0 ? candidates.size() : 0);
@@ -314,58 +316,108 @@ NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
         }
         rows.push_back(i);
     }
-    // Ring radii: geomspace(ring_min, ring_max, rings) edges, one search radius per ring.
-    std::vector<double> edges;
+    return rows;
+}
+
+// Search radius per ring: geomspace(ring_min, ring_max, rings) edges, one radius per ring (one
+// fixed radius in fixed mode).
+struct RingRadii {
+    std::vector<double> edges, radius;
+    bool adaptive = true;
+    double at(double x, double y) const {
+        if (!adaptive) return radius.front();
+        const double r = std::sqrt(x * x + y * y);
+        const auto ring = std::upper_bound(edges.begin(), edges.end(), r) - edges.begin() - 1;
+        return radius[static_cast<size_t>(
+            std::clamp<long>(ring, 0, static_cast<long>(radius.size()) - 1))];
+    }
+};
+
+RingRadii ringRadii(double theta_v_rad, const NormalFilterConfig &opt) {
+    RingRadii out;
+    out.adaptive = opt.adaptive;
     const int n_edges = std::max(2, opt.rings);
     const double lo = std::max(1e-3, opt.ring_min_m), hi = std::max(lo * 1.0001, opt.ring_max_m);
     for (int k = 0; k < n_edges; ++k)
-        edges.push_back(lo * std::pow(hi / lo, static_cast<double>(k) / (n_edges - 1)));
+        out.edges.push_back(lo * std::pow(hi / lo, static_cast<double>(k) / (n_edges - 1)));
     if (opt.adaptive) {
         for (int k = 0; k + 1 < n_edges; ++k) {
-            const double d = opt.radius_scale * theta_v_rad * 0.5 * (edges[k] + edges[k + 1]);
-            out.radius_per_ring.push_back(std::clamp(d, opt.min_radius_m, opt.max_radius_m));
+            const double d =
+                opt.radius_scale * theta_v_rad * 0.5 * (out.edges[k] + out.edges[k + 1]);
+            out.radius.push_back(std::clamp(d, opt.min_radius_m, opt.max_radius_m));
         }
     } else {
-        out.radius_per_ring.push_back(opt.fixed_radius_m);
+        out.radius.push_back(opt.fixed_radius_m);
     }
+    return out;
+}
+
+// The normal of row `i` (towards the sensor) from its max_neighbours nearest rows of `tree`
+// within `radius` (as PCL's radiusSearch with max_nn); false when fewer than min_neighbours lie
+// there or the normal is not within max_normal_angle of horizontal (no vertical surface).
+bool stemNormal(const Eigen::Ref<const Points3> &points, int i, const KdTree3 &tree, double radius,
+                const NormalFilterConfig &opt, std::vector<std::pair<double, int>> &nn,
+                Eigen::Vector3d &normal) {
+    const Eigen::Vector3d p = points.row(i).transpose();
+    const int found = tree.knn(p, std::max(opt.max_neighbours, 3), radius * radius, nn);
+    if (found - 1 < opt.min_neighbours || found < 3) return false;  // the query is in nn
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const auto &[d2, j] : nn) mean += points.row(j).transpose();
+    mean /= found;
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    for (const auto &[d2, j] : nn) {
+        const Eigen::Vector3d d = points.row(j).transpose() - mean;
+        cov.noalias() += d * d.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
+    eig.computeDirect(cov);  // closed form: ample for a normal, 3x faster
+    const Eigen::Vector3d n = eig.eigenvectors().col(0);
+    if (!n.allFinite() || std::abs(n.z()) > std::sin(opt.max_normal_angle_rad)) return false;
+    normal = n.dot(p) > 0 ? Eigen::Vector3d(-n) : n;
+    return true;
+}
+
+}  // namespace
+
+NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
+                                const std::vector<int> &candidates, double theta_v_rad,
+                                const NormalFilterConfig &opt, const GroundGrid *grid,
+                                Eigen::Index evidence_from) {
+    NormalFilterResult out;
+    const std::vector<int> rows = thinnedBandRows(points, candidates, opt, grid);
+    const RingRadii radii = ringRadii(theta_v_rad, opt);
+    out.radius_per_ring = radii.radius;
     if (rows.size() < 3) {
         out.normals.resize(0, 3);
         return out;
     }
-    KdTree3 tree;
-    tree.build(points, rows);
-    const double max_nz = std::sin(opt.max_normal_angle_rad);
-    const int max_nn = std::max(opt.max_neighbours, 3);
+    // The rows before `evidence_from` are tested on their own first (own_tree), as if the
+    // evidence rows had never been seen; with every row as neighbours (tree) only after that.
+    std::vector<int> own;
+    for (const int i : rows)
+        if (i < evidence_from) own.push_back(i);
+    const bool has_evidence = own.size() < rows.size();
+    KdTree3 tree, own_tree;
+    own_tree.build(points, std::move(own));
+    if (has_evidence) tree.build(points, rows);
     std::vector<std::pair<double, int>> nn;
-    nn.reserve(2 * static_cast<size_t>(max_nn));
-    std::vector<Eigen::Vector3d> normals;
+    nn.reserve(2 * static_cast<size_t>(std::max(opt.max_neighbours, 3)));
+    std::vector<int> with_evidence;  // rows that pass only with every row as neighbours
+    std::vector<Eigen::Vector3d> normals, evidence_normals;
+    Eigen::Vector3d n;
     for (const int i : rows) {
-        double radius = out.radius_per_ring.front();
-        if (opt.adaptive) {
-            const double r = std::sqrt(points(i, 0) * points(i, 0) + points(i, 1) * points(i, 1));
-            const auto ring = std::upper_bound(edges.begin(), edges.end(), r) - edges.begin() - 1;
-            radius = out.radius_per_ring[static_cast<size_t>(
-                std::clamp<long>(ring, 0, static_cast<long>(out.radius_per_ring.size()) - 1))];
+        const double radius = radii.at(points(i, 0), points(i, 1));
+        if (i < evidence_from && stemNormal(points, i, own_tree, radius, opt, nn, n)) {
+            out.kept.push_back(i);
+            normals.push_back(n);
+        } else if (has_evidence && stemNormal(points, i, tree, radius, opt, nn, n)) {
+            with_evidence.push_back(i);
+            evidence_normals.push_back(n);
         }
-        // The max_nn nearest within the radius (as PCL's radiusSearch with max_nn).
-        const Eigen::Vector3d p = points.row(i).transpose();
-        const int found = tree.knn(p, max_nn, radius * radius, nn);
-        if (found - 1 < opt.min_neighbours || found < 3) continue;  // the query is in nn
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (const auto &[d2, j] : nn) mean += points.row(j).transpose();
-        mean /= found;
-        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-        for (const auto &[d2, j] : nn) {
-            const Eigen::Vector3d d = points.row(j).transpose() - mean;
-            cov.noalias() += d * d.transpose();
-        }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
-        eig.computeDirect(cov);  // closed form: ample for a normal, 3x faster
-        const Eigen::Vector3d n = eig.eigenvectors().col(0);
-        if (!n.allFinite() || std::abs(n.z()) > max_nz) continue;
-        out.kept.push_back(i);
-        normals.push_back(n.dot(p) > 0 ? Eigen::Vector3d(-n) : n);  // towards the sensor
     }
+    out.own_rows = out.kept.size();
+    out.kept.insert(out.kept.end(), with_evidence.begin(), with_evidence.end());
+    normals.insert(normals.end(), evidence_normals.begin(), evidence_normals.end());
     out.normals.resize(static_cast<Eigen::Index>(normals.size()), 3);
     for (size_t k = 0; k < normals.size(); ++k)
         out.normals.row(static_cast<Eigen::Index>(k)) = normals[k].transpose();

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <limits>
 #include <vector>
 
 #include "forestslam/common/types.hpp"
@@ -42,6 +43,7 @@ Points3 thinGround(const Eigen::Ref<const Points3> &points, const std::vector<ch
 
 struct NormalFilterResult {
     std::vector<int> kept;  // rows of the input that pass (vertical surface, dense enough)
+    size_t own_rows = 0;    // the first own_rows of `kept` pass without the evidence rows
     Points3 normals;        // (kept.size(), 3) unit normals of the kept rows
     std::vector<double> radius_per_ring;  // search radius used per ring (one value in fixed mode)
 };
@@ -49,9 +51,14 @@ struct NormalFilterResult {
 // Adaptive ring-based normal estimation and outlier filter over `candidates` rows of `points`
 // (non-ground). Rings in the sensor XY plane, radii geomspace(ring_min_m, ring_max_m, rings);
 // per ring radius radius_scale * theta_v * (r_in + r_out) / 2 (or fixed_radius_m). `grid`
-// limits candidates to the height band above ground when it knows the ground there.
-NormalFilterResult normalFilter(const Eigen::Ref<const Points3> &points,
-                                const std::vector<int> &candidates, double theta_v_rad,
-                                const NormalFilterConfig &options, const GroundGrid *grid);
+// limits candidates to the height band above ground when it knows the ground there. Rows from
+// `evidence_from` on (the returns the intensity filter removed, appended after the kept ones)
+// are evidence: the rows before them are filtered first as if they had never been seen (the
+// first own_rows of `kept`, with the same normals), then the rows that failed that and the
+// evidence rows with every row as neighbours (appended after them).
+NormalFilterResult normalFilter(
+    const Eigen::Ref<const Points3> &points, const std::vector<int> &candidates, double theta_v_rad,
+    const NormalFilterConfig &options, const GroundGrid *grid,
+    Eigen::Index evidence_from = std::numeric_limits<Eigen::Index>::max());
 
 }  // namespace forestslam::perception

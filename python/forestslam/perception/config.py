@@ -124,9 +124,10 @@ class PerceptionConfig:
     intensity_threshold (skipped when the profile has none or the scan has no intensity)."""
 
     intensity_filter: bool = True
-    # Single scans: the returns the filter removes are clustered too and kept where a
-    # cluster's geometry shows them to be its bark (bright bark facing the sensor under another
-    # sensor's intensity scale); off by default (see the C++ PerceptionConfig).
+    # Single scans: the returns the filter removes are evidence: a cluster of every return
+    # whose removed returns its geometry shows to be its bark (bright bark facing the sensor
+    # under another sensor's intensity scale) takes them back; the stems of the kept returns
+    # alone are otherwise unchanged. Off by default (see the C++ PerceptionConfig).
     intensity_as_evidence: bool = False
     ground_voxel_m: Positive = 0.25  # ground output: one point per voxel
     # `map` clouds in which the chain finds no stem (a cropped trunk, a breast-height slice, a
