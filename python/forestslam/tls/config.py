@@ -204,6 +204,10 @@ class TreeConfig:
     # A diameter within this precision of the smallest fitted (features.min_diameter_m) is
     # held by that bound, not by the points: no DBH either.
     max_dbh_sigma_m: Positive = 0.015
+    # The third estimate of that 1-sigma (trees.arc_sigma): a block jackknife over this many
+    # runs of the circle's inliers by angle, i.e. how much the diameter depends on which part
+    # of the arc is seen (a stem's shape bends its arc; the covariance takes that for noise).
+    dbh_arc_blocks: PositiveInt = 6
     # A stem's points are a face seen from outside: every point faces a scanner that saw it
     # (its outward normal from the circle's centre points towards the scanner). A circle
     # fitted on a noise blob can bend the other way, its centre on the scanners' side of the

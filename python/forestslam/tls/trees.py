@@ -34,7 +34,9 @@ class PlotTrees:
     mobile scanner positions the points were seen from (see plot_trees; None: none), for the
     face test (faced_share). position_measured (K,) bool: the position is a measurement
     (report_dbh: the circle passes the face test and its centre's 1-sigma is within
-    TreeConfig.max_position_sigma_m); None: not judged yet."""
+    TreeConfig.max_position_sigma_m); None: not judged yet. dbh_arc_sigma_m (K,): the 1-sigma
+    of the diameter from which part of its arc is seen (arc_sigma; inf: too few inliers to
+    tell; NaN: not computed, not judged)."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -47,6 +49,7 @@ class PlotTrees:
     views: np.ndarray | None = None
     view_range_m: tuple[float, float] = (0.0, np.inf)
     position_measured: np.ndarray | None = None
+    dbh_arc_sigma_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.fit_dbh_m is None:
@@ -55,6 +58,8 @@ class PlotTrees:
             self.dbh_sigma_m = np.full(len(self.dbh_m), np.nan)
         if self.circle_cov is None:
             self.circle_cov = np.full((len(self.dbh_m), 3, 3), np.inf)
+        if self.dbh_arc_sigma_m is None:
+            self.dbh_arc_sigma_m = np.full(len(self.dbh_m), np.nan)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -115,22 +120,23 @@ def plot_trees(
     slab = _band_mask(points, base, config.band_m)
     points, counts = points[slab], counts[slab]
     tree2d = cKDTree(points[:, :2])
-    xyz, dbh, dbh_std, covs, bases, bands = [], [], [], [], [], []
+    xyz, dbh, dbh_std, covs, bases, bands, arcs = [], [], [], [], [], [], []
     for s in range(len(stems)):
         idx = np.asarray(tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15), dtype=np.int64)
         z = points[idx, 2] - base[s]
-        idx = idx[(z >= lo) & (z <= hi)]
+        idx = canonical_order(points, counts, idx[(z >= lo) & (z <= hi)])
         band, n = points[idx], counts[idx]
         fit = _band_fit(core, band, n, base[s], config, features, views, view_range_m)
         if fit is None:
             continue
-        centre, radius, cov, spread = fit
+        centre, radius, cov, spread, arc = fit
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * radius)
         dbh_std.append(spread)
         covs.append(cov)
         bases.append(base[s])
         bands.append(band)
+        arcs.append(arc)
     return PlotTrees(
         xyz=np.array(xyz).reshape(-1, 3),
         dbh_m=np.array(dbh),
@@ -141,7 +147,17 @@ def plot_trees(
         circle_cov=np.array(covs).reshape(-1, 3, 3),
         views=views,
         view_range_m=view_range_m,
+        dbh_arc_sigma_m=np.array(arcs),
     )
+
+
+def canonical_order(points: np.ndarray, counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The indices idx (M,) of points (N,3) with counts (N,) sorted by (x, y, z, count): the
+    circle fits' RANSAC draws by row, so a stem's circle must not depend on where its points
+    sat in the cloud (a voxel map's k-d tree hands them over in an order that changes with
+    every merge; on sparse far stems another order gave another DBH)."""
+    p = points[idx]
+    return idx[np.lexsort((counts[idx], p[:, 2], p[:, 1], p[:, 0]))]
 
 
 def _counts(weights: np.ndarray, n: int) -> np.ndarray:
@@ -175,7 +191,8 @@ def _band_fit(
     The counts are the fits' weights (core.fit_circle's weights: a point counts that often,
     the fit of the points repeated). The covariance is the fit's, scaled by the mean count
     (repeated points are not new information); the spread is that of four sub-slices'
-    diameters (ddof 1; NaN when fewer than two hold a circle within 5 cm of the band's)."""
+    diameters (ddof 1; NaN when fewer than two hold a circle within 5 cm of the band's); the
+    last value is arc_sigma of the circle."""
     reps = counts if len(counts) == len(band) else np.ones(len(band), np.int64)
     weights = np.asarray(reps, dtype=np.float64)
     fit = breast_circle(core, band[:, :2], features, views, view_range_m, weights)
@@ -194,7 +211,24 @@ def _band_fit(
                 sub.append(2 * f.radius)
     spread = float(np.std(sub, ddof=1)) if len(sub) >= 2 else float("nan")
     cov = np.asarray(fit.covariance) * (float(np.mean(reps)) if len(reps) else 1.0)
-    return np.asarray(fit.centre), float(fit.radius), cov, spread
+    arc = arc_sigma(core, band[:, :2], weights, fit, config)
+    return np.asarray(fit.centre), float(fit.radius), cov, spread, arc
+
+
+def arc_sigma(core, xy: np.ndarray, weights: np.ndarray, fit, config: TreeConfig) -> float:
+    """1-sigma (m) of a diameter from which part of its arc is seen: 2 x the block jackknife
+    of the radius of the circle fit over its points xy (M,2) with weights (M,)
+    (core.circle_arc_jackknife, config.dbh_arc_blocks runs by angle; inf: fewer inliers than
+    2 per run). A stem is not a circle: ovality, polygon faces, lobes and flare bend its arc,
+    so on a partial arc the radius depends on which part is seen, and the residuals are not
+    white noise; the fit's covariance takes them as such. On the 7 style-b bench plots
+    (polygonal, up to 10 % oval), far stems seen on one side only were fitted 3-5 cm off with
+    a covariance 1-sigma of 0.6-0.9 cm."""
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    w = np.ascontiguousarray(weights, dtype=np.float64)
+    centre = np.asarray(fit.centre, dtype=np.float64)
+    blocks = config.dbh_arc_blocks
+    return 2.0 * core.circle_arc_jackknife(xy, w, centre, fit.radius, blocks, _circle_config())
 
 
 def _stems(
@@ -357,8 +391,10 @@ def _fused_circles(
     tree2d = cKDTree(ref[:, :2])
     xyz, dbh, sigma = trees.xyz.copy(), trees.fit_dbh_m.copy(), trees.dbh_sigma_m.copy()
     covs = trees.circle_cov.copy()
+    ones = np.ones(len(ref), np.int64)
     for k in range(len(trees)):
-        near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)]
+        idx = tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)
+        near = ref[canonical_order(ref, ones, np.asarray(idx, dtype=np.int64))]
         z = near[:, 2] - trees.base_z[k]
         tls = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
         if tls is None:
@@ -378,6 +414,7 @@ def _fused_circles(
         covs,
         trees.views,
         trees.view_range_m,
+        dbh_arc_sigma_m=trees.dbh_arc_sigma_m,
     )
 
 
@@ -437,6 +474,7 @@ def report_dbh(
         trees.views,
         trees.view_range_m,
         faced & (position_sigma(trees) <= config.max_position_sigma_m),
+        trees.dbh_arc_sigma_m,
     )
 
 
@@ -619,10 +657,13 @@ def diameter_resolved(
     it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for a diameter 5 cm
     off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
     sqrt(4): independent points of the same section must agree; fewer than two sub-slices
-    that hold a circle (NaN) do not resolve it."""
+    that hold a circle (NaN) do not resolve it. Then (3) the arc's (dbh_arc_sigma_m, see
+    arc_sigma): the diameter must not depend on which part of the arc is seen by more than
+    that either (inf: too few points to tell, not resolved; NaN: not computed, not judged)."""
     sub = trees.dbh_std_m / 2.0
     cov_ok = ~(trees.dbh_sigma_m > config.max_dbh_sigma_m)
     ok = cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
+    ok &= ~(np.asarray(trees.dbh_arc_sigma_m) > config.max_dbh_sigma_m)
     if features is not None:
         ok &= trees.fit_dbh_m >= features.min_diameter_m + config.max_dbh_sigma_m
     return ok
