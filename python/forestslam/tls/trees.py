@@ -216,19 +216,29 @@ def _band_fit(
 
 
 def arc_sigma(core, xy: np.ndarray, weights: np.ndarray, fit, config: TreeConfig) -> float:
-    """1-sigma (m) of a diameter from which part of its arc is seen: 2 x the block jackknife
-    of the radius of the circle fit over its points xy (M,2) with weights (M,)
-    (core.circle_arc_jackknife, config.dbh_arc_blocks runs by angle; inf: fewer inliers than
-    2 per run). A stem is not a circle: ovality, polygon faces, lobes and flare bend its arc,
-    so on a partial arc the radius depends on which part is seen, and the residuals are not
-    white noise; the fit's covariance takes them as such. On the 7 style-b bench plots
-    (polygonal, up to 10 % oval), far stems seen on one side only were fitted 3-5 cm off with
-    a covariance 1-sigma of 0.6-0.9 cm."""
+    """1-sigma (m) of a diameter fitted to points xy (M,2) with weights (M,) from what the
+    fit's covariance does not see; the larger of two estimates. (1) Which part of the arc is
+    seen: 2 x the block jackknife of the radius (core.circle_arc_jackknife over
+    config.dbh_arc_blocks runs by angle; inf: fewer inliers than 2 per run). A stem is not a
+    circle: ovality, polygon faces, lobes and flare bend its arc, so on a partial arc the
+    radius depends on which part is seen, and the residuals are not white noise.
+    (2) Noise wider than the inlier threshold: the covariance's 1-sigma scaled by the RMS
+    residual of all the points the robust fit weighs (within 2.5 x its 2 cm threshold,
+    Tukey's window) over that of its inliers. A merged map's far stems are smears of
+    centimetre range noise and pose spread; among them a 2 cm inlier band finds a circle of
+    nearly any radius, and its inliers' small residuals say nothing of it (spruce-lawn-3m-b:
+    an 11.5 cm radius fitted 17.2 cm with a covariance 1-sigma of 0.5 cm, its points 8-17 cm
+    from the true centre)."""
     xy = np.ascontiguousarray(xy, dtype=np.float64)
     w = np.ascontiguousarray(weights, dtype=np.float64)
     centre = np.asarray(fit.centre, dtype=np.float64)
-    blocks = config.dbh_arc_blocks
-    return 2.0 * core.circle_arc_jackknife(xy, w, centre, fit.radius, blocks, _circle_config())
+    options = _circle_config()
+    jackknife = core.circle_arc_jackknife(xy, w, centre, fit.radius, config.dbh_arc_blocks, options)
+    e = np.linalg.norm(xy - centre, axis=1) - fit.radius
+    near = np.abs(e) <= 2.5 * options.inlier_threshold_m
+    rms = np.sqrt(np.sum(w[near] * e[near] ** 2) / max(np.sum(w[near]), 1e-12))
+    spread = np.sqrt(max(float(np.asarray(fit.covariance)[2, 2]), 0.0)) * rms / max(fit.rms_m, 1e-4)
+    return 2.0 * max(jackknife, spread)
 
 
 def _stems(
