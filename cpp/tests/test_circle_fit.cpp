@@ -323,8 +323,8 @@ TEST(CircleFit, ArcJackknifeSeesTheShapeNotTheRowOrder) {
     for (int i = 0; i < n; ++i) shuffled.row(i) = oval.row(perm[i]), ws(i) = w(perm[i]);
     EXPECT_EQ(forestslam::circleArcJackknife(shuffled, ws, fo.centre, fo.radius, 6, o), jo);
     // Too few inliers for the blocks.
-    EXPECT_TRUE(std::isinf(forestslam::circleArcJackknife(oval.topRows(11), w.head(11), fo.centre,
-                                                          fo.radius, 6, o)));
+    EXPECT_TRUE(std::isinf(
+        forestslam::circleArcJackknife(oval.topRows(11), w.head(11), fo.centre, fo.radius, 6, o)));
     EXPECT_THROW(forestslam::circleArcJackknife(oval, w.head(3), fo.centre, fo.radius, 6, o),
                  std::invalid_argument);
 }

@@ -398,7 +398,8 @@ void defineCircleFits(py::module_ &m) {
     m.def(
         "circle_arc_jackknife",
         [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Eigen::VectorXd> &weights,
-           const Eigen::Vector2d &centre, double radius, int blocks, const CircleFitConfig &config) {
+           const Eigen::Vector2d &centre, double radius, int blocks,
+           const CircleFitConfig &config) {
             py::gil_scoped_release release;
             return circleArcJackknife(xy, weights, centre, radius, blocks, config);
         },

@@ -251,8 +251,14 @@ def _stems(
     merged band, and reported only when good enough, see report_dbh)."""
     options = {"fit_inlier_m": config.stem_fit_inlier_m, "max_fit_rms_m": config.stem_max_fit_rms_m}
     stems, radii = reference_stems(points, features, **options)
-    if reference is None or len(reference) == 0:
-        return stems, radii
+    if reference is not None and len(reference):
+        stems, radii = _with_reference_stems(stems, radii, reference, features, options)
+    order = np.lexsort((stems[:, 1], stems[:, 0]))  # the layer fits list them in point order
+    return stems[order], radii[order]
+
+
+def _with_reference_stems(stems, radii, reference, features, options):
+    """_stems' stems (S,3) and radii (S,) plus those of the reference that overlap none."""
     ref_stems, ref_radii = reference_stems(reference, features, **options)
     if len(stems) and len(ref_stems):
         gap = np.linalg.norm(ref_stems[:, None, :2] - stems[None, :, :2], axis=2)
