@@ -35,8 +35,9 @@ class PlotTrees:
     face test (faced_share). position_measured (K,) bool: the position is a measurement
     (report_dbh: the circle passes the face test and its centre's 1-sigma is within
     TreeConfig.max_position_sigma_m); None: not judged yet. dbh_arc_sigma_m (K,): the 1-sigma
-    of the diameter from which part of its arc is seen (arc_sigma; inf: too few inliers to
-    tell; NaN: not computed, not judged)."""
+    of the band circle's diameter from what its covariance does not see (arc_sigma: which part
+    of the arc is seen, noise wider than the inlier band; inf: too few inliers to tell; NaN:
+    not computed, not judged)."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -439,9 +440,10 @@ def _fused_circles(
 def _same_section(a, b) -> bool:
     """Two circle estimates (x = [centre x, centre y, radius], ...) can be the same stem's
     section: each centre lies within the other circle. Around a sapling or a thin stem the
-    reference's band also holds other things (a neighbour's bark, foliage), and a circle
-    fitted there would pull the fused centre away (longleaf-loop-12m-b: a 2.2 cm stem moved
-    11 cm, with a centre 1-sigma of 0.1 cm)."""
+    reference's gathered band holds other returns too, and a circle fitted to them would pull
+    the fused centre away (longleaf-loop-12m-b with the rescue on: a 2.2 cm stem moved 11 cm,
+    its fused centre 1-sigma 0.1 cm, so counted as measured). Otherwise the merged map's
+    circle stands alone."""
     gap = float(np.linalg.norm(a[0][:2] - b[0][:2]))
     return gap <= min(a[0][2], b[0][2])
 
@@ -685,9 +687,10 @@ def diameter_resolved(
     it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for a diameter 5 cm
     off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
     sqrt(4): independent points of the same section must agree; fewer than two sub-slices
-    that hold a circle (NaN) do not resolve it. Then (3) the arc's (dbh_arc_sigma_m, see
-    arc_sigma): the diameter must not depend on which part of the arc is seen by more than
-    that either (inf: too few points to tell, not resolved; NaN: not computed, not judged)."""
+    that hold a circle (NaN) do not resolve it. (3) What the covariance does not see
+    (dbh_arc_sigma_m, see arc_sigma: which part of the arc is seen, and noise wider than the
+    fit's inlier band; inf: too few points to tell, not resolved; NaN: not computed, not
+    judged)."""
     sub = trees.dbh_std_m / 2.0
     cov_ok = ~(trees.dbh_sigma_m > config.max_dbh_sigma_m)
     ok = cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
