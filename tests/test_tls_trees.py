@@ -136,7 +136,9 @@ def test_a_dbh_is_reported_only_for_a_circle_seen_along_a_quarter_of_its_circumf
     a, b = (-1.5, 0.0, 0.30), (1.5, 0.0, 0.24)  # x, y, dbh
     half_a, half_b = np.radians(30), np.radians(75)
     tls_a = arc(a[:2], a[2] / 2, -half_a, half_a, 600, 0.003, rng, (0.3, 3.0))
-    tls_b = arc(b[:2], b[2] / 2, -half_b, half_b, 600, 0.003, rng, (0.3, 3.0))
+    # B densely enough that its arc can be judged (about 110 points at breast height, so the
+    # arc test's runs of points are not a handful each; see trees.arc_sigma).
+    tls_b = arc(b[:2], b[2] / 2, -half_b, half_b, 1500, 0.003, rng, (0.3, 3.0))
     reference = np.concatenate([ground, tls_a, tls_b])
     trees = plot_trees(reference, cfg.trees, cfg.features)
     fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
@@ -446,3 +448,84 @@ def test_plot_trees_rejects_weights_that_do_not_match_the_points():
     cloud = noisy_map(stand(seed=7), 0.01)
     with pytest.raises(ValueError, match="weights"):
         plot_trees(cloud, cfg.trees, cfg.features, weights=np.ones(len(cloud) - 1))
+
+
+def oval_arc(centre, axes, t0, t1, n, noise_m, rng, z=(0.3, 3.0)) -> np.ndarray:
+    """n points (n,3) of an elliptical stem section with semi-axes axes (along x, y) between
+    parameter angles t0 and t1, noise noise_m along the surface normal, heights z."""
+    t = rng.uniform(t0, t1, n)
+    a, b = axes
+    normal = np.column_stack([b * np.cos(t), a * np.sin(t)])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    xy = np.column_stack([a * np.cos(t), b * np.sin(t)]) + rng.normal(0, noise_m, (n, 1)) * normal
+    return np.column_stack([centre[0] + xy[:, 0], centre[1] + xy[:, 1], rng.uniform(*z, n)])
+
+
+def test_a_dbh_is_reported_only_when_it_does_not_depend_on_which_part_of_the_arc_is_seen():
+    """Two 47.5 cm stems seen with 3 mm noise on the same 120 deg arc, 3000 points each. A is
+    oval (semi-axes 25 / 22.5 cm) and seen across its axes, so its arc bends more at one end:
+    circles fitted to parts of it differ by centimetres (trees.arc_sigma), although the whole
+    arc's covariance (white residuals) and its sub-slices (the same shape at every height)
+    say millimetres. It keeps its position but gets no DBH. B is round: its DBH stands."""
+    rng = np.random.default_rng(8)
+    cfg = unscanned_config()
+    a, b = np.array([-1.5, 0.0]), np.array([1.5, 0.0])
+    half = np.radians(60)
+    oval = oval_arc(a, (0.25, 0.225), np.pi / 4 - half, np.pi / 4 + half, 3000, 0.003, rng)
+    round_ = oval_arc(b, (0.2375, 0.2375), np.pi / 4 - half, np.pi / 4 + half, 3000, 0.003, rng)
+    reference = np.concatenate([flat_ground(), oval, round_])
+    trees = plot_trees(reference, cfg.trees, cfg.features)
+    fused = fuse_with_reference(trees, reference, cfg.trees, cfg.features)
+    k_a = int(np.argmin(np.linalg.norm(fused.xyz[:, :2] - a, axis=1)))
+    k_b = int(np.argmin(np.linalg.norm(fused.xyz[:, :2] - b, axis=1)))
+    limit = cfg.trees.max_dbh_sigma_m
+    assert fused.dbh_sigma_m[k_a] < limit / 3 and fused.dbh_std_m[k_a] / 2 < limit / 3
+    assert fused.dbh_arc_sigma_m[k_a] > 2 * limit
+    assert np.isnan(fused.dbh_m[k_a]) and np.linalg.norm(fused.xyz[k_a, :2] - a) < 0.03
+    assert fused.dbh_arc_sigma_m[k_b] < limit / 3 and abs(fused.dbh_m[k_b] - 0.475) < 0.005
+
+
+def test_the_dbh_stage_does_not_depend_on_the_order_of_the_points():
+    """The circle fits draw by row, and a voxel map's k-d tree hands a stem's points over in
+    an order that changes with every merge: the same points (map with counts, and reference)
+    in another order must give the same circles, DBHs and judgements, bit for bit. Near stems
+    seen from a walk, far ones sparsely from the reference's station only."""
+    rng = np.random.default_rng(11)
+    near = np.array([[-2.0, 1.0, 0.30], [0.5, -1.5, 0.22], [2.0, 2.0, 0.40]])
+    far = np.array([[-7.0, 6.5, 0.26], [8.0, -6.0, 0.35], [7.5, 7.0, 0.18]])
+    views = np.column_stack([np.linspace(-1.0, 1.0, 5), np.full(5, -0.5)])
+    walk = scanned_map(near, views, 0.03, rng, 800)
+    station = scanned_map(np.vstack([near, far]), np.zeros((1, 2)), 0.003, rng, 400, False)
+    cloud = np.concatenate([walk, station])
+    counts = rng.integers(1, 6, len(cloud)).astype(float)
+    cfg = TlsConfig()
+    runs = []
+    for seed in (None, 1, 2):
+        p = (
+            np.arange(len(cloud))
+            if seed is None
+            else np.random.default_rng(seed).permutation(len(cloud))
+        )
+        q = (
+            np.arange(len(station))
+            if seed is None
+            else np.random.default_rng(seed).permutation(len(station))
+        )
+        trees = plot_trees(
+            cloud[p], cfg.trees, cfg.features, views, (1.0, 25.0), station[q], counts[p]
+        )
+        runs.append(fuse_with_reference(trees, station[q], cfg.trees, cfg.features))
+    first = runs[0]
+    assert len(first) == 6 and np.count_nonzero(np.isfinite(first.dbh_m)) >= 3
+    for other in runs[1:]:
+        for field in (
+            "xyz",
+            "dbh_m",
+            "fit_dbh_m",
+            "dbh_sigma_m",
+            "dbh_std_m",
+            "circle_cov",
+            "dbh_arc_sigma_m",
+            "position_measured",
+        ):
+            np.testing.assert_array_equal(getattr(other, field), getattr(first, field), field)

@@ -705,4 +705,54 @@ CircleFit fitCircleRaysWeighted(const Eigen::Ref<const Points2> &xy,
                    "fitCircleRaysWeighted");
 }
 
+double circleArcJackknife(const Eigen::Ref<const Points2> &xy,
+                          const Eigen::Ref<const Eigen::VectorXd> &weights,
+                          const Eigen::Vector2d &centre, double radius, int blocks,
+                          const CircleFitConfig &opt) {
+    const double *w = checkedWeights(xy, weights, "circleArcJackknife");
+    const double inf = std::numeric_limits<double>::infinity();
+    if (blocks < 2 || !(radius > 0) || !centre.allFinite()) return inf;
+    // The inliers in a canonical order (angle around the centre, then x, y, weight), so the
+    // result does not depend on the rows' order; the angle runs from the widest gap.
+    struct Row {
+        double angle, x, y, w;
+        int row;
+    };
+    std::vector<Row> in;
+    for (int i : inliersOf(xy, finiteIndices(xy), centre, radius, opt.inlier_threshold_m)) {
+        const Eigen::Vector2d v = xy.row(i).transpose() - centre;
+        in.push_back({std::atan2(v.y(), v.x()), xy(i, 0), xy(i, 1), w[i], i});
+    }
+    const int n = static_cast<int>(in.size());
+    if (n < 2 * blocks) return inf;
+    std::sort(in.begin(), in.end(), [](const Row &a, const Row &b) {
+        if (a.angle != b.angle) return a.angle < b.angle;
+        if (a.x != b.x) return a.x < b.x;
+        return a.y != b.y ? a.y < b.y : a.w < b.w;
+    });
+    int start = 0;
+    double widest = -1;
+    for (int k = 0; k < n; ++k) {
+        const double next = k + 1 < n ? in[k + 1].angle : in[0].angle + 2 * kPi;
+        if (next - in[k].angle > widest) widest = next - in[k].angle, start = (k + 1) % n;
+    }
+    std::rotate(in.begin(), in.begin() + start, in.end());
+    std::vector<double> radii;
+    for (int b = 0; b < blocks; ++b) {
+        const int lo = b * n / blocks, hi = (b + 1) * n / blocks;
+        std::vector<int> rows;
+        for (int k = 0; k < n; ++k)
+            if (k < lo || k >= hi) rows.push_back(in[k].row);
+        Eigen::Vector2d c = centre;
+        double r = radius;
+        refineGeometric(xy, rows, 1e6, opt.refine_iterations, c, r, w);
+        if (!std::isfinite(r) || !(r > 0)) return inf;
+        radii.push_back(r);
+    }
+    const double mean = std::accumulate(radii.begin(), radii.end(), 0.0) / blocks;
+    double ss = 0;
+    for (double r : radii) ss += (r - mean) * (r - mean);
+    return std::sqrt((blocks - 1.0) / blocks * ss);
+}
+
 }  // namespace forestslam

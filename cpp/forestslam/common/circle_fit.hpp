@@ -101,4 +101,18 @@ CircleFit fitCircleRaysWeighted(const Eigen::Ref<const Points2> &xy,
 double arcCoverage(const Eigen::Ref<const Points2> &xy, const std::vector<int> &rows,
                    const Eigen::Vector2d &centre, int sectors);
 
+// Block jackknife of the radius of a circle (centre, radius) fitted to xy: its inliers
+// (within options.inlier_threshold_m), ordered by angle from the widest gap, are split into
+// `blocks` contiguous runs of equal count, and the circle is refitted from (centre, radius)
+// by weighted geometric least squares without each run in turn; returns
+// sqrt((B - 1) / B * sum (r_b - mean)^2), the standard deviation of the radius from which part
+// of the arc is seen. A stem's shape (ovality, polygon faces, flare) bends its arc
+// systematically: the covariance, which takes the residuals as white noise, does not see it.
+// Independent of the rows' order; infinite for fewer than 2 * blocks inliers, blocks < 2 or a
+// failed refit. std::invalid_argument unless weights has one finite, non-negative value per row.
+double circleArcJackknife(const Eigen::Ref<const Points2> &xy,
+                          const Eigen::Ref<const Eigen::VectorXd> &weights,
+                          const Eigen::Vector2d &centre, double radius, int blocks,
+                          const CircleFitConfig &options = {});
+
 }  // namespace forestslam

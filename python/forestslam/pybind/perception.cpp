@@ -398,6 +398,20 @@ void defineCircleFits(py::module_ &m) {
         "(integer weights: the fit of the points repeated). Returns CircleFit (non-finite rows\n"
         "are ignored; inlier_indices are rows of xy).");
     m.def(
+        "circle_arc_jackknife",
+        [](const Eigen::Ref<const Points2> &xy, const Eigen::Ref<const Eigen::VectorXd> &weights,
+           const Eigen::Vector2d &centre, double radius, int blocks,
+           const CircleFitConfig &config) {
+            py::gil_scoped_release release;
+            return circleArcJackknife(xy, weights, centre, radius, blocks, config);
+        },
+        py::arg("xy"), py::arg("weights"), py::arg("centre"), py::arg("radius"), py::arg("blocks"),
+        py::arg("config") = CircleFitConfig(),
+        "Block-jackknife standard deviation (m) of the radius of the circle (centre (2,), radius)\n"
+        "fitted to xy (N,2) with weights (N,): its inliers (config.inlier_threshold_m) split by\n"
+        "angle into `blocks` runs, the circle refitted without each in turn (independent of the\n"
+        "rows' order; inf for fewer than 2 * blocks inliers).");
+    m.def(
         "fit_circle_algebraic",
         [](const Eigen::Ref<const Points2> &xy) { return fitCircleAlgebraic(xy); }, py::arg("xy"),
         "Plain Taubin algebraic circle fit of xy (N,2); returns CircleFit.");

@@ -108,10 +108,10 @@ class RegistrationConfig:
     # A frame whose rigid LM ran out of rounds near its minimum (not degenerate, residual and
     # correction within the gates) registered with its in-sweep motion from there, trusted
     # only if that converges (pipeline._rescue_in_sweep). Off by default: on the 14-cell
-    # bench it tracks longleaf-lawn-20m-b 96.0 -> 98.7 %, but the frames it adds elsewhere
-    # redraw which far stems get a DBH (the circle fits' RANSAC draws follow the points'
-    # order in the map), and longleaf-loop-12m's DBH RMSE went 1.48 -> 1.56 cm with the
-    # points of its stems unchanged; to be switched on once the DBH stage is order-free.
+    # bench it tracks longleaf-lawn-20m-b 96.0 -> 98.7 %, but with the order-free DBH stage
+    # (trees.canonical_order, trees.arc_sigma) the frames it adds elsewhere still move
+    # clustered-loop-8m-b's DBH RMSE 1.50 -> 1.53 cm (52 of 97 stems given a DBH; every
+    # other cell meets its targets either way).
     rescue_in_sweep: bool = False
     lm_converged_translation_m: NonNegative = 1e-3  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: NonNegative = 2e-4  # ... when it also rotates less than this
@@ -204,6 +204,10 @@ class TreeConfig:
     # A diameter within this precision of the smallest fitted (features.min_diameter_m) is
     # held by that bound, not by the points: no DBH either.
     max_dbh_sigma_m: Positive = 0.015
+    # The third estimate of that 1-sigma (trees.arc_sigma): a block jackknife over this many
+    # runs of the circle's inliers by angle, i.e. how much the diameter depends on which part
+    # of the arc is seen (a stem's shape bends its arc; the covariance takes that for noise).
+    dbh_arc_blocks: PositiveInt = 6
     # A stem's points are a face seen from outside: every point faces a scanner that saw it
     # (its outward normal from the circle's centre points towards the scanner). A circle
     # fitted on a noise blob can bend the other way, its centre on the scanners' side of the

@@ -34,7 +34,10 @@ class PlotTrees:
     mobile scanner positions the points were seen from (see plot_trees; None: none), for the
     face test (faced_share). position_measured (K,) bool: the position is a measurement
     (report_dbh: the circle passes the face test and its centre's 1-sigma is within
-    TreeConfig.max_position_sigma_m); None: not judged yet."""
+    TreeConfig.max_position_sigma_m); None: not judged yet. dbh_arc_sigma_m (K,): the 1-sigma
+    of the band circle's diameter from what its covariance does not see (arc_sigma: which part
+    of the arc is seen, noise wider than the inlier band; inf: too few inliers to tell; NaN:
+    not computed, not judged)."""
 
     xyz: np.ndarray
     dbh_m: np.ndarray
@@ -47,6 +50,7 @@ class PlotTrees:
     views: np.ndarray | None = None
     view_range_m: tuple[float, float] = (0.0, np.inf)
     position_measured: np.ndarray | None = None
+    dbh_arc_sigma_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.fit_dbh_m is None:
@@ -55,6 +59,8 @@ class PlotTrees:
             self.dbh_sigma_m = np.full(len(self.dbh_m), np.nan)
         if self.circle_cov is None:
             self.circle_cov = np.full((len(self.dbh_m), 3, 3), np.inf)
+        if self.dbh_arc_sigma_m is None:
+            self.dbh_arc_sigma_m = np.full(len(self.dbh_m), np.nan)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -115,22 +121,23 @@ def plot_trees(
     slab = _band_mask(points, base, config.band_m)
     points, counts = points[slab], counts[slab]
     tree2d = cKDTree(points[:, :2])
-    xyz, dbh, dbh_std, covs, bases, bands = [], [], [], [], [], []
+    xyz, dbh, dbh_std, covs, bases, bands, arcs = [], [], [], [], [], [], []
     for s in range(len(stems)):
         idx = np.asarray(tree2d.query_ball_point(stems[s, :2], radii[s] + 0.15), dtype=np.int64)
         z = points[idx, 2] - base[s]
-        idx = idx[(z >= lo) & (z <= hi)]
+        idx = canonical_order(points, counts, idx[(z >= lo) & (z <= hi)])
         band, n = points[idx], counts[idx]
         fit = _band_fit(core, band, n, base[s], config, features, views, view_range_m)
         if fit is None:
             continue
-        centre, radius, cov, spread = fit
+        centre, radius, cov, spread, arc = fit
         xyz.append([centre[0], centre[1], base[s] + 0.5 * (lo + hi)])
         dbh.append(2 * radius)
         dbh_std.append(spread)
         covs.append(cov)
         bases.append(base[s])
         bands.append(band)
+        arcs.append(arc)
     return PlotTrees(
         xyz=np.array(xyz).reshape(-1, 3),
         dbh_m=np.array(dbh),
@@ -141,7 +148,17 @@ def plot_trees(
         circle_cov=np.array(covs).reshape(-1, 3, 3),
         views=views,
         view_range_m=view_range_m,
+        dbh_arc_sigma_m=np.array(arcs),
     )
+
+
+def canonical_order(points: np.ndarray, counts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The indices idx (M,) of points (N,3) with counts (N,) sorted by (x, y, z, count): the
+    circle fits' RANSAC draws by row, so a stem's circle must not depend on where its points
+    sat in the cloud (a voxel map's k-d tree hands them over in an order that changes with
+    every merge; on sparse far stems another order gave another DBH)."""
+    p = points[idx]
+    return idx[np.lexsort((counts[idx], p[:, 2], p[:, 1], p[:, 0]))]
 
 
 def _counts(weights: np.ndarray, n: int) -> np.ndarray:
@@ -175,7 +192,8 @@ def _band_fit(
     The counts are the fits' weights (core.fit_circle's weights: a point counts that often,
     the fit of the points repeated). The covariance is the fit's, scaled by the mean count
     (repeated points are not new information); the spread is that of four sub-slices'
-    diameters (ddof 1; NaN when fewer than two hold a circle within 5 cm of the band's)."""
+    diameters (ddof 1; NaN when fewer than two hold a circle within 5 cm of the band's); the
+    last value is arc_sigma of the circle."""
     reps = counts if len(counts) == len(band) else np.ones(len(band), np.int64)
     weights = np.asarray(reps, dtype=np.float64)
     fit = breast_circle(core, band[:, :2], features, views, view_range_m, weights)
@@ -194,7 +212,34 @@ def _band_fit(
                 sub.append(2 * f.radius)
     spread = float(np.std(sub, ddof=1)) if len(sub) >= 2 else float("nan")
     cov = np.asarray(fit.covariance) * (float(np.mean(reps)) if len(reps) else 1.0)
-    return np.asarray(fit.centre), float(fit.radius), cov, spread
+    arc = arc_sigma(core, band[:, :2], weights, fit, config)
+    return np.asarray(fit.centre), float(fit.radius), cov, spread, arc
+
+
+def arc_sigma(core, xy: np.ndarray, weights: np.ndarray, fit, config: TreeConfig) -> float:
+    """1-sigma (m) of a diameter fitted to points xy (M,2) with weights (M,) from what the
+    fit's covariance does not see; the larger of two estimates. (1) Which part of the arc is
+    seen: 2 x the block jackknife of the radius (core.circle_arc_jackknife over
+    config.dbh_arc_blocks runs by angle; inf: fewer inliers than 2 per run). A stem is not a
+    circle: ovality, polygon faces, lobes and flare bend its arc, so on a partial arc the
+    radius depends on which part is seen, and the residuals are not white noise.
+    (2) Noise wider than the inlier threshold: the covariance's 1-sigma scaled by the RMS
+    residual of all the points the robust fit weighs (within 2.5 x its 2 cm threshold,
+    Tukey's window) over that of its inliers. A merged map's far stems are smears of
+    centimetre range noise and pose spread; among them a 2 cm inlier band finds a circle of
+    nearly any radius, and its inliers' small residuals say nothing of it (spruce-lawn-3m-b:
+    an 11.5 cm radius fitted 17.2 cm with a covariance 1-sigma of 0.5 cm, its points 8-17 cm
+    from the true centre)."""
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    w = np.ascontiguousarray(weights, dtype=np.float64)
+    centre = np.asarray(fit.centre, dtype=np.float64)
+    options = _circle_config()
+    jackknife = core.circle_arc_jackknife(xy, w, centre, fit.radius, config.dbh_arc_blocks, options)
+    e = np.linalg.norm(xy - centre, axis=1) - fit.radius
+    near = np.abs(e) <= 2.5 * options.inlier_threshold_m
+    rms = np.sqrt(np.sum(w[near] * e[near] ** 2) / max(np.sum(w[near]), 1e-12))
+    spread = np.sqrt(max(float(np.asarray(fit.covariance)[2, 2]), 0.0)) * rms / max(fit.rms_m, 1e-4)
+    return 2.0 * max(jackknife, spread)
 
 
 def _stems(
@@ -207,8 +252,14 @@ def _stems(
     merged band, and reported only when good enough, see report_dbh)."""
     options = {"fit_inlier_m": config.stem_fit_inlier_m, "max_fit_rms_m": config.stem_max_fit_rms_m}
     stems, radii = reference_stems(points, features, **options)
-    if reference is None or len(reference) == 0:
-        return stems, radii
+    if reference is not None and len(reference):
+        stems, radii = _with_reference_stems(stems, radii, reference, features, options)
+    order = np.lexsort((stems[:, 1], stems[:, 0]))  # the layer fits list them in point order
+    return stems[order], radii[order]
+
+
+def _with_reference_stems(stems, radii, reference, features, options):
+    """_stems' stems (S,3) and radii (S,) plus those of the reference that overlap none."""
     ref_stems, ref_radii = reference_stems(reference, features, **options)
     if len(stems) and len(ref_stems):
         gap = np.linalg.norm(ref_stems[:, None, :2] - stems[None, :, :2], axis=2)
@@ -357,13 +408,17 @@ def _fused_circles(
     tree2d = cKDTree(ref[:, :2])
     xyz, dbh, sigma = trees.xyz.copy(), trees.fit_dbh_m.copy(), trees.dbh_sigma_m.copy()
     covs = trees.circle_cov.copy()
+    ones = np.ones(len(ref), np.int64)
     for k in range(len(trees)):
-        near = ref[tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)]
+        idx = tree2d.query_ball_point(trees.xyz[k, :2], 0.5 * trees.fit_dbh_m[k] + 0.15)
+        near = ref[canonical_order(ref, ones, np.asarray(idx, dtype=np.int64))]
         z = near[:, 2] - trees.base_z[k]
         tls = _circle(core, near[(z >= lo) & (z <= hi), :2], features)
         if tls is None:
             continue
         merged = _band_circle(trees, k)
+        if merged is not None and not _same_section(tls, merged):
+            continue
         x, covs[k] = tls if merged is None else _fused(tls, merged)
         xyz[k, :2], dbh[k] = x[:2], 2 * x[2]
         sigma[k] = _dbh_sigma(covs[k][2, 2])
@@ -378,7 +433,19 @@ def _fused_circles(
         covs,
         trees.views,
         trees.view_range_m,
+        dbh_arc_sigma_m=trees.dbh_arc_sigma_m,
     )
+
+
+def _same_section(a, b) -> bool:
+    """Two circle estimates (x = [centre x, centre y, radius], ...) can be the same stem's
+    section: each centre lies within the other circle. Around a sapling or a thin stem the
+    reference's gathered band holds other returns too, and a circle fitted to them would pull
+    the fused centre away (longleaf-loop-12m-b with the rescue on: a 2.2 cm stem moved 11 cm,
+    its fused centre 1-sigma 0.1 cm, so counted as measured). Otherwise the merged map's
+    circle stands alone."""
+    gap = float(np.linalg.norm(a[0][:2] - b[0][:2]))
+    return gap <= min(a[0][2], b[0][2])
 
 
 def _band_circle(trees: PlotTrees, k: int):
@@ -437,6 +504,7 @@ def report_dbh(
         trees.views,
         trees.view_range_m,
         faced & (position_sigma(trees) <= config.max_position_sigma_m),
+        trees.dbh_arc_sigma_m,
     )
 
 
@@ -619,10 +687,14 @@ def diameter_resolved(
     it is optimistic (25 band points with 2 cm noise: sigma 0.8 cm for a diameter 5 cm
     off). (2) The spread of the four sub-slice diameters (dbh_std_m) over
     sqrt(4): independent points of the same section must agree; fewer than two sub-slices
-    that hold a circle (NaN) do not resolve it."""
+    that hold a circle (NaN) do not resolve it. (3) What the covariance does not see
+    (dbh_arc_sigma_m, see arc_sigma: which part of the arc is seen, and noise wider than the
+    fit's inlier band; inf: too few points to tell, not resolved; NaN: not computed, not
+    judged)."""
     sub = trees.dbh_std_m / 2.0
     cov_ok = ~(trees.dbh_sigma_m > config.max_dbh_sigma_m)
     ok = cov_ok & np.isfinite(sub) & (sub <= config.max_dbh_sigma_m)
+    ok &= ~(np.asarray(trees.dbh_arc_sigma_m) > config.max_dbh_sigma_m)
     if features is not None:
         ok &= trees.fit_dbh_m >= features.min_diameter_m + config.max_dbh_sigma_m
     return ok
