@@ -74,6 +74,12 @@ class MapConfig:
     # centre, the frame leaves the height band, or the map has changed. The radius should
     # cover the frame's useful range (frame_max_range_m) plus the re-crop distance.
     target_voxel_m: Positive = 0.05
+    # The target holds the reference's voxels and, of the merged frames' voxels (same size),
+    # only those no reference voxel touches (within this many voxels: the merged frames'
+    # copies of surfaces the reference holds only thicken its walls) that at least
+    # target_min_merges merge batches filled (confirmed: not one batch's noise or error).
+    target_reference_margin_voxels: NonNegativeInt = 1
+    target_min_merges: PositiveInt = 2
     target_radius_m: Positive = 30.0
     target_recrop_m: NonNegative = 5.0
     target_z_margin_m: NonNegative = 1.5

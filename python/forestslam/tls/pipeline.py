@@ -29,6 +29,7 @@ frame that does not join the map carries its reason (FrameRecord.reason, unmerge
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 from collections.abc import Callable, Iterable
@@ -228,7 +229,7 @@ class _VoxelCloud:
             self._main = (np.zeros(0, np.int64), pts, np.zeros(0))
             return
         keys = _voxel_keys(pts, voxel_m)
-        order = np.argsort(keys)
+        order = np.argsort(keys, kind="stable")  # unique keys, mostly in order already
         # (sorted keys, points, merge counts); each voxel lives in main or side, never both.
         self._main = (keys[order], pts[order], np.ones(len(keys)))
 
@@ -319,18 +320,26 @@ def _insert_voxels(store, keys: np.ndarray, points: np.ndarray, count: np.ndarra
 
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
-    target: a coarser voxel copy of the map cropped around the predicted frame (x-y disc,
-    height band of the frame), rebuilt only when the frame leaves the crop or the map grew."""
+    target, cropped around the predicted frame (x-y disc, height band of the frame) and
+    rebuilt only when the frame leaves the crop or the map grew. The target does not grow
+    with the merged map: it is the reference at target_voxel_m plus only those merged voxels
+    (same size) that no reference voxel touches and that at least target_min_merges merge
+    batches filled (see MapConfig). Merging every frame into it doubled it along a walk and
+    thickened the stem walls the reference already holds, so each LM round cost more and
+    converged less often."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
         self.config = config
         m = config.map
         self.fine = _VoxelCloud(reference, m.voxel_m, self.core)
-        coarse_m = m.target_voxel_m if m.target_voxel_m > m.voxel_m else 0.0
-        self._coarse_cloud = _VoxelCloud(self.fine.points, coarse_m, self.core)
+        self.target_m = max(m.target_voxel_m, m.voxel_m)
+        ref_target = _VoxelCloud(self.fine.points, self.target_m, self.core)
+        self._ref_keys, self._ref_target = ref_target._main[0], ref_target.points
+        self._mobile: _VoxelCloud | None = None  # merged voxels away from the reference
         self.pending: list[np.ndarray] = []
         self.target = None
+        self.target_points = np.zeros((0, 3))  # the target's points (K,3)
         self.target_centre = np.zeros(2)
         self.target_z = (0.0, 0.0)
         self.dirty = True
@@ -344,8 +353,9 @@ class _GlobalMap:
         return self.fine.counts
 
     @property
-    def coarse(self) -> np.ndarray:
-        return self._coarse_cloud.points
+    def reference_target(self) -> np.ndarray:
+        """The reference voxelized at the target's voxel size (M,3), in voxel-key order."""
+        return self._ref_target
 
     def add(self, points_tls: np.ndarray) -> None:
         self.pending.append(self.core.voxel_downsample(points_tls, self.config.map.voxel_m))
@@ -363,8 +373,30 @@ class _GlobalMap:
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
-        self._coarse_cloud.merge(new)
+        away = self._away_from_reference(self.core.voxel_downsample(new, self.target_m))
+        if self._mobile is None:
+            self._mobile = _VoxelCloud(away, self.target_m, self.core)
+        else:
+            self._mobile.merge(away)
         self.dirty = True
+
+    def _away_from_reference(self, voxels: np.ndarray) -> np.ndarray:
+        """The voxel centroids (one per target voxel) whose voxel and its neighbours within
+        target_reference_margin_voxels hold no reference voxel."""
+        reach = self.config.map.target_reference_margin_voxels
+        keys = _voxel_keys(voxels, self.target_m)
+        order = np.argsort(keys, kind="stable")  # sorted queries walk the reference in order
+        keys = keys[order]
+        near = np.zeros(len(keys), bool)
+        span = range(-reach, reach + 1)
+        ref = self._ref_keys
+        # Per x-y neighbour one search: its column's voxels within reach in z are consecutive
+        # keys, so a reference key in [probe - reach, probe + reach] is a neighbour.
+        for di, dj in itertools.product(span, span):
+            probe = keys + ((di << 42) + (dj << 21))
+            at = np.minimum(np.searchsorted(ref, probe - reach), len(ref) - 1)
+            near |= (ref[at] >= probe - reach) & (ref[at] <= probe + reach)
+        return voxels[order[~near]]
 
     def target_at(self, xy: np.ndarray, z_range: tuple[float, float]):
         """LM target around xy (2,) covering heights z_range (the frame's, in the TLS frame),
@@ -387,8 +419,12 @@ class _GlobalMap:
             keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
             return keep
 
-        cropped = self._coarse_cloud.points_where(crop)
-        self.target = self.core.StemCentreTarget(np.ascontiguousarray(cropped))
+        parts = [self._ref_target[crop(self._ref_target)]]
+        if self._mobile is not None:
+            mobile = self._mobile.points
+            parts.append(mobile[crop(mobile) & (self._mobile.counts >= m.target_min_merges)])
+        self.target_points = np.ascontiguousarray(np.concatenate(parts))
+        self.target = self.core.StemCentreTarget(self.target_points)
         self.target_centre = xy
         self.target_z = (zlo, zhi)
         self.dirty = False
@@ -747,7 +783,7 @@ class _Walk:
         self.gmap = _GlobalMap(ref, config)
         # The reference voxelized as the map's coarse copy (before any frame joins): the
         # target of the acceptance test and the ground heights of the placement.
-        self.ref_coarse = self.gmap.coarse.copy()
+        self.ref_coarse = self.gmap.reference_target
         self.check_reference = _ReferenceCheck(self.ref_coarse, config)
         self.initial_pose = initial_pose
         self.on_frame = on_frame
