@@ -245,6 +245,12 @@ class _VoxelCloud:
         self._consolidate()
         return self._main[2] if self.voxel_m > 0 else np.ones(len(self._main[1]))
 
+    @property
+    def keys(self) -> np.ndarray:
+        """The sorted voxel keys (N,) of `points` (voxelized clouds only)."""
+        self._consolidate()
+        return self._main[0]
+
     def __len__(self) -> int:
         return len(self._main[1]) + len(self._side[1])
 
@@ -286,6 +292,16 @@ class _VoxelCloud:
         if len(self._side[0]):
             self._main = _insert_voxels(self._main, *self._side)
             self._side = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+
+
+def _x_slab(keys: np.ndarray, x_range: tuple[float, float], voxel_m: float) -> slice:
+    """The rows of a cloud in voxel-key order (_voxel_keys, sorted keys (N,)) whose voxels'
+    x index lies within x_range (m): one slice, as keys sort by the x index first."""
+    top = (1 << 21) - 1  # the largest x index a key holds
+    lo, hi = (min(max(int(np.floor(x / voxel_m)) + (1 << 20), 0), top) for x in x_range)
+    a = int(np.searchsorted(keys, np.int64(lo << 42)))
+    b = len(keys) if hi == top else int(np.searchsorted(keys, np.int64((hi + 1) << 42)))
+    return slice(a, b)
 
 
 def _update_voxels(store, keys: np.ndarray, new: np.ndarray) -> np.ndarray:
@@ -335,7 +351,7 @@ class _GlobalMap:
         self.fine = _VoxelCloud(reference, m.voxel_m, self.core)
         self.target_m = max(m.target_voxel_m, m.voxel_m)
         ref_target = _VoxelCloud(self.fine.points, self.target_m, self.core)
-        self._ref_keys, self._ref_target = ref_target._main[0], ref_target.points
+        self._ref_keys, self._ref_target = ref_target.keys, ref_target.points
         self._mobile: _VoxelCloud | None = None  # merged voxels away from the reference
         self.pending: list[np.ndarray] = []
         self.target = None
@@ -413,16 +429,23 @@ class _GlobalMap:
             return self.target, False
         zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
 
+        r = m.target_radius_m
+        # Keys sort by x voxel first: the disc's x range is one slice of a key-sorted cloud.
+        x_range = (xy[0] - r - self.target_m, xy[0] + r + self.target_m)
+
         def crop(c: np.ndarray) -> np.ndarray:
             keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)  # the height band first: fewer distances
             band = np.flatnonzero(keep)
-            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= r**2
             return keep
 
-        parts = [self._ref_target[crop(self._ref_target)]]
+        ref = self._ref_target[_x_slab(self._ref_keys, x_range, self.target_m)]
+        parts = [ref[crop(ref)]]
         if self._mobile is not None:
-            mobile = self._mobile.points
-            parts.append(mobile[crop(mobile) & (self._mobile.counts >= m.target_min_merges)])
+            mobile = self._mobile
+            slab = _x_slab(mobile.keys, x_range, self.target_m)
+            pts, counts = mobile.points[slab], mobile.counts[slab]
+            parts.append(pts[crop(pts) & (counts >= m.target_min_merges)])
         self.target_points = np.ascontiguousarray(np.concatenate(parts))
         self.target = self.core.StemCentreTarget(self.target_points)
         self.target_centre = xy
