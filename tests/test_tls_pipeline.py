@@ -162,6 +162,12 @@ def test_lm_target_holds_the_reference_and_only_confirmed_merged_voxels_away_fro
     assert np.count_nonzero(np.abs(y - 0.5) < 0.1) > 0.5 * n_ref  # the new surface joins
     assert not np.any(y < -0.5)  # the stray voxels, seen once, do not
     assert len(gmap.points) > n_ref  # the map itself keeps every merged point
+    cfg.map.lm_target = "map"  # the whole map: every merged voxel from the first batch on
+    whole = _GlobalMap(wall, cfg)
+    whole.add(np.vstack([thick, back, stray]))
+    whole.target_at(np.array([2.0, 0.0]), (0.0, 2.0))
+    y = whole.target_points[:, 1]
+    assert np.any(y < -0.5) and np.count_nonzero(np.abs(y) < 0.2) > n_ref
 
 
 def test_large_correction_from_the_prediction_is_not_trusted():

@@ -74,10 +74,13 @@ class MapConfig:
     # centre, the frame leaves the height band, or the map has changed. The radius should
     # cover the frame's useful range (frame_max_range_m) plus the re-crop distance.
     target_voxel_m: Positive = 0.05
-    # The target holds the reference's voxels and, of the merged frames' voxels (same size),
-    # only those no reference voxel touches (within this many voxels: the merged frames'
-    # copies of surfaces the reference holds only thicken its walls) that at least
-    # target_min_merges merge batches filled (confirmed: not one batch's noise or error).
+    # lm_target "confirmed": the target holds the reference's voxels and, of the merged frames'
+    # voxels (same size), only those no reference voxel touches (within this many voxels: the
+    # merged frames' copies of surfaces the reference holds only thicken its walls) that at
+    # least target_min_merges merge batches filled (confirmed: not one batch's noise or
+    # error); it does not grow with every merge. "map": the whole merged map (the reference
+    # and every merged frame, each voxel their running mean; the target before 2026-11-26).
+    lm_target: Literal["confirmed", "map"] = "confirmed"
     target_reference_margin_voxels: NonNegativeInt = 1
     target_min_merges: PositiveInt = 2
     target_radius_m: Positive = 30.0

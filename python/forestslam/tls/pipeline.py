@@ -229,7 +229,7 @@ class _VoxelCloud:
             self._main = (np.zeros(0, np.int64), pts, np.zeros(0))
             return
         keys = _voxel_keys(pts, voxel_m)
-        order = np.argsort(keys, kind="stable")  # unique keys, mostly in order already
+        order = np.argsort(keys)
         # (sorted keys, points, merge counts); each voxel lives in main or side, never both.
         self._main = (keys[order], pts[order], np.ones(len(keys)))
 
@@ -342,7 +342,7 @@ class _GlobalMap:
     (same size) that no reference voxel touches and that at least target_min_merges merge
     batches filled (see MapConfig). Merging every frame into it doubled it along a walk and
     thickened the stem walls the reference already holds, so each LM round cost more and
-    converged less often."""
+    converged less often (MapConfig.lm_target "map": the whole map, as before)."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
@@ -352,7 +352,10 @@ class _GlobalMap:
         self.target_m = max(m.target_voxel_m, m.voxel_m)
         ref_target = _VoxelCloud(self.fine.points, self.target_m, self.core)
         self._ref_keys, self._ref_target = ref_target.keys, ref_target.points
-        self._mobile: _VoxelCloud | None = None  # merged voxels away from the reference
+        # "confirmed": the merged voxels away from the reference; "map": the whole map.
+        self._mobile: _VoxelCloud | None = None
+        if m.lm_target == "map":
+            self._mobile = _VoxelCloud(self.fine.points, self.target_m, self.core)
         self.pending: list[np.ndarray] = []
         self.target = None
         self.target_points = np.zeros((0, 3))  # the target's points (K,3)
@@ -389,6 +392,10 @@ class _GlobalMap:
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
+        if self.config.map.lm_target == "map":
+            self._mobile.merge(new)
+            self.dirty = True
+            return
         away = self._away_from_reference(self.core.voxel_downsample(new, self.target_m))
         if self._mobile is None:
             self._mobile = _VoxelCloud(away, self.target_m, self.core)
@@ -439,13 +446,16 @@ class _GlobalMap:
             keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= r**2
             return keep
 
-        ref = self._ref_target[_x_slab(self._ref_keys, x_range, self.target_m)]
-        parts = [ref[crop(ref)]]
+        parts = []
+        if m.lm_target == "confirmed":
+            ref = self._ref_target[_x_slab(self._ref_keys, x_range, self.target_m)]
+            parts.append(ref[crop(ref)])
         if self._mobile is not None:
             mobile = self._mobile
             slab = _x_slab(mobile.keys, x_range, self.target_m)
             pts, counts = mobile.points[slab], mobile.counts[slab]
-            parts.append(pts[crop(pts) & (counts >= m.target_min_merges)])
+            confirmed = counts >= (m.target_min_merges if m.lm_target == "confirmed" else 1)
+            parts.append(pts[crop(pts) & confirmed])
         self.target_points = np.ascontiguousarray(np.concatenate(parts))
         self.target = self.core.StemCentreTarget(self.target_points)
         self.target_centre = xy
