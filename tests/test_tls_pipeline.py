@@ -149,7 +149,7 @@ def test_lm_target_holds_the_reference_and_only_confirmed_merged_voxels_away_fro
     cfg.map.rebuild_every_frames = 1
     gmap = _GlobalMap(wall, cfg)
     n_ref = len(gmap.reference_target)
-    thick = wall + [0.0, 0.04, 0.0]  # the same wall seen 4 cm off: a thicker wall
+    thick = wall + [0.0, 0.06, 0.0]  # the same wall seen 6 cm off: a wall a voxel thicker
     back = wall + [0.0, 0.5, 0.0]  # a surface the reference did not see
     stray = np.column_stack([rng.uniform(0, 4, 500), np.full(500, -1.0), rng.uniform(0, 2, 500)])
     gmap.add(np.vstack([thick, back, stray]))
