@@ -147,6 +147,7 @@ def test_lm_target_holds_the_reference_and_only_confirmed_merged_voxels_away_fro
     wall = np.column_stack([rng.uniform(0, 4, 20000), np.zeros(20000), rng.uniform(0, 2, 20000)])
     cfg = TlsConfig()
     cfg.map.rebuild_every_frames = 1
+    cfg.map.lm_target = "confirmed"
     gmap = _GlobalMap(wall, cfg)
     n_ref = len(gmap.reference_target)
     thick = wall + [0.0, 0.06, 0.0]  # the same wall seen 6 cm off: a wall a voxel thicker

@@ -913,7 +913,7 @@ std::vector<double> solveRound(const std::vector<VirtualPair> &vpairs,
     ceres::Solver::Options options;
     options.minimizer_type = ceres::TRUST_REGION;
     options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-    options.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+    options.linear_solver_type = ceres::DENSE_QR;
     options.max_num_iterations = config.max_solver_iterations;
     options.num_threads = 1;
     options.logging_type = ceres::SILENT;

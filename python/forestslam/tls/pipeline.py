@@ -337,12 +337,12 @@ def _insert_voxels(store, keys: np.ndarray, points: np.ndarray, count: np.ndarra
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
     target, cropped around the predicted frame (x-y disc, height band of the frame) and
-    rebuilt only when the frame leaves the crop or the map grew. The target does not grow
-    with the merged map: it is the reference at target_voxel_m plus only those merged voxels
-    (same size) that no reference voxel touches and that at least target_min_merges merge
-    batches filled (see MapConfig). Merging every frame into it doubled it along a walk and
-    thickened the stem walls the reference already holds, so each LM round cost more and
-    converged less often (MapConfig.lm_target "map": the whole map, as before)."""
+    rebuilt only when the frame leaves the crop or the map grew. The target is the whole map
+    at target_voxel_m (MapConfig.lm_target "map"), or ("confirmed") the reference at that
+    size plus only those merged voxels that no reference voxel touches and that at least
+    target_min_merges merge batches filled: the whole map doubles along a walk and thickens
+    the stem walls the reference already holds, so each LM round costs more and converges
+    less often."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
