@@ -709,11 +709,10 @@ void findVirtualPairs(const StemCentreTarget::Impl &target, const Points3 &centr
         const double inner = std::max(0.0, r - gate), outer = r + gate;
         const double in2 = inner * inner * (1.0 - 1e-9), out2 = outer * outer * (1.0 + 1e-9);
         const auto &members = candidates.near(target, static_cast<std::size_t>(i), q, r, cfg);
-        const auto below = std::lower_bound(
-            members.begin(), members.end(), q.z() - cfg.virtual_window_m,
-            [](const VirtualCandidates::Member &m, double z) { return m.z < z; });
-        for (auto it = below; it != members.end() && it->z <= q.z() + cfg.virtual_window_m;
-             ++it) {
+        const auto below =
+            std::lower_bound(members.begin(), members.end(), q.z() - cfg.virtual_window_m,
+                             [](const VirtualCandidates::Member &m, double z) { return m.z < z; });
+        for (auto it = below; it != members.end() && it->z <= q.z() + cfg.virtual_window_m; ++it) {
             const auto &m = *it;
             if (std::abs(m.z - q.z()) > cfg.virtual_window_m) continue;
             const double dx = m.x - q.x(), dy = m.y - q.y();
