@@ -84,6 +84,9 @@ class MapConfig:
     # 1.09 -> 0.70 cm), but the frames it merges redraw which far stems get a DBH, and
     # clustered-loop-8m's DBH RMSE went 1.05 -> 1.63 cm, longleaf-loop-12m's 1.48 -> 1.52,
     # regular-line-18m-b tracked 98.0 -> 97.3 %: off by default until the DBH stage is stable.
+    # Whole spruce-lawn-3m walk (1,320 frames): 6.9 -> 8.8 frames per CPU s, LM 75.5 -> 47.3
+    # ms per frame, tracked 98.6 -> 99.9 %, merged 933 -> 1127 frames, merged-frame pose error
+    # 2.08 -> 1.20 cm, stems 109 -> 114 of 114, stem 0.87 -> 0.83 cm, DBH 1.18 -> 1.20 cm.
     lm_target: Literal["confirmed", "map"] = "map"
     target_reference_margin_voxels: NonNegativeInt = 1
     target_min_merges: PositiveInt = 2
