@@ -130,7 +130,7 @@ def test_local_target_is_cropped_and_recropped_only_after_moving(world):
     t1, built = gmap.target_at(np.array([0.0, 0.0]), (-1.5, 1.0))
     assert built and 0 < len(t1) < len(gmap.points)
     # Cropped in height too: only the frame's band plus the margin.
-    band = gmap.coarse[:, 2] <= 1.0 + cfg.map.target_z_margin_m
+    band = gmap.reference_target[:, 2] <= 1.0 + cfg.map.target_z_margin_m
     assert len(t1) <= np.count_nonzero(band)
     t2, built = gmap.target_at(np.array([1.5, 0.0]), (-1.4, 0.9))
     assert not built and t2 is t1
@@ -138,6 +138,37 @@ def test_local_target_is_cropped_and_recropped_only_after_moving(world):
     assert built
     _, built = gmap.target_at(np.array([4.0, 0.0]), (-1.4, 0.9))
     assert built
+
+
+def test_lm_target_holds_the_reference_and_only_confirmed_merged_voxels_away_from_it():
+    from forestslam.tls.pipeline import _GlobalMap
+
+    rng = np.random.default_rng(8)
+    wall = np.column_stack([rng.uniform(0, 4, 20000), np.zeros(20000), rng.uniform(0, 2, 20000)])
+    cfg = TlsConfig()
+    cfg.map.rebuild_every_frames = 1
+    cfg.map.lm_target = "confirmed"
+    gmap = _GlobalMap(wall, cfg)
+    n_ref = len(gmap.reference_target)
+    thick = wall + [0.0, 0.06, 0.0]  # the same wall seen 6 cm off: a wall a voxel thicker
+    back = wall + [0.0, 0.5, 0.0]  # a surface the reference did not see
+    stray = np.column_stack([rng.uniform(0, 4, 500), np.full(500, -1.0), rng.uniform(0, 2, 500)])
+    gmap.add(np.vstack([thick, back, stray]))
+    target, _ = gmap.target_at(np.array([2.0, 0.0]), (0.0, 2.0))
+    assert len(target) == n_ref  # one merge batch confirms nothing
+    gmap.add(np.vstack([thick, back]))
+    gmap.target_at(np.array([2.0, 0.0]), (0.0, 2.0))
+    y = gmap.target_points[:, 1]
+    assert np.count_nonzero(np.abs(y) < 0.2) == n_ref  # the wall stays the reference's
+    assert np.count_nonzero(np.abs(y - 0.5) < 0.1) > 0.5 * n_ref  # the new surface joins
+    assert not np.any(y < -0.5)  # the stray voxels, seen once, do not
+    assert len(gmap.points) > n_ref  # the map itself keeps every merged point
+    cfg.map.lm_target = "map"  # the whole map: every merged voxel from the first batch on
+    whole = _GlobalMap(wall, cfg)
+    whole.add(np.vstack([thick, back, stray]))
+    whole.target_at(np.array([2.0, 0.0]), (0.0, 2.0))
+    y = whole.target_points[:, 1]
+    assert np.any(y < -0.5) and np.count_nonzero(np.abs(y) < 0.2) > n_ref
 
 
 def test_large_correction_from_the_prediction_is_not_trusted():

@@ -441,7 +441,7 @@ struct VirtualCandidates {
         int index;
     };
     std::vector<Eigen::Vector3d> at;           // transformed centre when gathered
-    std::vector<std::vector<Member>> members;  // target points
+    std::vector<std::vector<Member>> members;  // target points, by height
     std::vector<double> gate_of;               // the gate they were gathered for
     std::vector<char> valid;
 
@@ -486,6 +486,10 @@ struct VirtualCandidates {
                 }
             }
         }
+        // By height: a round reads only its centre's height window (a third of them).
+        std::sort(out.begin(), out.end(), [](const Member &a, const Member &b) {
+            return a.z < b.z || (a.z == b.z && a.index < b.index);
+        });
         at[i] = q;
         valid[i] = 1;
     }
@@ -704,7 +708,12 @@ void findVirtualPairs(const StemCentreTarget::Impl &target, const Points3 &centr
         // the exact test follows), so most candidates cost no square root.
         const double inner = std::max(0.0, r - gate), outer = r + gate;
         const double in2 = inner * inner * (1.0 - 1e-9), out2 = outer * outer * (1.0 + 1e-9);
-        for (const auto &m : candidates.near(target, static_cast<std::size_t>(i), q, r, cfg)) {
+        const auto &members = candidates.near(target, static_cast<std::size_t>(i), q, r, cfg);
+        const auto below =
+            std::lower_bound(members.begin(), members.end(), q.z() - cfg.virtual_window_m,
+                             [](const VirtualCandidates::Member &m, double z) { return m.z < z; });
+        for (auto it = below; it != members.end() && it->z <= q.z() + cfg.virtual_window_m; ++it) {
+            const auto &m = *it;
             if (std::abs(m.z - q.z()) > cfg.virtual_window_m) continue;
             const double dx = m.x - q.x(), dy = m.y - q.y();
             const double d2 = dx * dx + dy * dy;

@@ -29,6 +29,7 @@ frame that does not join the map carries its reason (FrameRecord.reason, unmerge
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 from collections.abc import Callable, Iterable
@@ -244,6 +245,12 @@ class _VoxelCloud:
         self._consolidate()
         return self._main[2] if self.voxel_m > 0 else np.ones(len(self._main[1]))
 
+    @property
+    def keys(self) -> np.ndarray:
+        """The sorted voxel keys (N,) of `points` (voxelized clouds only)."""
+        self._consolidate()
+        return self._main[0]
+
     def __len__(self) -> int:
         return len(self._main[1]) + len(self._side[1])
 
@@ -287,6 +294,16 @@ class _VoxelCloud:
             self._side = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
 
 
+def _x_slab(keys: np.ndarray, x_range: tuple[float, float], voxel_m: float) -> slice:
+    """The rows of a cloud in voxel-key order (_voxel_keys, sorted keys (N,)) whose voxels'
+    x index lies within x_range (m): one slice, as keys sort by the x index first."""
+    top = (1 << 21) - 1  # the largest x index a key holds
+    lo, hi = (min(max(int(np.floor(x / voxel_m)) + (1 << 20), 0), top) for x in x_range)
+    a = int(np.searchsorted(keys, np.int64(lo << 42)))
+    b = len(keys) if hi == top else int(np.searchsorted(keys, np.int64((hi + 1) << 42)))
+    return slice(a, b)
+
+
 def _update_voxels(store, keys: np.ndarray, new: np.ndarray) -> np.ndarray:
     """The running mean of the store's (keys, points, counts) voxels that new points (one per
     voxel, keys (N,)) fall in, updated in place -> which of them fell in one (N,) bool."""
@@ -319,18 +336,29 @@ def _insert_voxels(store, keys: np.ndarray, points: np.ndarray, count: np.ndarra
 
 class _GlobalMap:
     """TLS reference + accepted frames, voxelized (merged in batches), and the local LM
-    target: a coarser voxel copy of the map cropped around the predicted frame (x-y disc,
-    height band of the frame), rebuilt only when the frame leaves the crop or the map grew."""
+    target, cropped around the predicted frame (x-y disc, height band of the frame) and
+    rebuilt only when the frame leaves the crop or the map grew. The target is the whole map
+    at target_voxel_m (MapConfig.lm_target "map"), or ("confirmed") the reference at that
+    size plus only those merged voxels that no reference voxel touches and that at least
+    target_min_merges merge batches filled: the whole map doubles along a walk and thickens
+    the stem walls the reference already holds, so each LM round costs more and converges
+    less often."""
 
     def __init__(self, reference: np.ndarray, config: TlsConfig):
         self.core = _core()
         self.config = config
         m = config.map
         self.fine = _VoxelCloud(reference, m.voxel_m, self.core)
-        coarse_m = m.target_voxel_m if m.target_voxel_m > m.voxel_m else 0.0
-        self._coarse_cloud = _VoxelCloud(self.fine.points, coarse_m, self.core)
+        self.target_m = max(m.target_voxel_m, m.voxel_m)
+        ref_target = _VoxelCloud(self.fine.points, self.target_m, self.core)
+        self._ref_keys, self._ref_target = ref_target.keys, ref_target.points
+        # "confirmed": the merged voxels away from the reference; "map": the whole map.
+        self._mobile: _VoxelCloud | None = None
+        if m.lm_target == "map":
+            self._mobile = _VoxelCloud(self.fine.points, self.target_m, self.core)
         self.pending: list[np.ndarray] = []
         self.target = None
+        self.target_points = np.zeros((0, 3))  # the target's points (K,3)
         self.target_centre = np.zeros(2)
         self.target_z = (0.0, 0.0)
         self.dirty = True
@@ -344,8 +372,9 @@ class _GlobalMap:
         return self.fine.counts
 
     @property
-    def coarse(self) -> np.ndarray:
-        return self._coarse_cloud.points
+    def reference_target(self) -> np.ndarray:
+        """The reference voxelized at the target's voxel size (M,3), in voxel-key order."""
+        return self._ref_target
 
     def add(self, points_tls: np.ndarray) -> None:
         self.pending.append(self.core.voxel_downsample(points_tls, self.config.map.voxel_m))
@@ -363,8 +392,34 @@ class _GlobalMap:
                 f"the merged map exceeds {self.config.map.max_points} points; "
                 "raise map.voxel_m or map.max_points"
             )
-        self._coarse_cloud.merge(new)
+        if self.config.map.lm_target == "map":
+            self._mobile.merge(new)
+            self.dirty = True
+            return
+        away = self._away_from_reference(self.core.voxel_downsample(new, self.target_m))
+        if self._mobile is None:
+            self._mobile = _VoxelCloud(away, self.target_m, self.core)
+        else:
+            self._mobile.merge(away)
         self.dirty = True
+
+    def _away_from_reference(self, voxels: np.ndarray) -> np.ndarray:
+        """The voxel centroids (one per target voxel) whose voxel and its neighbours within
+        target_reference_margin_voxels hold no reference voxel."""
+        reach = self.config.map.target_reference_margin_voxels
+        keys = _voxel_keys(voxels, self.target_m)
+        order = np.argsort(keys, kind="stable")  # sorted queries walk the reference in order
+        keys = keys[order]
+        near = np.zeros(len(keys), bool)
+        span = range(-reach, reach + 1)
+        ref = self._ref_keys
+        # Per x-y neighbour one search: its column's voxels within reach in z are consecutive
+        # keys, so a reference key in [probe - reach, probe + reach] is a neighbour.
+        for di, dj in itertools.product(span, span):
+            probe = keys + ((di << 42) + (dj << 21))
+            at = np.minimum(np.searchsorted(ref, probe - reach), len(ref) - 1)
+            near |= (ref[at] >= probe - reach) & (ref[at] <= probe + reach)
+        return voxels[order[~near]]
 
     def target_at(self, xy: np.ndarray, z_range: tuple[float, float]):
         """LM target around xy (2,) covering heights z_range (the frame's, in the TLS frame),
@@ -381,14 +436,28 @@ class _GlobalMap:
             return self.target, False
         zlo, zhi = z_range[0] - m.target_z_margin_m, z_range[1] + m.target_z_margin_m
 
+        r = m.target_radius_m
+        # Keys sort by x voxel first: the disc's x range is one slice of a key-sorted cloud.
+        x_range = (xy[0] - r - self.target_m, xy[0] + r + self.target_m)
+
         def crop(c: np.ndarray) -> np.ndarray:
             keep = (c[:, 2] >= zlo) & (c[:, 2] <= zhi)  # the height band first: fewer distances
             band = np.flatnonzero(keep)
-            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= m.target_radius_m**2
+            keep[band] = np.sum((c[band, :2] - xy) ** 2, axis=1) <= r**2
             return keep
 
-        cropped = self._coarse_cloud.points_where(crop)
-        self.target = self.core.StemCentreTarget(np.ascontiguousarray(cropped))
+        parts = []
+        if m.lm_target == "confirmed":
+            ref = self._ref_target[_x_slab(self._ref_keys, x_range, self.target_m)]
+            parts.append(ref[crop(ref)])
+        if self._mobile is not None:
+            mobile = self._mobile
+            slab = _x_slab(mobile.keys, x_range, self.target_m)
+            pts, counts = mobile.points[slab], mobile.counts[slab]
+            confirmed = counts >= (m.target_min_merges if m.lm_target == "confirmed" else 1)
+            parts.append(pts[crop(pts) & confirmed])
+        self.target_points = np.ascontiguousarray(np.concatenate(parts))
+        self.target = self.core.StemCentreTarget(self.target_points)
         self.target_centre = xy
         self.target_z = (zlo, zhi)
         self.dirty = False
@@ -747,7 +816,7 @@ class _Walk:
         self.gmap = _GlobalMap(ref, config)
         # The reference voxelized as the map's coarse copy (before any frame joins): the
         # target of the acceptance test and the ground heights of the placement.
-        self.ref_coarse = self.gmap.coarse.copy()
+        self.ref_coarse = self.gmap.reference_target
         self.check_reference = _ReferenceCheck(self.ref_coarse, config)
         self.initial_pose = initial_pose
         self.on_frame = on_frame
