@@ -64,6 +64,37 @@ class MappingConfig:
     # At 0.1 a 10.2 cm tree of dbh4 vlp16-loop-b (9.7 cm from its 2-3 step scans) lost its DBH.
     dbh_thin_m: NonNegative = 0.075
     dbh_thin_resolve_steps: Annotated[float, Range(ge=1)] = 3.0
+    # Accumulated silhouette (mapping/thin_stems.py) of a tree that has no DBH otherwise (a
+    # stem under the single-scan resolution): every scan line crossing its breast-height band
+    # +- dbh_sweep_band_m (symmetric: a linear taper averages out) up to dbh_sweep_max_range_m
+    # counts its hits: returns within dbh_sweep_window_m across and dbh_sweep_depth_m along
+    # the view ray of the stem's centre (the mode of its returns), less the background beside
+    # them. Window: half the widest stem it measures (dbh_thin_m) plus ~2 cm of pose error;
+    # depth: range noise 1.5-3 cm and the stem's own depth. The DBH is reported from
+    # dbh_sweep_min_scans scans with crossing lines and dbh_sweep_min_lines lines on, when the
+    # hits spread across the stem (the phases cover it: their 10-90 % spread at least
+    # dbh_sweep_min_cover of the width), and under dbh_thin_m (wider stems are resolved by the
+    # per-scan silhouettes). Its std: the ratio estimator's over blocks of
+    # dbh_sweep_block_scans scans or the phase error, with the dbh_std_floor_rel floor.
+    # dbh_sweep: count the lines (also for is_empty); dbh_sweep_dbh: report the accumulated
+    # DBH. Off: on the SLAM sims' style-b loops the SLAM poses spread a far sapling's returns
+    # over the whole window (10-20 m: 0.1-0.3 deg of heading is 2-7 cm), so the central
+    # window misses many hits (2-3 cm saplings read 0.1-1 cm); measured right on true poses
+    # (tests/test_dbh_accumulated_silhouette.py).
+    dbh_sweep: bool = True
+    dbh_sweep_dbh: bool = False
+    # A tree without a DBH with fewer returns than this per crossing line within reach of its
+    # centre (TreeMap.is_empty) is left out of the map: a stem of >= 2 cm gives >= 0.23.
+    dbh_empty_max_hits: Fraction = 0.1
+    dbh_sweep_band_m: tuple[float, float] = (-0.3, 0.3)
+    dbh_sweep_window_m: Positive = 0.06
+    dbh_sweep_depth_m: Positive = 0.1
+    dbh_sweep_max_range_m: Positive = 25.0
+    dbh_sweep_min_scans: PositiveInt = 20
+    dbh_sweep_min_lines: PositiveInt = 40
+    dbh_sweep_min_cover: Fraction = 0.5
+    dbh_sweep_block_scans: PositiveInt = 10
+    dbh_sweep_max_scans: PositiveInt = 4096  # per tree (bounded memory)
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3
     # Ground map (map3d mode): per-keyframe ground points kept at keyframe_voxel_m, the

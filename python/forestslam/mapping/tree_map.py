@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from forestslam.geometry import transform_points
+from forestslam.mapping import thin_stems
 from forestslam.mapping.config import MappingConfig
 
 log = logging.getLogger(__name__)
@@ -88,6 +89,19 @@ class _Tree:
     n_support_scans: int = 0  # of those, scans with stem points in the breast-height band
     z_sum: float = 0.0
     z_n: int = 0
+    recent_xy: list = field(default_factory=list)  # the last detections' centres (map frame)
+    # accumulated silhouette, per scan: (azimuth step at the stem m, lines), the sensor's xy
+    # and the candidate hits' xy (map frame)
+    sweep: list = field(default_factory=list)
+    sweep_origin: list = field(default_factory=list)
+    sweep_xy: list = field(default_factory=list)
+
+    def centre(self) -> np.ndarray | None:
+        """Breast-height centre (3,) in the map frame: median of the last detections' xy, mean
+        breast-height z (None before both are known)."""
+        if not self.recent_xy or not self.z_n:
+            return None
+        return np.r_[np.median(np.asarray(self.recent_xy), axis=0), self.z_sum / self.z_n]
 
 
 def circle_fit_config(cfg: MappingConfig):
@@ -192,6 +206,7 @@ class TreeMap:
     """Collects stem observations of mapped trees (ids from the SLAM association)."""
 
     MAX_SCAN_DBH = 1024  # per tree; beyond, every other value is dropped and the stride doubled
+    RECENT_CENTRES = 15  # detections whose median centre places a tree's accumulated silhouette
 
     def __init__(
         self, config: MappingConfig | None = None, seed: int = 0, azimuth_step_rad: float = 0.0
@@ -205,6 +220,11 @@ class TreeMap:
         self.n_fits = 0
         self.n_fits_accepted = 0
         self._circle_config = None  # the C++ CircleFitConfig, built at the first fit
+        # Accumulated silhouettes (thin_stems): the trees without a DBH otherwise (updated at
+        # every flush), the rings' elevations, the last pose and stamp (deskew).
+        self._sweep_ids: list[int] = []
+        self._ring_tan: np.ndarray | None = None
+        self._last_pose: tuple[float, np.ndarray] | None = None
 
     def add(
         self,
@@ -216,12 +236,15 @@ class TreeMap:
         centre_z: np.ndarray,
         scan_dbh: np.ndarray,
         ranges: np.ndarray | None = None,
+        centre_xy: np.ndarray | None = None,
     ) -> None:
         """Observations of one scan: ids (K,) tree id per stem (-1 none); points[k] (Mk,3) the
         stem's points and base_z (K,) its local ground height, both in the sensor frame;
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
         DBH (NaN = none); ranges (K,) the stems' horizontal distance from the sensor (None:
-        unknown, no resolution gate). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
+        unknown, no resolution gate); centre_xy (K,2) the breast-height centres in the map
+        frame (None: no accumulated silhouette). T_odom (4,4) the (SLAM-corrected) map pose
+        of the scan."""
         lo, hi = self.cfg.dbh_band_m
         origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
         ids = np.asarray(ids)
@@ -239,6 +262,9 @@ class TreeMap:
             if math.isfinite(centre[k]):
                 tree.z_sum += centre[k]
                 tree.z_n += 1
+            if centre_xy is not None:
+                tree.recent_xy.append(centre_xy[k])
+                del tree.recent_xy[: -self.RECENT_CENTRES]
             if math.isfinite(dbh[k]):
                 tree.n_scans_dbh += 1
                 tree.dbh_at[b] += 1
@@ -266,7 +292,18 @@ class TreeMap:
             self._fit(tree)
 
     def flush(self, scan_index: int | None = None) -> None:
-        """Fit the windows of trees out of view for a window (or of all trees when None)."""
+        """Fit the windows of trees out of view for a window (or of all trees when None); then
+        list the trees without a DBH otherwise, whose accumulated silhouettes add_returns
+        counts."""
+        self._flush_windows(scan_index)
+        if self.cfg.dbh_sweep:
+            self._sweep_ids = [
+                i
+                for i, tree in self.trees.items()
+                if tree.recent_xy and tree.z_n and not math.isfinite(self._measured_dbh(tree)[0])
+            ]
+
+    def _flush_windows(self, scan_index: int | None) -> None:
         for tree in self.trees.values():
             if not tree.band:
                 continue
@@ -346,9 +383,21 @@ class TreeMap:
         return keep
 
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
-        """Fused DBH, its std and the number of window measurements fused (module docstring)."""
+        """Fused DBH, its std and the number of window measurements fused (module docstring);
+        for a tree without one, its accumulated silhouette when that measures it (thin_stems,
+        0 windows)."""
         tree = self.trees.get(tree_id)
-        if tree is None or not self.is_stem(tree):
+        if tree is None:
+            return float("nan"), float("nan"), 0
+        measured = self._measured_dbh(tree)
+        if math.isfinite(measured[0]) or not self.cfg.dbh_sweep:
+            return measured
+        sweep = self.sweep_estimate(tree)
+        return (sweep[0], sweep[1], 0) if sweep is not None else measured
+
+    def _measured_dbh(self, tree: _Tree) -> tuple[float, float, int]:
+        """The DBH from the per-scan silhouettes and window circles (module docstring)."""
+        if not self.is_stem(tree):
             return float("nan"), float("nan"), 0
         scans = self._scan_estimate(tree)
         window = self._window_estimate(tree)
@@ -417,6 +466,115 @@ class TreeMap:
         floor = self.cfg.dbh_std_floor_rel * mean
         return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
+    def add_returns(
+        self,
+        stamp: float,
+        T_map_sensor: np.ndarray,
+        points: np.ndarray,
+        ring: np.ndarray | None,
+        times: np.ndarray | None = None,
+    ) -> None:
+        """Count one scan's lines across the trees without a DBH otherwise (thin_stems): the
+        scan's raw points (N,3) in the sensor frame at its stamp, their rings (N,) (None: no
+        accumulated silhouette) and times after the stamp (N,) (None: not deskewed);
+        T_map_sensor (4,4) the scan's map pose."""
+        T = np.asarray(T_map_sensor, dtype=np.float64)
+        last, self._last_pose = self._last_pose, (float(stamp), T)
+        if not (self.cfg.dbh_sweep and self._sweep_ids and self.azimuth_step_rad > 0):
+            return
+        if ring is None or len(points) == 0:
+            return
+        points = np.asarray(points, dtype=np.float64)
+        if self._ring_tan is None:
+            self._ring_tan = thin_stems.ring_tangents(points, ring)
+        cap = self.cfg.dbh_sweep_max_scans
+        trees = [self.trees[i] for i in self._sweep_ids if len(self.trees[i].sweep) < cap]
+        if not trees:
+            return
+        # breast-height centres in the sensor frame; those in range
+        centres = (np.array([t.centre() for t in trees]) - T[:3, 3]) @ T[:3, :3]
+        rho = np.hypot(centres[:, 0], centres[:, 1])
+        near = np.flatnonzero((rho > 1.0) & (rho <= self.cfg.dbh_sweep_max_range_m))
+        if not len(near):
+            return
+        pick = self._near_band(points, centres[near])
+        pts, rng = points[pick], np.asarray(ring)[pick]
+        if times is not None and last is not None and stamp > last[0]:
+            pts = self._deskew(pts, np.asarray(times, dtype=np.float64)[pick], last, stamp, T)
+        az = np.arctan2(pts[:, 1], pts[:, 0])
+        up = T[2, :3]
+        cfg = self.cfg
+        for j in near.tolist():
+            c = centres[j]
+            half = (thin_stems.REACH_M + 0.1) / rho[j]
+            sel = np.flatnonzero(
+                np.abs(np.angle(np.exp(1j * (az - math.atan2(c[1], c[0]))))) <= half
+            )
+            lines, rows = thin_stems.collect_lines(
+                pts[sel], rng[sel], self._ring_tan, c, up, cfg.dbh_sweep_band_m, thin_stems.REACH_M
+            )
+            if lines:
+                tree = trees[j]
+                tree.sweep.append((rho[j] * self.azimuth_step_rad, lines))
+                tree.sweep_origin.append(T[:2, 3].copy())
+                tree.sweep_xy.append(pts[sel[rows], :2] @ T[:2, :2].T + T[:2, 3])
+
+    def _near_band(self, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+        """Rows of the points (N,3) within 1 m of the centres' heights (sensor frame; a loose
+        pre-selection, the band itself is taken along each ring)."""
+        z = points[:, 2]
+        return np.flatnonzero((z >= centres[:, 2].min() - 1.0) & (z <= centres[:, 2].max() + 1.0))
+
+    @staticmethod
+    def _deskew(pts, t, last, stamp, T) -> np.ndarray:
+        """Points into the sensor frame at the stamp, under the planar motion from the last
+        scan's pose to this one's (constant velocity over the sweep)."""
+        d = np.linalg.solve(T, last[1])  # the last pose in this scan's frame
+        dt = stamp - last[0]
+        v = -d[:2, 3] / dt
+        w = -math.atan2(d[1, 0], d[0, 0]) / dt
+        return thin_stems.deskew_planar(pts, t, v, w)
+
+    def sweep_estimate(self, tree: _Tree) -> tuple[float, float] | None:
+        """The accumulated silhouette's DBH and std (MappingConfig.dbh_sweep_*), or None when it
+        has too few scans or lines, its hits do not spread across the stem (phases not covered)
+        or it is not a thin stem."""
+        cfg = self.cfg
+        if not cfg.dbh_sweep_dbh or len(tree.sweep) < cfg.dbh_sweep_min_scans:
+            return None
+        s, n = np.asarray(tree.sweep, dtype=np.float64).T
+        if n.sum() < cfg.dbh_sweep_min_lines:
+            return None
+        xy = np.concatenate(tree.sweep_xy)
+        if len(xy) < 2:
+            return None
+        centre = thin_stems.stem_centre(xy, tree.centre()[:2], cfg.dbh_sweep_window_m)
+        counts = [
+            thin_stems.net_hits(h, o, centre, cfg.dbh_sweep_window_m, cfg.dbh_sweep_depth_m)
+            for h, o in zip(tree.sweep_xy, tree.sweep_origin, strict=True)
+        ]
+        k = np.array([c[0] - c[1] for c in counts], dtype=np.float64)
+        width, se = thin_stems.accumulated_width(s, k, n, cfg.dbh_sweep_block_scans)
+        if not (0 < width < cfg.dbh_thin_m) or not math.isfinite(se):
+            return None
+        lat = np.concatenate([c[2] for c in counts])
+        q10, q90 = np.percentile(lat, [10, 90])
+        if (q90 - q10) / 0.8 < cfg.dbh_sweep_min_cover * width:
+            return None
+        return width, float(np.hypot(se, cfg.dbh_std_floor_rel * width))
+
+    def is_empty(self, tree: _Tree) -> bool:
+        """Nothing at breast height where the tree stands: over at least dbh_sweep_min_lines
+        scan lines crossing its breast-height band (accumulated silhouette, not occluded), fewer
+        than dbh_empty_max_hits returns per line within thin_stems.REACH_M of its centre. Any
+        stem of 2 cm or more gives at least 2 cm / one azimuth step there (0.23 per line for a
+        VLP-16 at 25 m, more nearer); a second copy of a stem placed beside it (a split tree)
+        or a track of false detections gives none."""
+        lines = sum(n for _, n in tree.sweep)
+        if lines < self.cfg.dbh_sweep_min_lines:
+            return False
+        return sum(len(h) for h in tree.sweep_xy) < self.cfg.dbh_empty_max_hits * lines
+
     def is_stem(self, tree: _Tree) -> bool:
         """Stem-or-not test of a mapped tree, from the evidence of all its scans: is it a stem
         whose DBH can be measured? (1) Perception found a stem with a diameter in at least half
@@ -450,11 +608,17 @@ class TreeMap:
         z = np.full(n, np.nan)
         dbh = np.full(n, np.nan)
         std = np.full(n, np.nan)
+        empty = np.zeros(n, dtype=bool)
         for row, i in enumerate(ids):
             tree = self.trees.get(int(i))
             if tree is not None and tree.z_n:
                 z[row] = tree.z_sum / tree.z_n
             dbh[row], std[row], _ = self.dbh(int(i))
+            empty[row] = tree is not None and not math.isfinite(dbh[row]) and self.is_empty(tree)
+        if empty.any():  # nothing at breast height where they stand: not trees (is_empty)
+            log.info("%d mapped trees without returns at breast height left out", empty.sum())
+            ids, xy, obs, z, dbh, std = (a[~empty] for a in (ids, xy, obs, z, dbh, std))
+            n = len(ids)
         return {
             "id": ids,
             "x": xy[:, 0] if n else np.zeros(0),
