@@ -69,8 +69,12 @@ class MappingConfig:
     # +- dbh_sweep_band_m (symmetric: a linear taper averages out) up to dbh_sweep_max_range_m
     # counts its hits: returns within dbh_sweep_window_m across and dbh_sweep_depth_m along
     # the view ray of the stem's centre (the mode of its returns), less the background beside
-    # them. Window: half the widest stem it measures (dbh_thin_m) plus ~2 cm of pose error;
-    # depth: range noise 1.5-3 cm and the stem's own depth. The DBH is reported from
+    # them (as wide again on each side). Window: half the widest stem it measures (dbh_thin_m)
+    # plus 3 sigma of the SLAM's per-scan lateral pose noise at 15 m (3.4 cm: consecutive
+    # scans' yaw 0.056 deg and 1.2 cm rms against the truth on dbh4 hdl32-loop-b, main): a
+    # narrower window loses the hits of scans placed off and, with the background beside it,
+    # counts them against the stem (2-3 cm saplings read 0.1-1 cm at 6 cm). Depth: range
+    # noise 1.5-3 cm, the pose's 1.2 cm and the stem's own depth. The DBH is reported from
     # dbh_sweep_min_scans scans with crossing lines and dbh_sweep_min_lines lines on, when the
     # hits spread across the stem (the phases cover it: their 10-90 % spread at least
     # dbh_sweep_min_cover of the width), and under dbh_thin_m (wider stems are resolved by the
@@ -87,13 +91,16 @@ class MappingConfig:
     # centre (TreeMap.is_empty) is left out of the map: a stem of >= 2 cm gives >= 0.23.
     dbh_empty_max_hits: Fraction = 0.1
     dbh_sweep_band_m: tuple[float, float] = (-0.3, 0.3)
-    dbh_sweep_window_m: Positive = 0.06
+    dbh_sweep_window_m: Positive = 0.14
     dbh_sweep_depth_m: Positive = 0.1
     dbh_sweep_max_range_m: Positive = 25.0
     dbh_sweep_min_scans: PositiveInt = 20
     dbh_sweep_min_lines: PositiveInt = 40
     dbh_sweep_min_cover: Fraction = 0.5
     dbh_sweep_block_scans: PositiveInt = 10
+    # ... and only a width at least this many standard errors above 0 (a shrub's or a
+    # foliage clump's returns, as dense beside the window as in it, give about 0).
+    dbh_sweep_min_sigmas: NonNegative = 3.0
     dbh_sweep_max_scans: PositiveInt = 4096  # per tree (bounded memory)
     # Trees written to the map need this many keyframe observations.
     min_tree_observations: PositiveInt = 3

@@ -34,8 +34,15 @@ from __future__ import annotations
 import numpy as np
 
 # Returns kept per scan around a stem's predicted centre (m across and along the view ray):
-# the detections' centres and the SLAM poses err by a few cm to ~0.1 m on a far sapling.
-REACH_M = 0.25
+# the centre window and the background beside it (2 x MappingConfig.dbh_sweep_window_m),
+# plus the detections' centre error (a few cm).
+REACH_M = 0.3
+# Kernel of the mean shift that finds the stem's centre among the kept returns: about the
+# SLAM's per-scan lateral pose noise at 10-20 m (2.7-4 cm), so the stem's hits count as one.
+CENTRE_KERNEL_M = 0.05
+# Reach of TreeMap.is_empty's count (m across and along the view ray of the detections'
+# centre): a stem placed 0.5 m off, or a copy 0.6-1.3 m beside it, has none within it.
+EMPTY_REACH_M = 0.25
 
 
 def ring_tangents(points: np.ndarray, ring: np.ndarray, min_range_m: float = 2.0) -> np.ndarray:
@@ -68,14 +75,16 @@ def collect_lines(
     up: np.ndarray,
     band: tuple[float, float],
     reach_m: float,
-) -> tuple[int, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, int, int]:
     """One scan's lines across a stem: points (N,3) and their rings (N,) near the stem (sensor
     frame), ring_tan (R,) the rings' tan(elevation), centre (3,) the stem's predicted
     breast-height centre and up (3,) the map's vertical, both in the sensor frame. A ring
     crosses the stem when its beam at the stem's azimuth and range lies within band (lo, hi) of
-    breast height; it is left out when a return within reach_m across lies more than reach_m
-    nearer (an occluder). Returns (lines crossing and not occluded, the rows of the points on
-    them within reach_m across and along the view ray of the centre: the candidate hits)."""
+    breast height. Returns (the crossing rings, the rows of the points on them within reach_m
+    across the view ray of the centre and not beyond reach_m behind it (hits, background and
+    whatever stands in front), the crossing rings with no return within reach_m across that is
+    more than reach_m nearer, the points within EMPTY_REACH_M of the centre across and along on
+    those rings: TreeMap.is_empty's evidence)."""
     rho = float(np.hypot(centre[0], centre[1]))
     u = centre[:2] / rho
     a = np.array([-u[1], u[0]])
@@ -89,8 +98,10 @@ def collect_lines(
     inside = valid & crossing[r] & (np.abs(points[:, :2] @ a) <= reach_m) & (along > 0)
     occluded = np.bincount(r[inside & (along < rho - reach_m)], minlength=len(ring_tan)) > 0
     use = crossing & ~occluded
-    hit = inside & use[r] & (np.abs(along - rho) <= reach_m)
-    return int(use.sum()), np.flatnonzero(hit)
+    e = EMPTY_REACH_M
+    near = inside & use[r] & (np.abs(along - rho) <= e) & (np.abs(points[:, :2] @ a) <= e)
+    kept = np.flatnonzero(inside & (along <= rho + reach_m))
+    return np.flatnonzero(crossing), kept, int(use.sum()), int(near.sum())
 
 
 def stem_centre(xy: np.ndarray, start: np.ndarray, kernel_m: float, rounds: int = 10) -> np.ndarray:
@@ -110,20 +121,43 @@ def stem_centre(xy: np.ndarray, start: np.ndarray, kernel_m: float, rounds: int 
 
 
 def net_hits(
-    xy: np.ndarray, origin: np.ndarray, centre: np.ndarray, window_m: float, depth_m: float
-) -> tuple[int, int, np.ndarray]:
-    """One scan's candidate hits xy (M,2) seen from origin (2,) around the stem centre (2,)
-    (map frame): hits within window_m across and depth_m along the view ray, the background in
-    the same depth beyond them (window_m to 2 window_m across, both sides: the same width), and
-    the central hits' offsets across the ray."""
-    u = centre - origin
-    u = u / max(float(np.linalg.norm(u)), 1e-9)
+    xy: np.ndarray,
+    ring: np.ndarray,
+    scan: np.ndarray,
+    lines: list[np.ndarray],
+    origins: np.ndarray,
+    centre: np.ndarray,
+    window_m: float,
+    depth_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per scan, the lines across the stem and their net hits, from the kept returns xy (M,2)
+    (map frame) with their rings (M,) and scans (M,), each scan's crossing rings (lines[g]) and
+    sensor position (origins (G,2)), around the stem centre (2,). A hit lies within window_m
+    across and depth_m along the view ray of the centre; the background is what lies in the
+    same depth within window_m beyond it on either side (the same width), taken off. A line
+    with a return in front of that depth within 2 window_m across (a shrub's leaves, a branch)
+    is left out: the stem may be hidden behind it. Returns (lines (G,), net hits (G,), the
+    hits' offsets across the view ray)."""
+    view = centre - origins
+    dist = np.linalg.norm(view, axis=1)
+    u = view / np.maximum(dist, 1e-9)[:, None]
     d = xy - centre
-    lat = d @ np.array([-u[1], u[0]])
-    deep = np.abs(d @ u) <= depth_m
+    lat = np.einsum("ij,ij->i", d, np.c_[-u[scan, 1], u[scan, 0]])
+    along = np.einsum("ij,ij->i", d, u[scan])
+    n_rings = int(max(ring.max(initial=0), max((int(x.max(initial=0)) for x in lines), default=0)))
+    key = scan * (n_rings + 1) + ring
+    front = (np.abs(lat) <= 2 * window_m) & (along < -depth_m)
+    occluded = np.zeros(len(origins) * (n_rings + 1), dtype=bool)
+    occluded[key[front]] = True
+    deep = (np.abs(along) <= depth_m) & ~occluded[key]
     central = deep & (np.abs(lat) <= window_m)
     side = deep & (np.abs(lat) > window_m) & (np.abs(lat) <= 2 * window_m)
-    return int(central.sum()), int(side.sum()), lat[central]
+    n_lines = np.array(
+        [np.count_nonzero(~occluded[g * (n_rings + 1) + rr]) for g, rr in enumerate(lines)]
+    )
+    g = len(origins)
+    net = np.bincount(scan[central], minlength=g) - np.bincount(scan[side], minlength=g)
+    return n_lines.astype(np.float64), net.astype(np.float64), lat[central]
 
 
 def accumulated_width(

@@ -90,11 +90,14 @@ class _Tree:
     z_sum: float = 0.0
     z_n: int = 0
     recent_xy: list = field(default_factory=list)  # the last detections' centres (map frame)
-    # accumulated silhouette, per scan: (azimuth step at the stem m, lines), the sensor's xy
-    # and the candidate hits' xy (map frame)
+    # accumulated silhouette, per scan: (azimuth step at the stem m, lines not occluded,
+    # returns near the centre: is_empty), the sensor's xy, the crossing rings, the kept
+    # returns' xy (map frame) and rings (thin_stems.collect_lines)
     sweep: list = field(default_factory=list)
     sweep_origin: list = field(default_factory=list)
+    sweep_lines: list = field(default_factory=list)
     sweep_xy: list = field(default_factory=list)
+    sweep_ring: list = field(default_factory=list)
 
     def centre(self) -> np.ndarray | None:
         """Breast-height centre (3,) in the map frame: median of the last detections' xy, mean
@@ -195,6 +198,18 @@ def align_scans_across(
     den = np.bincount(scan_of, weights=w * a * a, minlength=n) + lam
     shift = (-num / den)[scan_of][:, None] * across
     return xy + shift, origins + shift
+
+
+def _azimuth_rows(sorted_az: np.ndarray, centre: float, half: float) -> np.ndarray:
+    """Rows of the sorted azimuths (rad, in [-pi, pi]) within half of centre, across the
+    wrap at +-pi."""
+    lo, hi = centre - half, centre + half
+    rows = np.arange(np.searchsorted(sorted_az, lo), np.searchsorted(sorted_az, hi, "right"))
+    if lo < -np.pi:
+        rows = np.r_[rows, np.arange(np.searchsorted(sorted_az, lo + 2 * np.pi), len(sorted_az))]
+    if hi > np.pi:
+        rows = np.r_[np.arange(np.searchsorted(sorted_az, hi - 2 * np.pi, "right")), rows]
+    return rows
 
 
 def _spread(d: np.ndarray) -> float:
@@ -502,22 +517,27 @@ class TreeMap:
         if times is not None and last is not None and stamp > last[0]:
             pts = self._deskew(pts, np.asarray(times, dtype=np.float64)[pick], last, stamp, T)
         az = np.arctan2(pts[:, 1], pts[:, 0])
+        order = np.argsort(az)
+        az = az[order]
         up = T[2, :3]
         cfg = self.cfg
         for j in near.tolist():
             c = centres[j]
-            half = (thin_stems.REACH_M + 0.1) / rho[j]
-            sel = np.flatnonzero(
-                np.abs(np.angle(np.exp(1j * (az - math.atan2(c[1], c[0]))))) <= half
-            )
-            lines, rows = thin_stems.collect_lines(
+            sel = order[
+                _azimuth_rows(az, math.atan2(c[1], c[0]), (thin_stems.REACH_M + 0.1) / rho[j])
+            ]
+            crossing, rows, lines, near_centre = thin_stems.collect_lines(
                 pts[sel], rng[sel], self._ring_tan, c, up, cfg.dbh_sweep_band_m, thin_stems.REACH_M
             )
-            if lines:
-                tree = trees[j]
-                tree.sweep.append((rho[j] * self.azimuth_step_rad, lines))
+            if not len(crossing):
+                continue
+            tree = trees[j]
+            tree.sweep.append((rho[j] * self.azimuth_step_rad, lines, near_centre))
+            if cfg.dbh_sweep_dbh:  # the returns themselves only for the accumulated DBH
                 tree.sweep_origin.append(T[:2, 3].copy())
+                tree.sweep_lines.append(crossing)
                 tree.sweep_xy.append(pts[sel[rows], :2] @ T[:2, :2].T + T[:2, 3])
+                tree.sweep_ring.append(rng[sel[rows]].astype(np.int64))
 
     def _near_band(self, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
         """Rows of the points (N,3) within 1 m of the centres' heights (sensor frame; a loose
@@ -542,22 +562,31 @@ class TreeMap:
         cfg = self.cfg
         if not cfg.dbh_sweep_dbh or len(tree.sweep) < cfg.dbh_sweep_min_scans:
             return None
-        s, n = np.asarray(tree.sweep, dtype=np.float64).T
-        if n.sum() < cfg.dbh_sweep_min_lines:
-            return None
+        s = np.array([x[0] for x in tree.sweep])
         xy = np.concatenate(tree.sweep_xy)
         if len(xy) < 2:
             return None
-        centre = thin_stems.stem_centre(xy, tree.centre()[:2], cfg.dbh_sweep_window_m)
-        counts = [
-            thin_stems.net_hits(h, o, centre, cfg.dbh_sweep_window_m, cfg.dbh_sweep_depth_m)
-            for h, o in zip(tree.sweep_xy, tree.sweep_origin, strict=True)
-        ]
-        k = np.array([c[0] - c[1] for c in counts], dtype=np.float64)
-        width, se = thin_stems.accumulated_width(s, k, n, cfg.dbh_sweep_block_scans)
-        if not (0 < width < cfg.dbh_thin_m) or not math.isfinite(se):
+        scan = np.repeat(np.arange(len(s)), [len(h) for h in tree.sweep_xy])
+        centre = thin_stems.stem_centre(xy, tree.centre()[:2], thin_stems.CENTRE_KERNEL_M)
+        n, k, lat = thin_stems.net_hits(
+            xy,
+            np.concatenate(tree.sweep_ring),
+            scan,
+            tree.sweep_lines,
+            np.asarray(tree.sweep_origin),
+            centre,
+            cfg.dbh_sweep_window_m,
+            cfg.dbh_sweep_depth_m,
+        )
+        used = n > 0
+        if used.sum() < cfg.dbh_sweep_min_scans or n.sum() < cfg.dbh_sweep_min_lines:
             return None
-        lat = np.concatenate([c[2] for c in counts])
+        s, k, n = s[used], k[used], n[used]
+        width, se = thin_stems.accumulated_width(s, k, n, cfg.dbh_sweep_block_scans)
+        if not (0 < width < cfg.dbh_thin_m) or not (width >= cfg.dbh_sweep_min_sigmas * se):
+            return None
+        if len(lat) < 2:
+            return None
         q10, q90 = np.percentile(lat, [10, 90])
         if (q90 - q10) / 0.8 < cfg.dbh_sweep_min_cover * width:
             return None
@@ -566,14 +595,14 @@ class TreeMap:
     def is_empty(self, tree: _Tree) -> bool:
         """Nothing at breast height where the tree stands: over at least dbh_sweep_min_lines
         scan lines crossing its breast-height band (accumulated silhouette, not occluded), fewer
-        than dbh_empty_max_hits returns per line within thin_stems.REACH_M of its centre. Any
+        than dbh_empty_max_hits returns per line within thin_stems.EMPTY_REACH_M of its centre. Any
         stem of 2 cm or more gives at least 2 cm / one azimuth step there (0.23 per line for a
         VLP-16 at 25 m, more nearer); a second copy of a stem placed beside it (a split tree)
         or a track of false detections gives none."""
-        lines = sum(n for _, n in tree.sweep)
+        lines = sum(x[1] for x in tree.sweep)
         if lines < self.cfg.dbh_sweep_min_lines:
             return False
-        return sum(len(h) for h in tree.sweep_xy) < self.cfg.dbh_empty_max_hits * lines
+        return sum(x[2] for x in tree.sweep) < self.cfg.dbh_empty_max_hits * lines
 
     def is_stem(self, tree: _Tree) -> bool:
         """Stem-or-not test of a mapped tree, from the evidence of all its scans: is it a stem
@@ -616,7 +645,7 @@ class TreeMap:
             dbh[row], std[row], _ = self.dbh(int(i))
             empty[row] = tree is not None and not math.isfinite(dbh[row]) and self.is_empty(tree)
         if empty.any():  # nothing at breast height where they stand: not trees (is_empty)
-            log.info("%d mapped trees without returns at breast height left out", empty.sum())
+            log.debug("%d mapped trees without returns at breast height left out", empty.sum())
             ids, xy, obs, z, dbh, std = (a[~empty] for a in (ids, xy, obs, z, dbh, std))
             n = len(ids)
         return {
