@@ -6,7 +6,7 @@ import numpy as np
 
 from forestslam.mapping import thin_stems
 from forestslam.mapping.config import MappingConfig
-from forestslam.mapping.tree_map import TreeMap
+from forestslam.mapping.tree_map import AZ_BIN_RAD, TreeMap, _bin_rows
 from forestslam.perception.synthetic_stems import ROUND, make_stem, scan_stems
 from forestslam.sensors import load_profile
 
@@ -21,13 +21,14 @@ def _pass(
     seed: int,
     same_phase: bool = False,
     stem_at: float = 10.0,
+    accumulated_dbh: bool = True,
 ):
     """A VLP-16 drives along x past a stem of `dbh` at (stem_at, lateral_m) (a 30 cm stem
     further on); the tree map has a tree at (10, lateral_m) (1 cm noise) without a per-scan
-    DBH. The accumulated DBH on (MappingConfig.dbh_sweep_dbh)."""
+    DBH. The accumulated DBH on unless told (MappingConfig.dbh_sweep_dbh)."""
     rng = np.random.default_rng(seed)
     world = [make_stem(stem_at, lateral_m, dbh, ROUND, rng), make_stem(14.0, -6.0, 0.3, ROUND, rng)]
-    tm = TreeMap(MappingConfig(dbh_sweep_dbh=True), azimuth_step_rad=STEP)
+    tm = TreeMap(MappingConfig(dbh_sweep_dbh=accumulated_dbh), azimuth_step_rad=STEP)
     for s, x in enumerate(xs):
         scan = scan_stems(
             world, np.array([x, 0.0]), ROUND, seed=seed if same_phase else 1000 * seed + s
@@ -60,7 +61,6 @@ def test_a_stem_under_one_step_is_measured_over_scans():
         assert np.isnan(tm._measured_dbh(tree)[0])
         got, std, windows = tm.dbh(0)
         assert windows == 0
-        print(dbh, lateral, got - truth, std)
         errors.append(got - truth)
         sigmas.append(std)
     errors, sigmas = np.asarray(errors), np.asarray(sigmas)
@@ -80,13 +80,27 @@ def test_phases_that_do_not_cover_the_stem_give_no_dbh():
 
 
 def test_a_tree_where_no_stem_stands_is_empty():
-    """A mapped tree 1 m beside a 3 cm stem (a split copy) has no returns at breast height:
-    empty, left out of the table; the stem itself, 20 m from the path, is not."""
-    tm, _ = _pass(0.03, 20.0, np.linspace(0.0, 20.0, 60), seed=1, stem_at=11.0)
+    """With the defaults (accumulated DBH off): a mapped tree 1 m beside a 3 cm stem (a split
+    copy) has no returns at breast height: empty, left out of the table; a 2 cm stem 20 m
+    from the path is not."""
+    xs = np.linspace(0.0, 20.0, 60)
+    tm, _ = _pass(0.03, 20.0, xs, seed=1, stem_at=11.0, accumulated_dbh=False)
     assert tm.is_empty(tm.trees[0])
     assert len(tm.table(np.array([0]), np.array([[10.0, 20.0]]), np.array([60]))["id"]) == 0
-    tm, _ = _pass(0.02, 20.0, np.linspace(0.0, 20.0, 60), seed=1)
+    tm, _ = _pass(0.02, 20.0, xs, seed=1, accumulated_dbh=False)
     assert not tm.is_empty(tm.trees[0])
+    assert len(tm.table(np.array([0]), np.array([[10.0, 20.0]]), np.array([60]))["id"]) == 1
+    assert np.isnan(tm.dbh(0)[0])  # no accumulated DBH by default
+
+
+def test_azimuth_windows_across_the_wrap():
+    """The rows of the azimuth bins within a window, also across +-pi."""
+    az = np.array([-3.1, -2.0, 0.0, 0.05, 3.0, 3.12])
+    bins = np.sort(np.floor((az + np.pi) / AZ_BIN_RAD))
+    az = np.sort(az)
+    assert list(az[_bin_rows(bins, 0.0, 0.1)]) == [0.0, 0.05]
+    assert sorted(az[_bin_rows(bins, np.pi, 0.2)]) == [-3.1, 3.0, 3.12]
+    assert sorted(az[_bin_rows(bins, -np.pi + 0.01, 0.1)]) == [-3.1, 3.12]
 
 
 def test_scans_without_rings_or_step_count_nothing():

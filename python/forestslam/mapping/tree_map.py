@@ -98,6 +98,11 @@ class _Tree:
     sweep_lines: list = field(default_factory=list)
     sweep_xy: list = field(default_factory=list)
     sweep_ring: list = field(default_factory=list)
+    # the sweep's view of the tree, refreshed at every flush: its centre (centre()) and whether
+    # it lacks a DBH otherwise, as of n_scans observations
+    sweep_centre: np.ndarray | None = None
+    sweep_wanted: bool = False
+    sweep_checked_at: int = -1
 
     def centre(self) -> np.ndarray | None:
         """Breast-height centre (3,) in the map frame: median of the last detections' xy, mean
@@ -200,16 +205,26 @@ def align_scans_across(
     return xy + shift, origins + shift
 
 
-def _azimuth_rows(sorted_az: np.ndarray, centre: float, half: float) -> np.ndarray:
-    """Rows of the sorted azimuths (rad, in [-pi, pi]) within half of centre, across the
-    wrap at +-pi."""
-    lo, hi = centre - half, centre + half
-    rows = np.arange(np.searchsorted(sorted_az, lo), np.searchsorted(sorted_az, hi, "right"))
-    if lo < -np.pi:
-        rows = np.r_[rows, np.arange(np.searchsorted(sorted_az, lo + 2 * np.pi), len(sorted_az))]
-    if hi > np.pi:
-        rows = np.r_[np.arange(np.searchsorted(sorted_az, hi - 2 * np.pi, "right")), rows]
-    return rows
+# Azimuth bins (rad) of the points add_returns selects from (sorted once per scan).
+AZ_BIN_RAD = math.radians(0.5)
+
+
+def _bin_rows(sorted_bins: np.ndarray, centre: float, half: float) -> np.ndarray:
+    """Rows of the sorted azimuth bins (of AZ_BIN_RAD from -pi) holding azimuths within half
+    of centre (rad; the whole bins, so a little more), across the wrap at +-pi."""
+    n = int(np.ceil(2 * np.pi / AZ_BIN_RAD))
+    lo = math.floor((centre - half + np.pi) / AZ_BIN_RAD)
+    hi = math.floor((centre + half + np.pi) / AZ_BIN_RAD)
+    parts = [(max(lo, 0), min(hi, n - 1))]
+    if lo < 0:
+        parts.append((lo + n, n - 1))
+    if hi > n - 1:
+        parts.append((0, hi - n))
+    rows = [
+        np.arange(np.searchsorted(sorted_bins, a), np.searchsorted(sorted_bins, b, "right"))
+        for a, b in parts
+    ]
+    return np.concatenate(rows)
 
 
 def _spread(d: np.ndarray) -> float:
@@ -311,12 +326,17 @@ class TreeMap:
         list the trees without a DBH otherwise, whose accumulated silhouettes add_returns
         counts."""
         self._flush_windows(scan_index)
-        if self.cfg.dbh_sweep:
-            self._sweep_ids = [
-                i
-                for i, tree in self.trees.items()
-                if tree.recent_xy and tree.z_n and not math.isfinite(self._measured_dbh(tree)[0])
-            ]
+        if not self.cfg.dbh_sweep:
+            return
+        for tree in self.trees.values():
+            if tree.n_scans == tree.sweep_checked_at:  # not observed since: same verdict
+                continue
+            tree.sweep_checked_at = tree.n_scans
+            tree.sweep_centre = tree.centre()
+            tree.sweep_wanted = tree.sweep_centre is not None and not math.isfinite(
+                self._measured_dbh(tree)[0]
+            )
+        self._sweep_ids = [i for i, tree in self.trees.items() if tree.sweep_wanted]
 
     def _flush_windows(self, scan_index: int | None) -> None:
         for tree in self.trees.values():
@@ -507,27 +527,40 @@ class TreeMap:
         if not trees:
             return
         # breast-height centres in the sensor frame; those in range
-        centres = (np.array([t.centre() for t in trees]) - T[:3, 3]) @ T[:3, :3]
+        centres = (np.array([t.sweep_centre for t in trees]) - T[:3, 3]) @ T[:3, :3]
         rho = np.hypot(centres[:, 0], centres[:, 1])
         near = np.flatnonzero((rho > 1.0) & (rho <= self.cfg.dbh_sweep_max_range_m))
         if not len(near):
             return
-        pick = self._near_band(points, centres[near])
-        pts, rng = points[pick], np.asarray(ring)[pick]
-        if times is not None and last is not None and stamp > last[0]:
-            pts = self._deskew(pts, np.asarray(times, dtype=np.float64)[pick], last, stamp, T)
-        az = np.arctan2(pts[:, 1], pts[:, 0])
-        order = np.argsort(az)
-        az = az[order]
+        pick = self._near_band(points, T, np.array([trees[j].sweep_centre[2] for j in near]))
+        bins = np.floor((np.arctan2(points[pick, 1], points[pick, 0]) + np.pi) / AZ_BIN_RAD)
+        order = np.argsort(bins.astype(np.int16), kind="stable")  # radix sort
+        sorted_bins = bins[order]
+        deskew = times is not None and last is not None and stamp > last[0]
+        motion = self._motion(last, stamp, T) if deskew else None
         up = T[2, :3]
         cfg = self.cfg
+        # raw azimuths a little wider: the sweep moves the sensor up to ~0.3 m and turns it
+        turn = abs(motion[1]) * float(np.max(times)) if motion is not None else 0.0
         for j in near.tolist():
             c = centres[j]
-            sel = order[
-                _azimuth_rows(az, math.atan2(c[1], c[0]), (thin_stems.REACH_M + 0.1) / rho[j])
-            ]
+            az_c = math.atan2(c[1], c[0])
+            half = (thin_stems.REACH_M + 0.1) / rho[j]
+            sel = pick[order[_bin_rows(sorted_bins, az_c, half + 0.3 / rho[j] + turn)]]
+            pts = points[sel]
+            if motion is not None:
+                pts = thin_stems.deskew_planar(pts, np.asarray(times)[sel], *motion)
+            inside = np.abs(np.angle(np.exp(1j * (np.arctan2(pts[:, 1], pts[:, 0]) - az_c))))
+            keep = inside <= half
+            sel, pts = sel[keep], pts[keep]
             crossing, rows, lines, near_centre = thin_stems.collect_lines(
-                pts[sel], rng[sel], self._ring_tan, c, up, cfg.dbh_sweep_band_m, thin_stems.REACH_M
+                pts,
+                np.asarray(ring)[sel],
+                self._ring_tan,
+                c,
+                up,
+                cfg.dbh_sweep_band_m,
+                thin_stems.REACH_M,
             )
             if not len(crossing):
                 continue
@@ -536,24 +569,24 @@ class TreeMap:
             if cfg.dbh_sweep_dbh:  # the returns themselves only for the accumulated DBH
                 tree.sweep_origin.append(T[:2, 3].copy())
                 tree.sweep_lines.append(crossing)
-                tree.sweep_xy.append(pts[sel[rows], :2] @ T[:2, :2].T + T[:2, 3])
-                tree.sweep_ring.append(rng[sel[rows]].astype(np.int64))
-
-    def _near_band(self, points: np.ndarray, centres: np.ndarray) -> np.ndarray:
-        """Rows of the points (N,3) within 1 m of the centres' heights (sensor frame; a loose
-        pre-selection, the band itself is taken along each ring)."""
-        z = points[:, 2]
-        return np.flatnonzero((z >= centres[:, 2].min() - 1.0) & (z <= centres[:, 2].max() + 1.0))
+                tree.sweep_xy.append(pts[rows, :2] @ T[:2, :2].T + T[:2, 3])
+                tree.sweep_ring.append(np.asarray(ring)[sel[rows]].astype(np.int64))
 
     @staticmethod
-    def _deskew(pts, t, last, stamp, T) -> np.ndarray:
-        """Points into the sensor frame at the stamp, under the planar motion from the last
-        scan's pose to this one's (constant velocity over the sweep)."""
+    def _near_band(points: np.ndarray, T: np.ndarray, breast_z: np.ndarray) -> np.ndarray:
+        """Rows of the points (N,3) (sensor frame, pose T) whose map height lies within 1 m of
+        the trees' breast heights (map frame): a loose pre-selection, the band itself is taken
+        along each ring."""
+        z = points @ T[2, :3] + T[2, 3]
+        return np.flatnonzero((z >= breast_z.min() - 1.0) & (z <= breast_z.max() + 1.0))
+
+    @staticmethod
+    def _motion(last, stamp: float, T: np.ndarray) -> tuple[np.ndarray, float]:
+        """The planar motion (v_xy m/s, yaw rate rad/s, sensor frame) from the last scan's pose
+        to this one's: constant velocity over the sweep, for thin_stems.deskew_planar."""
         d = np.linalg.solve(T, last[1])  # the last pose in this scan's frame
         dt = stamp - last[0]
-        v = -d[:2, 3] / dt
-        w = -math.atan2(d[1, 0], d[0, 0]) / dt
-        return thin_stems.deskew_planar(pts, t, v, w)
+        return -d[:2, 3] / dt, -math.atan2(d[1, 0], d[0, 0]) / dt
 
     def sweep_estimate(self, tree: _Tree) -> tuple[float, float] | None:
         """The accumulated silhouette's DBH and std (MappingConfig.dbh_sweep_*), or None when it
