@@ -80,9 +80,9 @@ def test_phases_that_do_not_cover_the_stem_give_no_dbh():
 
 
 def test_a_tree_where_no_stem_stands_is_empty():
-    """With the defaults (accumulated DBH off): a mapped tree 1 m beside a 3 cm stem (a split
-    copy) has no returns at breast height: empty, left out of the table; a 2 cm stem 20 m
-    from the path is not."""
+    """With the lines counted only (accumulated DBH off): a mapped tree 1 m beside a 3 cm stem
+    (a split copy) has no returns at breast height: empty, left out of the table; a 2 cm stem
+    20 m from the path is not."""
     xs = np.linspace(0.0, 20.0, 60)
     tm, _ = _pass(0.03, 20.0, xs, seed=1, stem_at=11.0, accumulated_dbh=False)
     assert tm.is_empty(tm.trees[0])
@@ -90,7 +90,7 @@ def test_a_tree_where_no_stem_stands_is_empty():
     tm, _ = _pass(0.02, 20.0, xs, seed=1, accumulated_dbh=False)
     assert not tm.is_empty(tm.trees[0])
     assert len(tm.table(np.array([0]), np.array([[10.0, 20.0]]), np.array([60]))["id"]) == 1
-    assert np.isnan(tm.dbh(0)[0])  # no accumulated DBH by default
+    assert np.isnan(tm.dbh(0)[0])  # no accumulated DBH when it is off
 
 
 def test_azimuth_windows_across_the_wrap():

@@ -105,14 +105,19 @@ def collect_lines(
 
 
 def stem_centre(xy: np.ndarray, start: np.ndarray, kernel_m: float, rounds: int = 10) -> np.ndarray:
-    """Mode of the candidate hits xy (M,2) (map frame) near start (2,) by mean shift with a
-    flat kernel of kernel_m: a stem's returns pile up on its surface, a shrub's or foliage's
-    spread over their volume."""
+    """Mode of the kept returns xy (M,2) (map frame) within REACH_M of start (2,): the return
+    with the most others within kernel_m (a stem's returns pile up on its surface, a shrub's
+    or foliage's spread over their volume; the detections' centre of a far sapling can be off
+    by more than the kernel), refined by mean shift with a flat kernel of kernel_m."""
     c = np.asarray(start, dtype=np.float64)
+    pts = xy[np.linalg.norm(xy - c, axis=1) <= REACH_M]
+    if len(pts) == 0:
+        return c
+    pts = pts[:: max(1, len(pts) // 1500)]  # bounded pairwise counts
+    d2 = np.sum((pts[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+    c = pts[int(np.argmax(np.count_nonzero(d2 <= kernel_m**2, axis=1)))]
     for _ in range(rounds):
         near = np.linalg.norm(xy - c, axis=1) <= kernel_m
-        if not near.any():
-            break
         nxt = xy[near].mean(axis=0)
         if np.linalg.norm(nxt - c) < 1e-4:
             return nxt

@@ -425,7 +425,7 @@ class TreeMap:
         if tree is None:
             return float("nan"), float("nan"), 0
         measured = self._measured_dbh(tree)
-        if math.isfinite(measured[0]) or not self.cfg.dbh_sweep:
+        if math.isfinite(measured[0]) or not self.cfg.dbh_sweep or self.is_empty(tree):
             return measured
         sweep = self.sweep_estimate(tree)
         return (sweep[0], sweep[1], 0) if sweep is not None else measured
@@ -508,13 +508,17 @@ class TreeMap:
         points: np.ndarray,
         ring: np.ndarray | None,
         times: np.ndarray | None = None,
+        T_odom: np.ndarray | None = None,
     ) -> None:
         """Count one scan's lines across the trees without a DBH otherwise (thin_stems): the
         scan's raw points (N,3) in the sensor frame at its stamp, their rings (N,) (None: no
         accumulated silhouette) and times after the stamp (N,) (None: not deskewed);
-        T_map_sensor (4,4) the scan's map pose."""
+        T_map_sensor (4,4) the scan's map pose; T_odom (4,4) its odometry pose, whose motion
+        from the last scan deskews (smooth; the map poses jump at SLAM corrections; None: the
+        map pose)."""
         T = np.asarray(T_map_sensor, dtype=np.float64)
-        last, self._last_pose = self._last_pose, (float(stamp), T)
+        T_motion = T if T_odom is None else np.asarray(T_odom, dtype=np.float64)
+        last, self._last_pose = self._last_pose, (float(stamp), T_motion)
         if not (self.cfg.dbh_sweep and self._sweep_ids and self.azimuth_step_rad > 0):
             return
         if ring is None or len(points) == 0:
@@ -537,7 +541,7 @@ class TreeMap:
         order = np.argsort(bins.astype(np.int16), kind="stable")  # radix sort
         sorted_bins = bins[order]
         deskew = times is not None and last is not None and stamp > last[0]
-        motion = self._motion(last, stamp, T) if deskew else None
+        motion = self._motion(last, stamp, T_motion) if deskew else None
         up = T[2, :3]
         cfg = self.cfg
         # raw azimuths a little wider: the sweep moves the sensor up to ~0.3 m and turns it
@@ -599,18 +603,7 @@ class TreeMap:
         xy = np.concatenate(tree.sweep_xy)
         if len(xy) < 2:
             return None
-        scan = np.repeat(np.arange(len(s)), [len(h) for h in tree.sweep_xy])
-        centre = thin_stems.stem_centre(xy, tree.centre()[:2], thin_stems.CENTRE_KERNEL_M)
-        n, k, lat = thin_stems.net_hits(
-            xy,
-            np.concatenate(tree.sweep_ring),
-            scan,
-            tree.sweep_lines,
-            np.asarray(tree.sweep_origin),
-            centre,
-            cfg.dbh_sweep_window_m,
-            cfg.dbh_sweep_depth_m,
-        )
+        n, k, lat = self._sweep_counts(tree)
         used = n > 0
         if used.sum() < cfg.dbh_sweep_min_scans or n.sum() < cfg.dbh_sweep_min_lines:
             return None
@@ -623,7 +616,37 @@ class TreeMap:
         q10, q90 = np.percentile(lat, [10, 90])
         if (q90 - q10) / 0.8 < cfg.dbh_sweep_min_cover * width:
             return None
+        if _spread(lat) > cfg.dbh_sweep_max_spread_m:  # spread over the window: not a stem
+            return None
         return width, float(np.hypot(se, cfg.dbh_std_floor_rel * width))
+
+    def _sweep_counts(self, tree: _Tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lines, net hits per scan and the hits' offsets (thin_stems.net_hits) around the
+        stem's centre, found again for every block of dbh_window_scans scans from the centre
+        of all: the online poses drift while a far tree is in view (a stem's returns of 20 s
+        spread over more than the window otherwise)."""
+        cfg = self.cfg
+        xy_all = np.concatenate(tree.sweep_xy)
+        start = thin_stems.stem_centre(xy_all, tree.centre()[:2], thin_stems.CENTRE_KERNEL_M)
+        out = []
+        for b in range(0, len(tree.sweep_xy), cfg.dbh_window_scans):
+            xy_list = tree.sweep_xy[b : b + cfg.dbh_window_scans]
+            xy = np.concatenate(xy_list)
+            scan = np.repeat(np.arange(len(xy_list)), [len(h) for h in xy_list])
+            centre = thin_stems.stem_centre(xy, start, thin_stems.CENTRE_KERNEL_M)
+            out.append(
+                thin_stems.net_hits(
+                    xy,
+                    np.concatenate(tree.sweep_ring[b : b + cfg.dbh_window_scans]),
+                    scan,
+                    tree.sweep_lines[b : b + cfg.dbh_window_scans],
+                    np.asarray(tree.sweep_origin[b : b + cfg.dbh_window_scans]),
+                    centre,
+                    cfg.dbh_sweep_window_m,
+                    cfg.dbh_sweep_depth_m,
+                )
+            )
+        return tuple(np.concatenate([o[i] for o in out]) for i in range(3))
 
     def is_empty(self, tree: _Tree) -> bool:
         """Nothing at breast height where the tree stands: over at least dbh_sweep_min_lines
