@@ -113,7 +113,7 @@ def stem_centre(xy: np.ndarray, start: np.ndarray, kernel_m: float, rounds: int 
     pts = xy[np.linalg.norm(xy - c, axis=1) <= REACH_M]
     if len(pts) == 0:
         return c
-    pts = pts[:: max(1, len(pts) // 1500)]  # bounded pairwise counts
+    pts = pts[:: max(1, len(pts) // 300)]  # bounded pairwise counts (the seed only)
     d2 = np.sum((pts[:, None, :] - pts[None, :, :]) ** 2, axis=2)
     c = pts[int(np.argmax(np.count_nonzero(d2 <= kernel_m**2, axis=1)))]
     for _ in range(rounds):
