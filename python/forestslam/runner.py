@@ -289,7 +289,11 @@ class Pipeline:
                 centre_map[:, 2],
                 dbh,
                 np.hypot(stems.xy[:, 0], stems.xy[:, 1]),
+                centre_map[:, :2],
             )
+        self.trees.add_returns(
+            step.stamp, res.T_map_sensor, scan.points, scan.ring, scan.time, T_odom=T
+        )
         if i % self.cfg.mapping.dbh_window_scans == 0:
             self.trees.flush(i)
 

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from forestslam.mapping import thin_stems
 from forestslam.mapping.config import MappingConfig
 
 log = logging.getLogger(__name__)
@@ -87,6 +88,27 @@ class _Tree:
     n_support_scans: int = 0  # of those, scans with stem points in the breast-height band
     z_sum: float = 0.0
     z_n: int = 0
+    recent_xy: list = field(default_factory=list)  # the last detections' centres (map frame)
+    # accumulated silhouette, per scan: (azimuth step at the stem m, lines not occluded,
+    # returns near the centre: is_empty), the sensor's xy, the crossing rings, the kept
+    # returns' xy (map frame) and rings (thin_stems.collect_lines)
+    sweep: list = field(default_factory=list)
+    sweep_origin: list = field(default_factory=list)
+    sweep_lines: list = field(default_factory=list)
+    sweep_xy: list = field(default_factory=list)
+    sweep_ring: list = field(default_factory=list)
+    # the sweep's view of the tree, refreshed at every flush: its centre (centre()) and whether
+    # it lacks a DBH otherwise, as of n_scans observations
+    sweep_centre: np.ndarray | None = None
+    sweep_wanted: bool = False
+    sweep_checked_at: int = -1
+
+    def centre(self) -> np.ndarray | None:
+        """Breast-height centre (3,) in the map frame: median of the last detections' xy, mean
+        breast-height z (None before both are known)."""
+        if not self.recent_xy or not self.z_n:
+            return None
+        return np.r_[np.median(np.asarray(self.recent_xy), axis=0), self.z_sum / self.z_n]
 
 
 def circle_fit_config(cfg: MappingConfig):
@@ -184,6 +206,28 @@ def align_scans_across(
     return xy + shift, origins + shift
 
 
+# Azimuth bins (rad) of the points add_returns selects from (sorted once per scan).
+AZ_BIN_RAD = math.radians(0.5)
+
+
+def _bin_rows(sorted_bins: np.ndarray, centre: float, half: float) -> np.ndarray:
+    """Rows of the sorted azimuth bins (of AZ_BIN_RAD from -pi) holding azimuths within half
+    of centre (rad; the whole bins, so a little more), across the wrap at +-pi."""
+    n = int(np.ceil(2 * np.pi / AZ_BIN_RAD))
+    lo = math.floor((centre - half + np.pi) / AZ_BIN_RAD)
+    hi = math.floor((centre + half + np.pi) / AZ_BIN_RAD)
+    parts = [(max(lo, 0), min(hi, n - 1))]
+    if lo < 0:
+        parts.append((lo + n, n - 1))
+    if hi > n - 1:
+        parts.append((0, hi - n))
+    rows = [
+        np.arange(np.searchsorted(sorted_bins, a), np.searchsorted(sorted_bins, b, "right"))
+        for a, b in parts
+    ]
+    return np.concatenate(rows)
+
+
 def _spread(d: np.ndarray) -> float:
     """Robust spread (1.4826 MAD) of values d."""
     return float(1.4826 * np.median(np.abs(d - np.median(d))))
@@ -193,6 +237,7 @@ class TreeMap:
     """Collects stem observations of mapped trees (ids from the SLAM association)."""
 
     MAX_SCAN_DBH = 1024  # per tree; beyond, every other value is dropped and the stride doubled
+    RECENT_CENTRES = 15  # detections whose median centre places a tree's accumulated silhouette
 
     def __init__(
         self, config: MappingConfig | None = None, seed: int = 0, azimuth_step_rad: float = 0.0
@@ -206,6 +251,11 @@ class TreeMap:
         self.n_fits = 0
         self.n_fits_accepted = 0
         self._circle_config = None  # the C++ CircleFitConfig, built at the first fit
+        # Accumulated silhouettes (thin_stems): the trees without a DBH otherwise (updated at
+        # every flush), the rings' elevations, the last pose and stamp (deskew).
+        self._sweep_ids: list[int] = []
+        self._ring_tan: np.ndarray | None = None
+        self._last_pose: tuple[float, np.ndarray] | None = None
 
     def add(
         self,
@@ -217,12 +267,15 @@ class TreeMap:
         centre_z: np.ndarray,
         scan_dbh: np.ndarray,
         ranges: np.ndarray | None = None,
+        centre_xy: np.ndarray | None = None,
     ) -> None:
         """Observations of one scan: ids (K,) tree id per stem (-1 none); points[k] (Mk,3) the
         stem's points and base_z (K,) its local ground height, both in the sensor frame;
         centre_z (K,) the breast-height centre z in the map frame; scan_dbh (K,) perception's
         DBH (NaN = none); ranges (K,) the stems' horizontal distance from the sensor (None:
-        unknown, no resolution gate). T_odom (4,4) the (SLAM-corrected) map pose of the scan."""
+        unknown, no resolution gate); centre_xy (K,2) the breast-height centres in the map
+        frame (None: no accumulated silhouette). T_odom (4,4) the (SLAM-corrected) map pose
+        of the scan."""
         lo, hi = self.cfg.dbh_band_m
         origin = np.array(T_odom[:2, 3], dtype=np.float64)  # per scan: repeated per point at a fit
         T = np.asarray(T_odom, dtype=np.float64)  # transform_points' R p + t, split once per scan
@@ -247,6 +300,9 @@ class TreeMap:
             if math.isfinite(centre[k]):
                 tree.z_sum += centre[k]
                 tree.z_n += 1
+            if centre_xy is not None:
+                tree.recent_xy.append(centre_xy[k])
+                del tree.recent_xy[: -self.RECENT_CENTRES]
             if math.isfinite(dbh[k]):
                 tree.n_scans_dbh += 1
                 tree.dbh_at[b] += 1
@@ -275,7 +331,23 @@ class TreeMap:
             self._fit(tree)
 
     def flush(self, scan_index: int | None = None) -> None:
-        """Fit the windows of trees out of view for a window (or of all trees when None)."""
+        """Fit the windows of trees out of view for a window (or of all trees when None); then
+        list the trees without a DBH otherwise, whose accumulated silhouettes add_returns
+        counts."""
+        self._flush_windows(scan_index)
+        if not self.cfg.dbh_sweep:
+            return
+        for tree in self.trees.values():
+            if tree.n_scans == tree.sweep_checked_at:  # not observed since: same verdict
+                continue
+            tree.sweep_checked_at = tree.n_scans
+            tree.sweep_centre = tree.centre()
+            tree.sweep_wanted = tree.sweep_centre is not None and not math.isfinite(
+                self._measured_dbh(tree)[0]
+            )
+        self._sweep_ids = [i for i, tree in self.trees.items() if tree.sweep_wanted]
+
+    def _flush_windows(self, scan_index: int | None) -> None:
         for tree in self.trees.values():
             if not tree.band:
                 continue
@@ -355,9 +427,21 @@ class TreeMap:
         return keep
 
     def dbh(self, tree_id: int) -> tuple[float, float, int]:
-        """Fused DBH, its std and the number of window measurements fused (module docstring)."""
+        """Fused DBH, its std and the number of window measurements fused (module docstring);
+        for a tree without one, its accumulated silhouette when that measures it (thin_stems,
+        0 windows)."""
         tree = self.trees.get(tree_id)
-        if tree is None or not self.is_stem(tree):
+        if tree is None:
+            return float("nan"), float("nan"), 0
+        measured = self._measured_dbh(tree)
+        if math.isfinite(measured[0]) or not self.cfg.dbh_sweep or self.is_empty(tree):
+            return measured
+        sweep = self.sweep_estimate(tree)
+        return (sweep[0], sweep[1], 0) if sweep is not None else measured
+
+    def _measured_dbh(self, tree: _Tree) -> tuple[float, float, int]:
+        """The DBH from the per-scan silhouettes and window circles (module docstring)."""
+        if not self.is_stem(tree):
             return float("nan"), float("nan"), 0
         scans = self._scan_estimate(tree)
         window = self._window_estimate(tree)
@@ -426,6 +510,165 @@ class TreeMap:
         floor = self.cfg.dbh_std_floor_rel * mean
         return mean, float(np.sqrt(se**2 + scan_spread**2 + floor**2)), len(d)
 
+    def add_returns(
+        self,
+        stamp: float,
+        T_map_sensor: np.ndarray,
+        points: np.ndarray,
+        ring: np.ndarray | None,
+        times: np.ndarray | None = None,
+        T_odom: np.ndarray | None = None,
+    ) -> None:
+        """Count one scan's lines across the trees without a DBH otherwise (thin_stems): the
+        scan's raw points (N,3) in the sensor frame at its stamp, their rings (N,) (None: no
+        accumulated silhouette) and times after the stamp (N,) (None: not deskewed);
+        T_map_sensor (4,4) the scan's map pose; T_odom (4,4) its odometry pose, whose motion
+        from the last scan deskews (smooth; the map poses jump at SLAM corrections; None: the
+        map pose)."""
+        T = np.asarray(T_map_sensor, dtype=np.float64)
+        T_motion = T if T_odom is None else np.asarray(T_odom, dtype=np.float64)
+        last, self._last_pose = self._last_pose, (float(stamp), T_motion)
+        if not (self.cfg.dbh_sweep and self._sweep_ids and self.azimuth_step_rad > 0):
+            return
+        if ring is None or len(points) == 0:
+            return
+        points = np.asarray(points, dtype=np.float64)
+        if self._ring_tan is None:
+            self._ring_tan = thin_stems.ring_tangents(points, ring)
+        cap = self.cfg.dbh_sweep_max_scans
+        trees = [self.trees[i] for i in self._sweep_ids if len(self.trees[i].sweep) < cap]
+        if not trees:
+            return
+        # breast-height centres in the sensor frame; those in range
+        centres = (np.array([t.sweep_centre for t in trees]) - T[:3, 3]) @ T[:3, :3]
+        rho = np.hypot(centres[:, 0], centres[:, 1])
+        near = np.flatnonzero((rho > 1.0) & (rho <= self.cfg.dbh_sweep_max_range_m))
+        if not len(near):
+            return
+        pick = self._near_band(points, T, np.array([trees[j].sweep_centre[2] for j in near]))
+        bins = np.floor((np.arctan2(points[pick, 1], points[pick, 0]) + np.pi) / AZ_BIN_RAD)
+        order = np.argsort(bins.astype(np.int16), kind="stable")  # radix sort
+        sorted_bins = bins[order]
+        deskew = times is not None and last is not None and stamp > last[0]
+        motion = self._motion(last, stamp, T_motion) if deskew else None
+        up = T[2, :3]
+        cfg = self.cfg
+        # raw azimuths a little wider: the sweep moves the sensor up to ~0.3 m and turns it
+        turn = abs(motion[1]) * float(np.max(times)) if motion is not None else 0.0
+        for j in near.tolist():
+            c = centres[j]
+            az_c = math.atan2(c[1], c[0])
+            half = (thin_stems.REACH_M + 0.1) / rho[j]
+            sel = pick[order[_bin_rows(sorted_bins, az_c, half + 0.3 / rho[j] + turn)]]
+            pts = points[sel]
+            if motion is not None:
+                pts = thin_stems.deskew_planar(pts, np.asarray(times)[sel], *motion)
+            inside = np.abs(np.angle(np.exp(1j * (np.arctan2(pts[:, 1], pts[:, 0]) - az_c))))
+            keep = inside <= half
+            sel, pts = sel[keep], pts[keep]
+            crossing, rows, lines, near_centre = thin_stems.collect_lines(
+                pts,
+                np.asarray(ring)[sel],
+                self._ring_tan,
+                c,
+                up,
+                cfg.dbh_sweep_band_m,
+                thin_stems.REACH_M,
+            )
+            if not len(crossing):
+                continue
+            tree = trees[j]
+            tree.sweep.append((rho[j] * self.azimuth_step_rad, lines, near_centre))
+            if cfg.dbh_sweep_dbh:  # the returns themselves only for the accumulated DBH
+                tree.sweep_origin.append(T[:2, 3].copy())
+                tree.sweep_lines.append(crossing)
+                tree.sweep_xy.append(pts[rows, :2] @ T[:2, :2].T + T[:2, 3])
+                tree.sweep_ring.append(np.asarray(ring)[sel[rows]].astype(np.int64))
+
+    @staticmethod
+    def _near_band(points: np.ndarray, T: np.ndarray, breast_z: np.ndarray) -> np.ndarray:
+        """Rows of the points (N,3) (sensor frame, pose T) whose map height lies within 1 m of
+        the trees' breast heights (map frame): a loose pre-selection, the band itself is taken
+        along each ring."""
+        z = points @ T[2, :3] + T[2, 3]
+        return np.flatnonzero((z >= breast_z.min() - 1.0) & (z <= breast_z.max() + 1.0))
+
+    @staticmethod
+    def _motion(last, stamp: float, T: np.ndarray) -> tuple[np.ndarray, float]:
+        """The planar motion (v_xy m/s, yaw rate rad/s, sensor frame) from the last scan's pose
+        to this one's: constant velocity over the sweep, for thin_stems.deskew_planar."""
+        d = np.linalg.solve(T, last[1])  # the last pose in this scan's frame
+        dt = stamp - last[0]
+        return -d[:2, 3] / dt, -math.atan2(d[1, 0], d[0, 0]) / dt
+
+    def sweep_estimate(self, tree: _Tree) -> tuple[float, float] | None:
+        """The accumulated silhouette's DBH and std (MappingConfig.dbh_sweep_*), or None when it
+        has too few scans or lines, its hits do not spread across the stem (phases not covered)
+        or it is not a thin stem."""
+        cfg = self.cfg
+        if not cfg.dbh_sweep_dbh or len(tree.sweep) < cfg.dbh_sweep_min_scans:
+            return None
+        s = np.array([x[0] for x in tree.sweep])
+        xy = np.concatenate(tree.sweep_xy)
+        if len(xy) < 2:
+            return None
+        n, k, lat = self._sweep_counts(tree)
+        used = n > 0
+        if used.sum() < cfg.dbh_sweep_min_scans or n.sum() < cfg.dbh_sweep_min_lines:
+            return None
+        s, k, n = s[used], k[used], n[used]
+        width, se = thin_stems.accumulated_width(s, k, n, cfg.dbh_sweep_block_scans)
+        if not (0 < width < cfg.dbh_thin_m) or not (width >= cfg.dbh_sweep_min_sigmas * se):
+            return None
+        if len(lat) < 2:
+            return None
+        q10, q90 = np.percentile(lat, [10, 90])
+        if (q90 - q10) / 0.8 < cfg.dbh_sweep_min_cover * width:
+            return None
+        if _spread(lat) > cfg.dbh_sweep_max_spread_m:  # spread over the window: not a stem
+            return None
+        return width, float(np.hypot(se, cfg.dbh_std_floor_rel * width))
+
+    def _sweep_counts(self, tree: _Tree) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lines, net hits per scan and the hits' offsets (thin_stems.net_hits) around the
+        stem's centre, found again for every block of dbh_window_scans scans from the centre
+        of all: the online poses drift while a far tree is in view (a stem's returns of 20 s
+        spread over more than the window otherwise)."""
+        cfg = self.cfg
+        xy_all = np.concatenate(tree.sweep_xy)
+        start = thin_stems.stem_centre(xy_all, tree.centre()[:2], thin_stems.CENTRE_KERNEL_M)
+        out = []
+        for b in range(0, len(tree.sweep_xy), cfg.dbh_window_scans):
+            xy_list = tree.sweep_xy[b : b + cfg.dbh_window_scans]
+            xy = np.concatenate(xy_list)
+            scan = np.repeat(np.arange(len(xy_list)), [len(h) for h in xy_list])
+            centre = thin_stems.stem_centre(xy, start, thin_stems.CENTRE_KERNEL_M)
+            out.append(
+                thin_stems.net_hits(
+                    xy,
+                    np.concatenate(tree.sweep_ring[b : b + cfg.dbh_window_scans]),
+                    scan,
+                    tree.sweep_lines[b : b + cfg.dbh_window_scans],
+                    np.asarray(tree.sweep_origin[b : b + cfg.dbh_window_scans]),
+                    centre,
+                    cfg.dbh_sweep_window_m,
+                    cfg.dbh_sweep_depth_m,
+                )
+            )
+        return tuple(np.concatenate([o[i] for o in out]) for i in range(3))
+
+    def is_empty(self, tree: _Tree) -> bool:
+        """Nothing at breast height where the tree stands: over at least dbh_sweep_min_lines
+        scan lines crossing its breast-height band (accumulated silhouette, not occluded), fewer
+        than dbh_empty_max_hits returns per line within thin_stems.EMPTY_REACH_M of its centre. Any
+        stem of 2 cm or more gives at least 2 cm / one azimuth step there (0.23 per line for a
+        VLP-16 at 25 m, more nearer); a second copy of a stem placed beside it (a split tree)
+        or a track of false detections gives none."""
+        lines = sum(x[1] for x in tree.sweep)
+        if lines < self.cfg.dbh_sweep_min_lines:
+            return False
+        return sum(x[2] for x in tree.sweep) < self.cfg.dbh_empty_max_hits * lines
+
     def is_stem(self, tree: _Tree) -> bool:
         """Stem-or-not test of a mapped tree, from the evidence of all its scans: is it a stem
         whose DBH can be measured? (1) Perception found a stem with a diameter in at least half
@@ -459,11 +702,17 @@ class TreeMap:
         z = np.full(n, np.nan)
         dbh = np.full(n, np.nan)
         std = np.full(n, np.nan)
+        empty = np.zeros(n, dtype=bool)
         for row, i in enumerate(ids):
             tree = self.trees.get(int(i))
             if tree is not None and tree.z_n:
                 z[row] = tree.z_sum / tree.z_n
             dbh[row], std[row], _ = self.dbh(int(i))
+            empty[row] = tree is not None and not math.isfinite(dbh[row]) and self.is_empty(tree)
+        if empty.any():  # nothing at breast height where they stand: not trees (is_empty)
+            log.debug("%d mapped trees without returns at breast height left out", empty.sum())
+            ids, xy, obs, z, dbh, std = (a[~empty] for a in (ids, xy, obs, z, dbh, std))
+            n = len(ids)
         return {
             "id": ids,
             "x": xy[:, 0] if n else np.zeros(0),
