@@ -81,13 +81,15 @@ class MapConfig:
     # least target_min_merges merge batches filled (not one batch's noise or error); it does
     # not grow with every merge. On the 14-cell bench (150 frames) "confirmed" cut the LM
     # 10-42 % per frame and the merged frames' pose error on 12 cells (e.g. spruce-lawn-3m
-    # 1.09 -> 0.70 cm), but the frames it merges redraw which far stems get a DBH, and
-    # clustered-loop-8m's DBH RMSE went 1.05 -> 1.63 cm, longleaf-loop-12m's 1.48 -> 1.52,
-    # regular-line-18m-b tracked 98.0 -> 97.3 %: off by default until the DBH stage is stable.
-    # Whole spruce-lawn-3m walk (1,320 frames): 6.9 -> 8.8 frames per CPU s, LM 75.5 -> 47.3
-    # ms per frame, tracked 98.6 -> 99.9 %, merged 933 -> 1127 frames, merged-frame pose error
-    # 2.08 -> 1.20 cm, stems 109 -> 114 of 114, stem 0.87 -> 0.83 cm, DBH 1.18 -> 1.20 cm.
-    lm_target: Literal["confirmed", "map"] = "map"
+    # 1.09 -> 0.70 cm). With the old, point-order-dependent DBH stage the frames it merges
+    # redrew which far stems got a DBH (clustered-loop-8m 1.05 -> 1.63 cm), so it was off;
+    # with the order-free stage (trees.canonical_order, trees.arc_sigma) and rescue_in_sweep,
+    # every cell's stem and DBH error is <= 1.3 cm and 13 of 14 cells track >= 98 %
+    # (longleaf-lawn-20m 99.3 -> 96.7 %, the one cell worse). Whole spruce-lawn-3m walk
+    # (1,320 frames, both on): 6.9 -> 9.5 frames per CPU s, tracked 98.6 -> 100 %, merged
+    # 933 -> 1153 frames, merged-frame pose error 2.08 -> 1.19 cm, stem 0.87 -> 0.70 cm, DBH
+    # 1.18 -> 0.98 cm.
+    lm_target: Literal["confirmed", "map"] = "confirmed"
     target_reference_margin_voxels: NonNegativeInt = 1
     target_min_merges: PositiveInt = 2
     target_radius_m: Positive = 30.0
@@ -123,12 +125,11 @@ class RegistrationConfig:
     sweep_lm_rounds: PositiveInt = 25
     # A frame whose rigid LM ran out of rounds near its minimum (not degenerate, residual and
     # correction within the gates) registered with its in-sweep motion from there, trusted
-    # only if that converges (pipeline._rescue_in_sweep). Off by default: on the 14-cell
-    # bench it tracks longleaf-lawn-20m-b 96.0 -> 98.7 %, but with the order-free DBH stage
-    # (trees.canonical_order, trees.arc_sigma) the frames it adds elsewhere still move
-    # clustered-loop-8m-b's DBH RMSE 1.50 -> 1.53 cm (52 of 97 stems given a DBH; every
-    # other cell meets its targets either way).
-    rescue_in_sweep: bool = False
+    # only if that converges (pipeline._rescue_in_sweep). On the 14-cell bench it tracks
+    # longleaf-lawn-20m-b 96.0 -> 98.7 % (a vibrating sensor: the rigid LM creeps and runs
+    # out of rounds); with lm_target "map" it moved clustered-loop-8m-b's DBH RMSE 1.50 ->
+    # 1.53 cm, with "confirmed" (the default) 1.28 cm.
+    rescue_in_sweep: bool = True
     lm_converged_translation_m: NonNegative = 1e-3  # a round moving less than this ends the LM ...
     lm_converged_rotation_rad: NonNegative = 2e-4  # ... when it also rotates less than this
     # A frame's pose is trusted (chained from, and may join the map) when the LM converged,
