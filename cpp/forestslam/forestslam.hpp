@@ -7,6 +7,7 @@
 #include "forestslam/common/circle_fit.hpp"
 #include "forestslam/common/kdtree.hpp"
 #include "forestslam/common/median.hpp"
+#include "forestslam/common/scatter.hpp"
 #include "forestslam/common/types.hpp"
 #include "forestslam/common/voxel_key.hpp"
 #include "forestslam/features/dog_keypoints.hpp"

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "forestslam/common/kdtree.hpp"
+#include "forestslam/common/scatter.hpp"
 
 namespace forestslam::registration {
 namespace {
@@ -36,15 +37,7 @@ struct PlaneTarget::Impl {
         const Eigen::Vector3d nan = Eigen::Vector3d::Constant(kNaN);
         const int found = all.knn(points.row(i).transpose(), k, inf, nn);
         if (found < 3) return nan;
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-        for (const auto &[d2, j] : nn) mean += points.row(j).transpose();
-        mean /= found;
-        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-        for (const auto &[d2, j] : nn) {
-            const Eigen::Vector3d d = points.row(j).transpose() - mean;
-            cov.noalias() += d * d.transpose();
-        }
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(neighbourScatter(points, nn));
         const Eigen::Vector3d ev = eig.eigenvalues();
         // Reject lines (a single scan ring) and blobs: the middle spread must be a fair share of
         // the largest and well above the normal direction's.
