@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 CHUNK_ROWS = 1 << 16  # rows per block of a large cloud's voxel keys
+KEY_BITS = 21  # bits per axis of a voxel key: x in the top bits, then y, then z
+KEY_BIAS = 1 << (KEY_BITS - 1)  # added to each voxel index, so negative coordinates pack
 
 
 def voxel_keys(points: np.ndarray, voxel_m: float, origin: np.ndarray | None = None) -> np.ndarray:
@@ -21,10 +23,28 @@ def voxel_keys(points: np.ndarray, voxel_m: float, origin: np.ndarray | None = N
         return keys
     if origin is not None:
         points = points - origin
-    idx = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
-    if idx.size and (idx.min() < 0 or idx.max() >= (1 << 21)):
-        raise ValueError(f"points span more than {(1 << 21) * voxel_m:.0f} m at {voxel_m} m voxels")
-    return (idx[:, 0] << 42) | (idx[:, 1] << 21) | idx[:, 2]
+    idx = np.floor(points / voxel_m).astype(np.int64) + KEY_BIAS
+    if idx.size and (idx.min() < 0 or idx.max() >= (1 << KEY_BITS)):
+        raise ValueError(
+            f"points span more than {(1 << KEY_BITS) * voxel_m:.0f} m at {voxel_m} m voxels"
+        )
+    return (idx[:, 0] << 2 * KEY_BITS) | (idx[:, 1] << KEY_BITS) | idx[:, 2]
+
+
+def key_step(di: int, dj: int, dk: int = 0) -> int:
+    """The difference between the key of a voxel and that of the voxel (di, dj, dk) voxels
+    away (both inside the key range)."""
+    return (di << 2 * KEY_BITS) + (dj << KEY_BITS) + dk
+
+
+def x_slab(keys: np.ndarray, x_range: tuple[float, float], voxel_m: float) -> slice:
+    """The rows of a cloud in voxel-key order (sorted keys (N,)) whose voxels' x index lies
+    within x_range (m): one slice, as keys sort by the x index first."""
+    top = (1 << KEY_BITS) - 1  # the largest x index a key holds
+    lo, hi = (min(max(int(np.floor(x / voxel_m)) + KEY_BIAS, 0), top) for x in x_range)
+    a = int(np.searchsorted(keys, np.int64(lo << 2 * KEY_BITS)))
+    b = len(keys) if hi == top else int(np.searchsorted(keys, np.int64((hi + 1) << 2 * KEY_BITS)))
+    return slice(a, b)
 
 
 def finite_rows(points: np.ndarray) -> np.ndarray:

@@ -41,6 +41,7 @@ import numpy as np
 from forestslam.errors import InputError, ProcessingError
 from forestslam.geometry import planar_pose, transform_points, transform_xy
 from forestslam.io import Scan
+from forestslam.mapping.voxel import key_step, voxel_keys, x_slab
 from forestslam.odometry.deskew import deskew_points, se3_exp, se3_log
 from forestslam.tls.bridge import lm_config, motion_model_config, ndt_config
 from forestslam.tls.bridging import bridge_unmerged
@@ -203,13 +204,6 @@ def registered_points(scan: Scan, record: FrameRecord, config: TlsConfig) -> np.
     return pts
 
 
-def _voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """One int64 key (N,) per point: its voxel's integer coordinates packed 21 bits each
-    (+-1e6 voxels: tens of km at centimetre voxels)."""
-    ijk = np.floor(points / voxel_m).astype(np.int64) + (1 << 20)
-    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
-
-
 class _VoxelCloud:
     """A voxelized cloud that grows: one point per voxel, the mean of what was merged into it
     (each merge's voxel centroid counts once). Merging costs the new points only (sorted
@@ -228,7 +222,7 @@ class _VoxelCloud:
         if voxel_m <= 0:
             self._main = (np.zeros(0, np.int64), pts, np.zeros(0))
             return
-        keys = _voxel_keys(pts, voxel_m)
+        keys = voxel_keys(pts, voxel_m)
         order = np.argsort(keys)
         # (sorted keys, points, merge counts); each voxel lives in main or side, never both.
         self._main = (keys[order], pts[order], np.ones(len(keys)))
@@ -264,7 +258,7 @@ class _VoxelCloud:
         if self.voxel_m <= 0:
             self._main = (self._main[0], np.concatenate([self._main[1], new]), self._main[2])
             return
-        keys = _voxel_keys(new, self.voxel_m)
+        keys = voxel_keys(new, self.voxel_m)
         known = _update_voxels(self._main, keys, new)
         keys, new = keys[~known], new[~known]
         known = _update_voxels(self._side, keys, new)
@@ -292,16 +286,6 @@ class _VoxelCloud:
         if len(self._side[0]):
             self._main = _insert_voxels(self._main, *self._side)
             self._side = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
-
-
-def _x_slab(keys: np.ndarray, x_range: tuple[float, float], voxel_m: float) -> slice:
-    """The rows of a cloud in voxel-key order (_voxel_keys, sorted keys (N,)) whose voxels'
-    x index lies within x_range (m): one slice, as keys sort by the x index first."""
-    top = (1 << 21) - 1  # the largest x index a key holds
-    lo, hi = (min(max(int(np.floor(x / voxel_m)) + (1 << 20), 0), top) for x in x_range)
-    a = int(np.searchsorted(keys, np.int64(lo << 42)))
-    b = len(keys) if hi == top else int(np.searchsorted(keys, np.int64((hi + 1) << 42)))
-    return slice(a, b)
 
 
 def _update_voxels(store, keys: np.ndarray, new: np.ndarray) -> np.ndarray:
@@ -407,7 +391,7 @@ class _GlobalMap:
         """The voxel centroids (one per target voxel) whose voxel and its neighbours within
         target_reference_margin_voxels hold no reference voxel."""
         reach = self.config.map.target_reference_margin_voxels
-        keys = _voxel_keys(voxels, self.target_m)
+        keys = voxel_keys(voxels, self.target_m)
         order = np.argsort(keys, kind="stable")  # sorted queries walk the reference in order
         keys = keys[order]
         near = np.zeros(len(keys), bool)
@@ -416,7 +400,7 @@ class _GlobalMap:
         # Per x-y neighbour one search: its column's voxels within reach in z are consecutive
         # keys, so a reference key in [probe - reach, probe + reach] is a neighbour.
         for di, dj in itertools.product(span, span):
-            probe = keys + ((di << 42) + (dj << 21))
+            probe = keys + key_step(di, dj)
             at = np.minimum(np.searchsorted(ref, probe - reach), len(ref) - 1)
             near |= (ref[at] >= probe - reach) & (ref[at] <= probe + reach)
         return voxels[order[~near]]
@@ -448,11 +432,11 @@ class _GlobalMap:
 
         parts = []
         if m.lm_target == "confirmed":
-            ref = self._ref_target[_x_slab(self._ref_keys, x_range, self.target_m)]
+            ref = self._ref_target[x_slab(self._ref_keys, x_range, self.target_m)]
             parts.append(ref[crop(ref)])
         if self._mobile is not None:
             mobile = self._mobile
-            slab = _x_slab(mobile.keys, x_range, self.target_m)
+            slab = x_slab(mobile.keys, x_range, self.target_m)
             pts, counts = mobile.points[slab], mobile.counts[slab]
             confirmed = counts >= (m.target_min_merges if m.lm_target == "confirmed" else 1)
             parts.append(pts[crop(pts) & confirmed])
