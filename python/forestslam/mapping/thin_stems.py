@@ -57,16 +57,6 @@ def ring_tangents(points: np.ndarray, ring: np.ndarray, min_range_m: float = 2.0
         return np.where(n > 0, s / np.maximum(n, 1), np.nan)
 
 
-def deskew_planar(points: np.ndarray, t: np.ndarray, v_xy: np.ndarray, w: float) -> np.ndarray:
-    """Points (N,3) measured t (N,) s after the stamp, moved into the sensor frame at the stamp
-    under a constant planar twist (v_xy (2,) m/s in the sensor frame, w rad/s yaw rate)."""
-    c, s = np.cos(w * t), np.sin(w * t)
-    out = points.copy()
-    out[:, 0] = c * points[:, 0] - s * points[:, 1] + v_xy[0] * t
-    out[:, 1] = s * points[:, 0] + c * points[:, 1] + v_xy[1] * t
-    return out
-
-
 def collect_lines(
     points: np.ndarray,
     ring: np.ndarray,

@@ -55,6 +55,7 @@ import numpy as np
 
 from forestslam.mapping import thin_stems
 from forestslam.mapping.config import MappingConfig
+from forestslam.odometry.deskew import deskew_points
 
 log = logging.getLogger(__name__)
 
@@ -554,7 +555,7 @@ class TreeMap:
         up = T[2, :3]
         cfg = self.cfg
         # raw azimuths a little wider: the sweep moves the sensor up to ~0.3 m and turns it
-        turn = abs(motion[1]) * float(np.max(times)) if motion is not None else 0.0
+        turn = abs(motion[5]) * float(np.max(times)) if motion is not None else 0.0
         for j in near.tolist():
             c = centres[j]
             az_c = math.atan2(c[1], c[0])
@@ -562,7 +563,7 @@ class TreeMap:
             sel = pick[order[_bin_rows(sorted_bins, az_c, half + 0.3 / rho[j] + turn)]]
             pts = points[sel]
             if motion is not None:
-                pts = thin_stems.deskew_planar(pts, np.asarray(times)[sel], *motion)
+                pts = deskew_points(pts, np.asarray(times)[sel], motion)
             inside = np.abs(np.angle(np.exp(1j * (np.arctan2(pts[:, 1], pts[:, 0]) - az_c))))
             keep = inside <= half
             sel, pts = sel[keep], pts[keep]
@@ -594,12 +595,14 @@ class TreeMap:
         return np.flatnonzero((z >= breast_z.min() - 1.0) & (z <= breast_z.max() + 1.0))
 
     @staticmethod
-    def _motion(last, stamp: float, T: np.ndarray) -> tuple[np.ndarray, float]:
-        """The planar motion (v_xy m/s, yaw rate rad/s, sensor frame) from the last scan's pose
-        to this one's: constant velocity over the sweep, for thin_stems.deskew_planar."""
+    def _motion(last, stamp: float, T: np.ndarray) -> np.ndarray:
+        """The planar motion from the last scan's pose to this one's as a body-frame twist (6,)
+        per second (v_x, v_y, 0, 0, 0, yaw rate) for the odometry's deskew_points: constant
+        velocity over the sweep."""
         d = np.linalg.solve(T, last[1])  # the last pose in this scan's frame
         dt = stamp - last[0]
-        return -d[:2, 3] / dt, -math.atan2(d[1, 0], d[0, 0]) / dt
+        yaw_rate = -math.atan2(d[1, 0], d[0, 0]) / dt
+        return np.array([-d[0, 3] / dt, -d[1, 3] / dt, 0.0, 0.0, 0.0, yaw_rate])
 
     def sweep_estimate(self, tree: _Tree) -> tuple[float, float] | None:
         """The accumulated silhouette's DBH and std (MappingConfig.dbh_sweep_*), or None when it
